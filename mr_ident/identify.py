@@ -1,0 +1,226 @@
+"""Identification of the high-rate plant of a multirate loop from r_h, u_h, y_h.
+
+Methods (all return an :class:`~mr_ident.results.FRF` on (0, fs_high/2]):
+
+``freq-lifted`` (default)
+    Frequency-lift R, U, Y (stack the F aliases), LPM on r -> [y; u] giving the
+    lifted J and S, indirect step ``P = J S^-1``, P_h from the diagonal blocks.
+``time-lifted``
+    Time-lift r, u, y (stack F samples), LPM on their M-point DFTs, indirect step,
+    P_h from the first block column (polyphase components).
+``lpm``
+    LTI LPM on the high-rate spectra r -> [y; u], indirect step. Blind to the
+    periodic time variation: the aliases act as noise.
+``etfe``
+    ``Y / U`` per bin, no window, no noise model (std NaN). SISO only.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+import scipy.fft
+from numpy.typing import ArrayLike, NDArray
+
+from .errors import ConfigError, DataError, DimensionError
+from .lifting import _check_ratio
+from .lpm import _lpm_core, _warn_bad, check_lpm_options
+from .pfg import half_to_full, pfg_from_plant
+from .results import FRF, PFG, Identification, LiftedFRF
+
+Method = Literal["freq-lifted", "time-lifted", "lpm", "etfe"]
+METHODS: tuple[str, ...] = ("freq-lifted", "time-lifted", "lpm", "etfe")
+
+
+def _check_signals(r: ArrayLike, u: ArrayLike, y: ArrayLike, ratio: int
+                   ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    arrays = []
+    for name, x in (("r", r), ("u", u), ("y", y)):
+        a = np.asarray(x, dtype=float)
+        if a.ndim == 1:
+            a = a[:, None]
+        if a.ndim != 2:
+            raise DimensionError(f"{name} must have shape (n_samples,) or (n_samples, n_channels), got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            bad = np.argwhere(~np.isfinite(a))[0]
+            raise DataError(f"{name} contains NaN or inf (first at sample {bad[0]}, channel {bad[1]})")
+        arrays.append(a)
+    ra, ua, ya = arrays
+    if not ra.shape[0] == ua.shape[0] == ya.shape[0]:
+        raise DimensionError(f"r, u, y must have equal lengths, got {ra.shape[0]}, {ua.shape[0]}, {ya.shape[0]}")
+    if ra.shape[1] != ua.shape[1]:
+        raise DimensionError(
+            f"r and u must have the same number of channels (r excites u), got {ra.shape[1]} and {ua.shape[1]}")
+    if ra.shape[0] % ratio:
+        raise DimensionError(
+            f"the record has {ra.shape[0]} samples, not a multiple of ratio F={ratio}; "
+            f"trim it to {ra.shape[0] - ra.shape[0] % ratio} samples")
+    return ra, ua, ya
+
+
+def _spectrum(x: NDArray[np.float64]) -> NDArray[np.complex128]:
+    return scipy.fft.fft(x, axis=0, norm="ortho", workers=-1)
+
+
+def _solve_right(J: NDArray, S: NDArray) -> NDArray:
+    """``J S^-1`` for stacks (K, a, b) and (K, b, b)."""
+    return np.swapaxes(np.linalg.solve(np.swapaxes(S, 1, 2), np.swapaxes(J, 1, 2)), 1, 2)
+
+
+def _indirect(G: NDArray, Cv: NDArray, Ainv: NDArray, n_y: int
+              ) -> tuple[NDArray, NDArray, NDArray]:
+    """Indirect step on a joint LPM fit of [J; S] (bins-first arrays).
+
+    Returns P (K, n_y, n_u), and the Kronecker covariance factors of P:
+    ``row = E C_v E^H`` with ``E = [I, -P]`` and ``col = S^-T A^-1 conj(S^-1)``.
+    """
+    J, S = G[:, :n_y], G[:, n_y:]
+    Sinv = np.linalg.inv(S)
+    P = J @ Sinv
+    E = np.concatenate([np.broadcast_to(np.eye(n_y), P.shape[:1] + (n_y, n_y)), -P], axis=2)
+    row = E @ Cv @ np.conj(np.swapaxes(E, 1, 2))
+    col = np.swapaxes(Sinv, 1, 2) @ Ainv @ np.conj(Sinv)
+    return P, row, col
+
+
+def _fit(Uin: NDArray, Yout: NDArray, n: int, degree: int, map_outputs: int
+         ) -> tuple[NDArray, NDArray, NDArray, int]:
+    q = check_lpm_options(n, degree, Uin.shape[1], map_outputs)
+    if Uin.shape[0] < 2 * n + 1:
+        raise DataError(f"too few frequency bins for the LPM window: need {2 * n + 1}, have {Uin.shape[0]}")
+    G, Cv, Ainv, n_bad = _lpm_core(Uin, Yout, n, degree, q)
+    _warn_bad(n_bad, G.shape[-1])
+    return G.transpose(2, 0, 1), Cv.transpose(2, 0, 1), Ainv.transpose(2, 0, 1), q
+
+
+def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio: int,
+             method: str = "freq-lifted", n: int = 8, degree: int = 2,
+             controller_low: ArrayLike | None = None, phase: int = 0, delay: int = 0
+             ) -> Identification:
+    """Identify the high-rate plant P_h (and the PFG) from closed-loop data.
+
+    Parameters
+    ----------
+    r, u, y : array_like, shape (N,) or (N, channels)
+        Reference, plant input and plant output at the high rate; N a multiple of F.
+    fs_high : float
+        High sample rate in Hz.
+    ratio : int
+        F = h_l / h_h.
+    method : {"freq-lifted", "time-lifted", "lpm", "etfe"}
+    n, degree : int
+        LPM window half-width and polynomial degree R (defaults 8 and 2).
+    controller_low : array_like, shape (M, n_u, n_y), optional
+        Controller frequency response on all low-rate bins ``z = exp(2j pi k/M)``,
+        k = 0..M-1; when given, the PFG is computed from P_h and it.
+    phase, delay : int
+        Controller sampling phase and computation delay in high-rate samples.
+
+    Returns
+    -------
+    Identification
+
+    Raises
+    ------
+    DimensionError, DataError, ConfigError
+        Bad shapes, NaN/inf, N not a multiple of F, too little data, bad options.
+    """
+    F = _check_ratio(ratio)
+    if not (isinstance(fs_high, (int, float, np.floating)) and np.isfinite(fs_high) and fs_high > 0):
+        raise ConfigError(f"fs_high must be a positive number of Hz, got {fs_high!r}")
+    if method not in METHODS:
+        raise ConfigError(f"method must be one of {', '.join(METHODS)}; got {method!r}")
+    ra, ua, ya = _check_signals(r, u, y, F)
+    N, nr = ra.shape
+    ny, nu = ya.shape[1], ua.shape[1]
+    M = N // F
+    half = N // 2
+    P_half = np.full((half + 1, ny, nu), np.nan + 0j)
+    var_half = np.full((half + 1, ny, nu), np.nan)
+    lifted_J = lifted_S = None
+
+    if method == "freq-lifted":
+        Rf, Uf, Yf = _spectrum(ra), _spectrum(ua), _spectrum(ya)
+        Kc = M // 2
+        k_ext = np.arange(-n, Kc + n + 1)
+        idx = (k_ext[:, None] + M * np.arange(F)[None, :]) % N        # (K+2n, F)
+        lift = lambda X: X[idx].reshape(idx.shape[0], -1)               # noqa: E731  (l-major)
+        G, Cv, Ainv, q = _fit(lift(Rf), np.concatenate([lift(Yf), lift(Uf)], axis=1),
+                              n, degree, F * max(ny, nu))
+        P, row, col = _indirect(G, Cv, Ainv, F * ny)
+        bins = np.arange(Kc + 1)
+        lifted_J = LiftedFRF(bins, G[:, :F * ny], Cv[:, :F * ny, :F * ny], Ainv, "frequency", F, N, q)
+        lifted_S = LiftedFRF(bins, G[:, F * ny:], Cv[:, F * ny:, F * ny:], Ainv, "frequency", F, N, q)
+        Pb = P.reshape(Kc + 1, F, ny, F, nu)
+        rd = np.real(np.diagonal(row, axis1=1, axis2=2)).reshape(Kc + 1, F, ny)
+        cd = np.real(np.diagonal(col, axis1=1, axis2=2)).reshape(Kc + 1, F, nu)
+        for l in range(F):
+            kappa = bins + l * M
+            Pl = Pb[:, l, :, l, :]
+            vl = rd[:, l, :, None] * cd[:, l, None, :]
+            direct = kappa <= half
+            P_half[kappa[direct]] = Pl[direct]
+            var_half[kappa[direct]] = vl[direct]
+            mirror = ~direct & (N - kappa <= half)
+            P_half[N - kappa[mirror]] = np.conj(Pl[mirror])
+            var_half[N - kappa[mirror]] = vl[mirror]
+    elif method == "time-lifted":
+        Rt = scipy.fft.fft(ra.reshape(M, F * nr), axis=0, norm="ortho", workers=-1)
+        Ut = scipy.fft.fft(ua.reshape(M, F * nu), axis=0, norm="ortho", workers=-1)
+        Yt = scipy.fft.fft(ya.reshape(M, F * ny), axis=0, norm="ortho", workers=-1)
+        Kc = M // 2
+        idx = np.arange(-n, Kc + n + 1) % M
+        G, Cv, Ainv, q = _fit(Rt[idx], np.concatenate([Yt[idx], Ut[idx]], axis=1),
+                              n, degree, F * max(ny, nu))
+        P, row, col = _indirect(G, Cv, Ainv, F * ny)
+        bins = np.arange(Kc + 1)
+        lifted_J = LiftedFRF(bins, G[:, :F * ny], Cv[:, :F * ny, :F * ny], Ainv, "time", F, N, q)
+        lifted_S = LiftedFRF(bins, G[:, F * ny:], Cv[:, F * ny:, F * ny:], Ainv, "time", F, N, q)
+        kappa = np.arange(half + 1)
+        k = kappa % M
+        flip = k > Kc
+        kk = np.where(flip, M - k, k)
+        # First block column: P_bar[(i, y), (0, u)], i = 0..F-1.
+        first = P.reshape(Kc + 1, F, ny, F, nu)[kk, :, :, 0, :]          # (kappa, F, ny, nu)
+        rowb = row.reshape(Kc + 1, F, ny, F, ny)[kk]                      # (kappa, F, ny, F, ny)
+        c0 = np.real(np.diagonal(col.reshape(Kc + 1, F, nu, F, nu)[kk, 0, :, 0, :], axis1=1, axis2=2))
+        first = np.where(flip[:, None, None, None], np.conj(first), first)
+        rowb = np.where(flip[:, None, None, None, None], np.conj(rowb), rowb)
+        ph = np.exp(-2j * np.pi * np.outer(kappa, np.arange(F)) / N)      # (kappa, F)
+        P_half = np.einsum("ki,kiyu->kyu", ph, first)
+        rdiag = np.diagonal(rowb, axis1=2, axis2=4)                        # (kappa, F, F, ny)
+        quad = np.real(np.einsum("ki,kijy,kj->ky", ph, rdiag, np.conj(ph)))
+        var_half = quad[:, :, None] * c0[:, None, :]
+    elif method == "lpm":
+        Rf, Uf, Yf = _spectrum(ra), _spectrum(ua), _spectrum(ya)
+        idx = np.arange(-n, half + n + 1) % N
+        G, Cv, Ainv, q = _fit(Rf[idx], np.concatenate([Yf[idx], Uf[idx]], axis=1),
+                              n, degree, max(ny, nu))
+        P_half, row, col = _indirect(G, Cv, Ainv, ny)
+        var_half = (np.real(np.diagonal(row, axis1=1, axis2=2))[:, :, None]
+                    * np.real(np.diagonal(col, axis1=1, axis2=2))[:, None, :])
+    else:  # etfe
+        if ny != 1 or nu != 1:
+            raise DimensionError(
+                f"etfe needs a SISO loop (one experiment cannot separate {nu} inputs); got n_y={ny}, n_u={nu}")
+        Uf = scipy.fft.rfft(ua, axis=0, norm="ortho", workers=-1)
+        Yf = scipy.fft.rfft(ya, axis=0, norm="ortho", workers=-1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            P_half = (Yf / Uf)[:, :, None]
+
+    std_half = np.sqrt(np.maximum(var_half, 0.0))
+    freq = np.arange(1, half + 1) * fs_high / N
+    plant = FRF(freq, P_half[1:], std_half[1:], method)
+    pfg: PFG | None = None
+    if controller_low is not None:
+        Kl = np.asarray(controller_low, dtype=complex)
+        if Kl.shape != (M, nu, ny):
+            raise DimensionError(f"controller_low must have shape (M={M}, n_u={nu}, n_y={ny}), got {Kl.shape}")
+        gain, gstd = pfg_from_plant(P_half, Kl, F, N, P_std_half=None if method == "etfe" else std_half,
+                                    phase=phase, delay=delay)
+        pfg = PFG(freq, gain[1:], gstd[1:], f"plant:{method}")
+    return Identification(plant=plant, pfg=pfg, lifted_J=lifted_J, lifted_S=lifted_S,
+                          fs_high=float(fs_high), ratio=F)
+
+

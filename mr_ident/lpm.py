@@ -1,0 +1,352 @@
+"""Local polynomial method (LPM), MIMO, batched over all frequency bins.
+
+Model in the window ``r = -n..n`` around every centre bin k
+(Pintelon & Schoukens 2012, ch. 7)::
+
+    Y(k+r) = sum_s G_s (r/n)^s U(k+r) + sum_s T_s (r/n)^s + V(k+r),   s = 0..R
+
+``G(k) = G_0`` is the estimate, the ``T_s`` model the transient (leakage).
+The noise covariance ``C_v`` follows from the residuals with
+``q = 2n+1 - (R+1)(n_u+1)`` degrees of freedom, and
+``Cov(G[a,b], G[a2,b2]) = C_v[a,a2] * (K^H K)^-1[(0,b),(0,b2)]``.
+
+How it is fast
+--------------
+* One regressor (built from the inputs only) serves all outputs: J and S of the
+  indirect method are fitted in one pass.
+* The polynomial (transient) part is the same in every window: it is removed once
+  through a constant Schur complement.
+* Every entry of ``K^H K``, ``K^H Y`` and ``Y^H Y`` is a windowed sum of a product
+  signal with a kernel ``(r/n)^q``; those sums are computed for all bins at once from
+  symmetric/antisymmetric tap pairs and one BLAS product, and the small Hermitian
+  systems are solved by a Cholesky factorisation vectorised over bins
+  (arrays laid out bins-last), never a Python loop per bin.
+
+Numerics: the regressors are scaled (``r/n`` in [-1, 1]); the normal equations are
+formed from exact windowed sums and solved by Cholesky, so the error is about
+``eps * cond(K)^2`` with cond(K) the condition number of the *scaled* regressor
+(tens for a broadband excitation): about 1e-12, far below any noise level. Bins
+whose regressor is rank deficient (no excitation) come out as NaN with a warning.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .errors import ConfigError, DataError, DimensionError
+
+#: Bins processed per pass; bounds the working memory (about 60 MB for 3 inputs
+#: and 6 outputs) without a measurable loss of speed.
+CHUNK_BINS = 8192
+
+
+@dataclass(frozen=True)
+class LPMFit:
+    """Raw LPM result for K centre bins.
+
+    Attributes
+    ----------
+    G : ndarray, shape (K, n_out, n_in), complex128
+    noise_cov : ndarray, shape (K, n_out, n_out), complex128
+        ``C_v[a, a2] = E[V_a conj(V_a2)]`` per DFT bin.
+    inv_gram : ndarray, shape (K, n_in, n_in), complex128
+        The G_0 block of ``(K^H K)^-1``.
+    dof : int
+        Residual degrees of freedom q.
+    """
+
+    G: NDArray[np.complex128]
+    noise_cov: NDArray[np.complex128]
+    inv_gram: NDArray[np.complex128]
+    dof: int
+
+
+def check_lpm_options(n: int, degree: int, n_in: int, n_out: int) -> int:
+    """Validate the window half-width, degree and dimensions; return the dof q.
+
+    Raises
+    ------
+    ConfigError
+        If ``n < 1``, ``degree < 0`` or ``2n+1 - (R+1)(n_in+1) <= n_out``.
+    """
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ConfigError(f"n (window half-width) must be an integer >= 1, got {n!r}")
+    if isinstance(degree, bool) or not isinstance(degree, (int, np.integer)) or degree < 0:
+        raise ConfigError(f"degree R must be an integer >= 0, got {degree!r}")
+    q = 2 * n + 1 - (degree + 1) * (n_in + 1)
+    if q <= n_out:
+        need = (n_out + (degree + 1) * (n_in + 1)) // 2 + 1
+        raise ConfigError(
+            f"LPM degrees of freedom: 2n+1 - (R+1)(n_in+1) = {2 * n + 1} - "
+            f"{degree + 1}*{n_in + 1} = {q} must exceed n_out = {n_out} "
+            f"(n={n}, R={degree}, n_in={n_in}); use n >= {need} or a lower degree")
+    return q
+
+
+def _window_sums(Z: NDArray[np.complex128], n: int, n_moments: int, K: int) -> NDArray[np.complex128]:
+    """Windowed sums ``S[q, c, k] = sum_{r=-n}^{n} (r/n)^q Z[c, k+n+r]``.
+
+    Z has shape (C, K+2n); the result (n_moments, C, K).
+    """
+    C = Z.shape[0]
+    r = np.arange(1, n + 1) / n
+    pair_sum = np.empty((n + 1, C, K), dtype=np.complex128)
+    pair_sum[0] = Z[:, n:n + K]
+    for j in range(1, n + 1):
+        np.add(Z[:, n + j:n + j + K], Z[:, n - j:n - j + K], out=pair_sum[j])
+    out = np.empty((n_moments, C, K), dtype=np.complex128)
+    q_even = np.arange(0, n_moments, 2)
+    w_even = np.zeros((q_even.size, n + 1))
+    w_even[:, 1:] = r[None, :] ** q_even[:, None]
+    w_even[0, 0] = 1.0  # r = 0 contributes to the zeroth moment only
+    flat = pair_sum.reshape(n + 1, -1).view(np.float64)
+    out[q_even] = (w_even @ flat).view(np.complex128).reshape(q_even.size, C, K)
+    q_odd = np.arange(1, n_moments, 2)
+    if q_odd.size:
+        pair_diff = pair_sum[1:]  # reuse the buffer
+        for j in range(1, n + 1):
+            np.subtract(Z[:, n + j:n + j + K], Z[:, n - j:n - j + K], out=pair_diff[j - 1])
+        w_odd = r[None, :] ** q_odd[:, None]
+        flat = pair_diff.reshape(n, -1).view(np.float64)
+        out[q_odd] = (w_odd @ flat).view(np.complex128).reshape(q_odd.size, C, K)
+    return out
+
+
+def _cholesky(A: NDArray[np.complex128]) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
+    """Cholesky ``A = L L^H`` of Hermitian matrices laid out (p, p, K).
+
+    Returns L (p, p, K) and a mask (K,) of bins that were not positive definite.
+    """
+    p, _, K = A.shape
+    L = np.zeros_like(A)
+    bad = np.zeros(K, dtype=bool)
+    for j in range(p):
+        Lj = L[j, :j]
+        d = A[j, j].real - np.einsum("mk,mk->k", Lj.real, Lj.real) - np.einsum("mk,mk->k", Lj.imag, Lj.imag)
+        tiny = d <= 1e-13 * np.abs(A[j, j].real)
+        bad |= tiny
+        d = np.where(tiny, 1.0, d)
+        ljj = np.sqrt(d)
+        L[j, j] = ljj
+        if j + 1 < p:
+            L[j + 1:, j] = (A[j + 1:, j] - np.einsum("imk,mk->ik", L[j + 1:, :j], np.conj(Lj))) / ljj
+    return L, bad
+
+
+def _moment_index(n_in: int) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]:
+    iu, ju = np.triu_indices(n_in)
+    pair = np.empty((n_in, n_in), dtype=np.intp)
+    pair[iu, ju] = np.arange(iu.size)
+    pair[ju, iu] = np.arange(iu.size)
+    return iu, ju, pair
+
+
+def _moving_sum(Z: NDArray[np.complex128], n: int, K: int) -> NDArray[np.complex128]:
+    """``S[c, k] = sum_{r=-n}^{n} Z[c, k+n+r]`` by doubling: O(log n) adds, no cumsum drift."""
+    L = 2 * n + 1
+    out: NDArray[np.complex128] | None = None
+    offset = 0
+    block = Z          # block[c, j] = sum of `width` samples starting at j
+    width = 1
+    while True:
+        if L & width:
+            part = block[:, offset:offset + K]
+            out = part.copy() if out is None else out + part
+            offset += width
+        if 2 * width > L:
+            break
+        block = block[:, :-width] + block[:, width:]
+        width *= 2
+    assert out is not None
+    return out
+
+
+def _lpm_core(Ua: NDArray[np.complex128], Ya: NDArray[np.complex128], n: int, degree: int,
+              q: int) -> tuple[NDArray[np.complex128], NDArray[np.complex128],
+                               NDArray[np.complex128], int]:
+    """Engine of :func:`lpm`; returns G (n_out, n_in, K), C_v (n_out, n_out, K),
+    inv_gram (n_in, n_in, K) in bins-last layout and the number of singular bins."""
+    n_in, n_out = Ua.shape[1], Ya.shape[1]
+    K = Ua.shape[0] - 2 * n
+    R = degree
+    P = (R + 1) * n_in
+    rr = np.arange(-n, n + 1) / n
+    V = rr[:, None] ** np.arange(R + 1)[None, :]
+    ATT_inv = np.linalg.inv(V.T @ V)          # constant transient block, inverted once
+    iu, ju, pair = _moment_index(n_in)
+    s_of = np.repeat(np.arange(R, -1, -1), n_in)   # G unknowns ordered s = R..0: G_0 trails
+    i_of = np.tile(np.arange(n_in), R + 1)
+    mom_ab = s_of[:, None] + s_of[None, :]
+    pair_ab = pair[i_of[:, None], i_of[None, :]]
+    conj_ab = i_of[:, None] > i_of[None, :]
+    ou, ov = np.triu_indices(n_out)
+
+    G = np.empty((n_out, n_in, K), dtype=np.complex128)
+    Cv = np.empty((n_out, n_out, K), dtype=np.complex128)
+    Ainv = np.empty((n_in, n_in, K), dtype=np.complex128)
+    n_bad = 0
+    for k0 in range(0, K, CHUNK_BINS):
+        Kc = min(CHUNK_BINS, K - k0)
+        Uc = np.ascontiguousarray(Ua[k0:k0 + Kc + 2 * n].T)   # (n_in, Kc+2n)
+        Yc = np.ascontiguousarray(Ya[k0:k0 + Kc + 2 * n].T)   # (n_out, Kc+2n)
+        Ucj = np.conj(Uc)
+        mUU = _window_sums(Ucj[iu] * Uc[ju], n, 2 * R + 1, Kc)             # (2R+1, npair, Kc)
+        mU = _window_sums(Ucj, n, 2 * R + 1, Kc)                           # (2R+1, n_in, Kc)
+        mUY = _window_sums((Ucj[:, None, :] * Yc[None, :, :]).reshape(n_in * n_out, -1),
+                           n, R + 1, Kc).reshape(R + 1, n_in, n_out, Kc)
+        mY = _window_sums(Yc, n, R + 1, Kc)                                # (R+1, n_out, Kc)
+        mYY = _moving_sum(np.conj(Yc[ou]) * Yc[ov], n, Kc)                 # (npair_o, Kc)
+
+        A = mUU[mom_ab, pair_ab]                                           # (P, P, Kc)
+        A[conj_ab] = np.conj(A[conj_ab])
+        BG = mUY[s_of, i_of]                                               # (P, n_out, Kc)
+        YY = np.empty((n_out, n_out, Kc), dtype=np.complex128)
+        YY[ou, ov] = mYY
+        YY[ov, ou] = np.conj(mYY)
+        # Schur complement removes the transient: X = A_GT A_TT^-1 (A_TT is constant).
+        AGT = [mU[s_of + t, i_of] for t in range(R + 1)]                   # each (P, Kc)
+        X = [sum(ATT_inv[t, u] * AGT[t] for t in range(R + 1)) for u in range(R + 1)]
+        for u in range(R + 1):
+            A -= X[u][:, None, :] * np.conj(AGT[u])[None, :, :]
+            BG -= X[u][:, None, :] * mY[u][None, :, :]
+            Z = sum(ATT_inv[u, t] * mY[t] for t in range(R + 1))
+            YY -= np.conj(mY[u])[:, None, :] * Z[None, :, :]
+
+        L, bad = _cholesky(A)
+        W = np.empty((P, n_out, Kc), dtype=np.complex128)
+        for j in range(P):
+            acc = BG[j].copy()
+            for m in range(j):
+                acc -= L[j, m] * W[m]
+            W[j] = acc / L[j, j]
+        # Back substitution for the trailing (G_0) block only: L_tt^H theta = W_t.
+        t0 = P - n_in
+        Ltt = L[t0:, t0:]
+        theta = G[:, :, k0:k0 + Kc]
+        for j in range(n_in - 1, -1, -1):
+            acc = W[t0 + j].copy()
+            for m in range(j + 1, n_in):
+                acc -= np.conj(Ltt[m, j]) * theta[:, m]
+            theta[:, j] = acc / Ltt[j, j]
+        # (A^-1)_tt = Ltt^-H Ltt^-1 via the lower-triangular inverse of Ltt.
+        Li = np.zeros((n_in, n_in, Kc), dtype=np.complex128)
+        for j in range(n_in):
+            Li[j, j] = 1.0 / Ltt[j, j]
+            for i in range(j + 1, n_in):
+                Li[i, j] = -sum(Ltt[i, m] * Li[m, j] for m in range(j, i)) / Ltt[i, i]
+        AI = Ainv[:, :, k0:k0 + Kc]
+        for a in range(n_in):
+            for b in range(a, n_in):
+                AI[a, b] = sum(np.conj(Li[m, a]) * Li[m, b] for m in range(b, n_in))
+                AI[b, a] = np.conj(AI[a, b])
+        # V^H V = Y'^H Y' - W^H W; C_v = (V^H V)^T / q, upper triangle then mirrored.
+        Wc = np.conj(W)
+        C = Cv[:, :, k0:k0 + Kc]
+        for a, b in zip(ou, ov):
+            vhv = YY[a, b] - np.einsum("jk,jk->k", Wc[:, a], W[:, b])
+            C[b, a] = vhv / q
+            C[a, b] = np.conj(C[b, a])
+        if bad.any():
+            n_bad += int(bad.sum())
+            idx = np.nonzero(bad)[0] + k0
+            G[:, :, idx] = np.nan
+            Cv[:, :, idx] = np.nan
+            Ainv[:, :, idx] = np.nan
+    d = np.arange(n_out)
+    Cv[d, d] = np.maximum(Cv[d, d].real, 0.0)   # rounding can make tiny variances negative
+    return G, Cv, Ainv, n_bad
+
+
+def lpm(U: ArrayLike, Y: ArrayLike, *, n: int = 8, degree: int = 2,
+        map_outputs: int | None = None) -> LPMFit:
+    """Fit the LPM at every bin of padded spectra.
+
+    Parameters
+    ----------
+    U : array_like, shape (K + 2n, n_in), complex
+        Input spectra, with ``n`` bins of context before the first and after the
+        last centre bin (circular padding for periodic spectra: :func:`pad_circular`).
+    Y : array_like, shape (K + 2n, n_out), complex
+        Output spectra on the same bins.
+    n : int, default 8
+        Window half-width: 2n+1 bins per fit.
+    degree : int, default 2
+        Polynomial degree R of G and of the transient.
+    map_outputs : int, optional
+        Outputs of one map for the degrees-of-freedom check (default ``n_out``).
+        The indirect method fits J and S in one pass (``n_out = n_y + n_u``) but
+        checks ``q > n_y`` per map, as the paper does; the joint noise covariance
+        is then still unbiased, though of rank ``min(q, n_out)``.
+
+    Returns
+    -------
+    LPMFit
+        Estimates at the K centre bins.
+
+    Raises
+    ------
+    DimensionError
+        If U and Y disagree in length or are not 2-D.
+    DataError
+        If there are fewer than 2n+1 bins.
+    ConfigError
+        If the degrees-of-freedom condition ``2n+1-(R+1)(n_in+1) > n_out`` fails.
+
+    Warns
+    -----
+    RuntimeWarning
+        When some windows have a rank-deficient regressor; those bins are NaN.
+    """
+    Ua, Ya = _check_spectra(U, Y, n)
+    q = check_lpm_options(n, degree, Ua.shape[1],
+                          Ya.shape[1] if map_outputs is None else map_outputs)
+    G, Cv, Ainv, n_bad = _lpm_core(Ua, Ya, n, degree, q)
+    _warn_bad(n_bad, G.shape[-1])
+    return LPMFit(G=G.transpose(2, 0, 1), noise_cov=Cv.transpose(2, 0, 1),
+                  inv_gram=Ainv.transpose(2, 0, 1), dof=q)
+
+
+def _check_spectra(U: ArrayLike, Y: ArrayLike, n: int) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
+    Ua = np.asarray(U, dtype=np.complex128)
+    Ya = np.asarray(Y, dtype=np.complex128)
+    if Ua.ndim != 2 or Ya.ndim != 2:
+        raise DimensionError(f"U and Y must be 2-D (bins, channels), got {Ua.shape} and {Ya.shape}")
+    if Ua.shape[0] != Ya.shape[0]:
+        raise DimensionError(
+            f"U and Y must have the same number of bins, got {Ua.shape[0]} and {Ya.shape[0]}")
+    if Ua.shape[0] < 2 * n + 1:
+        raise DataError(f"LPM needs at least 2n+1 = {2 * n + 1} bins, got {Ua.shape[0]}")
+    return Ua, Ya
+
+
+def _warn_bad(n_bad: int, K: int) -> None:
+    if n_bad:
+        warnings.warn(f"LPM: {n_bad} of {K} bins have a rank-deficient regressor "
+                      f"(too little excitation in the window); their estimate is NaN",
+                      RuntimeWarning, stacklevel=3)
+
+
+def pad_circular(X: ArrayLike, centres: ArrayLike, n: int) -> NDArray[np.complex128]:
+    """Gather the bins ``centres[0]-n .. centres[-1]+n`` of a periodic spectrum.
+
+    Parameters
+    ----------
+    X : array_like, shape (N, c)
+        One period of a periodic spectrum (a DFT).
+    centres : array_like of int, shape (K,)
+        Consecutive centre bins.
+    n : int
+        Window half-width.
+
+    Returns
+    -------
+    ndarray, shape (K + 2n, c)
+    """
+    Xa = np.asarray(X)
+    c = np.asarray(centres, dtype=np.int64)
+    idx = np.arange(c[0] - n, c[-1] + n + 1) % Xa.shape[0]
+    return Xa[idx]

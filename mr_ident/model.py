@@ -1,0 +1,243 @@
+"""Model file: the nominal description of a multirate loop (YAML).
+
+Form (keys marked * are required)::
+
+    fs_high: 240.0            # * high sample rate, Hz
+    ratio: 3                  # * F = h_l / h_h, integer >= 1
+    plant:                    # * continuous time, discretised with ZOH at fs_high
+      num: [...]              #   descending powers of s (or z with domain: discrete)
+      den: [...]
+      domain: continuous      #   or "discrete" (sample time 1/fs_high)
+    controller:               #   discrete time at the low rate, descending powers of z
+      num: [0.1, 0.0]         #   omit the whole key for an open-loop experiment
+      den: [1.0, -0.9]
+    noise_std: 0.0            #   output noise std (simulation)
+    reference_std: 1.0        #   white-noise excitation std (simulation)
+    sample_phase: 0           #   high-rate sample (0..F-1) at which the controller samples y
+    control_delay: 0          #   high-rate samples before the held output is applied
+
+MIMO: ``num`` is a nested list ``[n_out][n_in][coefficients]``; ``den`` is either
+one coefficient list shared by all entries or nested the same way.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from .errors import ModelError
+from .systems import TransferMatrix
+
+_KEYS = {"fs_high", "ratio", "plant", "controller", "noise_std", "reference_std",
+         "sample_phase", "control_delay"}
+_SYS_KEYS = {"num", "den", "domain"}
+
+
+@dataclass(frozen=True)
+class Model:
+    """A validated multirate loop model.
+
+    Attributes
+    ----------
+    fs_high : float
+        High sample rate (Hz).
+    ratio : int
+        F.
+    plant : TransferMatrix
+        Continuous (``dt`` None) or discrete at ``1/fs_high``; n_y x n_u.
+    controller : TransferMatrix or None
+        Discrete at ``ratio/fs_high``; n_u x n_y. None: open loop.
+    noise_std, reference_std : float
+    sample_phase, control_delay : int
+    """
+
+    fs_high: float
+    ratio: int
+    plant: TransferMatrix
+    controller: TransferMatrix | None = None
+    noise_std: float = 0.0
+    reference_std: float = 1.0
+    sample_phase: int = 0
+    control_delay: int = 0
+
+    @property
+    def n_y(self) -> int:
+        return self.plant.shape[0]
+
+    @property
+    def n_u(self) -> int:
+        return self.plant.shape[1]
+
+    @property
+    def fs_low(self) -> float:
+        return self.fs_high / self.ratio
+
+    def plant_discrete(self) -> TransferMatrix:
+        """The plant at the high rate (ZOH-discretised when given in continuous time)."""
+        if self.plant.dt is None:
+            return self.plant.discretize(1.0 / self.fs_high)
+        return self.plant
+
+    def plant_frf(self, n_samples: int) -> np.ndarray:
+        """Exact P_h on DFT bins 0..N//2 of an N-sample record, shape (N//2+1, n_y, n_u)."""
+        f = np.arange(n_samples // 2 + 1) * self.fs_high / n_samples
+        return self.plant_discrete().freqresp(f)
+
+    def controller_frf(self, n_low: int) -> np.ndarray:
+        """K_l on all low-rate bins 0..M-1, shape (M, n_u, n_y)."""
+        if self.controller is None:
+            raise ModelError("the model has no controller (open loop); the PFG needs one")
+        f = np.arange(n_low) * self.fs_low / n_low
+        return self.controller.freqresp(f)
+
+
+def _coeffs(value: Any, where: str) -> tuple[float, ...]:
+    if not isinstance(value, (list, tuple)) or not value:
+        raise ModelError(f"{where} must be a non-empty list of numbers, got {value!r}")
+    out = []
+    for j, c in enumerate(value):
+        if isinstance(c, bool) or not isinstance(c, (int, float)) or not math.isfinite(c):
+            raise ModelError(f"{where}[{j}] must be a finite number, got {c!r}")
+        out.append(float(c))
+    return tuple(out)
+
+
+def _matrix(value: Any, where: str, shape: tuple[int, int] | None) -> tuple[tuple[tuple[float, ...], ...], ...]:
+    """A coefficient list (SISO) or nested [out][in][coeff] list."""
+    if isinstance(value, (list, tuple)) and value and isinstance(value[0], (list, tuple)):
+        rows = []
+        for o, row in enumerate(value):
+            if not isinstance(row, (list, tuple)) or not row or not isinstance(row[0], (list, tuple)):
+                raise ModelError(f"{where}[{o}] must be a list of coefficient lists (MIMO form [out][in][coeff])")
+            rows.append(tuple(_coeffs(e, f"{where}[{o}][{i}]") for i, e in enumerate(row)))
+        if len({len(r) for r in rows}) != 1:
+            raise ModelError(f"{where} rows have different lengths: {[len(r) for r in rows]}")
+        m = tuple(rows)
+    else:
+        m = ((_coeffs(value, where),),)
+    if shape is not None and (len(m), len(m[0])) != shape:
+        if (len(m), len(m[0])) == (1, 1):
+            return tuple(tuple(m[0][0] for _ in range(shape[1])) for _ in range(shape[0]))
+        raise ModelError(f"{where} has shape {(len(m), len(m[0]))}, expected {shape}")
+    return m
+
+
+def _system(d: Any, name: str, dt: float | None) -> TransferMatrix:
+    if not isinstance(d, dict):
+        raise ModelError(f"{name} must be a mapping with num and den, got {type(d).__name__}")
+    unknown = set(d) - _SYS_KEYS
+    if unknown:
+        raise ModelError(f"{name}: unknown key(s) {sorted(unknown)}; allowed: {sorted(_SYS_KEYS)}")
+    for key in ("num", "den"):
+        if key not in d:
+            raise ModelError(f"{name}.{key} is missing")
+    num = _matrix(d["num"], f"{name}.num", None)
+    den = _matrix(d["den"], f"{name}.den", (len(num), len(num[0])))
+    for o, row in enumerate(den):
+        for i, a in enumerate(row):
+            if a[0] == 0.0:
+                raise ModelError(f"{name}.den[{o}][{i}] has a zero leading coefficient")
+            b = num[o][i]
+            if len(np.trim_zeros(np.array(b), "f")) > len(a):
+                raise ModelError(f"{name} entry [{o}][{i}] is improper (numerator degree > denominator degree)")
+    return TransferMatrix(num, den, dt)
+
+
+def model_from_dict(d: Any, *, source: str = "model") -> Model:
+    """Validate a parsed model mapping (see the module docstring for the form).
+
+    Raises
+    ------
+    ModelError
+        Unknown or missing keys, non-numeric coefficients, inconsistent
+        dimensions, or a closed loop that is not stable.
+    """
+    if not isinstance(d, dict):
+        raise ModelError(f"{source}: the model must be a mapping, got {type(d).__name__}")
+    unknown = set(d) - _KEYS
+    if unknown:
+        raise ModelError(f"{source}: unknown key(s) {sorted(unknown)}; allowed: {sorted(_KEYS)}")
+    for key in ("fs_high", "ratio", "plant"):
+        if key not in d:
+            raise ModelError(f"{source}: required key {key!r} is missing")
+    fs = d["fs_high"]
+    if isinstance(fs, bool) or not isinstance(fs, (int, float)) or not math.isfinite(fs) or fs <= 0:
+        raise ModelError(f"{source}: fs_high must be a positive number (Hz), got {fs!r}")
+    F = d["ratio"]
+    if isinstance(F, bool) or not isinstance(F, int) or F < 1:
+        raise ModelError(f"{source}: ratio must be an integer >= 1, got {F!r}")
+    ints = {}
+    for key in ("sample_phase", "control_delay"):
+        v = d.get(key, 0)
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            raise ModelError(f"{source}: {key} must be an integer >= 0, got {v!r}")
+        ints[key] = v
+    if ints["sample_phase"] >= F:
+        raise ModelError(f"{source}: sample_phase must be in 0..{F - 1}, got {ints['sample_phase']}")
+    floats = {}
+    for key, default in (("noise_std", 0.0), ("reference_std", 1.0)):
+        v = d.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+            raise ModelError(f"{source}: {key} must be a number >= 0, got {v!r}")
+        floats[key] = float(v)
+    pd = d["plant"]
+    domain = pd.get("domain", "continuous") if isinstance(pd, dict) else "continuous"
+    if domain not in ("continuous", "discrete"):
+        raise ModelError(f'{source}: plant.domain must be "continuous" or "discrete", got {domain!r}')
+    plant = _system(pd, "plant", None if domain == "continuous" else 1.0 / float(fs))
+    controller = None
+    if d.get("controller") is not None:
+        cd = d["controller"]
+        if isinstance(cd, dict) and cd.get("domain", "discrete") != "discrete":
+            raise ModelError(f"{source}: controller must be discrete (at the low rate), got domain {cd.get('domain')!r}")
+        controller = _system(cd, "controller", F / float(fs))
+        if controller.shape != (plant.shape[1], plant.shape[0]):
+            raise ModelError(f"{source}: controller is {controller.shape[0]}x{controller.shape[1]}, "
+                             f"expected n_u x n_y = {plant.shape[1]}x{plant.shape[0]}")
+    model = Model(float(fs), F, plant, controller, floats["noise_std"], floats["reference_std"],
+                  ints["sample_phase"], ints["control_delay"])
+    from .simulate import loop_poles  # local import: simulate depends on this module
+    rho = float(np.max(np.abs(loop_poles(model)), initial=0.0))
+    if rho >= 1.0:
+        what = "closed loop" if controller is not None else "open-loop plant"
+        raise ModelError(f"{source}: the {what} is not stable (largest lifted pole magnitude "
+                         f"{rho:.6g} >= 1); identification needs a stable loop")
+    return model
+
+
+def load_model(path: str | Path) -> Model:
+    """Read and validate a model YAML file."""
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except OSError as err:
+        raise ModelError(f"cannot read model file {str(p)!r}: {err.strerror}") from err
+    try:
+        d = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise ModelError(f"{p}: not valid YAML: {err}") from err
+    return model_from_dict(d, source=str(p))
+
+
+def model_to_dict(model: Model) -> dict[str, Any]:
+    """The YAML mapping of a model (inverse of :func:`model_from_dict`)."""
+    def sysd(t: TransferMatrix, domain: str | None) -> dict[str, Any]:
+        num = [[list(e) for e in row] for row in t.num]
+        den = [[list(e) for e in row] for row in t.den]
+        out: dict[str, Any] = ({"num": num[0][0], "den": den[0][0]} if t.shape == (1, 1)
+                               else {"num": num, "den": den})
+        if domain:
+            out["domain"] = domain
+        return out
+    d: dict[str, Any] = {"fs_high": model.fs_high, "ratio": model.ratio,
+                         "plant": sysd(model.plant, "continuous" if model.plant.dt is None else "discrete")}
+    if model.controller is not None:
+        d["controller"] = sysd(model.controller, None)
+    d.update(noise_std=model.noise_std, reference_std=model.reference_std,
+             sample_phase=model.sample_phase, control_delay=model.control_delay)
+    return d

@@ -1,0 +1,32 @@
+"""Build script (ament_python for colcon, plain setuptools for pip)."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "mr_ident"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*", "benchmarks"]),
+    package_data={package_name: ["py.typed"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name + "/config", glob("config/*.yaml")),
+    ],
+    install_requires=["setuptools", "numpy", "scipy", "PyYAML", "matplotlib"],
+    zip_safe=True,
+    maintainer="mr_ident developers",
+    maintainer_email="mr-ident@example.org",
+    description="Frequency-domain identification of multirate control loops (lifted LPM).",
+    license="Apache-2.0",
+    python_requires=">=3.10",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+            "mr-ident = mr_ident.cli:main",
+        ],
+    },
+)
