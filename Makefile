@@ -1,0 +1,29 @@
+# Two commands: `make demo` and `make test`. Each creates .venv when missing
+# and installs the pinned dependencies (requirements.txt) plus this package.
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+export ROS_LOG_DIR ?= $(CURDIR)/out/ros_log
+export MPLBACKEND := Agg
+
+.PHONY: demo test bench venv clean
+
+venv: $(STAMP)
+
+$(STAMP): requirements.txt setup.py setup.cfg
+	test -x $(PY) || python3 -m venv $(VENV)
+	$(PY) -m pip install --quiet --disable-pip-version-check -r requirements.txt
+	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation --use-pep517 -e .
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/mr-ident paper --out-dir out/paper
+
+test: $(STAMP)
+	$(PY) -m pytest -q test
+
+bench: $(STAMP)
+	$(PY) benchmarks/bench_identify.py
+
+clean:
+	rm -rf out .pytest_cache

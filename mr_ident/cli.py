@@ -1,0 +1,188 @@
+"""Command line: ``mr-ident simulate | identify | paper``.
+
+User errors print ``error: ...`` to stderr and exit with status 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from .errors import ConfigError, DataError, MrIdentError
+from .identify import METHODS, identify
+from .model import Model, load_model
+
+EXIT_USAGE = 2
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not np.isfinite(v) or v <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return v
+
+
+def _int_at_least(low: int):  # type: ignore[no-untyped-def]
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if v < low:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {v}")
+        return v
+    return parse
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.print_usage(sys.stderr)
+        print(f"error: {message}", file=sys.stderr)
+        raise SystemExit(EXIT_USAGE)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="mr-ident", description="Identify multirate control loops in the frequency domain.")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    s = sub.add_parser("simulate", help="simulate a model's loop with white-noise excitation")
+    s.add_argument("model", type=Path, help="model YAML")
+    s.add_argument("--duration", type=_positive_float, required=True, help="seconds (rounded to whole low-rate periods)")
+    s.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    s.add_argument("--out", type=Path, required=True, help="data file, .csv or .npz")
+
+    i = sub.add_parser("identify", help="identify P_h (and the PFG) from r, u, y data")
+    i.add_argument("data", type=Path, help="data file, .csv or .npz")
+    i.add_argument("--fs-high", type=_positive_float, help="high sample rate in Hz (else from the file or model)")
+    i.add_argument("--ratio", type=_int_at_least(1), help="F (else from the file or model)")
+    i.add_argument("--model", type=Path, help="model YAML: gives the controller for the PFG and the reference curve")
+    i.add_argument("--method", choices=METHODS, default="freq-lifted")
+    i.add_argument("--n", type=_int_at_least(1), default=8, help="LPM window half-width (default 8)")
+    i.add_argument("--degree", type=_int_at_least(0), default=2, help="LPM polynomial degree R (default 2)")
+    i.add_argument("--out", type=Path, required=True, help="result .npz")
+    i.add_argument("--plot", type=Path, help="Bode plot PNG (the PFG goes next to it as *_pfg.png)")
+
+    q = sub.add_parser("paper", help="the paper's example end to end: figures and an error table")
+    q.add_argument("--duration", type=_positive_float, default=600.0, help="seconds (default 600)")
+    q.add_argument("--model", type=Path, default=None, help="model YAML (default: config/paper_example.yaml)")
+    q.add_argument("--noise-std", type=float, default=None, help="override the model's output noise std")
+    q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--out-dir", type=Path, default=Path("out/paper"), help="where to write (default out/paper)")
+    return p
+
+
+def _paper_model_path() -> Path:
+    here = Path(__file__).resolve().parent
+    for cand in (here.parent / "config" / "paper_example.yaml",
+                 Path(sys.prefix) / "share" / "mr_ident" / "config" / "paper_example.yaml"):
+        if cand.is_file():
+            return cand
+    raise ConfigError("config/paper_example.yaml not found; pass --model")
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from .data import write_data
+    from .simulate import simulate
+    model = load_model(args.model)
+    sim = simulate(model, duration=args.duration, rng=np.random.default_rng(args.seed))
+    write_data(args.out, sim.r, sim.u, sim.y, fs_high=model.fs_high, ratio=model.ratio)
+    print(f"wrote {args.out} ({sim.r.shape[0]} samples at {model.fs_high:g} Hz, F = {model.ratio})")
+    return 0
+
+
+def _resolve_rates(args: argparse.Namespace, file_fs: float | None, file_ratio: int | None,
+                   model: Model | None) -> tuple[float, int]:
+    fs_sources = [(n, v) for n, v in (("--fs-high", args.fs_high), ("the data file", file_fs),
+                                       ("the model", model.fs_high if model else None)) if v is not None]
+    r_sources = [(n, v) for n, v in (("--ratio", args.ratio), ("the data file", file_ratio),
+                                      ("the model", model.ratio if model else None)) if v is not None]
+    if not fs_sources:
+        raise ConfigError("fs_high unknown: pass --fs-high or --model, or use an NPZ/CSV that gives it")
+    if not r_sources:
+        raise ConfigError("ratio F unknown: pass --ratio or --model, or use an NPZ that gives it")
+    fs = fs_sources[0][1]
+    for name, v in fs_sources[1:]:
+        if abs(v - fs) > 1e-6 * fs:
+            raise ConfigError(f"fs_high disagrees: {fs_sources[0][0]} says {fs:g} Hz, {name} says {v:g} Hz")
+    F = r_sources[0][1]
+    for name, v in r_sources[1:]:
+        if v != F:
+            raise ConfigError(f"ratio disagrees: {r_sources[0][0]} says {F}, {name} says {v}")
+    return float(fs), int(F)
+
+
+def cmd_identify(args: argparse.Namespace) -> int:
+    from .data import read_data, write_result
+    from .pfg import pfg_from_plant
+    from .plots import plot_bode, plot_pfg
+    from .results import FRF, PFG
+    if args.out.suffix.lower() != ".npz":
+        raise ConfigError(f"--out must be a .npz file, got {str(args.out)!r}")
+    model = load_model(args.model) if args.model else None
+    data = read_data(args.data)
+    fs, F = _resolve_rates(args, data.fs_high, data.ratio, model)
+    N = data.r.shape[0]
+    K_low = None
+    if model is not None:
+        if model.n_y != data.y.shape[1] or model.n_u != data.u.shape[1]:
+            raise DataError(f"model is {model.n_y}x{model.n_u} (n_y x n_u) but the data has "
+                            f"{data.y.shape[1]} output and {data.u.shape[1]} input channel(s)")
+        if model.controller is not None and N % F == 0:
+            K_low = model.controller_frf(N // F)
+    ident = identify(data.r, data.u, data.y, fs_high=fs, ratio=F, method=args.method, n=args.n,
+                     degree=args.degree, controller_low=K_low,
+                     phase=model.sample_phase if model else 0, delay=model.control_delay if model else 0)
+    write_result(args.out, ident)
+    print(f"wrote {args.out} ({ident.plant.frequency.size} bins, method {args.method})")
+    if args.plot:
+        mfrf = None
+        nyq = fs / F / 2 if F > 1 else None
+        if model is not None:
+            mfrf = FRF(ident.plant.frequency, model.plant_frf(N)[1:], np.zeros(ident.plant.response.shape), "model")
+        print(f"wrote {plot_bode(ident.plant, args.plot, model=mfrf, nyquist_low=nyq)}")
+        if ident.pfg is not None and model is not None and K_low is not None:
+            g, _ = pfg_from_plant(model.plant_frf(N), K_low, F, N, phase=model.sample_phase,
+                                  delay=model.control_delay)
+            mp = PFG(ident.plant.frequency, g[1:], np.zeros(g.size - 1), "model")
+            path = args.plot.with_name(args.plot.stem + "_pfg" + args.plot.suffix)
+            print(f"wrote {plot_pfg(ident.pfg, path, model=mp)}")
+    return 0
+
+
+def cmd_paper(args: argparse.Namespace) -> int:
+    from .paper import run_paper
+    model = load_model(args.model or _paper_model_path())
+    if args.noise_std is not None and not (np.isfinite(args.noise_std) and args.noise_std >= 0):
+        raise ConfigError(f"--noise-std must be >= 0, got {args.noise_std}")
+    run = run_paper(model, args.out_dir, duration=args.duration, seed=args.seed, noise_std=args.noise_std)
+    print(run.table)
+    for name, path in run.files.items():
+        print(f"{name:12s} {path}")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    commands = {"simulate": cmd_simulate, "identify": cmd_identify, "paper": cmd_paper}
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("default")
+            return commands[args.command](args)
+    except MrIdentError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    except OSError as err:
+        print(f"error: {err.filename or ''}: {err.strerror or err}", file=sys.stderr)
+        return EXIT_USAGE
+
+
+if __name__ == "__main__":
+    sys.exit(main())

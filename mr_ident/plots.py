@@ -1,0 +1,106 @@
+"""Figures a person can read (matplotlib, Agg, no global pyplot state).
+
+Compute and plot are separate: every function takes result objects and a path.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from numpy.typing import NDArray
+
+from .results import FRF, PFG
+
+
+def _save(fig: Figure, path: str | Path) -> Path:
+    FigureCanvasAgg(fig)
+    p = Path(path)
+    fig.savefig(p, dpi=110)
+    return p
+
+
+def _db(x: NDArray) -> NDArray:
+    with np.errstate(divide="ignore"):
+        return 20 * np.log10(np.abs(x))
+
+
+def plot_bode(frf: FRF, path: str | Path, *, model: FRF | None = None,
+              nyquist_low: float | None = None, title: str | None = None) -> Path:
+    """Bode magnitude and phase of an estimate with a +-2 sigma band, and the model."""
+    ny, nu = frf.n_out, frf.n_in
+    fig = Figure(figsize=(5.5 * nu + 1, 6.5 * ny))
+    axes = fig.subplots(2 * ny, nu, sharex=True, squeeze=False)
+    f = frf.frequency
+    for o in range(ny):
+        for i in range(nu):
+            am, ap = axes[2 * o, i], axes[2 * o + 1, i]
+            g = frf.response[:, o, i]
+            s = frf.std[:, o, i]
+            am.semilogx(f, _db(g), lw=0.8, color="C0", label=f"estimate ({frf.method})")
+            if np.isfinite(s).any():
+                lo = np.maximum(np.abs(g) - 2 * s, np.abs(g) * 1e-3)
+                am.fill_between(f, _db(lo), _db(np.abs(g) + 2 * s), color="C0", alpha=0.25,
+                                lw=0, label="±2σ")
+                am.semilogx(f, _db(s), lw=0.6, color="C2", label="σ")
+            ap.semilogx(f, np.degrees(np.angle(g)), lw=0.8, color="C0")
+            if model is not None:
+                am.semilogx(model.frequency, _db(model.response[:, o, i]), "k--", lw=1, label="model")
+                ap.semilogx(model.frequency, np.degrees(np.angle(model.response[:, o, i])), "k--", lw=1)
+            for ax in (am, ap):
+                if nyquist_low:
+                    ax.axvline(nyquist_low, color="0.5", ls=":", lw=1)
+                ax.grid(True, which="both", alpha=0.3)
+            am.set_ylabel(f"|P[{o},{i}]| [dB]")
+            ap.set_ylabel("phase [deg]")
+            ap.set_yticks([-180, -90, 0, 90, 180])
+            ax_last = ap
+    axes[0, 0].legend(loc="best", fontsize=8)
+    ax_last.set_xlabel("frequency [Hz]")
+    if nyquist_low:
+        axes[0, 0].text(nyquist_low, axes[0, 0].get_ylim()[1], " low-rate Nyquist", fontsize=7,
+                        va="top", color="0.4")
+    fig.suptitle(title or f"Plant estimate P_h ({frf.method})")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def plot_pfg(pfg: PFG, path: str | Path, *, model: PFG | None = None, title: str | None = None) -> Path:
+    """PFG of the multirate loop with a +-2 sigma band, and the model's."""
+    fig = Figure(figsize=(7, 4))
+    ax = fig.subplots()
+    f, g, s = pfg.frequency, pfg.gain, pfg.std
+    ax.semilogx(f, _db(g), lw=0.8, color="C0", label=f"PFG from {pfg.source}")
+    if np.isfinite(s).any():
+        ax.fill_between(f, _db(np.maximum(g - 2 * s, g * 1e-3)), _db(g + 2 * s), color="C0", alpha=0.25,
+                        lw=0, label="±2σ")
+    if model is not None:
+        ax.semilogx(model.frequency, _db(model.gain), "k--", lw=1, label="model")
+    ax.set_xlabel("frequency [Hz]")
+    ax.set_ylabel("PFG r→y [dB]")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(title or "Performance frequency gain")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def plot_errors(frequency: NDArray, errors: Mapping[str, NDArray], path: str | Path, *,
+                ylabel: str, title: str, nyquist_low: float | None = None) -> Path:
+    """One error curve per method (log-log), as in the paper's figures."""
+    fig = Figure(figsize=(7.5, 4.2))
+    ax = fig.subplots()
+    for j, (name, e) in enumerate(errors.items()):
+        ax.loglog(frequency, np.maximum(e, 1e-300), lw=0.7, color=f"C{j}", label=name)
+    if nyquist_low:
+        ax.axvline(nyquist_low, color="0.5", ls=":", lw=1)
+    ax.set_xlabel("frequency [Hz]")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return _save(fig, path)
