@@ -87,8 +87,6 @@ def _indirect(G: NDArray, Cv: NDArray, Ainv: NDArray, n_y: int
 def _fit(Uin: NDArray, Yout: NDArray, n: int, degree: int, map_outputs: int
          ) -> tuple[NDArray, NDArray, NDArray, int]:
     q = check_lpm_options(n, degree, Uin.shape[1], map_outputs)
-    if Uin.shape[0] < 2 * n + 1:
-        raise DataError(f"too few frequency bins for the LPM window: need {2 * n + 1}, have {Uin.shape[0]}")
     G, Cv, Ainv, n_bad = _lpm_core(Uin, Yout, n, degree, q)
     _warn_bad(n_bad, G.shape[-1])
     return G.transpose(2, 0, 1), Cv.transpose(2, 0, 1), Ainv.transpose(2, 0, 1), q
@@ -136,6 +134,15 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
     ny, nu = ya.shape[1], ua.shape[1]
     M = N // F
     half = N // 2
+    period = N if method in ("lpm", "etfe") else M   # bins per period of the fitted spectrum
+    if method != "etfe":
+        check_lpm_options(n, degree, nr * (1 if method == "lpm" else F),
+                          max(ny, nu) * (1 if method == "lpm" else F))
+        need = 2 * (2 * n + 1)
+        if period < need:
+            raise DataError(
+                f"too few samples for the LPM window: {method} needs {need} independent bins "
+                f"(2 x (2n+1), n={n}) per period, i.e. N >= {need * (N // period)} samples; got N = {N}")
     P_half = np.full((half + 1, ny, nu), np.nan + 0j)
     var_half = np.full((half + 1, ny, nu), np.nan)
     lifted_J = lifted_S = None

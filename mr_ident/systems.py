@@ -102,6 +102,8 @@ class TransferMatrix:
         blocks = []
         for o in range(no):
             for i in range(ni):
+                if not np.any(self.num[o][i]):
+                    continue                      # a zero entry needs no states
                 A, B, C, D = scipy.signal.tf2ss(self.num[o][i], self.den[o][i])
                 blocks.append((o, i, A, B, C, D))
         n = sum(b[2].shape[0] for b in blocks)

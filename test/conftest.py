@@ -1,0 +1,48 @@
+"""Shared fixtures: the paper model and a brute-force per-sample loop simulator."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mr_ident.model import Model, load_model
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="session")
+def paper_model() -> Model:
+    return load_model(ROOT / "config" / "paper_example.yaml")
+
+
+def brute_force_loop(model: Model, r: np.ndarray, v: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Simulate the multirate loop sample by sample, straight from its definition.
+
+    u_h[n] = r_h[n] - u_c[m] held from sample mF + phase + delay; the controller
+    samples y_h + v at mF + phase. Only for plants without feedthrough (D = 0).
+    """
+    P = model.plant_discrete().to_ss()
+    assert np.allclose(P.D, 0)
+    F, ny, nu = model.ratio, model.n_y, model.n_u
+    N = r.shape[0]
+    v = np.zeros((N, ny)) if v is None else v
+    Kc = model.controller.to_ss() if model.controller is not None else None
+    x = np.zeros(P.A.shape[0])
+    xk = np.zeros(Kc.A.shape[0]) if Kc is not None else None
+    pending: dict[int, np.ndarray] = {}
+    held = np.zeros(nu)
+    u = np.zeros((N, nu))
+    y = np.zeros((N, ny))
+    for n in range(N):
+        y[n] = P.C @ x + v[n]
+        if Kc is not None and n % F == model.sample_phase:
+            uc = Kc.C @ xk + Kc.D @ y[n]
+            xk = Kc.A @ xk + Kc.B @ y[n]
+            pending[n + model.control_delay] = uc
+        if n in pending:
+            held = pending.pop(n)
+        u[n] = r[n] - held
+        x = P.A @ x + P.B @ u[n]
+    return u, y
