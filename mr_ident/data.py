@@ -19,6 +19,7 @@ from __future__ import annotations
 import os
 import re
 import tempfile
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -102,7 +103,9 @@ def read_csv(path: str | Path) -> LoopData:
         raise DataError(f"{p}: empty file (expected a header line t,r,u,y)")
     cols = _columns(header, str(p))
     try:
-        table = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)     # "no data": reported below
+            table = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
     except ValueError as err:
         raise DataError(f"{p}: {err}") from err
     if table.shape[0] == 0:

@@ -1,0 +1,110 @@
+"""The command line: round trips, and bad input gives `error:` and exit 2, no traceback."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mr_ident.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER = ROOT / "config" / "paper_example.yaml"
+
+
+def run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.mark.parametrize("suffix", ["csv", "npz"])
+def test_simulate_then_identify_round_trips_with_the_pfg(tmp_path, capsys, suffix):
+    data = tmp_path / f"d.{suffix}"
+    assert run(capsys, "simulate", PAPER, "--duration", 30, "--seed", 1, "--out", data)[0] == 0
+    res = tmp_path / "r.npz"
+    extra = ["--ratio", 3] if suffix == "csv" else []
+    code, out, err = run(capsys, "identify", data, "--model", PAPER, *extra, "--out", res,
+                         "--plot", tmp_path / "bode.png")
+    assert code == 0, err
+    z = np.load(res)
+    K = 7200 // 2
+    assert z["frequency"].shape == (K,) and z["P"].shape == (K, 1, 1) and z["P_std"].shape == (K, 1, 1)
+    assert z["pfg"].shape == (K,) and z["pfg_std"].shape == (K,)
+    assert z["frequency"][0] > 0 and z["frequency"][-1] == pytest.approx(120.0)
+    assert (tmp_path / "bode.png").stat().st_size > 10_000
+    assert (tmp_path / "bode_pfg.png").stat().st_size > 10_000
+
+
+def _csv(path, rows, header="t,r,u,y"):
+    path.write_text(header + "\n" + "\n".join(rows) + "\n")
+    return path
+
+
+def _rows(n=300):
+    rng = np.random.default_rng(0)
+    return [f"{i / 240},{a},{b},{c}" for i, (a, b, c) in enumerate(rng.standard_normal((n, 3)))]
+
+
+@pytest.mark.parametrize("name,make,extra,match", [
+    ("missing column", lambda p: _csv(p, [x.rsplit(",", 1)[0] for x in _rows()], "t,r,u"), [], "missing column 'y'"),
+    ("extra column", lambda p: _csv(p, [x + ",1" for x in _rows()], "t,r,u,y,z"), [], "unexpected column 'z'"),
+    ("nan", lambda p: _csv(p, _rows()[:5] + ["0.1,nan,1,1"] + _rows()[6:]), [], "NaN or inf at row 6"),
+    ("text", lambda p: _csv(p, _rows()[:5] + ["0.1,abc,1,1"] + _rows()[6:]), [], "abc"),
+    ("not multiple of F", lambda p: _csv(p, _rows(301)), [], "not a multiple of ratio F=3"),
+    ("too short", lambda p: _csv(p, _rows(30)), [], "too few samples for the LPM window"),
+    ("header only", lambda p: _csv(p, []), [], "no data rows"),
+])
+def test_bad_csv_input_is_an_error_with_exit_2(tmp_path, capsys, name, make, extra, match):
+    data = make(tmp_path / "bad.csv")
+    code, out, err = run(capsys, "identify", data, "--ratio", 3, *extra, "--out", tmp_path / "r.npz")
+    assert code == 2
+    assert err.startswith("error: ") and match in err, err
+    assert "Traceback" not in err
+    assert not (tmp_path / "r.npz").exists()
+
+
+def test_unequal_lengths_in_an_npz_is_an_error(tmp_path, capsys):
+    p = tmp_path / "d.npz"
+    np.savez(p, r=np.zeros(300), u=np.zeros(300), y=np.zeros(297), fs_high=240.0, ratio=3)
+    code, _, err = run(capsys, "identify", p, "--out", tmp_path / "r.npz")
+    assert code == 2 and "unequal lengths" in err
+
+
+def test_an_unstable_model_is_an_error(tmp_path, capsys):
+    m = tmp_path / "m.yaml"
+    m.write_text(PAPER.read_text().replace("6000.0, -5400.0", "60000.0, -54000.0"))
+    code, _, err = run(capsys, "simulate", m, "--duration", 1, "--out", tmp_path / "d.npz")
+    assert code == 2 and "not stable" in err
+
+
+def test_ratio_below_one_is_rejected_by_the_parser(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["identify", "x.csv", "--ratio", "0", "--out", str(tmp_path / "r.npz")])
+    assert exc.value.code == 2
+    assert "expected an integer >= 1" in capsys.readouterr().err
+
+
+def test_fs_disagreement_between_file_and_model_is_an_error(tmp_path, capsys):
+    p = tmp_path / "d.npz"
+    np.savez(p, r=np.zeros(300), u=np.zeros(300), y=np.zeros(300), fs_high=1000.0, ratio=3)
+    code, _, err = run(capsys, "identify", p, "--model", PAPER, "--out", tmp_path / "r.npz")
+    assert code == 2 and "fs_high disagrees" in err
+
+
+def test_the_console_script_prints_no_traceback(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "mr_ident.cli", "identify", str(tmp_path / "none.csv"),
+                           "--ratio", "3", "--out", str(tmp_path / "r.npz")],
+                          capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert proc.returncode == 2
+    assert proc.stderr.startswith("error: ") and "Traceback" not in proc.stderr
+
+
+def test_paper_writes_figures_and_a_table(tmp_path, capsys):
+    code, out, err = run(capsys, "paper", "--duration", 30, "--out-dir", tmp_path)
+    assert code == 0, err
+    for name in ("paper_plant_error.png", "paper_pfg_error.png", "paper_errors.md",
+                 "paper_bode_freq_lifted.png", "paper_pfg_freq_lifted.png"):
+        assert (tmp_path / name).is_file()
+    assert "| freq-lifted |" in out
