@@ -84,6 +84,28 @@ def _indirect(G: NDArray, Cv: NDArray, Ainv: NDArray, n_y: int
     return P, row, col
 
 
+#: Low-rate bins per block of the freq-lifted path (bounds memory, ~40 MB per block).
+BLOCK_BINS = 32768
+
+
+def _indirect_diag(G: NDArray, Cv: NDArray, Ainv: NDArray, n_y: int) -> tuple[NDArray, NDArray, NDArray]:
+    """Indirect step with only the diagonals of the covariance factors.
+
+    Returns P (K, n_y, n_u), ``diag(E C_v E^H)`` (K, n_y) and ``diag(S^-T A^-1 conj(S^-1))``
+    (K, n_u): enough for the standard deviation of every entry of P.
+    """
+    J, S = G[:, :n_y], G[:, n_y:]
+    Sinv = np.linalg.inv(S)
+    P = J @ Sinv
+    # E = [I, -P]: diag(E Cv E^H)_a = Cv_yy[a,a] - 2 Re(Cv_yu[a,:] P[a,:]^H) + P[a,:] Cv_uu P[a,:]^H
+    Cyy = np.real(np.diagonal(Cv[:, :n_y, :n_y], axis1=1, axis2=2))
+    cross = np.real(np.einsum("kab,kab->ka", Cv[:, :n_y, n_y:], np.conj(P)))
+    quad = np.real(np.einsum("kab,kbc,kac->ka", P, Cv[:, n_y:, n_y:], np.conj(P)))
+    row = Cyy - 2.0 * cross + quad
+    col = np.real(np.einsum("kib,kij,kjb->kb", Sinv, Ainv, np.conj(Sinv)))
+    return P, np.maximum(row, 0.0), np.maximum(col, 0.0)
+
+
 def _fit(Uin: NDArray, Yout: NDArray, n: int, degree: int, map_outputs: int
          ) -> tuple[NDArray, NDArray, NDArray, int]:
     q = check_lpm_options(n, degree, Uin.shape[1], map_outputs)
@@ -94,8 +116,8 @@ def _fit(Uin: NDArray, Yout: NDArray, n: int, degree: int, map_outputs: int
 
 def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio: int,
              method: str = "freq-lifted", n: int = 8, degree: int = 2,
-             controller_low: ArrayLike | None = None, phase: int = 0, delay: int = 0
-             ) -> Identification:
+             controller_low: ArrayLike | None = None, phase: int = 0, delay: int = 0,
+             keep_lifted: bool = True) -> Identification:
     """Identify the high-rate plant P_h (and the PFG) from closed-loop data.
 
     Parameters
@@ -114,6 +136,9 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
         k = 0..M-1; when given, the PFG is computed from P_h and it.
     phase, delay : int
         Controller sampling phase and computation delay in high-rate samples.
+    keep_lifted : bool, default True
+        Keep the lifted J and S with their covariance in the result (lifted methods);
+        False saves memory (about 0.6 kB per low-rate bin for SISO, F = 3).
 
     Returns
     -------
@@ -150,28 +175,43 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
     if method == "freq-lifted":
         Rf, Uf, Yf = _spectrum(ra), _spectrum(ua), _spectrum(ya)
         Kc = M // 2
-        k_ext = np.arange(-n, Kc + n + 1)
-        idx = (k_ext[:, None] + M * np.arange(F)[None, :]) % N        # (K+2n, F)
-        lift = lambda X: X[idx].reshape(idx.shape[0], -1)               # noqa: E731  (l-major)
-        G, Cv, Ainv, q = _fit(lift(Rf), np.concatenate([lift(Yf), lift(Uf)], axis=1),
-                              n, degree, F * max(ny, nu))
-        P, row, col = _indirect(G, Cv, Ainv, F * ny)
         bins = np.arange(Kc + 1)
-        lifted_J = LiftedFRF(bins, G[:, :F * ny], Cv[:, :F * ny, :F * ny], Ainv, "frequency", F, N, q)
-        lifted_S = LiftedFRF(bins, G[:, F * ny:], Cv[:, F * ny:, F * ny:], Ainv, "frequency", F, N, q)
-        Pb = P.reshape(Kc + 1, F, ny, F, nu)
-        rd = np.real(np.diagonal(row, axis1=1, axis2=2)).reshape(Kc + 1, F, ny)
-        cd = np.real(np.diagonal(col, axis1=1, axis2=2)).reshape(Kc + 1, F, nu)
-        for l in range(F):
-            kappa = bins + l * M
-            Pl = Pb[:, l, :, l, :]
-            vl = rd[:, l, :, None] * cd[:, l, None, :]
-            direct = kappa <= half
-            P_half[kappa[direct]] = Pl[direct]
-            var_half[kappa[direct]] = vl[direct]
-            mirror = ~direct & (N - kappa <= half)
-            P_half[N - kappa[mirror]] = np.conj(Pl[mirror])
-            var_half[N - kappa[mirror]] = vl[mirror]
+        aliases = M * np.arange(F)
+        q = check_lpm_options(n, degree, F * nr, F * max(ny, nu))
+        keep = []
+        n_bad = 0
+        # Blocks of bins bound the memory: lift, fit, indirect step, keep the diagonal.
+        for b0 in range(0, Kc + 1, BLOCK_BINS):
+            kb = bins[b0:b0 + BLOCK_BINS]
+            idx = (np.arange(kb[0] - n, kb[-1] + n + 1)[:, None] + aliases[None, :]) % N
+            lifted = lambda X: X[idx].reshape(idx.shape[0], -1)         # noqa: E731  (alias-major)
+            G, Cv, Ainv, nb = _lpm_core(lifted(Rf), np.concatenate([lifted(Yf), lifted(Uf)], axis=1),
+                                        n, degree, q)
+            n_bad += nb
+            G, Cv, Ainv = G.transpose(2, 0, 1), Cv.transpose(2, 0, 1), Ainv.transpose(2, 0, 1)
+            P, rdiag, cdiag = _indirect_diag(G, Cv, Ainv, F * ny)
+            if keep_lifted:
+                keep.append((G, Cv, Ainv))
+            Pb = P.reshape(kb.size, F, ny, F, nu)
+            rd = rdiag.reshape(kb.size, F, ny)
+            cd = cdiag.reshape(kb.size, F, nu)
+            for l in range(F):
+                kappa = kb + l * M
+                Pl = Pb[:, l, :, l, :]
+                vl = rd[:, l, :, None] * cd[:, l, None, :]
+                direct = kappa <= half
+                P_half[kappa[direct]] = Pl[direct]
+                var_half[kappa[direct]] = vl[direct]
+                mirror = ~direct & (N - kappa <= half)
+                P_half[N - kappa[mirror]] = np.conj(Pl[mirror])
+                var_half[N - kappa[mirror]] = vl[mirror]
+        _warn_bad(n_bad, Kc + 1)
+        if keep_lifted:
+            G = np.concatenate([k[0] for k in keep])
+            Cv = np.concatenate([k[1] for k in keep])
+            Ainv = np.concatenate([k[2] for k in keep])
+            lifted_J = LiftedFRF(bins, G[:, :F * ny], Cv[:, :F * ny, :F * ny], Ainv, "frequency", F, N, q)
+            lifted_S = LiftedFRF(bins, G[:, F * ny:], Cv[:, F * ny:, F * ny:], Ainv, "frequency", F, N, q)
     elif method == "time-lifted":
         Rt = scipy.fft.fft(ra.reshape(M, F * nr), axis=0, norm="ortho", workers=-1)
         Ut = scipy.fft.fft(ua.reshape(M, F * nu), axis=0, norm="ortho", workers=-1)

@@ -15,7 +15,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import DimensionError
 from .lifting import _check_multiple, _check_ratio
-from .loop import closed_loop_maps, lifted_controller
 from .results import PFG
 
 
@@ -42,10 +41,37 @@ def half_to_full(X_half: NDArray, n_samples: int) -> NDArray:
     return out
 
 
+def _controller_factors(kappa: NDArray, ratio: int, n_samples: int, phase: int, delay: int
+                        ) -> tuple[NDArray, NDArray]:
+    """``a_l, b_l`` of the rank-n_u lifted controller ``C = A K B^T`` at the aliases of kappa.
+
+    ``a_l = H0(kl) exp(-2j pi kl (phase+delay)/N) / F`` and ``b_l = exp(2j pi kl phase/N)``
+    with ``kl = kappa + l M``; shapes (K, F).
+    """
+    F, N = ratio, n_samples
+    l = np.arange(F)
+    s = phase + delay
+    # exp(-2j pi kl x / N) = exp(-2j pi kappa x / N) * exp(-2j pi l x / F): one exp per bin.
+    z = np.exp(-2j * np.pi * kappa / N)[:, None] * np.exp(-2j * np.pi * l / F)[None, :]   # (K, F)
+    h0 = np.ones_like(z)
+    for _ in range(F - 1):                                   # Horner: 1 + z + ... + z^(F-1)
+        h0 = 1.0 + z * h0
+    a = h0 * (np.exp(-2j * np.pi * kappa * s / N)[:, None] * np.exp(-2j * np.pi * l * s / F)[None, :]) / F
+    b = np.exp(2j * np.pi * kappa * phase / N)[:, None] * np.exp(2j * np.pi * l * phase / F)[None, :]
+    return a, b
+
+
 def pfg_from_plant(P_half: ArrayLike, K_low: ArrayLike, ratio: int, n_samples: int, *,
                    P_std_half: ArrayLike | None = None, phase: int = 0, delay: int = 0
                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """PFG on the high-rate bins 0..N//2 from a plant FRF and the controller.
+
+    The lifted controller has rank n_u (``C = A K B^T``), so by the Woodbury identity
+    the first block column of ``J = P (I + C P)^-1`` at input bin kappa is::
+
+        col_l = delta_l0 P_0 - a_l P_l K (I + Z)^-1 b_0 P_0,   Z = sum_l a_l b_l P_l K
+
+    with ``P_l = P_h(kappa + l M)``: an n_y x n_y inverse per bin, O(F) work.
 
     Parameters
     ----------
@@ -74,33 +100,76 @@ def pfg_from_plant(P_half: ArrayLike, K_low: ArrayLike, ratio: int, n_samples: i
     Kl = np.asarray(K_low, dtype=complex)
     if Kl.shape[0] != M:
         raise DimensionError(f"K_low must cover all M={M} low-rate bins, got {Kl.shape[0]}")
-    ny, nu = Ph.shape[1:]
-    P_full = half_to_full(Ph, N)
-    kappa = np.arange(N // 2 + 1)
-    k = kappa % M
-    l = kappa // M
-    ks = np.unique(k)
-    J, S = closed_loop_maps(P_full, Kl[ks], ks, F, phase=phase, delay=delay)
-    pos = np.searchsorted(ks, k)
-    Jb = J.reshape(ks.size, F * ny, F, nu)
-    col = Jb[pos, :, l, :]                                  # (kappa, F*ny, nu)
-    gain, uvec, vvec = _column_gain(col)
-    std = np.full(gain.shape, np.nan)
-    if P_std_half is not None:
-        sd_full = half_to_full(np.asarray(P_std_half, dtype=float), N)
-        # dJ = S_o dP S with S_o = I - J C; the gain moves by Re(u^H dJ[:, col] v).
-        C = lifted_controller(Kl[ks], ks, F, N, phase=phase, delay=delay)
-        So = np.eye(F * ny)[None] - J @ C                   # (ks, F ny, F ny)
-        a = np.einsum("kr,krs->ks", np.conj(uvec), So[pos])  # u^H S_o, (kappa, F ny)
-        Sb = S.reshape(ks.size, F * nu, F, nu)[pos, :, l, :]  # S[:, col block], (kappa, F nu, nu)
-        b = np.einsum("ksu,ku->ks", Sb, vvec)                 # (kappa, F nu)
-        var = np.zeros(gain.shape)
-        for ll in range(F):
-            sd = sd_full[(k + ll * M) % N]                     # (kappa, ny, nu)
-            coef = a[:, ll * ny:(ll + 1) * ny, None] * b[:, None, ll * nu:(ll + 1) * nu]
-            var += 0.5 * np.sum(np.abs(coef) ** 2 * sd ** 2, axis=(1, 2))
-        std = np.sqrt(var)
+    sd_half = None if P_std_half is None else np.asarray(P_std_half, dtype=float)
+    gain = np.empty(N // 2 + 1)
+    std = np.empty(N // 2 + 1)
+    for k0 in range(0, N // 2 + 1, PFG_BLOCK):                         # blocks bound the memory
+        kappa = np.arange(k0, min(k0 + PFG_BLOCK, N // 2 + 1))
+        gain[kappa], std[kappa] = _pfg_block(kappa, Ph, Kl, F, N, sd_half, phase, delay)
     return gain, std
+
+
+#: High-rate bins per block in :func:`pfg_from_plant`.
+PFG_BLOCK = 65536
+
+
+def _pfg_block(kappa: NDArray, Ph: NDArray, Kl: NDArray, F: int, N: int, sd_half: NDArray | None,
+               phase: int, delay: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    M = N // F
+    ny, nu = Ph.shape[1:]
+    alias = (kappa[:, None] + M * np.arange(F)[None, :]) % N           # (K, F)
+    fold = np.minimum(alias, N - alias)
+    flip = alias > N // 2
+    Pl = Ph[fold]                                                      # (K, F, ny, nu)
+    Pl[flip] = np.conj(Pl[flip])
+    Kk = Kl[kappa % M]                                                 # (K, nu, ny)
+    a, b = _controller_factors(kappa, F, N, phase, delay)
+    if ny == nu == 1:
+        sd = None if sd_half is None else sd_half[fold][..., 0, 0]
+        return _pfg_siso(Pl[..., 0, 0], Kk[:, 0, 0], a, b, sd)
+    PK = Pl @ Kk[:, None]                                              # (K, F, ny, ny)
+    Z = np.einsum("kl,klij->kij", a * b, PK)
+    Minv = np.linalg.inv(np.eye(ny)[None] + Z)                         # (K, ny, ny)
+    MbP0 = (Minv @ Pl[:, 0]) * b[:, 0, None, None]                     # (K, ny, nu)
+    col = -(a[:, :, None, None] * (PK @ MbP0[:, None]))                # (K, F, ny, nu)
+    col[:, 0] += Pl[:, 0]
+    gain, uvec, vvec = _column_gain(col.reshape(kappa.size, F * ny, nu))
+    std = np.full(gain.shape, np.nan)
+    if sd_half is not None:
+        sd = sd_half[fold]                                             # (K, F, ny, nu)
+        ul = uvec.reshape(kappa.size, F, ny)
+        # u^H S_o, S_o = (I + P C)^-1 = I - P A K (I+Z)^-1 B^T: block l is
+        # conj(u_l) - (sum_m conj(u_m) a_m P_m K) (I+Z)^-1 b_l.
+        w = (np.einsum("kmi,km,kmij->kj", np.conj(ul), a, PK)[:, None, :] @ Minv)[:, 0]
+        acoef = np.conj(ul) - w[:, None, :] * b[:, :, None]            # (K, F, ny)
+        # S[:, col 0] v, block l: delta_l0 v - a_l K (I+Z)^-1 b_0 P_0 v.
+        KMbP0v = np.einsum("kuy,kyv,kv->ku", Kk, MbP0, vvec)           # (K, nu)
+        bcoef = -a[:, :, None] * KMbP0v[:, None, :]                    # (K, F, nu)
+        bcoef[:, 0] += vvec
+        coef2 = np.abs(acoef)[:, :, :, None] ** 2 * np.abs(bcoef)[:, :, None, :] ** 2
+        std = np.sqrt(0.5 * np.sum(coef2 * sd ** 2, axis=(1, 2, 3)))
+    return gain, std
+
+
+def _pfg_siso(Pl: NDArray, Kk: NDArray, a: NDArray, b: NDArray, sd: NDArray | None
+              ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Scalar form of :func:`pfg_from_plant` (n_y = n_u = 1): elementwise, no stacked matmuls."""
+    PK = Pl * Kk[:, None]                                       # (K, F)
+    minv = 1.0 / (1.0 + np.sum(a * b * PK, axis=1))             # (K,)
+    mbp0 = minv * b[:, 0] * Pl[:, 0]
+    col = -a * PK * mbp0[:, None]
+    col[:, 0] += Pl[:, 0]
+    gain = np.sqrt(np.sum(col.real ** 2 + col.imag ** 2, axis=1))
+    if sd is None:
+        return gain, np.full(gain.shape, np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = col / gain[:, None]
+    w = np.sum(np.conj(u) * a * PK, axis=1) * minv
+    acoef = np.conj(u) - w[:, None] * b
+    bcoef = -a * (Kk * mbp0)[:, None]
+    bcoef[:, 0] += 1.0
+    var = 0.5 * np.sum(np.abs(acoef * bcoef) ** 2 * sd ** 2, axis=1)
+    return gain, np.sqrt(var)
 
 
 def pfg_from_lifted(J: ArrayLike, bins: ArrayLike, ratio: int, n_samples: int, *,
