@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 from .errors import ConfigError, DataError, DimensionError
 from .lifting import _check_ratio
 from .lpm import _lpm_core, _warn_bad, check_lpm_options
-from .pfg import half_to_full, pfg_from_plant
+from .pfg import pfg_from_plant
 from .results import FRF, PFG, Identification, LiftedFRF
 
 Method = Literal["freq-lifted", "time-lifted", "lpm", "etfe"]
@@ -244,9 +244,8 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
         idx = np.arange(-n, half + n + 1) % N
         G, Cv, Ainv, q = _fit(Rf[idx], np.concatenate([Yf[idx], Uf[idx]], axis=1),
                               n, degree, max(ny, nu))
-        P_half, row, col = _indirect(G, Cv, Ainv, ny)
-        var_half = (np.real(np.diagonal(row, axis1=1, axis2=2))[:, :, None]
-                    * np.real(np.diagonal(col, axis1=1, axis2=2))[:, None, :])
+        P_half, rdiag, cdiag = _indirect_diag(G, Cv, Ainv, ny)
+        var_half = rdiag[:, :, None] * cdiag[:, None, :]
     else:  # etfe
         if ny != 1 or nu != 1:
             raise DimensionError(

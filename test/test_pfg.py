@@ -66,3 +66,18 @@ def test_pfg_std_follows_the_noise(paper_model):
     emp = np.std(runs, axis=0, ddof=1)
     rep = np.sqrt(np.mean(np.square(stds), axis=0))
     assert 0.75 < np.median(emp / rep) < 1.25
+
+
+def test_the_dense_closed_loop_maps_agree_with_the_structured_pfg(paper_model):
+    from mr_ident.loop import closed_loop_maps
+    from mr_ident.pfg import half_to_full
+    F, N = 3, 300
+    M = N // F
+    P_half = paper_model.plant_frf(N)
+    K = paper_model.controller_frf(M)
+    g, _ = pfg_from_plant(P_half, K, F, N, phase=1, delay=1)
+    ks = np.arange(M)
+    J, S = closed_loop_maps(half_to_full(P_half, N), K, ks, F, phase=1, delay=1)
+    kappa = np.arange(N // 2 + 1)
+    dense = np.linalg.norm(J[kappa % M][np.arange(kappa.size), :, kappa // M], axis=1)
+    np.testing.assert_allclose(g, dense, rtol=1e-10)
