@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def straightforward_lpm_core(Ua, Ya, n, degree, q):
     """Reference engine: build every window's regressor, batched QR, solve. Bins-last out."""
     K = Ua.shape[0] - 2 * n
-    ni, no = Ua.shape[1], Ya.shape[1]
+    ni = Ua.shape[1]
     L = 2 * n + 1
     r = np.arange(-n, n + 1) / n
     idx = np.arange(K)[:, None] + np.arange(L)[None, :]

@@ -121,9 +121,8 @@ def _resolve_rates(args: argparse.Namespace, file_fs: float | None, file_ratio: 
 
 def cmd_identify(args: argparse.Namespace) -> int:
     from .data import read_data, write_result
-    from .pfg import pfg_from_plant
+    from .pfg import pfg_of_model
     from .plots import plot_bode, plot_pfg
-    from .results import FRF, PFG
     if args.out.suffix.lower() != ".npz":
         raise ConfigError(f"--out must be a .npz file, got {str(args.out)!r}")
     model = load_model(args.model) if args.model else None
@@ -143,17 +142,12 @@ def cmd_identify(args: argparse.Namespace) -> int:
     write_result(args.out, ident)
     print(f"wrote {args.out} ({ident.plant.frequency.size} bins, method {args.method})")
     if args.plot:
-        mfrf = None
         nyq = fs / F / 2 if F > 1 else None
-        if model is not None:
-            mfrf = FRF(ident.plant.frequency, model.plant_frf(N)[1:], np.zeros(ident.plant.response.shape), "model")
+        mfrf = model.plant_result(N) if model is not None else None
         print(f"wrote {plot_bode(ident.plant, args.plot, model=mfrf, nyquist_low=nyq)}")
-        if ident.pfg is not None and model is not None and K_low is not None:
-            g, _ = pfg_from_plant(model.plant_frf(N), K_low, F, N, phase=model.sample_phase,
-                                  delay=model.control_delay)
-            mp = PFG(ident.plant.frequency, g[1:], np.zeros(g.size - 1), "model")
+        if ident.pfg is not None and model is not None:
             path = args.plot.with_name(args.plot.stem + "_pfg" + args.plot.suffix)
-            print(f"wrote {plot_pfg(ident.pfg, path, model=mp)}")
+            print(f"wrote {plot_pfg(ident.pfg, path, model=pfg_of_model(model, N))}")
     return 0
 
 

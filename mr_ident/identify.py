@@ -106,12 +106,11 @@ def _indirect_diag(G: NDArray, Cv: NDArray, Ainv: NDArray, n_y: int) -> tuple[ND
     return P, np.maximum(row, 0.0), np.maximum(col, 0.0)
 
 
-def _fit(Uin: NDArray, Yout: NDArray, n: int, degree: int, map_outputs: int
+def _fit(Uin: NDArray, Yout: NDArray, n: int, degree: int, q: int
          ) -> tuple[NDArray, NDArray, NDArray, int]:
-    q = check_lpm_options(n, degree, Uin.shape[1], map_outputs)
+    """LPM (options already checked, q the dof) in bins-first layout, plus the singular-bin count."""
     G, Cv, Ainv, n_bad = _lpm_core(Uin, Yout, n, degree, q)
-    _warn_bad(n_bad, G.shape[-1])
-    return G.transpose(2, 0, 1), Cv.transpose(2, 0, 1), Ainv.transpose(2, 0, 1), q
+    return G.transpose(2, 0, 1), Cv.transpose(2, 0, 1), Ainv.transpose(2, 0, 1), n_bad
 
 
 def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio: int,
@@ -161,8 +160,8 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
     half = N // 2
     period = N if method in ("lpm", "etfe") else M   # bins per period of the fitted spectrum
     if method != "etfe":
-        check_lpm_options(n, degree, nr * (1 if method == "lpm" else F),
-                          max(ny, nu) * (1 if method == "lpm" else F))
+        lift = 1 if method == "lpm" else F
+        q = check_lpm_options(n, degree, nr * lift, max(ny, nu) * lift)
         need = 2 * (2 * n + 1)
         if period < need:
             raise DataError(
@@ -177,7 +176,6 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
         Kc = M // 2
         bins = np.arange(Kc + 1)
         aliases = M * np.arange(F)
-        q = check_lpm_options(n, degree, F * nr, F * max(ny, nu))
         keep = []
         n_bad = 0
         # Blocks of bins bound the memory: lift, fit, indirect step, keep the diagonal.
@@ -185,10 +183,9 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
             kb = bins[b0:b0 + BLOCK_BINS]
             idx = (np.arange(kb[0] - n, kb[-1] + n + 1)[:, None] + aliases[None, :]) % N
             lifted = lambda X: X[idx].reshape(idx.shape[0], -1)         # noqa: E731  (alias-major)
-            G, Cv, Ainv, nb = _lpm_core(lifted(Rf), np.concatenate([lifted(Yf), lifted(Uf)], axis=1),
-                                        n, degree, q)
+            G, Cv, Ainv, nb = _fit(lifted(Rf), np.concatenate([lifted(Yf), lifted(Uf)], axis=1),
+                                   n, degree, q)
             n_bad += nb
-            G, Cv, Ainv = G.transpose(2, 0, 1), Cv.transpose(2, 0, 1), Ainv.transpose(2, 0, 1)
             P, rdiag, cdiag = _indirect_diag(G, Cv, Ainv, F * ny)
             if keep_lifted:
                 keep.append((G, Cv, Ainv))
@@ -218,8 +215,8 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
         Yt = scipy.fft.fft(ya.reshape(M, F * ny), axis=0, norm="ortho", workers=-1)
         Kc = M // 2
         idx = np.arange(-n, Kc + n + 1) % M
-        G, Cv, Ainv, q = _fit(Rt[idx], np.concatenate([Yt[idx], Ut[idx]], axis=1),
-                              n, degree, F * max(ny, nu))
+        G, Cv, Ainv, n_bad = _fit(Rt[idx], np.concatenate([Yt[idx], Ut[idx]], axis=1), n, degree, q)
+        _warn_bad(n_bad, Kc + 1)
         P, row, col = _indirect(G, Cv, Ainv, F * ny)
         bins = np.arange(Kc + 1)
         lifted_J = LiftedFRF(bins, G[:, :F * ny], Cv[:, :F * ny, :F * ny], Ainv, "time", F, N, q)
@@ -242,8 +239,8 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
     elif method == "lpm":
         Rf, Uf, Yf = _spectrum(ra), _spectrum(ua), _spectrum(ya)
         idx = np.arange(-n, half + n + 1) % N
-        G, Cv, Ainv, q = _fit(Rf[idx], np.concatenate([Yf[idx], Uf[idx]], axis=1),
-                              n, degree, max(ny, nu))
+        G, Cv, Ainv, n_bad = _fit(Rf[idx], np.concatenate([Yf[idx], Uf[idx]], axis=1), n, degree, q)
+        _warn_bad(n_bad, half + 1)
         P_half, rdiag, cdiag = _indirect_diag(G, Cv, Ainv, ny)
         var_half = rdiag[:, :, None] * cdiag[:, None, :]
     else:  # etfe

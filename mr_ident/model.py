@@ -31,6 +31,7 @@ import numpy as np
 import yaml
 
 from .errors import ModelError
+from .results import FRF
 from .systems import TransferMatrix
 
 _KEYS = {"fs_high", "ratio", "plant", "controller", "noise_std", "reference_std",
@@ -87,6 +88,12 @@ class Model:
         """Exact P_h on DFT bins 0..N//2 of an N-sample record, shape (N//2+1, n_y, n_u)."""
         f = np.arange(n_samples // 2 + 1) * self.fs_high / n_samples
         return self.plant_discrete().freqresp(f)
+
+    def plant_result(self, n_samples: int) -> FRF:
+        """Exact P_h on the bins (0, fs_high/2] of an N-sample record, as an FRF (std 0)."""
+        P = self.plant_frf(n_samples)[1:]
+        f = np.arange(1, n_samples // 2 + 1) * self.fs_high / n_samples
+        return FRF(f, P, np.zeros(P.shape), "model")
 
     def controller_frf(self, n_low: int) -> np.ndarray:
         """K_l on all low-rate bins 0..M-1, shape (M, n_u, n_y)."""

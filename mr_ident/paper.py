@@ -15,9 +15,8 @@ import numpy as np
 
 from .identify import METHODS, identify
 from .model import Model
-from .pfg import pfg_from_plant
+from .pfg import pfg_of_model
 from .plots import plot_bode, plot_errors, plot_pfg
-from .results import FRF, PFG
 from .simulate import simulate
 
 
@@ -47,11 +46,10 @@ def run_paper(model: Model, out_dir: str | Path, *, duration: float = 600.0, see
     sim = simulate(model, duration=duration, rng=np.random.default_rng(seed))
     N = sim.r.shape[0]
     F = model.ratio
-    P_true_half = model.plant_frf(N)
     K_low = model.controller_frf(N // F)
-    g_true, _ = pfg_from_plant(P_true_half, K_low, F, N)
-    freq = np.arange(1, N // 2 + 1) * model.fs_high / N
-    P_true = P_true_half[1:]
+    model_frf = model.plant_result(N)
+    model_pfg = pfg_of_model(model, N)
+    freq, P_true, g_true = model_frf.frequency, model_frf.response, model_pfg.gain
     err_P: dict[str, np.ndarray] = {}
     err_pfg: dict[str, np.ndarray] = {}
     seconds: dict[str, float] = {}
@@ -65,7 +63,7 @@ def run_paper(model: Model, out_dir: str | Path, *, duration: float = 600.0, see
         results[method] = res
         err_P[method] = np.abs(res.plant.response - P_true).max(axis=(1, 2))
         assert res.pfg is not None
-        err_pfg[method] = np.abs(res.pfg.gain - g_true[1:])
+        err_pfg[method] = np.abs(res.pfg.gain - g_true)
     nyq = model.fs_low / 2
     files = {
         "plant_error": plot_errors(freq, err_P, out / "paper_plant_error.png", ylabel="|P_h - P̂_h|",
@@ -74,13 +72,12 @@ def run_paper(model: Model, out_dir: str | Path, *, duration: float = 600.0, see
         "pfg_error": plot_errors(freq, err_pfg, out / "paper_pfg_error.png", ylabel="|PFG - PFĜ|",
                                  title="PFG error", nyquist_low=nyq),
     }
-    model_frf = FRF(freq, P_true, np.zeros(P_true.shape), "model")
     best = results["freq-lifted"]
     files["bode"] = plot_bode(best.plant, out / "paper_bode_freq_lifted.png", model=model_frf,
                               nyquist_low=nyq)
     assert best.pfg is not None
     files["pfg"] = plot_pfg(best.pfg, out / "paper_pfg_freq_lifted.png",
-                            model=PFG(freq, g_true[1:], np.zeros(freq.size), "model"))
+                            model=model_pfg)
     rel = {m: float(np.median(err_P[m] / np.abs(P_true).max(axis=(1, 2)))) for m in METHODS}
     lines = [f"# Paper example: N = {N} samples ({duration:g} s at {model.fs_high:g} Hz), F = {F}, "
              f"noise std {model.noise_std:g}, n = {n}, R = {degree}, seed {seed}",
@@ -91,7 +88,7 @@ def run_paper(model: Model, out_dir: str | Path, *, duration: float = 600.0, see
     for m in METHODS:
         r = err_P[m] / np.abs(P_true).max(axis=(1, 2))
         cells = [f"{np.median(r[(freq > a) & (freq <= b)]):.2e}" for a, b in bl]
-        pr = np.median(err_pfg[m] / g_true[1:])
+        pr = np.median(err_pfg[m] / g_true)
         lines.append(f"| {m} | " + " | ".join(cells) + f" | {rel[m]:.2e} | {pr:.2e} | {seconds[m]:.2f} |")
     table = "\n".join(lines) + "\n"
     tpath = out / "paper_errors.md"

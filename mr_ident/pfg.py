@@ -10,12 +10,17 @@ MIMO). For a high-rate bin ``kappa = k + l M`` this is block column ``l`` of
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import DimensionError
 from .lifting import _check_multiple, _check_ratio
 from .results import PFG
+
+if TYPE_CHECKING:
+    from .model import Model
 
 
 def _column_gain(col: NDArray[np.complex128]) -> tuple[NDArray, NDArray, NDArray]:
@@ -172,6 +177,15 @@ def _pfg_siso(Pl: NDArray, Kk: NDArray, a: NDArray, b: NDArray, sd: NDArray | No
     return gain, np.sqrt(var)
 
 
+def pfg_of_model(model: Model, n_samples: int) -> PFG:
+    """Exact PFG of a model's loop on the bins (0, fs_high/2] of an N-sample record (std 0)."""
+    N = int(n_samples)
+    g, _ = pfg_from_plant(model.plant_frf(N), model.controller_frf(N // model.ratio), model.ratio, N,
+                          phase=model.sample_phase, delay=model.control_delay)
+    f = np.arange(1, N // 2 + 1) * model.fs_high / N
+    return PFG(f, g[1:], np.zeros(f.size), "model")
+
+
 def pfg_from_lifted(J: ArrayLike, bins: ArrayLike, ratio: int, n_samples: int, *,
                     row_cov: ArrayLike | None = None, col_cov: ArrayLike | None = None
                     ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
@@ -197,7 +211,7 @@ def pfg_from_lifted(J: ArrayLike, bins: ArrayLike, ratio: int, n_samples: int, *
     Ja = np.asarray(J, dtype=complex)
     k = np.asarray(bins, dtype=np.int64)
     K, fy, fr = Ja.shape
-    ny, nr = fy // F, fr // F
+    nr = fr // F
     cols = Ja.reshape(K, fy, F, nr).transpose(0, 2, 1, 3)       # (K, l, F ny, nr)
     gain, uvec, vvec = _column_gain(cols)
     std = np.full(gain.shape, np.nan)
