@@ -1,0 +1,125 @@
+"""One estimate from one aligned window: the step the node repeats and replay runs once.
+
+:func:`estimate` takes a :class:`~mr_ident.stream.Window` and an
+:class:`~mr_ident.config.IdentConfig`, resolves the lifting phase (parameter or
+detected), runs :func:`~mr_ident.identify.identify` and returns an
+:class:`Estimate`. The node and ``mr-ident replay`` call exactly this, so the
+same window gives the same numbers in both.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .config import IdentConfig
+from .identify import identify
+from .results import Identification
+from .stream import Window
+
+
+@dataclass(frozen=True)
+class PhaseDetection:
+    """Result of :func:`detect_phase`.
+
+    Attributes
+    ----------
+    phase : int
+        Sampling phase (0..F-1, absolute index mod F) = hold phase - control delay.
+    hold : int
+        Index (mod F) at which the held controller output changes.
+    contrast : float
+        Within-period variation of u - r at the best hold phase relative to the
+        next best (0: clear; near 1: undetermined, e.g. open loop or F = 1).
+    """
+
+    phase: int
+    hold: int
+    contrast: float
+
+    @property
+    def determined(self) -> bool:
+        return self.contrast < 0.1
+
+
+def detect_phase(first: int, r: NDArray, u: NDArray, ratio: int, control_delay: int = 0) -> PhaseDetection:
+    """Detect the controller's phase from u - r = -H_u K_l S_d y (held over F samples).
+
+    ``first`` is the absolute index of the first sample. For each candidate hold
+    phase h the variation of u - r between consecutive samples *inside* the hold
+    intervals starting at indices = h (mod F) is summed; the true h gives (nearly) 0.
+    """
+    F = int(ratio)
+    if F == 1:
+        return PhaseDetection(0, 0, 1.0)
+    d = np.asarray(u, dtype=float) - np.asarray(r, dtype=float)
+    step = np.abs(np.diff(d, axis=0)).sum(axis=1) if d.ndim == 2 else np.abs(np.diff(d))
+    idx = (first + 1 + np.arange(step.shape[0])) % F          # index of the later sample
+    per_class = np.bincount(idx, weights=step, minlength=F)   # variation entering index = c (mod F)
+    total = per_class.sum()
+    inside = total - per_class                                # hold at h: changes only allowed at h
+    order = np.argsort(inside)
+    best, second = float(inside[order[0]]), float(inside[order[1]])
+    contrast = best / second if second > 0 else 1.0
+    hold = int(order[0])
+    return PhaseDetection((hold - control_delay) % F, hold, contrast)
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One identification of one window.
+
+    Attributes
+    ----------
+    first, n_samples : int
+        The window: absolute indices [first, first + n_samples).
+    identification : Identification
+        P_h (and the PFG when the controller is configured), full resolution.
+    phase : int
+        Lifting phase used (absolute index mod F at which the controller samples).
+    phase_source : str
+        "parameter", "auto", or "auto (undetermined: 0 assumed)".
+    compute_s : float
+        Wall time of the identification.
+    """
+
+    first: int
+    n_samples: int
+    identification: Identification
+    phase: int
+    phase_source: str
+    compute_s: float
+
+
+def estimate(window: Window, config: IdentConfig) -> Estimate:
+    """Identify P_h (and the PFG) from one aligned window; see the module docstring."""
+    t0 = time.perf_counter()
+    F = config.ratio
+    if config.phase is not None:
+        phase, source = config.phase, "parameter"
+    else:
+        det = detect_phase(window.first, window.r, window.u, F, config.control_delay)
+        if det.determined:
+            phase, source = det.phase, "auto"
+        else:
+            phase, source = 0, "auto (undetermined: 0 assumed)"
+    controller = config.controller
+    K_low = None
+    if controller is not None:
+        M = window.n_samples // F
+        K_low = controller.freqresp(np.arange(M) * (config.fs_high / F) / M)
+    ident = identify(window.r, window.u, window.y, fs_high=config.fs_high, ratio=F, method=config.method,
+                     n=config.n, degree=config.degree, controller_low=K_low, phase=phase,
+                     delay=config.control_delay, keep_lifted=False)
+    return Estimate(window.first, window.n_samples, ident, phase, source, time.perf_counter() - t0)
+
+
+def publish_grid(n_bins: int, points: int) -> NDArray[np.intp]:
+    """At most ``points`` bin indices out of ``n_bins``, log-spaced (duplicates at the
+    dense low end merged), first and last kept."""
+    if n_bins <= points:
+        return np.arange(n_bins)
+    return np.unique(np.round(np.geomspace(1, n_bins, points)).astype(np.intp) - 1)

@@ -1,0 +1,310 @@
+"""Blocks of high-rate samples on a topic, and their alignment by sample index.
+
+The topic contract (README, "Topic contract") in code: a
+``std_msgs/msg/Float64MultiArray`` carries one block of consecutive high-rate
+samples of one signal,
+
+* ``layout.dim[0]``: label ``"samples"``, size n, stride n*c;
+* ``layout.dim[1]``: label ``"channels"``, size c, stride c;
+* ``layout.data_offset = 1`` and ``data[0]`` = index of the block's first sample
+  (an integer >= 0, exact as a double below 2**53);
+* ``data[1 + i*c + j]`` = sample ``first + i`` of channel j (row-major).
+
+:func:`decode_block` checks one block; :class:`Aligner` puts the blocks of the
+three streams (r, u, y) together by sample index, never by arrival. It keeps
+each stream contiguous: a sample that never arrives (a gap, a block with
+NaN/inf) **restarts** that stream after the hole, so the aligned window - the
+indices all three streams hold - restarts too and never spans a gap. Pure
+Python/numpy; the node and the offline replay share it.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field, fields
+from typing import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .errors import DataError
+
+SAMPLES, CHANNELS = "samples", "channels"
+STREAMS = ("reference", "input", "output")      # r_h, u_h, y_h
+MAX_INDEX = 2 ** 53
+
+
+class BlockError(DataError):
+    """A block that breaks the topic contract; ``kind`` is "malformed" or "nonfinite"."""
+
+    def __init__(self, kind: str, reason: str):
+        super().__init__(reason)
+        self.kind = kind
+
+
+@dataclass(frozen=True)
+class Block:
+    """One decoded block: ``samples`` (n, channels) starting at index ``first``."""
+
+    first: int
+    samples: NDArray[np.float64]
+
+    @property
+    def end(self) -> int:
+        return self.first + self.samples.shape[0]
+
+
+def encode_fields(first: int, samples: NDArray) -> tuple[list[tuple[str, int, int]], int, NDArray[np.float64]]:
+    """The (dims, data_offset, data) of a block, for any Float64MultiArray writer."""
+    x = np.asarray(samples, dtype=float)
+    x = x[:, None] if x.ndim == 1 else x
+    n, c = x.shape
+    data = np.empty(1 + n * c)
+    data[0] = first
+    data[1:] = x.ravel()
+    return [(SAMPLES, n, n * c), (CHANNELS, c, c)], 1, data
+
+
+def decode_block(dims: Sequence[tuple[str, int, int]], data_offset: int, data: NDArray) -> Block:
+    """Check and decode one block (see the module docstring).
+
+    Raises
+    ------
+    BlockError
+        kind "malformed" for any layout violation, "nonfinite" for NaN/inf samples.
+    """
+    if len(dims) != 2 or dims[0][0] != SAMPLES or dims[1][0] != CHANNELS:
+        got = [d[0] for d in dims]
+        raise BlockError("malformed", f"layout dims must be labelled {[SAMPLES, CHANNELS]}, got {got}")
+    (_, n, s0), (_, c, s1) = dims
+    if n < 1 or c < 1 or s1 != c or s0 != n * c:
+        raise BlockError("malformed", f"layout sizes/strides inconsistent: samples size {n} stride {s0}, "
+                                      f"channels size {c} stride {s1} (need stride {n * c} and {c})")
+    if data_offset != 1:
+        raise BlockError("malformed", f"layout.data_offset must be 1 (data[0] is the first index), got {data_offset}")
+    if len(data) != 1 + n * c:
+        raise BlockError("malformed", f"data has {len(data)} values, layout needs 1 + {n}*{c} = {1 + n * c}")
+    first = float(data[0])
+    if not (np.isfinite(first) and first == int(first) and 0 <= first < MAX_INDEX):
+        raise BlockError("malformed", f"data[0] (first sample index) must be an integer in [0, 2^53), got {first!r}")
+    x = np.asarray(data[1:], dtype=float).reshape(n, c)
+    if not np.isfinite(x).all():
+        bad = int(np.flatnonzero(~np.isfinite(x).all(axis=1))[0])
+        raise BlockError("nonfinite", f"sample {int(first) + bad} (block starting at {int(first)}) is NaN or inf")
+    return Block(int(first), x)
+
+
+@dataclass
+class StreamStats:
+    """Counters of one stream (all monotone)."""
+
+    blocks: int = 0          # accepted blocks
+    samples: int = 0         # accepted samples
+    gaps: int = 0            # holes declared (samples never arrived)
+    gap_samples: int = 0     # samples in those holes
+    duplicates: int = 0      # blocks wholly received before
+    overlaps: int = 0        # blocks partly received before (the new tail is kept)
+    reordered: int = 0       # blocks that arrived ahead of a missing one
+    malformed: int = 0       # blocks breaking the layout contract
+    nonfinite: int = 0       # blocks with NaN/inf (dropped: a hole)
+    restarts: int = 0        # index jumped back (publisher restarted)
+    end: int = -1            # next expected index (-1: nothing yet)
+
+    def as_dict(self) -> dict[str, int]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+@dataclass
+class _Stream:
+    stats: StreamStats = field(default_factory=StreamStats)
+    chunks: deque = field(default_factory=deque)   # (first, array) contiguous from start to end
+    start: int = -1
+    end: int = -1
+    channels: int = 0
+    pending: dict = field(default_factory=dict)    # first -> array, arrived ahead of end
+
+    def reset(self, at: int) -> None:
+        self.chunks.clear()
+        self.start = self.end = at
+        self.pending = {k: v for k, v in self.pending.items() if k >= at}
+
+    def append(self, first: int, x: NDArray) -> None:
+        self.chunks.append((first, x))
+        self.end = first + x.shape[0]
+        self.stats.end = self.end
+        self.stats.blocks += 1
+        self.stats.samples += x.shape[0]
+
+    def drain(self) -> None:
+        while self.pending:
+            k = min(self.pending)
+            if k > self.end:
+                return
+            x = self.pending.pop(k)
+            if k + x.shape[0] <= self.end:
+                self.stats.duplicates += 1
+                continue
+            if k < self.end:
+                self.stats.overlaps += 1
+                x = x[self.end - k:]
+                k = self.end
+            self.append(k, x)
+
+
+@dataclass(frozen=True)
+class Window:
+    """Aligned samples of the three streams over indices [first, first + N)."""
+
+    first: int
+    r: NDArray[np.float64]
+    u: NDArray[np.float64]
+    y: NDArray[np.float64]
+
+    @property
+    def n_samples(self) -> int:
+        return self.r.shape[0]
+
+    @property
+    def end(self) -> int:
+        return self.first + self.n_samples
+
+
+class Aligner:
+    """Align three block streams by sample index into a bounded, gap-free window.
+
+    Parameters
+    ----------
+    capacity : int
+        Window length in samples (the sliding window; older samples are dropped).
+    ratio : int
+        F; windows start at an index that is a multiple of F and hold whole periods.
+    reorder_blocks : int
+        Blocks that may wait ahead of a missing one; one more and the missing
+        samples are declared a gap (the stream restarts after it).
+    channels : sequence of 3 ints, optional
+        Expected channel counts of r, u, y; otherwise fixed by each stream's first block.
+
+    Policy: a hole restarts the stream after it (so the window restarts); a block
+    wholly behind the stream's end is a duplicate when it equals the samples held
+    for those indices, otherwise a restart of the publisher's index (the stream
+    restarts at it).
+    """
+
+    def __init__(self, capacity: int, ratio: int, reorder_blocks: int = 8,
+                 channels: Sequence[int] | None = None):
+        self.capacity = int(capacity)
+        self.ratio = int(ratio)
+        self.reorder_blocks = int(reorder_blocks)
+        self._s = [_Stream() for _ in STREAMS]
+        if channels is not None:
+            for s, c in zip(self._s, channels):
+                s.channels = int(c)
+        self.restarts = 0     # times the aligned window had to start again
+
+    @property
+    def stats(self) -> dict[str, StreamStats]:
+        return {name: s.stats for name, s in zip(STREAMS, self._s)}
+
+    def count(self, stream: int, kind: str) -> None:
+        """Count a rejected block (kind "malformed" or "nonfinite") of ``stream``."""
+        setattr(self._s[stream].stats, kind, getattr(self._s[stream].stats, kind) + 1)
+
+    def push(self, stream: int, block: Block) -> str | None:
+        """Add one decoded block of stream 0 (r), 1 (u) or 2 (y).
+
+        Returns None, or a short description of an anomaly (for a log line).
+        """
+        s = self._s[stream]
+        x, first = block.samples, block.first
+        n = x.shape[0]
+        if s.channels and x.shape[1] != s.channels:
+            s.stats.malformed += 1
+            return f"{STREAMS[stream]}: block at {first} has {x.shape[1]} channels, expected {s.channels}"
+        s.channels = x.shape[1]
+        if s.end < 0:
+            s.reset(first)
+        if first == s.end:
+            s.append(first, x)
+            s.drain()
+            note = None
+        elif first > s.end:
+            s.pending[first] = x
+            s.stats.reordered += 1
+            note = None
+            if len(s.pending) > self.reorder_blocks:
+                k = min(s.pending)
+                s.stats.gaps += 1
+                s.stats.gap_samples += k - s.end
+                s.stats.reordered -= 1     # counted as a gap instead
+                note = f"{STREAMS[stream]}: gap of {k - s.end} samples at [{s.end}, {k}); window restarts at {k}"
+                s.reset(k)
+                self.restarts += 1
+                s.drain()
+        elif first + n > s.end:
+            s.stats.overlaps += 1
+            s.append(s.end, x[s.end - first:])
+            s.drain()
+            note = None
+        elif first >= s.start and np.array_equal(self._extract(s, first, first + n), x):
+            s.stats.duplicates += 1
+            return None
+        else:
+            s.stats.restarts += 1
+            note = f"{STREAMS[stream]}: index went back from {s.end} to {first}; stream restarts"
+            s.pending.clear()
+            s.reset(first)
+            self.restarts += 1
+            s.append(first, x)
+        self._trim(s)
+        return note
+
+    def hole(self, stream: int, first: int, n: int) -> str:
+        """Samples [first, first+n) of ``stream`` are lost (e.g. a NaN block)."""
+        s = self._s[stream]
+        if s.end < 0 or first + n > s.end:
+            s.stats.gaps += 1
+            s.stats.gap_samples += n
+            s.reset(first + n)
+            s.stats.end = s.end
+            self.restarts += 1
+        return f"{STREAMS[stream]}: samples [{first}, {first + n}) lost; window restarts at {first + n}"
+
+    def _trim(self, s: _Stream) -> None:
+        keep_from = s.end - self.capacity - self.ratio
+        while s.chunks and s.chunks[0][0] + s.chunks[0][1].shape[0] <= keep_from:
+            s.chunks.popleft()
+        s.start = s.chunks[0][0] if s.chunks else s.end
+
+    def span(self, stop: int | None = None) -> tuple[int, int]:
+        """Aligned [first, end) the next :meth:`window` would return (end <= first: none)."""
+        if any(s.end < 0 for s in self._s):
+            return 0, 0
+        hi = min(s.end for s in self._s)
+        if stop is not None:
+            hi = min(hi, stop)
+        lo = max(max(s.start for s in self._s), hi - self.capacity)
+        F = self.ratio
+        lo = -(-lo // F) * F
+        return lo, lo + max(0, (hi - lo) // F * F)
+
+    def window(self, min_samples: int = 1, stop: int | None = None) -> Window | None:
+        """The latest aligned window (at most ``capacity`` samples, ending at or before
+        ``stop``), or None when it holds fewer than ``min_samples``."""
+        lo, hi = self.span(stop)
+        if hi - lo < max(min_samples, 1):
+            return None
+        return Window(lo, *(self._extract(s, lo, hi) for s in self._s))
+
+    @staticmethod
+    def _extract(s: _Stream, lo: int, hi: int) -> NDArray[np.float64]:
+        parts = []
+        for first, x in s.chunks:
+            end = first + x.shape[0]
+            if end <= lo:
+                continue
+            if first >= hi:
+                break
+            parts.append(x[max(lo - first, 0): min(hi, end) - first])
+        out = np.concatenate(parts, axis=0)
+        assert out.shape[0] == hi - lo
+        return out
