@@ -15,8 +15,9 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
+        ("share/" + package_name + "/launch", glob("launch/*.launch.py")),
     ],
-    install_requires=["setuptools", "numpy", "scipy", "PyYAML", "matplotlib"],
+    install_requires=["setuptools", "numpy", "scipy", "PyYAML", "matplotlib", "mcap", "mcap-ros2-support"],
     zip_safe=True,
     maintainer="mr_ident developers",
     maintainer_email="mr-ident@example.org",
@@ -27,6 +28,8 @@ setup(
     entry_points={
         "console_scripts": [
             "mr-ident = mr_ident.cli:main",
+            "mr-ident-node = mr_ident.ros.node:main",
+            "mr-ident-sim = mr_ident.ros.sim:main",
         ],
     },
 )

@@ -1,4 +1,6 @@
-"""Command line: ``mr-ident simulate | identify | paper``.
+"""Command line: ``mr-ident simulate | identify | paper | replay | record | demo``.
+
+``record``, ``replay --publish`` and ``demo`` need rclpy (imported only for them).
 
 User errors print ``error: ...`` to stderr and exit with status 2, never a traceback.
 """
@@ -76,6 +78,29 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--noise-std", type=float, default=None, help="override the model's output noise std")
     q.add_argument("--seed", type=int, default=0)
     q.add_argument("--out-dir", type=Path, default=Path("out/paper"), help="where to write (default out/paper)")
+
+    rp = sub.add_parser("replay", help="identify from an MCAP recording as the node would (or re-publish it)")
+    rp.add_argument("recording", type=Path, help="MCAP file (recorded by mr-ident record or the node)")
+    rp.add_argument("--params", type=Path, help="node params file (ROS 2 form), e.g. config/node.yaml; "
+                    "default: the node's defaults")
+    rp.add_argument("--topics", nargs=3, metavar=("R", "U", "Y"),
+                    help="recorded topic names of r, u, y (default: .../reference, .../input, .../output)")
+    rp.add_argument("--stop", type=_int_at_least(1), help="use the window ending at or before this sample index")
+    rp.add_argument("--out", type=Path, help="result .npz (same form as identify)")
+    rp.add_argument("--plot", type=Path, help="Bode plot PNG (PFG next to it as *_pfg.png)")
+    rp.add_argument("--model", type=Path, help="model YAML: reference curve in the plot")
+    rp.add_argument("--publish", action="store_true", help="re-publish the recording on its topics instead")
+    rp.add_argument("--rate", type=_positive_float, default=1.0, help="with --publish: times real time (default 1)")
+
+    rc = sub.add_parser("record", help="record topics to an MCAP file (rosbag2 form) until Ctrl-C")
+    rc.add_argument("out", type=Path, help="MCAP file to write")
+    rc.add_argument("topics", nargs="*", help="topics (default: reference input output)")
+    rc.add_argument("--duration", type=_positive_float, help="stop after this many seconds")
+
+    d = sub.add_parser("demo", help="live demo: simulated loop + node over DDS, recording, replay, plots")
+    d.add_argument("--out-dir", type=Path, default=Path("out/demo"))
+    d.add_argument("--rate", type=_positive_float, default=20.0, help="simulation speed-up (default 20)")
+    d.add_argument("--timeout", type=_positive_float, default=120.0, help="give up after this many s (default 120)")
     return p
 
 
@@ -163,9 +188,62 @@ def cmd_paper(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_replay(args: argparse.Namespace) -> int:
+    from .config import IdentConfig, load_params
+    from .data import write_result
+    from .recording import replay
+    if args.publish:
+        from .ros.record import publish_recording
+        n = publish_recording(args.recording, rate=args.rate)
+        print(f"published {n} messages from {args.recording}")
+        return 0
+    if args.out is None:
+        raise ConfigError("replay needs --out RESULT.npz (or --publish)")
+    if args.out.suffix.lower() != ".npz":
+        raise ConfigError(f"--out must be a .npz file, got {str(args.out)!r}")
+    cfg = load_params(args.params) if args.params else IdentConfig()
+    res = replay(args.recording, cfg, topics=args.topics, stop=args.stop)
+    info, est = res.info, res.estimate
+    if info.truncated:
+        print(f"warning: {args.recording} is cut short; recovered {sum(info.messages.values())} messages "
+              f"({info.bytes_read} of {info.file_bytes} bytes) ({info.reason})", file=sys.stderr)
+    for note in res.anomalies[:20]:
+        print(f"note: {note}", file=sys.stderr)
+    write_result(args.out, est.identification)
+    counts = ", ".join(f"{k} {v}" for k, v in info.messages.items())
+    print(f"read {counts} messages; window [{est.first}, {est.first + est.n_samples}) "
+          f"({est.n_samples / cfg.fs_high:g} s), lifting phase {est.phase} ({est.phase_source}), "
+          f"{est.compute_s:.3f} s")
+    print(f"wrote {args.out} ({est.identification.plant.frequency.size} bins, method {cfg.method})")
+    if args.plot:
+        from .pfg import pfg_of_model
+        from .plots import plot_bode, plot_pfg
+        model = load_model(args.model) if args.model else None
+        nyq = cfg.fs_high / cfg.ratio / 2 if cfg.ratio > 1 else None
+        print(f"wrote {plot_bode(est.identification.plant, args.plot, nyquist_low=nyq, model=model.plant_result(est.n_samples) if model else None)}")
+        if est.identification.pfg is not None:
+            path = args.plot.with_name(args.plot.stem + "_pfg" + args.plot.suffix)
+            ref = pfg_of_model(model, est.n_samples) if model is not None and model.controller is not None else None
+            print(f"wrote {plot_pfg(est.identification.pfg, path, model=ref)}")
+    return 0
+
+
+def cmd_record(args: argparse.Namespace) -> int:
+    from .ros.record import record
+    counts = record(args.out, args.topics, duration=args.duration)
+    print(f"wrote {args.out}: " + (", ".join(f"{t} {n}" for t, n in counts.items()) or "nothing") + " messages")
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from .ros.demo import run_demo
+    return run_demo(args.out_dir, rate=args.rate, timeout=args.timeout)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    commands = {"simulate": cmd_simulate, "identify": cmd_identify, "paper": cmd_paper}
+    commands = {"simulate": cmd_simulate, "identify": cmd_identify, "paper": cmd_paper, "replay": cmd_replay,
+                "record": cmd_record, "demo": cmd_demo}
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("default")

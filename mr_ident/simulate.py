@@ -190,3 +190,50 @@ def simulate(model: Model, *, n_samples: int | None = None, duration: float | No
     y = out[:, :F * ny].reshape(N, ny)
     u = out[:, F * ny:].reshape(N, nu)
     return Simulation(r=ra, u=u, y=y, fs_high=model.fs_high, ratio=F)
+
+
+class LoopStream:
+    """The loop of ``model`` simulated piece by piece, state carried across calls.
+
+    ``next(reference, noise)`` continues exactly where the previous call stopped,
+    so concatenated pieces equal one :func:`simulate` over the whole record. Used by
+    ``mr-ident-sim`` to publish an endless stream.
+    """
+
+    def __init__(self, model: Model):
+        self.model = model
+        ss = lifted_loop(model)
+        self._ss = ss
+        lam, V = np.linalg.eig(ss.A) if ss.A.size else (np.zeros(0, complex), np.zeros((0, 0)))
+        self._modal = ss.A.size == 0 or np.linalg.cond(V) < 1e8
+        if self._modal:
+            self._lam = lam
+            self._Bm = np.linalg.solve(V, ss.B.astype(complex)) if ss.A.size else np.zeros((0, ss.B.shape[1]))
+            self._Cm = ss.C @ V if ss.A.size else np.zeros((ss.C.shape[0], 0))
+            self._z = np.zeros(lam.shape[0], dtype=complex)
+        else:
+            self._x = np.zeros(ss.A.shape[0])
+
+    def next(self, reference: ArrayLike, noise: ArrayLike | None = None) -> tuple[NDArray, NDArray]:
+        """Plant input and output (u, y) for ``reference`` (N, n_u), N a multiple of F."""
+        F, ny, nu = self.model.ratio, self.model.n_y, self.model.n_u
+        ra = np.asarray(reference, dtype=float).reshape(-1, nu)
+        N = ra.shape[0]
+        if N % F:
+            raise DimensionError(f"reference length {N} must be a multiple of ratio F={F}")
+        va = np.zeros((N, ny)) if noise is None else np.asarray(noise, dtype=float).reshape(N, ny)
+        M = N // F
+        w = np.concatenate([ra.reshape(M, F * nu), va.reshape(M, F * ny)], axis=1)
+        out = w @ self._ss.D.T
+        if self._modal:
+            drive = w @ self._Bm.T
+            for i, li in enumerate(self._lam):
+                z, zf = scipy.signal.lfilter([0.0, 1.0], [1.0, -li], drive[:, i], zi=[self._z[i]])
+                self._z[i] = zf[0]
+                out += np.real(np.outer(z, self._Cm[:, i]))
+        else:
+            ss = self._ss
+            _, yout, xout = scipy.signal.dlsim((ss.A, ss.B, ss.C, ss.D, 1.0), w, x0=self._x)
+            out = np.asarray(yout).reshape(M, -1)
+            self._x = ss.A @ xout[-1] + ss.B @ w[-1]
+        return out[:, F * ny:].reshape(N, nu), out[:, :F * ny].reshape(N, ny)

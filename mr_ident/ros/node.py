@@ -1,0 +1,335 @@
+"""``mr-ident-node``: live identification of a multirate loop on a ROS 2 graph.
+
+A thin adapter: messages -> :func:`~mr_ident.ros.messages.block_of` ->
+:class:`~mr_ident.stream.Aligner` (executor thread); every ``update_period_s`` the
+latest aligned window goes to a worker thread that runs
+:func:`~mr_ident.live.estimate` and publishes. Parameters are the fields of
+:class:`~mr_ident.config.IdentConfig`, validated through it on every set.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from typing import Any, Sequence
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType,
+                                SetParametersResult)
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.serialization import deserialize_message
+from std_msgs.msg import Float64MultiArray
+
+from ..config import PARAMETERS, IdentConfig
+from ..errors import MrIdentError
+from ..live import Estimate, estimate, publish_grid
+from ..recording import McapRecorder
+from ..stream import STREAMS, Aligner, BlockError, Window
+from .messages import BLOCK_QOS, BLOCK_TYPE, RESULT_QOS, block_of, frf_msgs, qos_dict, vector_msg
+
+WARN_HOLD_S = 10.0     # an anomaly keeps the level at WARN this long
+
+
+def _descriptor(name: str, default: Any) -> ParameterDescriptor:
+    spec = PARAMETERS[name]
+    d = ParameterDescriptor(name=name, description=spec.description)
+    if isinstance(default, bool):
+        raise TypeError(name)
+    if isinstance(default, float):
+        d.type = ParameterType.PARAMETER_DOUBLE
+        d.floating_point_range = [FloatingPointRange(from_value=float(spec.low), to_value=float(spec.high),
+                                                     step=0.0)]
+    elif isinstance(default, int):
+        d.type = ParameterType.PARAMETER_INTEGER
+        d.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high), step=1)]
+    elif isinstance(default, str):
+        d.type = ParameterType.PARAMETER_STRING
+    else:
+        d.type = ParameterType.PARAMETER_DOUBLE_ARRAY
+    return d
+
+
+class IdentNode(Node):
+    """The identification node (see the module docstring and the README)."""
+
+    def __init__(self, name: str = "mr_ident", **kwargs: Any):
+        super().__init__(name, **kwargs)
+        defaults = IdentConfig().as_dict()
+        values = {}
+        for key, default in defaults.items():
+            if isinstance(default, list):
+                p = self.declare_parameter(key, Parameter.Type.DOUBLE_ARRAY, _descriptor(key, default))
+                values[key] = tuple(p.value) if p.value is not None else ()
+            else:
+                values[key] = self.declare_parameter(key, default, _descriptor(key, default)).value
+        self.config = IdentConfig().replace(**values)      # raises ConfigError on a bad params file
+        self.add_on_set_parameters_callback(self._on_set)
+
+        self._lock = threading.Lock()                      # guards the estimate state below
+        self._aligner = self._new_aligner(self.config)
+        self._notes: list[tuple[float, str]] = []
+        self._arrivals = [0.0, 0.0, 0.0]
+        self._samples_in = 0
+        self._started = time.monotonic()
+        self._last_estimate: Estimate | None = None
+        self._last_estimate_wall = 0.0
+        self._estimates = 0
+        self._last_error = ""
+        self._last_error_time = 0.0
+        self._last_end = -1
+        self._busy = False
+        self._stopping = False
+        self._worker_thread: threading.Thread | None = None
+        self._recorder: McapRecorder | None = None
+        self._rec_channels: dict[int, int] = {}
+        self._lost_events = 0
+
+        self._subs = []
+        for s, topic in enumerate(STREAMS):
+            self._subs.append(self.create_subscription(
+                Float64MultiArray, topic, lambda raw, s=s: self._on_block(s, raw), BLOCK_QOS, raw=True))
+        self._pub_f = self.create_publisher(Float64MultiArray, "~/frequencies", RESULT_QOS)
+        self._pub_p = self.create_publisher(Float64MultiArray, "~/plant_frf", RESULT_QOS)
+        self._pub_ps = self.create_publisher(Float64MultiArray, "~/plant_frf_std", RESULT_QOS)
+        self._pub_g = self.create_publisher(Float64MultiArray, "~/pfg", RESULT_QOS)
+        self._pub_gs = self.create_publisher(Float64MultiArray, "~/pfg_std", RESULT_QOS)
+        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._update_timer = self.create_timer(self.config.update_period_s, self._on_update)
+        self.create_timer(1.0, self._publish_diagnostics)
+        if self.config.record_path:
+            self._open_recorder(self.config.record_path)
+
+    # -- parameters ------------------------------------------------------------------
+    def _on_set(self, params: list[Parameter]) -> SetParametersResult:
+        changes = {}
+        for p in params:
+            if p.name not in PARAMETERS:
+                continue
+            v = p.value
+            changes[p.name] = tuple(v) if isinstance(v, (list, tuple, np.ndarray)) or \
+                p.type_ == Parameter.Type.DOUBLE_ARRAY else v
+            if changes[p.name] is None:
+                changes[p.name] = ()
+        try:
+            new = self.config.replace(**changes)
+        except MrIdentError as err:
+            return SetParametersResult(successful=False, reason=str(err))
+        old, self.config = self.config, new
+        if (new.fs_high, new.ratio, new.window_samples, new.reorder_blocks) != \
+                (old.fs_high, old.ratio, old.window_samples, old.reorder_blocks):
+            self._aligner = self._new_aligner(new)
+            self._note("parameters changed (rate, F, window or reorder): window restarts")
+        if new.update_period_s != old.update_period_s:
+            self._update_timer.cancel()
+            self.destroy_timer(self._update_timer)
+            self._update_timer = self.create_timer(new.update_period_s, self._on_update)
+        if new.record_path != old.record_path:
+            self._close_recorder()
+            if new.record_path:
+                self._open_recorder(new.record_path)
+        return SetParametersResult(successful=True)
+
+    @staticmethod
+    def _new_aligner(c: IdentConfig) -> Aligner:
+        return Aligner(c.window_samples, c.ratio, c.reorder_blocks)
+
+    # -- ingestion (executor thread) ----------------------------------------------------
+    def _note(self, text: str) -> None:
+        self._notes.append((time.monotonic(), text))
+        del self._notes[:-50]
+        self.get_logger().warning(text, throttle_duration_sec=1.0)
+
+    def _on_block(self, stream: int, raw: bytes) -> None:
+        now = time.monotonic()
+        self._arrivals[stream] = now
+        if self._recorder is not None:
+            self._record(stream, raw)
+        try:
+            block = block_of(deserialize_message(raw, Float64MultiArray))
+        except BlockError as err:
+            self._aligner.count(stream, err.kind)
+            if err.kind == "nonfinite":
+                # the block's index range is known from its header: make it a hole
+                msg = deserialize_message(raw, Float64MultiArray)
+                n = msg.layout.dim[0].size
+                self._note(self._aligner.hole(stream, int(msg.data[0]), int(n)) + f" ({err})")
+            else:
+                self._note(f"{STREAMS[stream]}: malformed block dropped: {err}")
+            return
+        self._samples_in += block.samples.shape[0]
+        note = self._aligner.push(stream, block)
+        if note:
+            self._note(note)
+
+    def _record(self, stream: int, raw: bytes) -> None:
+        rec = self._recorder
+        assert rec is not None
+        cid = self._rec_channels.get(stream)
+        if cid is None:
+            topic = self._subs[stream].topic_name
+            qos = [qos_dict(i.qos_profile) for i in self.get_publishers_info_by_topic(topic)]
+            cid = self._rec_channels[stream] = rec.add_topic(topic, BLOCK_TYPE, qos)
+        t = time.time_ns()
+        if not rec.write(cid, raw, t, t) and rec.error is not None:
+            self._note(f"recording to {rec.path} stopped: {rec.error}")
+            self._close_recorder()
+
+    def _open_recorder(self, path: str) -> None:
+        try:
+            self._recorder = McapRecorder(path)
+        except OSError as err:
+            self._last_error, self._last_error_time = f"cannot record to {path}: {err}", time.monotonic()
+            self.get_logger().error(self._last_error)
+        self._rec_channels = {}
+
+    def _close_recorder(self) -> None:
+        rec, self._recorder = self._recorder, None
+        if rec is not None:
+            rec.close()
+
+    # -- estimation ---------------------------------------------------------------------
+    def _on_update(self) -> None:
+        if self._busy or self._stopping:
+            return
+        cfg = self.config
+        lo, hi = self._aligner.span()
+        if hi - lo < cfg.min_samples or hi == self._last_end:
+            return
+        window = self._aligner.window(cfg.min_samples)
+        if window is None:
+            return
+        self._last_end = window.end
+        self._busy = True
+        self._worker_thread = threading.Thread(target=self._work, args=(window, cfg), daemon=True,
+                                               name="mr_ident-estimate")
+        self._worker_thread.start()
+
+    def _work(self, window: Window, cfg: IdentConfig) -> None:
+        try:
+            est = estimate(window, cfg)
+            if not self._stopping:
+                self._publish(est, cfg)
+            with self._lock:
+                self._last_estimate = est
+                self._last_estimate_wall = time.monotonic()
+                self._estimates += 1
+        except Exception as err:          # keep the node alive; report on /diagnostics
+            with self._lock:
+                self._last_error, self._last_error_time = f"identification failed: {err}", time.monotonic()
+            self.get_logger().error(self._last_error)
+        finally:
+            self._busy = False
+
+    def _publish(self, est: Estimate, cfg: IdentConfig) -> None:
+        plant = est.identification.plant
+        picks = publish_grid(plant.frequency.size, cfg.publish_points)
+        f, p, s = frf_msgs(plant.frequency[picks], plant.response[picks], plant.std[picks])
+        self._pub_f.publish(f)
+        self._pub_p.publish(p)
+        self._pub_ps.publish(s)
+        pfg = est.identification.pfg
+        if pfg is not None:
+            self._pub_g.publish(vector_msg(pfg.gain[picks]))
+            self._pub_gs.publish(vector_msg(pfg.std[picks]))
+
+    @property
+    def last_estimate(self) -> Estimate | None:
+        with self._lock:
+            return self._last_estimate
+
+    # -- diagnostics --------------------------------------------------------------------
+    def diagnostic_status(self) -> DiagnosticStatus:
+        now = time.monotonic()
+        cfg = self.config
+        stats = self._aligner.stats
+        lo, hi = self._aligner.span()
+        fill = max(0, hi - lo) / cfg.window_samples
+        with self._lock:
+            est, err, err_t = self._last_estimate, self._last_error, self._last_error_time
+            n_est, est_t = self._estimates, self._last_estimate_wall
+        recent = [t for t, _ in self._notes if now - t < WARN_HOLD_S]
+        stalled = [STREAMS[i] for i, t in enumerate(self._arrivals)
+                   if t and now - t > cfg.stall_timeout_s]
+        silent = [STREAMS[i] for i, t in enumerate(self._arrivals) if not t]
+        level, reason = DiagnosticStatus.OK, "estimating"
+        if err and now - err_t < WARN_HOLD_S:
+            level, reason = DiagnosticStatus.ERROR, err
+        elif stalled:
+            level, reason = DiagnosticStatus.WARN, f"stream(s) {', '.join(stalled)} stalled " \
+                                                   f"(> {cfg.stall_timeout_s:g} s without a block)"
+        elif recent:
+            level, reason = DiagnosticStatus.WARN, self._notes[-1][1]
+        elif silent and now - self._started > cfg.stall_timeout_s:
+            level, reason = DiagnosticStatus.WARN, f"no data yet on {', '.join(silent)}"
+        elif est is None:
+            reason = f"filling window ({100 * fill:.0f} %, first estimate at " \
+                     f"{100 * cfg.min_samples / cfg.window_samples:.0f} %)"
+        values = {"samples_in": self._samples_in, "window_fill": f"{fill:.4f}",
+                  "window_first_index": lo, "window_end_index": hi, "estimates": n_est,
+                  "last_update_age_s": f"{now - est_t:.3f}" if est is not None else "never",
+                  "recording": self._recorder.path.as_posix() if self._recorder else "",
+                  "window_restarts": self._aligner.restarts}
+        if est is not None:
+            values.update({"compute_s": f"{est.compute_s:.4f}", "lifting_phase": est.phase,
+                           "lifting_phase_source": est.phase_source,
+                           "estimate_first_index": est.first, "estimate_samples": est.n_samples})
+        else:
+            values["lifting_phase"] = cfg.lifting_phase
+        for name, st in stats.items():
+            for k in ("samples", "blocks", "gaps", "gap_samples", "duplicates", "overlaps", "reordered",
+                      "malformed", "nonfinite", "restarts", "end"):
+                values[f"{name}.{k}"] = getattr(st, k)
+        st = DiagnosticStatus(level=level, name=f"{self.get_name()}: identification", message=reason,
+                              hardware_id=self.get_fully_qualified_name())
+        st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        return st
+
+    def _publish_diagnostics(self) -> None:
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.status = [self.diagnostic_status()]
+        self._pub_diag.publish(msg)
+
+    def shutdown(self, timeout: float = 30.0) -> None:
+        """Stop estimating, wait for a running identification, finalise the recording."""
+        self._stopping = True
+        t = self._worker_thread
+        if t is not None:
+            t.join(timeout)
+        self._close_recorder()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Console script ``mr-ident-node`` (accepts ``--ros-args ...``)."""
+    args = list(sys.argv if argv is None else argv)
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = IdentNode()
+        # Not rclpy.experimental.EventsExecutor: in rclpy 7.1.6 its spin() starves other
+        # Python threads (measured: the identification thread and publishers from other
+        # threads stall), and the identification must run off the executor thread.
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (MrIdentError, rclpy.exceptions.InvalidParameterTypeException,
+            rclpy.exceptions.InvalidParameterValueException) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    finally:
+        if node is not None:
+            node.shutdown()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

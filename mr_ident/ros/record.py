@@ -1,0 +1,150 @@
+"""``mr-ident record`` and ``mr-ident replay --publish``: MCAP to and from a ROS 2 graph.
+
+Recording subscribes raw (the CDR bytes rclpy received, never re-serialized) to
+each topic once a publisher appears, and stores it with
+:class:`~mr_ident.recording.McapRecorder`. SIGINT and SIGTERM end the
+recording cleanly: the file is finalised (summary and footer written).
+"""
+
+from __future__ import annotations
+
+import importlib
+import time
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from ..errors import DataError
+from ..recording import McapRecorder
+from ..stream import STREAMS
+from .messages import qos_dict
+
+
+def message_class(type_name: str) -> Any:
+    """The Python class of ``pkg/msg/Type``."""
+    pkg, kind, name = type_name.split("/")
+    return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
+
+
+def _absolute(topic: str) -> str:
+    return topic if topic.startswith("/") else "/" + topic
+
+
+class Recorder:
+    """Record ``topics`` of ``node``'s graph into ``path`` (call :meth:`poll` periodically)."""
+
+    def __init__(self, node: Node, path: str | Path, topics: Sequence[str]):
+        self.node = node
+        self.topics = [_absolute(t) for t in topics]
+        self.rec = McapRecorder(path)
+        self._subs: dict[str, Any] = {}
+        self.counts: dict[str, int] = {t: 0 for t in self.topics}
+
+    def poll(self) -> None:
+        """Subscribe to every wanted topic that has gained a publisher."""
+        for topic in self.topics:
+            if topic in self._subs:
+                continue
+            infos = self.node.get_publishers_info_by_topic(topic)
+            if not infos:
+                continue
+            type_name = infos[0].topic_type
+            qos = QoSProfile(
+                history=HistoryPolicy.KEEP_LAST, depth=1000,
+                reliability=ReliabilityPolicy.RELIABLE
+                if all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
+                else ReliabilityPolicy.BEST_EFFORT,
+                durability=DurabilityPolicy.TRANSIENT_LOCAL
+                if all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
+                else DurabilityPolicy.VOLATILE)
+            cid = self.rec.add_topic(topic, type_name, [qos_dict(i.qos_profile) for i in infos])
+            self._subs[topic] = self.node.create_subscription(
+                message_class(type_name), topic, self._writer(topic, cid), qos, raw=True)
+            self.node.get_logger().info(f"recording {topic} ({type_name})")
+
+    def _writer(self, topic: str, cid: int) -> Callable[[bytes], None]:
+        def write(raw: bytes) -> None:
+            t = time.time_ns()
+            if self.rec.write(cid, raw, t, t):
+                self.counts[topic] += 1
+        return write
+
+    def close(self) -> None:
+        self.rec.close()
+
+
+def record(path: str | Path, topics: Sequence[str], *, duration: float | None = None,
+           args: Sequence[str] | None = None) -> dict[str, int]:
+    """Record until ``duration`` s have passed, or SIGINT/SIGTERM; returns messages per topic."""
+    rclpy.init(args=list(args) if args is not None else None)
+    node = rclpy.create_node("mr_ident_record")
+    recorder = None
+    try:
+        recorder = Recorder(node, path, topics or STREAMS)
+        node.create_timer(0.1, recorder.poll)
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        end = None if duration is None else time.monotonic() + duration
+        while rclpy.ok() and (end is None or time.monotonic() < end):
+            executor.spin_once(timeout_sec=0.1)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if recorder is not None:
+            recorder.close()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return recorder.counts if recorder else {}
+
+
+def publish_recording(path: str | Path, *, rate: float = 1.0, wait: float = 5.0,
+                      args: Sequence[str] | None = None) -> int:
+    """Re-publish every message of an MCAP recording on its topic (raw CDR), paced by
+    its log times divided by ``rate``. Returns the number of messages published."""
+    from mcap.reader import make_reader
+
+    from .messages import BLOCK_QOS
+    try:
+        fh = open(path, "rb")
+    except OSError as err:
+        raise DataError(f"cannot read recording {str(path)!r}: {err.strerror}") from err
+    rclpy.init(args=list(args) if args is not None else None)
+    node = rclpy.create_node("mr_ident_replay")
+    sent = 0
+    try:
+        with fh:
+            reader = make_reader(fh)
+            try:
+                summary = reader.get_summary()
+            except Exception as err:
+                raise DataError(f"{path}: cannot read the summary ({err}); is the file finalised?") from err
+            if summary is None:
+                raise DataError(f"{path}: no summary section; is the file finalised?")
+            pubs = {cid: node.create_publisher(message_class(summary.schemas[ch.schema_id].name), ch.topic,
+                                               BLOCK_QOS)
+                    for cid, ch in summary.channels.items()}
+            deadline = time.monotonic() + wait
+            while time.monotonic() < deadline and rclpy.ok() and \
+                    any(p.get_subscription_count() == 0 for p in pubs.values()):
+                time.sleep(0.02)
+            t0 = time.monotonic()
+            first_log = None
+            for _, channel, message in reader.iter_messages(log_time_order=True):
+                if not rclpy.ok():
+                    break
+                first_log = message.log_time if first_log is None else first_log
+                due = t0 + (message.log_time - first_log) * 1e-9 / rate
+                while (d := due - time.monotonic()) > 0 and rclpy.ok():
+                    time.sleep(min(d, 0.1))
+                pubs[channel.id].publish(bytes(message.data))
+                sent += 1
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return sent
