@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 export ROS_LOG_DIR ?= $(CURDIR)/out/ros_log
 export MPLBACKEND := Agg
 
-.PHONY: demo test bench venv clean
+.PHONY: demo paper test bench bench-live venv clean
 
 venv: $(STAMP)
 
@@ -17,6 +17,9 @@ $(STAMP): requirements.txt setup.py setup.cfg
 	touch $(STAMP)
 
 demo: $(STAMP)
+	$(VENV)/bin/mr-ident demo --out-dir out/demo
+
+paper: $(STAMP)
 	$(VENV)/bin/mr-ident paper --out-dir out/paper
 
 test: $(STAMP)

@@ -247,6 +247,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("default")
+            warnings.simplefilter("ignore", DeprecationWarning)    # third-party import noise (lark)
             return commands[args.command](args)
     except MrIdentError as err:
         print(f"error: {err}", file=sys.stderr)

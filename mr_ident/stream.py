@@ -104,7 +104,7 @@ class StreamStats:
     gap_samples: int = 0     # samples in those holes
     duplicates: int = 0      # blocks wholly received before
     overlaps: int = 0        # blocks partly received before (the new tail is kept)
-    reordered: int = 0       # blocks that arrived ahead of a missing one
+    reordered: int = 0       # blocks that arrived ahead of a missing one (later filled or declared a gap)
     malformed: int = 0       # blocks breaking the layout contract
     nonfinite: int = 0       # blocks with NaN/inf (dropped: a hole)
     restarts: int = 0        # index jumped back (publisher restarted)
@@ -122,6 +122,7 @@ class _Stream:
     end: int = -1
     channels: int = 0
     pending: dict = field(default_factory=dict)    # first -> array, arrived ahead of end
+    pending_since: float | None = None             # caller's clock when pending became non-empty
 
     def reset(self, at: int) -> None:
         self.chunks.clear()
@@ -179,8 +180,9 @@ class Aligner:
     ratio : int
         F; windows start at an index that is a multiple of F and hold whole periods.
     reorder_blocks : int
-        Blocks that may wait ahead of a missing one; one more and the missing
-        samples are declared a gap (the stream restarts after it).
+        Blocks that may wait ahead of a missing one; one more (or waiting longer
+        than the caller's limit, :meth:`expire`) and the missing samples are
+        declared a gap (the stream restarts after it).
     channels : sequence of 3 ints, optional
         Expected channel counts of r, u, y; otherwise fixed by each stream's first block.
 
@@ -209,8 +211,9 @@ class Aligner:
         """Count a rejected block (kind "malformed" or "nonfinite") of ``stream``."""
         setattr(self._s[stream].stats, kind, getattr(self._s[stream].stats, kind) + 1)
 
-    def push(self, stream: int, block: Block) -> str | None:
-        """Add one decoded block of stream 0 (r), 1 (u) or 2 (y).
+    def push(self, stream: int, block: Block, now: float = 0.0) -> str | None:
+        """Add one decoded block of stream 0 (r), 1 (u) or 2 (y); ``now`` is the
+        caller's clock (for :meth:`expire`).
 
         Returns None, or a short description of an anomaly (for a log line).
         """
@@ -226,20 +229,15 @@ class Aligner:
         if first == s.end:
             s.append(first, x)
             s.drain()
+            if not s.pending:
+                s.pending_since = None
             note = None
         elif first > s.end:
+            if not s.pending:
+                s.pending_since = now
             s.pending[first] = x
             s.stats.reordered += 1
-            note = None
-            if len(s.pending) > self.reorder_blocks:
-                k = min(s.pending)
-                s.stats.gaps += 1
-                s.stats.gap_samples += k - s.end
-                s.stats.reordered -= 1     # counted as a gap instead
-                note = f"{STREAMS[stream]}: gap of {k - s.end} samples at [{s.end}, {k}); window restarts at {k}"
-                s.reset(k)
-                self.restarts += 1
-                s.drain()
+            note = self._declare_gap(stream) if len(s.pending) > self.reorder_blocks else None
         elif first + n > s.end:
             s.stats.overlaps += 1
             s.append(s.end, x[s.end - first:])
@@ -257,6 +255,31 @@ class Aligner:
             s.append(first, x)
         self._trim(s)
         return note
+
+    def _declare_gap(self, stream: int) -> str:
+        """The samples before the first pending block will not come: restart after them."""
+        s = self._s[stream]
+        k = min(s.pending)
+        s.stats.gaps += 1
+        s.stats.gap_samples += k - s.end
+        note = f"{STREAMS[stream]}: gap of {k - s.end} samples at [{s.end}, {k}); window restarts at {k}"
+        s.reset(k)
+        self.restarts += 1
+        s.drain()
+        s.pending_since = None
+        self._trim(s)
+        return note
+
+    def expire(self, now: float, max_wait: float) -> list[str]:
+        """Declare a gap in every stream whose blocks have waited ahead of a missing one
+        for more than ``max_wait`` (same clock as ``push``'s ``now``); returns notes."""
+        notes = []
+        for i, s in enumerate(self._s):
+            while s.pending and s.pending_since is not None and now - s.pending_since > max_wait:
+                notes.append(self._declare_gap(i))
+                if s.pending:
+                    s.pending_since = now
+        return notes
 
     def hole(self, stream: int, first: int, n: int) -> str:
         """Samples [first, first+n) of ``stream`` are lost (e.g. a NaN block)."""

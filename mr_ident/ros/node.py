@@ -33,6 +33,7 @@ from ..stream import STREAMS, Aligner, BlockError, Window
 from .messages import BLOCK_QOS, BLOCK_TYPE, RESULT_QOS, block_of, frf_msgs, qos_dict, vector_msg
 
 WARN_HOLD_S = 10.0     # an anomaly keeps the level at WARN this long
+REORDER_WAIT_S = 0.5   # blocks wait this long (wall clock) for a missing one before it is a gap
 
 
 def _descriptor(name: str, default: Any) -> ParameterDescriptor:
@@ -162,7 +163,7 @@ class IdentNode(Node):
                 self._note(f"{STREAMS[stream]}: malformed block dropped: {err}")
             return
         self._samples_in += block.samples.shape[0]
-        note = self._aligner.push(stream, block)
+        note = self._aligner.push(stream, block, now)
         if note:
             self._note(note)
 
@@ -194,6 +195,8 @@ class IdentNode(Node):
 
     # -- estimation ---------------------------------------------------------------------
     def _on_update(self) -> None:
+        for note in self._aligner.expire(time.monotonic(), REORDER_WAIT_S):
+            self._note(note)
         if self._busy or self._stopping:
             return
         cfg = self.config

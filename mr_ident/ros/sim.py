@@ -100,6 +100,8 @@ def run(node: object, source: SimSource, *, rate: float, duration: float | None,
     deadline = time.monotonic() + wait
     while time.monotonic() < deadline and ctx.ok() and any(p.get_subscription_count() == 0 for p in pubs):
         time.sleep(0.02)
+    if wait > 0:
+        time.sleep(min(wait, 0.5))     # matching is not symmetric: let the subscribers match us too
     fs = source.model.fs_high
     total = None if duration is None else int(round(duration * fs))
     t0 = time.monotonic()
