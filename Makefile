@@ -30,3 +30,6 @@ bench: $(STAMP)
 
 clean:
 	rm -rf out .pytest_cache
+
+bench-live: $(STAMP)
+	$(PY) benchmarks/bench_live.py

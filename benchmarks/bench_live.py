@@ -1,0 +1,175 @@
+"""Live benchmark (`make bench-live`): node throughput and estimate latency over localhost DDS.
+
+1. Throughput: a publisher process streams 1000-sample blocks on reference,
+   input and output at a set rate (samples/s per topic) to ``mr-ident-node`` (a
+   separate process, identifying a 1.44 M-sample window every 2 s meanwhile);
+   the rate is raised step by step. A step passes when the node's /diagnostics
+   count every sample sent on every topic with no gap. Reports the highest
+   passing rate.
+2. Latency: 1.44 M samples are streamed as fast as the node takes them; the time
+   from the last block's publication to the arrival of the estimate of the
+   window ending with it (update_period_s = 0.05 s).
+
+Not a test: prints figures for the README.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+BLOCK = 1000
+WINDOW = 1_440_000
+FS = 1e6            # the node is told 1 MHz so that 1 M samples/s is real time
+
+
+def _signals(n: int) -> np.ndarray:
+    from mr_ident.model import load_model
+    from mr_ident.simulate import simulate
+    m = load_model(Path(__file__).resolve().parents[1] / "config" / "paper_example.yaml")
+    sim = simulate(m, n_samples=n, rng=np.random.default_rng(0))
+    return np.stack([sim.r[:, 0], sim.u[:, 0], sim.y[:, 0]])
+
+
+def publisher(rate: float, seconds: float) -> None:
+    """Child process: publish ``seconds`` worth of blocks at ``rate`` samples/s per topic."""
+    import rclpy
+    from std_msgs.msg import Float64MultiArray
+
+    from mr_ident.ros.messages import BLOCK_QOS, block_msg
+    rclpy.init()
+    node = rclpy.create_node("bench_pub")
+    pubs = [node.create_publisher(Float64MultiArray, t, BLOCK_QOS) for t in ("reference", "input", "output")]
+    x = _signals(WINDOW)
+    t_end = time.monotonic() + 10
+    while any(p.get_subscription_count() == 0 for p in pubs) and time.monotonic() < t_end:
+        time.sleep(0.01)
+    time.sleep(0.5)
+    n_blocks = int(rate * seconds / BLOCK)
+    t0 = time.monotonic()
+    for b in range(n_blocks):
+        k = (b * BLOCK) % WINDOW
+        if rate > 0:
+            due = t0 + (b + 1) * BLOCK / rate
+            while (d := due - time.monotonic()) > 0:
+                time.sleep(d)
+        for s, p in enumerate(pubs):
+            p.publish(block_msg(b * BLOCK, x[s, k:k + BLOCK]))
+    print(f"{n_blocks * BLOCK} {time.time():.6f} {time.monotonic() - t0:.3f}", flush=True)
+    time.sleep(1.0)
+    node.destroy_node()
+    rclpy.shutdown()
+
+
+def _node(env: dict, update: float) -> subprocess.Popen:
+    return subprocess.Popen([str(Path(sys.executable).parent / "mr-ident-node"), "--ros-args",
+                             "-p", f"fs_high:={FS}", "-p", f"window_s:={WINDOW / FS}",
+                             "-p", f"min_window_s:={WINDOW / FS}", "-p", f"update_period_s:={update}",
+                             "-p", "reorder_blocks:=64"],
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+class _Listen:
+    def __init__(self) -> None:
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from std_msgs.msg import Float64MultiArray
+
+        from mr_ident.ros.messages import RESULT_QOS
+        self.rclpy = rclpy
+        rclpy.init()
+        self.node = rclpy.create_node("bench_listen")
+        self.diag: dict[str, str] = {}
+        self.frf_times: list[float] = []
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._diag, 10)
+        self.node.create_subscription(Float64MultiArray, "/mr_ident/plant_frf",
+                                      lambda m: self.frf_times.append(time.time()), RESULT_QOS)
+
+    def _diag(self, m) -> None:  # type: ignore[no-untyped-def]
+        self.diag = {kv.key: kv.value for kv in m.status[0].values}
+
+    def spin(self, seconds: float) -> None:
+        t = time.monotonic()
+        while time.monotonic() - t < seconds:
+            self.rclpy.spin_once(self.node, timeout_sec=0.05)
+
+    def close(self) -> None:
+        self.node.destroy_node()
+        self.rclpy.shutdown()
+
+
+def _run_publisher(env: dict, rate: float, seconds: float) -> tuple[int, float]:
+    out = subprocess.run([sys.executable, __file__, "--publisher", str(rate), str(seconds)], env=env,
+                         capture_output=True, text=True, timeout=seconds * 10 + 60)
+    if out.returncode != 0:
+        raise RuntimeError(out.stderr)
+    n, t_last, elapsed = out.stdout.split()
+    print(f"  publisher: {int(n)} samples per topic in {float(elapsed):.2f} s "
+          f"({int(n) / float(elapsed) / 1e6:.2f} M samples/s)", flush=True)
+    return int(n), float(t_last)
+
+
+def main() -> None:
+    from domain_coordinator import domain_id
+    with domain_id() as dom:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
+        os.environ["ROS_DOMAIN_ID"] = str(dom)
+        print(f"# live benchmark: blocks of {BLOCK} samples, 3 topics, window {WINDOW} samples, "
+              f"SingleThreadedExecutor, localhost DDS (domain {dom})")
+        best = 0.0
+        for rate in (250e3, 500e3, 1e6, 2e6, 3e6, 4e6, 6e6):
+            node = _node(env, update=2.0)
+            lis = _Listen()
+            try:
+                lis.spin(1.0)
+                sent, _ = _run_publisher(env, rate, 6.0)
+                lis.spin(3.0)
+                d = lis.diag
+                got = [int(d.get(f"{s}.samples", 0)) for s in ("reference", "input", "output")]
+                gaps = sum(int(d.get(f"{s}.gaps", 0)) for s in ("reference", "input", "output"))
+                ok = all(g == sent for g in got) and gaps == 0
+                print(f"rate {rate / 1e6:5.2f} MS/s per topic: sent {sent}, received {got}, gaps {gaps}, "
+                      f"estimates {d.get('estimates')} -> {'OK' if ok else 'LOSS'}", flush=True)
+            finally:
+                lis.close()
+                node.terminate()
+                node.wait(30)
+            if not ok:
+                break
+            best = rate
+        print(f"highest sustained rate with zero lost samples: {best / 1e6:.2f} M samples/s per topic")
+
+        node = _node(env, update=0.05)
+        lis = _Listen()
+        try:
+            lis.spin(1.0)
+            sent, t_last = _run_publisher(env, 1e6, WINDOW / 1e6)
+            t_wait = time.monotonic()
+            while time.monotonic() - t_wait < 60 and not [t for t in lis.frf_times if t > t_last]:
+                lis.spin(0.1)
+            after = [t for t in lis.frf_times if t > t_last]
+            lis.spin(1.5)
+            d = lis.diag
+            print(f"  (diagnostics: {d.get('window_end_index')} aligned, gaps "
+                  f"{[d.get(s + '.gaps') for s in ('reference', 'input', 'output')]})")
+            print(f"latency, last block published -> estimate of the {WINDOW}-sample window received: "
+                  f"{(after[0] - t_last) if after else float('nan'):.2f} s "
+                  f"(identification {d.get('compute_s')} s, window [{d.get('estimate_first_index')}, "
+                  f"+{d.get('estimate_samples')}))")
+        finally:
+            lis.close()
+            node.terminate()
+            node.wait(30)
+
+
+if __name__ == "__main__":
+    if len(sys.argv) == 4 and sys.argv[1] == "--publisher":
+        publisher(float(sys.argv[2]), float(sys.argv[3]))
+    else:
+        main()
