@@ -75,14 +75,17 @@ def run_demo(out_dir: Path, *, rate: float = 20.0, timeout: float = 120.0) -> in
                                 env=env, stdout=logs["node"], stderr=subprocess.STDOUT)
         sim = subprocess.Popen([str(bindir / "mr-ident-sim"), str(demo_model), "--rate", str(rate),
                                 "--wait", "10"], env=env, stdout=logs["sim"], stderr=subprocess.STDOUT)
+        rclpy, listener, live = _node_and_live()
         try:
-            live = _listen(cfg, node, sim, timeout)
+            try:
+                _listen(rclpy, listener, live, cfg, node, sim, timeout)
+            finally:
+                _stop(sim)
+                time.sleep(0.5)
+            _settle(rclpy, listener, live, 20.0)
         finally:
-            _stop(sim)
-            time.sleep(0.5)
-        try:
-            live = _settle(live, cfg, node, 20.0)
-        finally:
+            listener.destroy_node()
+            rclpy.try_shutdown()
             _stop(node)
             for f in logs.values():
                 f.close()
@@ -145,12 +148,8 @@ def _node_and_live():  # type: ignore[no-untyped-def]
     return rclpy, n, live
 
 
-_STATE: dict = {}
-
-
-def _listen(cfg, node_proc, sim_proc, timeout: float) -> _Live:  # type: ignore[no-untyped-def]
-    rclpy, n, live = _node_and_live()
-    _STATE.update(rclpy=rclpy, node=n)
+def _listen(rclpy, n, live: _Live, cfg, node_proc, sim_proc, timeout: float) -> None:  # type: ignore[no-untyped-def]
+    """Spin until two successive full-window estimates agree to 2 % (median)."""
     t0 = time.monotonic()
     while time.monotonic() - t0 < timeout:
         rclpy.spin_once(n, timeout_sec=0.1)
@@ -163,13 +162,12 @@ def _listen(cfg, node_proc, sim_proc, timeout: float) -> _Live:  # type: ignore[
             change = float(np.median(np.abs(a - b) / np.abs(b)))
             if change < 0.02:
                 live.t_converged = time.monotonic() - t0
-                return live
+                return
     raise MrIdentError(f"no converged estimate within {timeout:g} s (last diagnostics: {live.diag.get('message')})")
 
 
-def _settle(live: _Live, cfg, node_proc, timeout: float) -> _Live:  # type: ignore[no-untyped-def]
+def _settle(rclpy, n, live: _Live, timeout: float) -> None:  # type: ignore[no-untyped-def]
     """After the simulator stopped: wait until the node's last estimate covers the final window."""
-    rclpy, n = _STATE["rclpy"], _STATE["node"]
     t0 = time.monotonic()
     while time.monotonic() - t0 < timeout:
         rclpy.spin_once(n, timeout_sec=0.1)
@@ -180,10 +178,7 @@ def _settle(live: _Live, cfg, node_proc, timeout: float) -> _Live:  # type: igno
             t1 = time.monotonic()
             while time.monotonic() - t1 < 1.5:
                 rclpy.spin_once(n, timeout_sec=0.1)
-            break
-    n.destroy_node()
-    rclpy.try_shutdown()
-    return live
+            return
 
 
 def _report(out_dir: Path, cfg, model, recording: Path, live: _Live, node_rc: int) -> int:  # type: ignore[no-untyped-def]

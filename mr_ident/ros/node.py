@@ -109,13 +109,11 @@ class IdentNode(Node):
     def _on_set(self, params: list[Parameter]) -> SetParametersResult:
         changes = {}
         for p in params:
-            if p.name not in PARAMETERS:
-                continue
-            v = p.value
-            changes[p.name] = tuple(v) if isinstance(v, (list, tuple, np.ndarray)) or \
-                p.type_ == Parameter.Type.DOUBLE_ARRAY else v
-            if changes[p.name] is None:
-                changes[p.name] = ()
+            if p.name in PARAMETERS:
+                v = p.value
+                if p.type_ == Parameter.Type.DOUBLE_ARRAY or isinstance(v, (list, tuple)):
+                    v = () if v is None else tuple(v)
+                changes[p.name] = v
         try:
             new = self.config.replace(**changes)
         except MrIdentError as err:
@@ -148,8 +146,9 @@ class IdentNode(Node):
     def _on_block(self, stream: int, raw: bytes) -> None:
         now = time.monotonic()
         self._arrivals[stream] = now
-        if self._recorder is not None:
-            self._record(stream, raw)
+        rec = self._recorder
+        if rec is not None:
+            self._record(rec, stream, raw)
         try:
             block = block_of(deserialize_message(raw, Float64MultiArray))
         except BlockError as err:
@@ -167,16 +166,14 @@ class IdentNode(Node):
         if note:
             self._note(note)
 
-    def _record(self, stream: int, raw: bytes) -> None:
-        rec = self._recorder
-        assert rec is not None
+    def _record(self, rec: McapRecorder, stream: int, raw: bytes) -> None:
         cid = self._rec_channels.get(stream)
         if cid is None:
             topic = self._subs[stream].topic_name
             qos = [qos_dict(i.qos_profile) for i in self.get_publishers_info_by_topic(topic)]
             cid = self._rec_channels[stream] = rec.add_topic(topic, BLOCK_TYPE, qos)
         t = time.time_ns()
-        if not rec.write(cid, raw, t, t) and rec.error is not None:
+        if not rec.write(cid, raw, t, t) and rec.error is not None and rec is self._recorder:
             self._note(f"recording to {rec.path} stopped: {rec.error}")
             self._close_recorder()
 

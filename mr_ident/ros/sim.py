@@ -89,8 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def run(node: object, source: SimSource, *, rate: float, duration: float | None, wait: float,
-        stop: object = None) -> int:
+def run(node: object, source: SimSource, *, rate: float, duration: float | None, wait: float) -> int:
     """Publish blocks from ``source`` on ``node``'s three publishers; returns blocks sent per topic."""
     from std_msgs.msg import Float64MultiArray
 
@@ -107,7 +106,7 @@ def run(node: object, source: SimSource, *, rate: float, duration: float | None,
     t0 = time.monotonic()
     sent = 0
     start = source.next_index
-    while ctx.ok() and (total is None or source.next_index - start < total) and not (stop and stop()):  # type: ignore[operator]
+    while ctx.ok() and (total is None or source.next_index - start < total):
         first, r, u, y = source.next()
         due = t0 + (first + source.block - start) / fs / rate
         while (delay := due - time.monotonic()) > 0 and ctx.ok():
