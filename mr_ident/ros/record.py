@@ -15,6 +15,7 @@ from typing import Any, Callable, Sequence
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -131,6 +132,8 @@ def publish_recording(path: str | Path, *, rate: float = 1.0, wait: float = 5.0,
             while time.monotonic() < deadline and rclpy.ok() and \
                     any(p.get_subscription_count() == 0 for p in pubs.values()):
                 time.sleep(0.02)
+            if wait > 0:
+                time.sleep(min(wait, 0.5))    # matching is not symmetric: let subscribers match us too
             t0 = time.monotonic()
             first_log = None
             for _, channel, message in reader.iter_messages(log_time_order=True):
@@ -142,6 +145,8 @@ def publish_recording(path: str | Path, *, rate: float = 1.0, wait: float = 5.0,
                     time.sleep(min(d, 0.1))
                 pubs[channel.id].publish(bytes(message.data))
                 sent += 1
+            for p in pubs.values():       # reliable delivery: do not exit before the readers have it
+                p.wait_for_all_acked(Duration(seconds=5))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

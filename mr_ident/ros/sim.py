@@ -91,6 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def run(node: object, source: SimSource, *, rate: float, duration: float | None, wait: float) -> int:
     """Publish blocks from ``source`` on ``node``'s three publishers; returns blocks sent per topic."""
+    from rclpy.duration import Duration
     from std_msgs.msg import Float64MultiArray
 
     from .messages import BLOCK_QOS, block_msg
@@ -114,6 +115,8 @@ def run(node: object, source: SimSource, *, rate: float, duration: float | None,
         for pub, x in zip(pubs, (r, u, y)):
             pub.publish(block_msg(first, x))
         sent += 1
+    for pub in pubs:                      # reliable delivery: do not exit before the readers have it
+        pub.wait_for_all_acked(Duration(seconds=5))
     return sent
 
 
