@@ -293,7 +293,11 @@ class Aligner:
         return f"{STREAMS[stream]}: samples [{first}, {first + n}) lost; window restarts at {first + n}"
 
     def _trim(self, s: _Stream) -> None:
-        keep_from = s.end - self.capacity - self.ratio
+        # Keep what the aligned window (ending at the slowest stream's end) can still use,
+        # so a stream running ahead of the others never shortens it; a stream more than
+        # one window ahead keeps two windows (memory stays bounded if another stalls).
+        hi = min(x.end for x in self._s if x.end >= 0)
+        keep_from = max(hi, s.end - self.capacity) - self.capacity - self.ratio
         while s.chunks and s.chunks[0][0] + s.chunks[0][1].shape[0] <= keep_from:
             s.chunks.popleft()
         s.start = s.chunks[0][0] if s.chunks else s.end
@@ -302,13 +306,13 @@ class Aligner:
         """Aligned [first, end) the next :meth:`window` would return (end <= first: none)."""
         if any(s.end < 0 for s in self._s):
             return 0, 0
+        F = self.ratio
         hi = min(s.end for s in self._s)
         if stop is not None:
             hi = min(hi, stop)
-        lo = max(max(s.start for s in self._s), hi - self.capacity)
-        F = self.ratio
-        lo = -(-lo // F) * F
-        return lo, lo + max(0, (hi - lo) // F * F)
+        hi = hi // F * F                     # whole periods, on the F grid at both ends
+        lo = max(-(-max(s.start for s in self._s) // F) * F, hi - self.capacity)
+        return lo, max(lo, hi)
 
     def window(self, min_samples: int = 1, stop: int | None = None) -> Window | None:
         """The latest aligned window (at most ``capacity`` samples, ending at or before

@@ -212,3 +212,33 @@ def _make_recording(path: Path) -> Path:
                 w.write_message(topic, schema, msg, log_time=k, publish_time=k)
         w.finish()
     return path
+
+
+def test_a_stream_running_ahead_does_not_shorten_the_window():
+    x = _streams(6000)
+    al = Aligner(capacity=1500, ratio=3)
+    blocks = [_blocks(x[s], [500] * 12) for s in range(3)]
+    for k in range(5):                           # all three to 2500
+        for s in range(3):
+            al.push(s, blocks[s][k])
+    for b in blocks[0][5:8]:                     # reference runs a window ahead, to 4000
+        al.push(0, b)
+    for s in (1, 2):                             # input and output reach 3000
+        al.push(s, blocks[s][5])
+    w = al.window()
+    assert (w.first, w.n_samples) == (1500, 1500)
+    np.testing.assert_array_equal(w.r, x[0][1500:3000])
+    for b in blocks[0][8:]:                      # further ahead: memory stays bounded
+        al.push(0, b)
+    assert sum(c[1].shape[0] for c in al._s[0].chunks) <= 2 * 1500 + 500
+
+
+@pytest.mark.parametrize("end", [16000, 16001, 16002])
+def test_windows_are_full_length_on_the_period_grid(end):
+    x = _streams(end)
+    al = Aligner(capacity=1500, ratio=3)
+    for s in range(3):
+        for b in _blocks(x[s], [1000] * 17):
+            al.push(s, b)
+    w = al.window()
+    assert w.n_samples == 1500 and w.first % 3 == 0 and w.end == end // 3 * 3
