@@ -104,6 +104,7 @@ class StreamStats:
     gap_samples: int = 0     # samples in those holes
     duplicates: int = 0      # blocks wholly received before
     overlaps: int = 0        # blocks partly received before (the new tail is kept)
+    late: int = 0            # blocks from before the retained start, not contiguous with it (dropped)
     reordered: int = 0       # blocks that arrived ahead of a missing one (later filled or declared a gap)
     malformed: int = 0       # blocks breaking the layout contract
     nonfinite: int = 0       # blocks with NaN/inf (dropped: a hole)
@@ -123,10 +124,13 @@ class _Stream:
     channels: int = 0
     pending: dict = field(default_factory=dict)    # first -> array, arrived ahead of end
     pending_since: float | None = None             # caller's clock when pending became non-empty
+    origin: int = -1                               # where the stream (re)started; start == origin until trimmed
+    before: dict = field(default_factory=dict)     # first -> array, arrived before origin (start-up reordering)
 
     def reset(self, at: int) -> None:
         self.chunks.clear()
-        self.start = self.end = at
+        self.start = self.end = self.origin = at
+        self.before = {}
         self.pending = {k: v for k, v in self.pending.items() if k >= at}
 
     def append(self, first: int, x: NDArray) -> None:
@@ -188,8 +192,10 @@ class Aligner:
 
     Policy: a hole restarts the stream after it (so the window restarts); a block
     wholly behind the stream's end is a duplicate when it equals the samples held
-    for those indices, otherwise a restart of the publisher's index (the stream
-    restarts at it).
+    for those indices; one that ends where the held samples start is prepended
+    (the first blocks arrived out of order); one otherwise within a window before
+    the end is late (dropped); anything else means the publisher restarted its
+    index (the stream restarts at it).
     """
 
     def __init__(self, capacity: int, ratio: int, reorder_blocks: int = 8,
@@ -246,6 +252,23 @@ class Aligner:
         elif first >= s.start and np.array_equal(self._extract(s, first, first + n), x):
             s.stats.duplicates += 1
             return None
+        elif first < s.start and s.end - first <= self.capacity + self.ratio and s.start == s.origin:
+            # the stream's first blocks arrived out of order: put them in front
+            s.stats.reordered += 1
+            s.before[first] = x
+            while s.before:
+                k = next((k for k, v in s.before.items() if k + v.shape[0] == s.start), None)
+                if k is None:
+                    break
+                v = s.before.pop(k)
+                s.chunks.appendleft((k, v))
+                s.start = s.origin = k
+                s.stats.blocks += 1
+                s.stats.samples += v.shape[0]
+            return None
+        elif first < s.start and s.end - first <= self.capacity + self.ratio:
+            s.stats.late += 1                    # before the retained start: too late to use
+            return f"{STREAMS[stream]}: block at {first} arrived too late (stream starts at {s.start}); dropped"
         else:
             s.stats.restarts += 1
             note = f"{STREAMS[stream]}: index went back from {s.end} to {first}; stream restarts"

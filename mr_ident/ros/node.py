@@ -281,7 +281,7 @@ class IdentNode(Node):
         else:
             values["lifting_phase"] = cfg.lifting_phase
         for name, st in stats.items():
-            for k in ("samples", "blocks", "gaps", "gap_samples", "duplicates", "overlaps", "reordered",
+            for k in ("samples", "blocks", "gaps", "gap_samples", "duplicates", "overlaps", "late", "reordered",
                       "malformed", "nonfinite", "restarts", "end"):
                 values[f"{name}.{k}"] = getattr(st, k)
         st = DiagnosticStatus(level=level, name=f"{self.get_name()}: identification", message=reason,
