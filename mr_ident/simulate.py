@@ -99,31 +99,51 @@ def loop_poles(model: Model) -> NDArray[np.complex128]:
     return np.linalg.eigvals(A) if A.size else np.zeros(0, dtype=complex)
 
 
-def simulate_ss(ss: StateSpace, w: ArrayLike) -> NDArray[np.float64]:
-    """Zero-initial-state response of a discrete system to ``w`` (M, n_in) -> (M, n_out).
+class StateRecursion:
+    """``x[m+1] = A x[m] + B w[m]``, ``out[m] = C x[m] + D w[m]``, run piece by piece
+    from x = 0, the state carried from one :meth:`run` to the next.
 
     Uses the modal form and one compiled first-order recursion per mode; falls
-    back to a direct recursion when A is not safely diagonalisable.
+    back to a direct recursion (with a RuntimeWarning) when A is not safely
+    diagonalisable.
     """
-    wa = np.asarray(w, dtype=float)
-    A, B, C, D = ss.A, ss.B, ss.C, ss.D
-    out = wa @ D.T
-    if A.shape[0] == 0:
+
+    def __init__(self, ss: StateSpace):
+        self.ss = ss
+        self._modal = True
+        if ss.A.shape[0] == 0:
+            self._lam = np.zeros(0, dtype=complex)
+            self._Bm = np.zeros((0, ss.B.shape[1]), dtype=complex)
+            self._Cm = np.zeros((ss.C.shape[0], 0), dtype=complex)
+        else:
+            lam, V = np.linalg.eig(ss.A)
+            if np.linalg.cond(V) > 1e8:
+                warnings.warn("simulate: state matrix is (nearly) defective; using the slow direct recursion",
+                              RuntimeWarning, stacklevel=3)
+                self._modal = False
+                self._x = np.zeros(ss.A.shape[0])
+            else:
+                self._lam = lam
+                self._Bm = np.linalg.solve(V, ss.B.astype(complex))      # (n, n_in)
+                self._Cm = ss.C @ V                                       # (n_out, n)
+        self._z = np.zeros(self._lam.shape[0] if self._modal else 0, dtype=complex)
+
+    def run(self, w: ArrayLike) -> NDArray[np.float64]:
+        """Outputs (M, n_out) for inputs ``w`` (M, n_in), continuing from the last call."""
+        wa = np.asarray(w, dtype=float)
+        ss = self.ss
+        if not self._modal:
+            _, yout, xout = scipy.signal.dlsim((ss.A, ss.B, ss.C, ss.D, 1.0), wa, x0=self._x)
+            self._x = ss.A @ xout[-1] + ss.B @ wa[-1]
+            return np.asarray(yout).reshape(wa.shape[0], -1)
+        out = wa @ ss.D.T
+        drive = wa @ self._Bm.T                                           # (M, n)
+        for i, li in enumerate(self._lam):
+            # zeta[m] = li zeta[m-1] + drive[m-1]: the state before sample m.
+            z, zf = scipy.signal.lfilter([0.0, 1.0], [1.0, -li], drive[:, i], zi=[self._z[i]])
+            self._z[i] = zf[0]
+            out += np.real(np.outer(z, self._Cm[:, i]))
         return out
-    lam, V = np.linalg.eig(A)
-    if np.linalg.cond(V) > 1e8:
-        warnings.warn("simulate: state matrix is (nearly) defective; using the slow direct recursion",
-                      RuntimeWarning, stacklevel=2)
-        _, yout, _ = scipy.signal.dlsim((A, B, C, D, 1.0), wa)
-        return np.asarray(yout)
-    Bm = np.linalg.solve(V, B.astype(complex))          # (n, n_in)
-    Cm = C @ V                                           # (n_out, n)
-    drive = wa @ Bm.T                                    # (M, n)
-    for i, li in enumerate(lam):
-        # zeta[m] = li zeta[m-1] + drive[m-1]: the state before sample m.
-        z = scipy.signal.lfilter([0.0, 1.0], [1.0, -li], drive[:, i])
-        out += np.real(np.outer(z, Cm[:, i]))
-    return out
 
 
 def simulate(model: Model, *, n_samples: int | None = None, duration: float | None = None,
@@ -184,11 +204,7 @@ def simulate(model: Model, *, n_samples: int | None = None, duration: float | No
         va = model.noise_std * rng.standard_normal((N, ny))
     else:
         va = np.zeros((N, ny))
-    M = N // F
-    w = np.concatenate([ra.reshape(M, F * nu), va.reshape(M, F * ny)], axis=1)
-    out = simulate_ss(lifted_loop(model), w)
-    y = out[:, :F * ny].reshape(N, ny)
-    u = out[:, F * ny:].reshape(N, nu)
+    u, y = LoopStream(model).next(ra, va)
     return Simulation(r=ra, u=u, y=y, fs_high=model.fs_high, ratio=F)
 
 
@@ -202,17 +218,7 @@ class LoopStream:
 
     def __init__(self, model: Model):
         self.model = model
-        ss = lifted_loop(model)
-        self._ss = ss
-        lam, V = np.linalg.eig(ss.A) if ss.A.size else (np.zeros(0, complex), np.zeros((0, 0)))
-        self._modal = ss.A.size == 0 or np.linalg.cond(V) < 1e8
-        if self._modal:
-            self._lam = lam
-            self._Bm = np.linalg.solve(V, ss.B.astype(complex)) if ss.A.size else np.zeros((0, ss.B.shape[1]))
-            self._Cm = ss.C @ V if ss.A.size else np.zeros((ss.C.shape[0], 0))
-            self._z = np.zeros(lam.shape[0], dtype=complex)
-        else:
-            self._x = np.zeros(ss.A.shape[0])
+        self._loop = StateRecursion(lifted_loop(model))
 
     def next(self, reference: ArrayLike, noise: ArrayLike | None = None) -> tuple[NDArray, NDArray]:
         """Plant input and output (u, y) for ``reference`` (N, n_u), N a multiple of F."""
@@ -224,16 +230,5 @@ class LoopStream:
         va = np.zeros((N, ny)) if noise is None else np.asarray(noise, dtype=float).reshape(N, ny)
         M = N // F
         w = np.concatenate([ra.reshape(M, F * nu), va.reshape(M, F * ny)], axis=1)
-        out = w @ self._ss.D.T
-        if self._modal:
-            drive = w @ self._Bm.T
-            for i, li in enumerate(self._lam):
-                z, zf = scipy.signal.lfilter([0.0, 1.0], [1.0, -li], drive[:, i], zi=[self._z[i]])
-                self._z[i] = zf[0]
-                out += np.real(np.outer(z, self._Cm[:, i]))
-        else:
-            ss = self._ss
-            _, yout, xout = scipy.signal.dlsim((ss.A, ss.B, ss.C, ss.D, 1.0), w, x0=self._x)
-            out = np.asarray(yout).reshape(M, -1)
-            self._x = ss.A @ xout[-1] + ss.B @ w[-1]
+        out = self._loop.run(w)
         return out[:, F * ny:].reshape(N, nu), out[:, :F * ny].reshape(N, ny)
