@@ -18,6 +18,7 @@ import numpy as np
 from .errors import ConfigError, DataError, MrIdentError
 from .identify import METHODS, identify
 from .model import Model, load_model
+from .results import Identification
 
 EXIT_USAGE = 2
 
@@ -104,15 +105,6 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _paper_model_path() -> Path:
-    here = Path(__file__).resolve().parent
-    for cand in (here.parent / "config" / "paper_example.yaml",
-                 Path(sys.prefix) / "share" / "mr_ident" / "config" / "paper_example.yaml"):
-        if cand.is_file():
-            return cand
-    raise ConfigError("config/paper_example.yaml not found; pass --model")
-
-
 def cmd_simulate(args: argparse.Namespace) -> int:
     from .data import write_data
     from .simulate import simulate
@@ -146,8 +138,6 @@ def _resolve_rates(args: argparse.Namespace, file_fs: float | None, file_ratio: 
 
 def cmd_identify(args: argparse.Namespace) -> int:
     from .data import read_data, write_result
-    from .pfg import pfg_of_model
-    from .plots import plot_bode, plot_pfg
     if args.out.suffix.lower() != ".npz":
         raise ConfigError(f"--out must be a .npz file, got {str(args.out)!r}")
     model = load_model(args.model) if args.model else None
@@ -167,18 +157,27 @@ def cmd_identify(args: argparse.Namespace) -> int:
     write_result(args.out, ident)
     print(f"wrote {args.out} ({ident.plant.frequency.size} bins, method {args.method})")
     if args.plot:
-        nyq = fs / F / 2 if F > 1 else None
-        mfrf = model.plant_result(N) if model is not None else None
-        print(f"wrote {plot_bode(ident.plant, args.plot, model=mfrf, nyquist_low=nyq)}")
-        if ident.pfg is not None and model is not None:
-            path = args.plot.with_name(args.plot.stem + "_pfg" + args.plot.suffix)
-            print(f"wrote {plot_pfg(ident.pfg, path, model=pfg_of_model(model, N))}")
+        _write_plots(ident, args.plot, fs, F, N, model)
     return 0
+
+
+def _write_plots(ident: Identification, path: Path, fs: float, F: int, N: int, model: Model | None) -> None:
+    """Bode plot of P_h at ``path`` (model drawn when given); with a PFG, ``<path>_pfg``."""
+    from .pfg import pfg_of_model
+    from .plots import plot_bode, plot_pfg
+    nyq = fs / F / 2 if F > 1 else None
+    mfrf = model.plant_result(N) if model is not None else None
+    print(f"wrote {plot_bode(ident.plant, path, model=mfrf, nyquist_low=nyq)}")
+    if ident.pfg is not None:
+        ref = pfg_of_model(model, N) if model is not None and model.controller is not None else None
+        pfg_path = path.with_name(path.stem + "_pfg" + path.suffix)
+        print(f"wrote {plot_pfg(ident.pfg, pfg_path, model=ref)}")
 
 
 def cmd_paper(args: argparse.Namespace) -> int:
     from .paper import run_paper
-    model = load_model(args.model or _paper_model_path())
+    from .config import share_file
+    model = load_model(args.model or share_file("config/paper_example.yaml", "; pass --model"))
     if args.noise_std is not None and not (np.isfinite(args.noise_std) and args.noise_std >= 0):
         raise ConfigError(f"--noise-std must be >= 0, got {args.noise_std}")
     run = run_paper(model, args.out_dir, duration=args.duration, seed=args.seed, noise_std=args.noise_std)
@@ -216,15 +215,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
           f"{est.compute_s:.3f} s")
     print(f"wrote {args.out} ({est.identification.plant.frequency.size} bins, method {cfg.method})")
     if args.plot:
-        from .pfg import pfg_of_model
-        from .plots import plot_bode, plot_pfg
         model = load_model(args.model) if args.model else None
-        nyq = cfg.fs_high / cfg.ratio / 2 if cfg.ratio > 1 else None
-        print(f"wrote {plot_bode(est.identification.plant, args.plot, nyquist_low=nyq, model=model.plant_result(est.n_samples) if model else None)}")
-        if est.identification.pfg is not None:
-            path = args.plot.with_name(args.plot.stem + "_pfg" + args.plot.suffix)
-            ref = pfg_of_model(model, est.n_samples) if model is not None and model.controller is not None else None
-            print(f"wrote {plot_pfg(est.identification.pfg, path, model=ref)}")
+        _write_plots(est.identification, args.plot, cfg.fs_high, cfg.ratio, est.n_samples, model)
     return 0
 
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -38,27 +39,26 @@ class Param:
     description: str
     low: float | None = None
     high: float | None = None
-    step: float | None = None
 
 
 #: Every field of :class:`IdentConfig`, described once (the node's descriptors).
 PARAMETERS: dict[str, Param] = {
     "fs_high": Param("high sample rate of r, u, y in Hz", 1e-3, 1e9),
-    "ratio": Param("F = h_l / h_h: high-rate samples per controller sample", 1, 1000, 1),
+    "ratio": Param("F = h_l / h_h: high-rate samples per controller sample", 1, 1000),
     "method": Param(f"identification method: one of {', '.join(METHODS)}"),
-    "n": Param("LPM window half-width (bins each side)", 1, 1000, 1),
-    "degree": Param("LPM polynomial degree R of G and of the transient", 0, 10, 1),
+    "n": Param("LPM window half-width (bins each side)", 1, 1000),
+    "degree": Param("LPM polynomial degree R of G and of the transient", 0, 10),
     "window_s": Param("length of the sliding window identified, in seconds", 1e-3, 1e7),
     "min_window_s": Param("first estimate once the aligned window holds this many seconds", 1e-3, 1e7),
     "update_period_s": Param("re-identify every this many seconds (wall clock)", 1e-3, 1e5),
     "lifting_phase": Param('high-rate index (mod F) at which the controller samples y: "auto" or 0..F-1'),
-    "control_delay": Param("high-rate samples between the controller sampling and its held output", 0, 1000, 1),
+    "control_delay": Param("high-rate samples between the controller sampling and its held output", 0, 1000),
     "controller_num": Param("low-rate controller K_l numerator, descending powers of z (SISO); "
                             "empty: no PFG"),
     "controller_den": Param("low-rate controller K_l denominator, descending powers of z"),
-    "publish_points": Param("at most this many log-spaced bins published per estimate", 2, 1_000_000, 1),
+    "publish_points": Param("at most this many log-spaced bins published per estimate", 2, 1_000_000),
     "record_path": Param("MCAP file the node records its three input topics to; empty: off"),
-    "reorder_blocks": Param("blocks held per stream waiting for a missing one before it is a gap", 0, 10_000, 1),
+    "reorder_blocks": Param("blocks held per stream waiting for a missing one before it is a gap", 0, 10_000),
     "stall_timeout_s": Param("a stream silent this long is reported as stalled", 1e-3, 1e5),
 }
 
@@ -172,6 +172,14 @@ class IdentConfig:
     def as_dict(self) -> dict[str, Any]:
         return {f.name: (list(v) if isinstance(v := getattr(self, f.name), tuple) else v)
                 for f in dataclasses.fields(self)}
+
+
+def share_file(rel: str, hint: str = "") -> Path:
+    """A shipped file (``config/...``): from the source tree, else ``<prefix>/share/mr_ident``."""
+    for cand in (Path(__file__).resolve().parents[1] / rel, Path(sys.prefix) / "share" / "mr_ident" / rel):
+        if cand.is_file():
+            return cand
+    raise ConfigError(f"{rel} not found (looked in the source tree and {sys.prefix}/share/mr_ident){hint}")
 
 
 def load_params(path: str | Path, node_name: str = "mr_ident") -> IdentConfig:

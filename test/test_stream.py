@@ -11,7 +11,6 @@ import pytest
 from mr_ident.config import IdentConfig, load_params
 from mr_ident.errors import ConfigError, DataError
 from mr_ident.live import detect_phase, estimate, publish_grid
-from mr_ident.model import load_model
 from mr_ident.simulate import LoopStream, simulate
 from mr_ident.stream import Aligner, Block, BlockError, decode_block, encode_fields
 

@@ -21,20 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import load_params
-from ..errors import ConfigError, MrIdentError
+from ..config import load_params, share_file
+from ..errors import MrIdentError
 from ..model import load_model
 from ..results import FRF, PFG
 
 SIM_NOISE_STD = 1e-7      # output noise of the demo loop (the paper example's |y| is ~1e-5)
-
-
-def _share_file(rel: str) -> Path:
-    here = Path(__file__).resolve().parents[2]
-    for cand in (here / rel, Path(sys.prefix) / "share" / "mr_ident" / rel):
-        if cand.is_file():
-            return cand
-    raise ConfigError(f"{rel} not found (looked in the source tree and {sys.prefix}/share/mr_ident)")
 
 
 def _stop(proc: subprocess.Popen, timeout: float = 20.0) -> int:
@@ -53,8 +45,8 @@ def run_demo(out_dir: Path, *, rate: float = 20.0, timeout: float = 120.0) -> in
     from domain_coordinator import domain_id
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    model_path = _share_file("config/paper_example.yaml")
-    params_path = _share_file("config/node.yaml")
+    model_path = share_file("config/paper_example.yaml")
+    params_path = share_file("config/node.yaml")
     cfg = load_params(params_path)
     model = load_model(model_path)
     # the demo's model: the paper example with output noise, so the ±2σ bands mean something
@@ -103,7 +95,6 @@ class _Live:
         self.pfg_std: np.ndarray | None = None
         self.diag: dict[str, str] = {}
         self.history: list[np.ndarray] = []
-        self.t_first: float | None = None
         self.t_converged: float | None = None
 
 
@@ -122,8 +113,6 @@ def _node_and_live():  # type: ignore[no-untyped-def]
         P = np.frombuffer(m.data, dtype=float).reshape(d)          # out x in x part x freq
         live.P = np.transpose(P[:, :, 0] + 1j * P[:, :, 1], (2, 0, 1))
         live.history.append(live.P)
-        if live.t_first is None:
-            live.t_first = time.monotonic()
 
     def setter(name: str):  # type: ignore[no-untyped-def]
         return lambda m: setattr(live, name, np.frombuffer(m.data, dtype=float).copy())

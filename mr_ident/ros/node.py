@@ -14,7 +14,6 @@ import threading
 import time
 from typing import Any, Sequence
 
-import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType,
@@ -39,8 +38,6 @@ REORDER_WAIT_S = 0.5   # blocks wait this long (wall clock) for a missing one be
 def _descriptor(name: str, default: Any) -> ParameterDescriptor:
     spec = PARAMETERS[name]
     d = ParameterDescriptor(name=name, description=spec.description)
-    if isinstance(default, bool):
-        raise TypeError(name)
     if isinstance(default, float):
         d.type = ParameterType.PARAMETER_DOUBLE
         d.floating_point_range = [FloatingPointRange(from_value=float(spec.low), to_value=float(spec.high),
@@ -88,7 +85,6 @@ class IdentNode(Node):
         self._worker_thread: threading.Thread | None = None
         self._recorder: McapRecorder | None = None
         self._rec_channels: dict[int, int] = {}
-        self._lost_events = 0
 
         self._subs = []
         for s, topic in enumerate(STREAMS):
@@ -149,13 +145,13 @@ class IdentNode(Node):
         rec = self._recorder
         if rec is not None:
             self._record(rec, stream, raw)
+        msg = deserialize_message(raw, Float64MultiArray)
         try:
-            block = block_of(deserialize_message(raw, Float64MultiArray))
+            block = block_of(msg)
         except BlockError as err:
             self._aligner.count(stream, err.kind)
             if err.kind == "nonfinite":
                 # the block's index range is known from its header: make it a hole
-                msg = deserialize_message(raw, Float64MultiArray)
                 n = msg.layout.dim[0].size
                 self._note(self._aligner.hole(stream, int(msg.data[0]), int(n)) + f" ({err})")
             else:
@@ -281,9 +277,7 @@ class IdentNode(Node):
         else:
             values["lifting_phase"] = cfg.lifting_phase
         for name, st in stats.items():
-            for k in ("samples", "blocks", "gaps", "gap_samples", "duplicates", "overlaps", "late", "reordered",
-                      "malformed", "nonfinite", "restarts", "end"):
-                values[f"{name}.{k}"] = getattr(st, k)
+            values.update({f"{name}.{k}": v for k, v in st.as_dict().items()})
         st = DiagnosticStatus(level=level, name=f"{self.get_name()}: identification", message=reason,
                               hardware_id=self.get_fully_qualified_name())
         st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
