@@ -66,8 +66,7 @@ def _split(type_name: str) -> tuple[str, str, str]:
 
 def message_definition(type_name: str) -> str:
     """The full concatenated ``ros2msg`` definition of ``type_name`` (rosbag2's form)."""
-    pkg, kind, name = _split(type_name)
-    seen: list[str] = []
+    pkg = _split(type_name)[0]
 
     def deps(pkg: str, text: str) -> list[str]:
         out = []
@@ -80,25 +79,19 @@ def message_definition(type_name: str) -> str:
                 out.append(base if "/" in base else f"{pkg}/{base}")
         return out
 
-    def visit(full: str) -> None:
-        p, _, n = _split(full)
-        text = _interface_file(f"{p}/msg/{n}", ".msg").read_text()
+    texts: dict[str, str] = {}        # "pkg/Type" -> its .msg text, in first-visit order
+
+    def visit(p: str, text: str) -> None:
         for d in deps(p, text):
-            key = "/".join((_split(d)[0], _split(d)[2]))
-            if key not in seen:
-                seen.append(key)
-                visit(d)
+            dp, _, dn = _split(d)
+            key = f"{dp}/{dn}"
+            if key not in texts:
+                texts[key] = _interface_file(f"{dp}/msg/{dn}", ".msg").read_text()
+                visit(dp, texts[key])
 
     main = _interface_file(type_name, ".msg").read_text()
-    for d in deps(pkg, main):
-        key = "/".join((_split(d)[0], _split(d)[2]))
-        if key not in seen:
-            seen.append(key)
-            visit(d)
-    parts = [main.rstrip("\n")]
-    for key in seen:
-        p, n = key.split("/")
-        parts.append(f"{SEPARATOR}\nMSG: {key}\n" + _interface_file(f"{p}/msg/{n}", ".msg").read_text().rstrip("\n"))
+    visit(pkg, main)
+    parts = [main.rstrip("\n")] + [f"{SEPARATOR}\nMSG: {key}\n" + text.rstrip("\n") for key, text in texts.items()]
     return "\n".join(parts) + "\n"
 
 
