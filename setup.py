@@ -17,7 +17,7 @@ setup(
         ("share/" + package_name + "/config", glob("config/*.yaml")),
         ("share/" + package_name + "/launch", glob("launch/*.launch.py")),
     ],
-    install_requires=["setuptools", "numpy", "scipy", "PyYAML", "matplotlib", "mcap", "mcap-ros2-support"],
+    install_requires=["setuptools", "numpy", "scipy", "threadpoolctl", "PyYAML", "matplotlib", "mcap", "mcap-ros2-support"],
     zip_safe=True,
     maintainer="mr_ident developers",
     maintainer_email="mr-ident@example.org",

@@ -24,6 +24,7 @@ import scipy.fft
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import ConfigError, DataError, DimensionError
+from ._parallel import resolve_workers, thread_map
 from .lifting import _check_ratio
 from .lpm import _lpm_core, _warn_bad, check_lpm_options
 from .pfg import pfg_from_plant
@@ -59,8 +60,10 @@ def _check_signals(r: ArrayLike, u: ArrayLike, y: ArrayLike, ratio: int
     return ra, ua, ya
 
 
-def _spectrum(x: NDArray[np.float64]) -> NDArray[np.complex128]:
-    return scipy.fft.fft(x, axis=0, norm="ortho", workers=-1)
+def _spectra(*signals: NDArray[np.float64]) -> list[NDArray[np.complex128]]:
+    """DFTs of (N, c_i) signals, in one transform so that its columns run in parallel."""
+    X = scipy.fft.fft(np.concatenate(signals, axis=1), axis=0, norm="ortho", workers=-1)
+    return np.split(X, np.cumsum([x.shape[1] for x in signals])[:-1], axis=1)
 
 
 def _solve_right(J: NDArray, S: NDArray) -> NDArray:
@@ -84,8 +87,8 @@ def _indirect(G: NDArray, Cv: NDArray, Ainv: NDArray, n_y: int
     return P, row, col
 
 
-#: Low-rate bins per block of the freq-lifted path (bounds memory, ~40 MB per block).
-BLOCK_BINS = 32768
+#: Low-rate bins per block of the freq-lifted path (bounds memory, ~20 MB per block in flight).
+BLOCK_BINS = 16384
 
 
 def _indirect_diag(G: NDArray, Cv: NDArray, Ainv: NDArray, n_y: int) -> tuple[NDArray, NDArray, NDArray]:
@@ -106,17 +109,17 @@ def _indirect_diag(G: NDArray, Cv: NDArray, Ainv: NDArray, n_y: int) -> tuple[ND
     return P, np.maximum(row, 0.0), np.maximum(col, 0.0)
 
 
-def _fit(Uin: NDArray, Yout: NDArray, n: int, degree: int, q: int
+def _fit(Uin: NDArray, Yout: NDArray, n: int, degree: int, q: int, workers: int = 1
          ) -> tuple[NDArray, NDArray, NDArray, int]:
     """LPM (options already checked, q the dof) in bins-first layout, plus the singular-bin count."""
-    G, Cv, Ainv, n_bad = _lpm_core(Uin, Yout, n, degree, q)
+    G, Cv, Ainv, n_bad = _lpm_core(Uin, Yout, n, degree, q, workers)
     return G.transpose(2, 0, 1), Cv.transpose(2, 0, 1), Ainv.transpose(2, 0, 1), n_bad
 
 
 def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio: int,
              method: str = "freq-lifted", n: int = 8, degree: int = 2,
              controller_low: ArrayLike | None = None, phase: int = 0, delay: int = 0,
-             keep_lifted: bool = True) -> Identification:
+             keep_lifted: bool = True, workers: int | None = None) -> Identification:
     """Identify the high-rate plant P_h (and the PFG) from closed-loop data.
 
     Parameters
@@ -138,6 +141,10 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
     keep_lifted : bool, default True
         Keep the lifted J and S with their covariance in the result (lifted methods);
         False saves memory (about 0.6 kB per low-rate bin for SISO, F = 3).
+    workers : int, optional
+        Threads over blocks of bins (default: every CPU available to the process;
+        1 runs serially). The result does not depend on it; while they run,
+        OpenBLAS is limited to one thread per caller.
 
     Returns
     -------
@@ -153,6 +160,7 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
         raise ConfigError(f"fs_high must be a positive number of Hz, got {fs_high!r}")
     if method not in METHODS:
         raise ConfigError(f"method must be one of {', '.join(METHODS)}; got {method!r}")
+    n_workers = resolve_workers(workers)
     ra, ua, ya = _check_signals(r, u, y, F)
     N, nr = ra.shape
     ny, nu = ya.shape[1], ua.shape[1]
@@ -172,23 +180,21 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
     lifted_J = lifted_S = None
 
     if method == "freq-lifted":
-        Rf, Uf, Yf = _spectrum(ra), _spectrum(ua), _spectrum(ya)
+        Rf, Uf, Yf = _spectra(ra, ua, ya)
         Kc = M // 2
         bins = np.arange(Kc + 1)
         aliases = M * np.arange(F)
-        keep = []
-        n_bad = 0
-        # Blocks of bins bound the memory: lift, fit, indirect step, keep the diagonal.
-        for b0 in range(0, Kc + 1, BLOCK_BINS):
+
+        def block(b0: int) -> tuple[int, tuple | None]:
+            """Lift, fit, indirect step and keep the diagonal for one block of bins.
+
+            Blocks bound the memory and run on threads; each writes its own bins."""
             kb = bins[b0:b0 + BLOCK_BINS]
             idx = (np.arange(kb[0] - n, kb[-1] + n + 1)[:, None] + aliases[None, :]) % N
             lifted = lambda X: X[idx].reshape(idx.shape[0], -1)         # noqa: E731  (alias-major)
             G, Cv, Ainv, nb = _fit(lifted(Rf), np.concatenate([lifted(Yf), lifted(Uf)], axis=1),
                                    n, degree, q)
-            n_bad += nb
             P, rdiag, cdiag = _indirect_diag(G, Cv, Ainv, F * ny)
-            if keep_lifted:
-                keep.append((G, Cv, Ainv))
             Pb = P.reshape(kb.size, F, ny, F, nu)
             rd = rdiag.reshape(kb.size, F, ny)
             cd = cdiag.reshape(kb.size, F, nu)
@@ -202,11 +208,12 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
                 mirror = ~direct & (N - kappa <= half)
                 P_half[N - kappa[mirror]] = np.conj(Pl[mirror])
                 var_half[N - kappa[mirror]] = vl[mirror]
-        _warn_bad(n_bad, Kc + 1)
+            return nb, ((G, Cv, Ainv) if keep_lifted else None)
+
+        done = thread_map(block, range(0, Kc + 1, BLOCK_BINS), n_workers)
+        _warn_bad(sum(d[0] for d in done), Kc + 1)
         if keep_lifted:
-            G = np.concatenate([k[0] for k in keep])
-            Cv = np.concatenate([k[1] for k in keep])
-            Ainv = np.concatenate([k[2] for k in keep])
+            G, Cv, Ainv = (np.concatenate([d[1][i] for d in done]) for i in range(3))  # type: ignore[index]
             lifted_J = LiftedFRF(bins, G[:, :F * ny], Cv[:, :F * ny, :F * ny], Ainv, "frequency", F, N, q)
             lifted_S = LiftedFRF(bins, G[:, F * ny:], Cv[:, F * ny:, F * ny:], Ainv, "frequency", F, N, q)
     elif method == "time-lifted":
@@ -215,7 +222,8 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
         Yt = scipy.fft.fft(ya.reshape(M, F * ny), axis=0, norm="ortho", workers=-1)
         Kc = M // 2
         idx = np.arange(-n, Kc + n + 1) % M
-        G, Cv, Ainv, n_bad = _fit(Rt[idx], np.concatenate([Yt[idx], Ut[idx]], axis=1), n, degree, q)
+        G, Cv, Ainv, n_bad = _fit(Rt[idx], np.concatenate([Yt[idx], Ut[idx]], axis=1), n, degree, q,
+                                  n_workers)
         _warn_bad(n_bad, Kc + 1)
         P, row, col = _indirect(G, Cv, Ainv, F * ny)
         bins = np.arange(Kc + 1)
@@ -237,9 +245,10 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
         quad = np.real(np.einsum("ki,kijy,kj->ky", ph, rdiag, np.conj(ph)))
         var_half = quad[:, :, None] * c0[:, None, :]
     elif method == "lpm":
-        Rf, Uf, Yf = _spectrum(ra), _spectrum(ua), _spectrum(ya)
+        Rf, Uf, Yf = _spectra(ra, ua, ya)
         idx = np.arange(-n, half + n + 1) % N
-        G, Cv, Ainv, n_bad = _fit(Rf[idx], np.concatenate([Yf[idx], Uf[idx]], axis=1), n, degree, q)
+        G, Cv, Ainv, n_bad = _fit(Rf[idx], np.concatenate([Yf[idx], Uf[idx]], axis=1), n, degree, q,
+                                  n_workers)
         _warn_bad(n_bad, half + 1)
         P_half, rdiag, cdiag = _indirect_diag(G, Cv, Ainv, ny)
         var_half = rdiag[:, :, None] * cdiag[:, None, :]
@@ -261,7 +270,7 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
         if Kl.shape != (M, nu, ny):
             raise DimensionError(f"controller_low must have shape (M={M}, n_u={nu}, n_y={ny}), got {Kl.shape}")
         gain, gstd = pfg_from_plant(P_half, Kl, F, N, P_std_half=None if method == "etfe" else std_half,
-                                    phase=phase, delay=delay)
+                                    phase=phase, delay=delay, workers=n_workers)
         pfg = PFG(freq, gain[1:], gstd[1:], f"plant:{method}")
     return Identification(plant=plant, pfg=pfg, lifted_J=lifted_J, lifted_S=lifted_S,
                           fs_high=float(fs_high), ratio=F)

@@ -14,13 +14,14 @@ How it is fast
 --------------
 * One regressor (built from the inputs only) serves all outputs: J and S of the
   indirect method are fitted in one pass.
-* The polynomial (transient) part is the same in every window: it is removed once
-  through a constant Schur complement.
+* The polynomial (transient) part is the same in every window: its Cholesky factor
+  is computed once, so eliminating the transient only lengthens the inner products.
 * Every entry of ``K^H K``, ``K^H Y`` and ``Y^H Y`` is a windowed sum of a product
   signal with a kernel ``(r/n)^q``; those sums are computed for all bins at once from
   symmetric/antisymmetric tap pairs and one BLAS product, and the small Hermitian
-  systems are solved by a Cholesky factorisation vectorised over bins
+  systems are solved by a left-looking Cholesky factorisation vectorised over bins
   (arrays laid out bins-last), never a Python loop per bin.
+* Chunks of bins are independent and run on threads (NumPy releases the GIL).
 
 Numerics: the regressors are scaled (``r/n`` in [-1, 1]); the normal equations are
 formed from exact windowed sums and solved by Cholesky, so the error is about
@@ -37,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ._parallel import resolve_workers, thread_map
 from .errors import ConfigError, DataError, DimensionError
 
 #: Bins processed per pass; bounds the working memory (about 60 MB for 3 inputs
@@ -116,27 +118,6 @@ def _window_sums(Z: NDArray[np.complex128], n: int, n_moments: int, K: int) -> N
     return out
 
 
-def _cholesky(A: NDArray[np.complex128]) -> tuple[NDArray[np.complex128], NDArray[np.bool_]]:
-    """Cholesky ``A = L L^H`` of Hermitian matrices laid out (p, p, K).
-
-    Returns L (p, p, K) and a mask (K,) of bins that were not positive definite.
-    """
-    p, _, K = A.shape
-    L = np.zeros_like(A)
-    bad = np.zeros(K, dtype=bool)
-    for j in range(p):
-        Lj = L[j, :j]
-        d = A[j, j].real - np.einsum("mk,mk->k", Lj.real, Lj.real) - np.einsum("mk,mk->k", Lj.imag, Lj.imag)
-        tiny = d <= 1e-13 * np.abs(A[j, j].real)
-        bad |= tiny
-        d = np.where(tiny, 1.0, d)
-        ljj = np.sqrt(d)
-        L[j, j] = ljj
-        if j + 1 < p:
-            L[j + 1:, j] = (A[j + 1:, j] - np.einsum("imk,mk->ik", L[j + 1:, :j], np.conj(Lj))) / ljj
-    return L, bad
-
-
 def _moment_index(n_in: int) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]:
     iu, ju = np.triu_indices(n_in)
     pair = np.empty((n_in, n_in), dtype=np.intp)
@@ -166,65 +147,87 @@ def _moving_sum(Z: NDArray[np.complex128], n: int, K: int) -> NDArray[np.complex
 
 
 def _lpm_core(Ua: NDArray[np.complex128], Ya: NDArray[np.complex128], n: int, degree: int,
-              q: int) -> tuple[NDArray[np.complex128], NDArray[np.complex128],
-                               NDArray[np.complex128], int]:
+              q: int, workers: int = 1) -> tuple[NDArray[np.complex128], NDArray[np.complex128],
+                                                 NDArray[np.complex128], int]:
     """Engine of :func:`lpm`; returns G (n_out, n_in, K), C_v (n_out, n_out, K),
-    inv_gram (n_in, n_in, K) in bins-last layout and the number of singular bins."""
+    inv_gram (n_in, n_in, K) in bins-last layout and the number of singular bins.
+
+    Chunks of :data:`CHUNK_BINS` bins are independent and run on ``workers`` threads.
+    """
     n_in, n_out = Ua.shape[1], Ya.shape[1]
     K = Ua.shape[0] - 2 * n
     R = degree
-    P = (R + 1) * n_in
+    T = R + 1                     # transient unknowns
+    P = T * n_in                  # G unknowns, ordered s = R..0 so that G_0 trails
+    Q = T + P                     # all unknowns: transient first, its Cholesky factor is constant
     rr = np.arange(-n, n + 1) / n
-    V = rr[:, None] ** np.arange(R + 1)[None, :]
-    ATT_inv = np.linalg.inv(V.T @ V)          # constant transient block, inverted once
+    V = rr[:, None] ** np.arange(T)[None, :]
+    L_TT = np.linalg.cholesky(V.T @ V)
+    L_TT_inv = np.linalg.inv(L_TT)
     iu, ju, pair = _moment_index(n_in)
-    s_of = np.repeat(np.arange(R, -1, -1), n_in)   # G unknowns ordered s = R..0: G_0 trails
+    npair = iu.size
+    s_of = np.repeat(np.arange(R, -1, -1), n_in)
     i_of = np.tile(np.arange(n_in), R + 1)
     mom_ab = s_of[:, None] + s_of[None, :]
     pair_ab = pair[i_of[:, None], i_of[None, :]]
     conj_ab = i_of[:, None] > i_of[None, :]
+    mom_gt = s_of[None, :] + np.arange(T)[:, None]          # (T, P): moment of A_GT[a, t]
     ou, ov = np.triu_indices(n_out)
+    nio = n_in * n_out
 
     G = np.empty((n_out, n_in, K), dtype=np.complex128)
     Cv = np.empty((n_out, n_out, K), dtype=np.complex128)
     Ainv = np.empty((n_in, n_in, K), dtype=np.complex128)
-    n_bad = 0
-    for k0 in range(0, K, CHUNK_BINS):
+
+    def chunk(k0: int) -> int:
         Kc = min(CHUNK_BINS, K - k0)
-        Uc = np.ascontiguousarray(Ua[k0:k0 + Kc + 2 * n].T)   # (n_in, Kc+2n)
-        Yc = np.ascontiguousarray(Ya[k0:k0 + Kc + 2 * n].T)   # (n_out, Kc+2n)
+        width = Kc + 2 * n
+        Uc = Ua[k0:k0 + width].T                                           # (n_in, width)
+        Yc = Ya[k0:k0 + width].T                                           # (n_out, width)
         Ucj = np.conj(Uc)
-        mUU = _window_sums(Ucj[iu] * Uc[ju], n, 2 * R + 1, Kc)             # (2R+1, npair, Kc)
-        mU = _window_sums(Ucj, n, 2 * R + 1, Kc)                           # (2R+1, n_in, Kc)
-        mUY = _window_sums((Ucj[:, None, :] * Yc[None, :, :]).reshape(n_in * n_out, -1),
-                           n, R + 1, Kc).reshape(R + 1, n_in, n_out, Kc)
-        mY = _window_sums(Yc, n, R + 1, Kc)                                # (R+1, n_out, Kc)
-        mYY = _moving_sum(np.conj(Yc[ou]) * Yc[ov], n, Kc)                 # (npair_o, Kc)
+        # Product signals, grouped by the moments they need: 0..2R and 0..R.
+        ZA = np.empty((npair + n_in, width), dtype=np.complex128)          # conj(U_i) U_j, conj(U_i)
+        np.multiply(Ucj[iu], Uc[ju], out=ZA[:npair])
+        ZA[npair:] = Ucj
+        ZB = np.empty((nio + n_out, width), dtype=np.complex128)           # conj(U_i) Y_o, Y_o
+        np.multiply(Ucj[:, None, :], Yc[None, :, :], out=ZB[:nio].reshape(n_in, n_out, width))
+        ZB[nio:] = Yc
+        mA = _window_sums(ZA, n, 2 * R + 1, Kc)
+        mB = _window_sums(ZB, n, R + 1, Kc)
+        mYY = _moving_sum(np.conj(Yc[ou]) * Yc[ov], n, Kc)                # (npair_o, Kc)
+        mUU, mU = mA[:, :npair], mA[:, npair:]
+        mUY = mB[:, :nio].reshape(R + 1, n_in, n_out, Kc)
+        mY = mB[:, nio:]
 
-        A = mUU[mom_ab, pair_ab]                                           # (P, P, Kc)
-        A[conj_ab] = np.conj(A[conj_ab])
-        BG = mUY[s_of, i_of]                                               # (P, n_out, Kc)
-        YY = np.empty((n_out, n_out, Kc), dtype=np.complex128)
-        YY[ou, ov] = mYY
-        YY[ov, ou] = np.conj(mYY)
-        # Schur complement removes the transient: X = A_GT A_TT^-1 (A_TT is constant).
-        AGT = [mU[s_of + t, i_of] for t in range(R + 1)]                   # each (P, Kc)
-        X = [sum(ATT_inv[t, u] * AGT[t] for t in range(R + 1)) for u in range(R + 1)]
-        for u in range(R + 1):
-            A -= X[u][:, None, :] * np.conj(AGT[u])[None, :, :]
-            BG -= X[u][:, None, :] * mY[u][None, :, :]
-            Z = sum(ATT_inv[u, t] * mY[t] for t in range(R + 1))
-            YY -= np.conj(mY[u])[:, None, :] * Z[None, :, :]
-
-        L, bad = _cholesky(A)
-        W = np.empty((P, n_out, Kc), dtype=np.complex128)
+        # Cholesky L L^H of the normal matrix [[A_TT, A_TG], [A_GT, A_GG]] and forward
+        # solve L W = K^H Y, left-looking, vectorised over bins. The transient columns
+        # are known: L_TT is constant and L_GT = A_GT L_TT^-T, so eliminating the
+        # transient costs nothing beyond a longer inner product in each G column.
+        L = np.zeros((Q, Q, Kc), dtype=np.complex128)
+        W = np.empty((Q, n_out, Kc), dtype=np.complex128)
+        L[:T, :T] = L_TT[:, :, None]
+        A_GT = mU[mom_gt, i_of[None, :]]                                  # (T, P, Kc)
+        for u in range(T):
+            L[T:, u] = sum(L_TT_inv[u, t] * A_GT[t] for t in range(u + 1))
+            W[u] = sum(L_TT_inv[u, t] * mY[t] for t in range(u + 1))
+        bad = np.zeros(Kc, dtype=bool)
         for j in range(P):
-            acc = BG[j].copy()
-            for m in range(j):
-                acc -= L[j, m] * W[m]
-            W[j] = acc / L[j, j]
+            J = T + j
+            col = mUU[mom_ab[j:, j], pair_ab[j:, j]]                       # A_GG[j:, j]
+            flip = conj_ab[j:, j]
+            col[flip] = np.conj(col[flip])
+            Lj = L[J, :J]
+            d = col[0].real - np.einsum("mk,mk->k", Lj.real, Lj.real) - np.einsum("mk,mk->k", Lj.imag, Lj.imag)
+            tiny = d <= 1e-13 * np.abs(col[0].real)
+            bad |= tiny
+            ljj = np.sqrt(np.where(tiny, 1.0, d))
+            L[J, J] = ljj
+            if J + 1 < Q:
+                L[J + 1:, J] = (col[1:] - np.einsum("imk,mk->ik", L[J + 1:, :J], np.conj(Lj))) / ljj
+            W[J] = (mUY[s_of[j], i_of[j]] - np.einsum("mk,mok->ok", Lj, W[:J])) / ljj
+
         # Back substitution for the trailing (G_0) block only: L_tt^H theta = W_t.
-        t0 = P - n_in
+        t0 = Q - n_in
         Ltt = L[t0:, t0:]
         theta = G[:, :, k0:k0 + Kc]
         for j in range(n_in - 1, -1, -1):
@@ -243,26 +246,28 @@ def _lpm_core(Ua: NDArray[np.complex128], Ya: NDArray[np.complex128], n: int, de
             for b in range(a, n_in):
                 AI[a, b] = sum(np.conj(Li[m, a]) * Li[m, b] for m in range(b, n_in))
                 AI[b, a] = np.conj(AI[a, b])
-        # V^H V = Y'^H Y' - W^H W; C_v = (V^H V)^T / q, upper triangle then mirrored.
-        Wc = np.conj(W)
+        # V^H V = Y^H Y - W^H W; C_v = (V^H V)^T / q, upper triangle then mirrored.
+        vhv = mYY
+        for j in range(Q):
+            vhv -= np.conj(W[j, ou]) * W[j, ov]
         C = Cv[:, :, k0:k0 + Kc]
-        for a, b in zip(ou, ov):
-            vhv = YY[a, b] - np.einsum("jk,jk->k", Wc[:, a], W[:, b])
-            C[b, a] = vhv / q
-            C[a, b] = np.conj(C[b, a])
+        C[ov, ou] = vhv / q
+        C[ou, ov] = np.conj(C[ov, ou])
         if bad.any():
-            n_bad += int(bad.sum())
             idx = np.nonzero(bad)[0] + k0
             G[:, :, idx] = np.nan
             Cv[:, :, idx] = np.nan
             Ainv[:, :, idx] = np.nan
+        return int(bad.sum())
+
+    n_bad = sum(thread_map(chunk, range(0, K, CHUNK_BINS), workers))
     d = np.arange(n_out)
     Cv[d, d] = np.maximum(Cv[d, d].real, 0.0)   # rounding can make tiny variances negative
     return G, Cv, Ainv, n_bad
 
 
 def lpm(U: ArrayLike, Y: ArrayLike, *, n: int = 8, degree: int = 2,
-        map_outputs: int | None = None) -> LPMFit:
+        map_outputs: int | None = None, workers: int | None = None) -> LPMFit:
     """Fit the LPM at every bin of padded spectra.
 
     Parameters
@@ -281,6 +286,9 @@ def lpm(U: ArrayLike, Y: ArrayLike, *, n: int = 8, degree: int = 2,
         The indirect method fits J and S in one pass (``n_out = n_y + n_u``) but
         checks ``q > n_y`` per map, as the paper does; the joint noise covariance
         is then still unbiased, though of rank ``min(q, n_out)``.
+    workers : int, optional
+        Threads over blocks of bins (default: every CPU available to the process;
+        1 runs serially). The result does not depend on it.
 
     Returns
     -------
@@ -294,7 +302,8 @@ def lpm(U: ArrayLike, Y: ArrayLike, *, n: int = 8, degree: int = 2,
     DataError
         If there are fewer than 2n+1 bins.
     ConfigError
-        If the degrees-of-freedom condition ``2n+1-(R+1)(n_in+1) > n_out`` fails.
+        If the degrees-of-freedom condition ``2n+1-(R+1)(n_in+1) > n_out`` fails,
+        or ``workers`` is not None or a positive integer.
 
     Warns
     -----
@@ -304,7 +313,7 @@ def lpm(U: ArrayLike, Y: ArrayLike, *, n: int = 8, degree: int = 2,
     Ua, Ya = _check_spectra(U, Y, n)
     q = check_lpm_options(n, degree, Ua.shape[1],
                           Ya.shape[1] if map_outputs is None else map_outputs)
-    G, Cv, Ainv, n_bad = _lpm_core(Ua, Ya, n, degree, q)
+    G, Cv, Ainv, n_bad = _lpm_core(Ua, Ya, n, degree, q, resolve_workers(workers))
     _warn_bad(n_bad, G.shape[-1])
     return LPMFit(G=G.transpose(2, 0, 1), noise_cov=Cv.transpose(2, 0, 1),
                   inv_gram=Ainv.transpose(2, 0, 1), dof=q)

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ._parallel import resolve_workers, thread_map
 from .errors import DimensionError
 from .lifting import _check_multiple, _check_ratio
 from .results import PFG
@@ -67,8 +68,8 @@ def _controller_factors(kappa: NDArray, ratio: int, n_samples: int, phase: int, 
 
 
 def pfg_from_plant(P_half: ArrayLike, K_low: ArrayLike, ratio: int, n_samples: int, *,
-                   P_std_half: ArrayLike | None = None, phase: int = 0, delay: int = 0
-                   ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+                   P_std_half: ArrayLike | None = None, phase: int = 0, delay: int = 0,
+                   workers: int | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """PFG on the high-rate bins 0..N//2 from a plant FRF and the controller.
 
     The lifted controller has rank n_u (``C = A K B^T``), so by the Woodbury identity
@@ -90,6 +91,8 @@ def pfg_from_plant(P_half: ArrayLike, K_low: ArrayLike, ratio: int, n_samples: i
         gives a first-order std of the PFG.
     phase, delay : int
         See :mod:`mr_ident.loop`.
+    workers : int, optional
+        Threads over blocks of bins (default: every CPU available to the process).
 
     Returns
     -------
@@ -108,9 +111,12 @@ def pfg_from_plant(P_half: ArrayLike, K_low: ArrayLike, ratio: int, n_samples: i
     sd_half = None if P_std_half is None else np.asarray(P_std_half, dtype=float)
     gain = np.empty(N // 2 + 1)
     std = np.empty(N // 2 + 1)
-    for k0 in range(0, N // 2 + 1, PFG_BLOCK):                         # blocks bound the memory
+
+    def block(k0: int) -> None:                     # blocks bound the memory and run on threads
         kappa = np.arange(k0, min(k0 + PFG_BLOCK, N // 2 + 1))
         gain[kappa], std[kappa] = _pfg_block(kappa, Ph, Kl, F, N, sd_half, phase, delay)
+
+    thread_map(block, range(0, N // 2 + 1, PFG_BLOCK), resolve_workers(workers))
     return gain, std
 
 

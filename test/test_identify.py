@@ -92,6 +92,7 @@ def test_mimo_freq_lifted_recovers_the_plant():
     (dict(method="welch"), ConfigError, "method must be one of"),
     (dict(fs_high=-1.0), ConfigError, "fs_high must be a positive"),
     (dict(n=0), ConfigError, "n .window half-width. must be an integer >= 1"),
+    (dict(workers=0), ConfigError, "workers must be None or an integer >= 1, got 0"),
 ])
 def test_bad_options_are_named(kwargs, exc, match):
     x = np.random.default_rng(0).standard_normal(300)
@@ -112,3 +113,19 @@ def test_bad_data_is_named():
         identify(x, x, bad, fs_high=240.0, ratio=3)
     with pytest.raises(DataError, match="too few samples for the LPM window"):
         identify(x[:30], x[:30], x[:30], fs_high=240.0, ratio=3)
+
+
+@pytest.mark.parametrize("method", ["freq-lifted", "time-lifted", "lpm"])
+def test_threads_do_not_change_a_single_bit(paper_model, method, monkeypatch):
+    """Blocks of bins are independent: the result is the same on 1 or 3 threads."""
+    import sys
+    monkeypatch.setattr(sys.modules["mr_ident.identify"], "BLOCK_BINS", 1000)   # several blocks
+    monkeypatch.setattr(sys.modules["mr_ident.lpm"], "CHUNK_BINS", 700)
+    monkeypatch.setattr(sys.modules["mr_ident.pfg"], "PFG_BLOCK", 900)
+    sim = simulate(replace(paper_model, noise_std=1e-3), duration=60.0, rng=np.random.default_rng(5))
+    K_low = paper_model.controller_frf(sim.r.shape[0] // 3)
+    one, three = (identify(sim.r, sim.u, sim.y, fs_high=240.0, ratio=3, method=method,
+                           controller_low=K_low, workers=w) for w in (1, 3))
+    np.testing.assert_array_equal(one.plant.response, three.plant.response)
+    np.testing.assert_array_equal(one.plant.std, three.plant.std)
+    np.testing.assert_array_equal(one.pfg.gain, three.pfg.gain)
