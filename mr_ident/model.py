@@ -16,6 +16,17 @@ Form (keys marked * are required)::
     sample_phase: 0           #   high-rate sample (0..F-1) at which the controller samples y
     control_delay: 0          #   high-rate samples before the held output is applied
 
+Optional extensions (written by ``mr-ident diagnose --out-model``; all default to none)::
+
+    plant_gain: 1.0           #   multiplies the plant
+    input_delay_s: 0.0        #   delay between u_h and the plant, s (fractional samples exact)
+    extra_modes:              #   each multiplies the plant by w^2 / (s^2 + 2 damping w s + w^2)
+      - {frequency_hz: 80.0, damping: 0.05}
+    disturbances:             #   sinusoids added to output y (seen by the controller)
+      - {frequency_hz: 13.0, amplitude: 0.01, phase_rad: 0.0, output: 0}
+
+``extra_modes`` and a fractional ``input_delay_s`` need a continuous-time plant.
+
 MIMO: ``num`` is a nested list ``[n_out][n_in][coefficients]``; ``den`` is either
 one coefficient list shared by all entries or nested the same way.
 """
@@ -35,7 +46,7 @@ from .results import FRF
 from .systems import TransferMatrix
 
 _KEYS = {"fs_high", "ratio", "plant", "controller", "noise_std", "reference_std",
-         "sample_phase", "control_delay"}
+         "sample_phase", "control_delay", "plant_gain", "input_delay_s", "extra_modes", "disturbances"}
 _SYS_KEYS = {"num", "den", "domain"}
 
 
@@ -55,6 +66,14 @@ class Model:
         Discrete at ``ratio/fs_high``; n_u x n_y. None: open loop.
     noise_std, reference_std : float
     sample_phase, control_delay : int
+    plant_gain : float
+        Multiplies the plant.
+    input_delay : float
+        Seconds between u_h and the plant input.
+    extra_modes : tuple of (frequency_hz, damping)
+        Each multiplies the (continuous) plant by ``w^2 / (s^2 + 2 damping w s + w^2)``.
+    disturbances : tuple of (frequency_hz, amplitude, phase_rad, output)
+        Sinusoids added to output ``output`` of y (also seen by the controller).
     """
 
     fs_high: float
@@ -65,6 +84,10 @@ class Model:
     reference_std: float = 1.0
     sample_phase: int = 0
     control_delay: int = 0
+    plant_gain: float = 1.0
+    input_delay: float = 0.0
+    extra_modes: tuple[tuple[float, float], ...] = ()
+    disturbances: tuple[tuple[float, float, float, int], ...] = ()
 
     @property
     def n_y(self) -> int:
@@ -78,11 +101,33 @@ class Model:
     def fs_low(self) -> float:
         return self.fs_high / self.ratio
 
+    def plant_effective(self) -> TransferMatrix:
+        """The plant with gain and extra modes applied (before delay and discretisation)."""
+        P = self.plant
+        if self.plant_gain != 1.0:
+            P = P.times([self.plant_gain], [1.0])
+        for f, zeta in self.extra_modes:
+            w = 2.0 * np.pi * f
+            P = P.times([w * w], [1.0, 2.0 * zeta * w, w * w])
+        return P
+
     def plant_discrete(self) -> TransferMatrix:
-        """The plant at the high rate (ZOH-discretised when given in continuous time)."""
-        if self.plant.dt is None:
-            return self.plant.discretize(1.0 / self.fs_high)
-        return self.plant
+        """The plant at the high rate (ZOH-discretised when given in continuous time),
+        extensions included."""
+        P = self.plant_effective()
+        if P.dt is None:
+            return P.discretize(1.0 / self.fs_high, delay=self.input_delay)
+        d = int(round(self.input_delay * self.fs_high))
+        return P.times([1.0], [1.0] + [0.0] * d) if d else P
+
+    def disturbance(self, start: int, n_samples: int) -> np.ndarray:
+        """The output disturbance on samples start..start+N-1, shape (N, n_y)."""
+        out = np.zeros((n_samples, self.n_y))
+        if self.disturbances:
+            t = (start + np.arange(n_samples)) / self.fs_high
+            for f, a, ph, o in self.disturbances:
+                out[:, o] += a * np.sin(2.0 * np.pi * f * t + ph)
+        return out
 
     def plant_frf(self, n_samples: int) -> np.ndarray:
         """Exact P_h on DFT bins 0..N//2 of an N-sample record, shape (N//2+1, n_y, n_u)."""
@@ -206,8 +251,9 @@ def model_from_dict(d: Any, *, source: str = "model") -> Model:
         if controller.shape != (plant.shape[1], plant.shape[0]):
             raise ModelError(f"{source}: controller is {controller.shape[0]}x{controller.shape[1]}, "
                              f"expected n_u x n_y = {plant.shape[1]}x{plant.shape[0]}")
+    ext = _extensions(d, source, float(fs), plant)
     model = Model(float(fs), F, plant, controller, floats["noise_std"], floats["reference_std"],
-                  ints["sample_phase"], ints["control_delay"])
+                  ints["sample_phase"], ints["control_delay"], **ext)
     from .simulate import loop_poles  # local import: simulate depends on this module
     rho = float(np.max(np.abs(loop_poles(model)), initial=0.0))
     if rho >= 1.0:
@@ -215,6 +261,66 @@ def model_from_dict(d: Any, *, source: str = "model") -> Model:
         raise ModelError(f"{source}: the {what} is not stable (largest lifted pole magnitude "
                          f"{rho:.6g} >= 1); identification needs a stable loop")
     return model
+
+
+def _number(v: Any, where: str, low: float, high: float = math.inf, *, open_low: bool = False) -> float:
+    ok = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+    if ok:
+        ok = (v > low if open_low else v >= low) and v <= high
+    if not ok:
+        rng = f"{'(' if open_low else '['}{low:g}, {high:g}]"
+        raise ModelError(f"{where} must be a number in {rng}, got {v!r}")
+    return float(v)
+
+
+def _entries(d: Any, key: str, source: str, fields: dict[str, Any]) -> list[dict[str, Any]]:
+    """A list of mappings with exactly the allowed fields (required when the default is None)."""
+    items = d.get(key, [])
+    if items is None:
+        return []
+    if not isinstance(items, list):
+        raise ModelError(f"{source}: {key} must be a list of mappings, got {type(items).__name__}")
+    out = []
+    for j, e in enumerate(items):
+        where = f"{source}: {key}[{j}]"
+        if not isinstance(e, dict):
+            raise ModelError(f"{where} must be a mapping, got {e!r}")
+        unknown = set(e) - set(fields)
+        if unknown:
+            raise ModelError(f"{where}: unknown key(s) {sorted(unknown)}; allowed: {sorted(fields)}")
+        missing = [k for k, v in fields.items() if v is None and k not in e]
+        if missing:
+            raise ModelError(f"{where}: missing {', '.join(missing)}")
+        out.append({k: e.get(k, v) for k, v in fields.items()})
+    return out
+
+
+def _extensions(d: dict[str, Any], source: str, fs: float, plant: TransferMatrix) -> dict[str, Any]:
+    gain = _number(d.get("plant_gain", 1.0), f"{source}: plant_gain", 0.0, open_low=True)
+    delay = _number(d.get("input_delay_s", 0.0), f"{source}: input_delay_s", 0.0, 10.0)
+    modes = []
+    for j, e in enumerate(_entries(d, "extra_modes", source, {"frequency_hz": None, "damping": None})):
+        f = _number(e["frequency_hz"], f"{source}: extra_modes[{j}].frequency_hz", 0.0, 100 * fs, open_low=True)
+        z = _number(e["damping"], f"{source}: extra_modes[{j}].damping", 0.0, 10.0, open_low=True)
+        modes.append((f, z))
+    dist = []
+    fields = {"frequency_hz": None, "amplitude": None, "phase_rad": 0.0, "output": 0}
+    for j, e in enumerate(_entries(d, "disturbances", source, fields)):
+        where = f"{source}: disturbances[{j}]"
+        f = _number(e["frequency_hz"], f"{where}.frequency_hz", 0.0, fs / 2)
+        a = _number(e["amplitude"], f"{where}.amplitude", 0.0)
+        ph = _number(e["phase_rad"], f"{where}.phase_rad", -1e6, 1e6)
+        o = e["output"]
+        if isinstance(o, bool) or not isinstance(o, int) or not 0 <= o < plant.shape[0]:
+            raise ModelError(f"{where}.output must be an output index in 0..{plant.shape[0] - 1}, got {o!r}")
+        dist.append((f, a, ph, o))
+    if plant.dt is not None:
+        if modes:
+            raise ModelError(f"{source}: extra_modes need a continuous-time plant (plant.domain: continuous)")
+        if abs(delay * fs - round(delay * fs)) > 1e-9:
+            raise ModelError(f"{source}: with a discrete plant, input_delay_s must be a whole number of "
+                             f"sample times (1/fs_high = {1 / fs:g} s), got {delay!r}")
+    return dict(plant_gain=gain, input_delay=delay, extra_modes=tuple(modes), disturbances=tuple(dist))
 
 
 def load_model(path: str | Path) -> Model:
@@ -247,4 +353,13 @@ def model_to_dict(model: Model) -> dict[str, Any]:
         d["controller"] = sysd(model.controller, None)
     d.update(noise_std=model.noise_std, reference_std=model.reference_std,
              sample_phase=model.sample_phase, control_delay=model.control_delay)
+    if model.plant_gain != 1.0:
+        d["plant_gain"] = model.plant_gain
+    if model.input_delay:
+        d["input_delay_s"] = model.input_delay
+    if model.extra_modes:
+        d["extra_modes"] = [{"frequency_hz": f, "damping": z} for f, z in model.extra_modes]
+    if model.disturbances:
+        d["disturbances"] = [{"frequency_hz": f, "amplitude": a, "phase_rad": ph, "output": o}
+                             for f, a, ph, o in model.disturbances]
     return d

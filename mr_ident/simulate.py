@@ -165,7 +165,8 @@ def simulate(model: Model, *, n_samples: int | None = None, duration: float | No
         output noise (std ``model.noise_std``); required unless both are given.
     reference : array_like, shape (N, n_u), optional
     noise : array_like, shape (N, n_y), optional
-        Output noise added to y (also seen by the controller).
+        Output noise added to y (also seen by the controller). The model's
+        ``disturbances`` are added on top.
 
     Returns
     -------
@@ -219,6 +220,7 @@ class LoopStream:
     def __init__(self, model: Model):
         self.model = model
         self._loop = StateRecursion(lifted_loop(model))
+        self._n = 0                      # samples simulated so far (for the disturbance's time)
 
     def next(self, reference: ArrayLike, noise: ArrayLike | None = None) -> tuple[NDArray, NDArray]:
         """Plant input and output (u, y) for ``reference`` (N, n_u), N a multiple of F."""
@@ -228,6 +230,9 @@ class LoopStream:
         if N % F:
             raise DimensionError(f"reference length {N} must be a multiple of ratio F={F}")
         va = np.zeros((N, ny)) if noise is None else np.asarray(noise, dtype=float).reshape(N, ny)
+        if self.model.disturbances:
+            va = va + self.model.disturbance(self._n, N)
+        self._n += N
         M = N // F
         w = np.concatenate([ra.reshape(M, F * nu), va.reshape(M, F * ny)], axis=1)
         out = self._loop.run(w)

@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 import scipy.signal
 from numpy.typing import ArrayLike, NDArray
 
@@ -79,22 +80,41 @@ class TransferMatrix:
             return self(2j * np.pi * f)
         return self(np.exp(2j * np.pi * f * self.dt))
 
-    def discretize(self, dt: float) -> TransferMatrix:
-        """Zero-order-hold discretisation of every entry (exact for ZOH inputs)."""
+    def discretize(self, dt: float, *, delay: float = 0.0) -> TransferMatrix:
+        """Zero-order-hold discretisation of every entry (exact for ZOH inputs).
+
+        ``delay`` (s, >= 0) is an input delay, fractional sample times included: the
+        held input reaches the plant ``delay`` seconds late. Exact for ZOH inputs too
+        (the modified z-transform: a fractional part adds one state).
+        """
         if self.dt is not None:
             raise ModelError(f"system is already discrete (dt={self.dt}); cannot discretise again")
+        if not (np.isfinite(delay) and delay >= 0):
+            raise ModelError(f"delay must be a finite number of seconds >= 0, got {delay!r}")
+        whole = int(np.floor(delay / dt + 1e-9))
+        frac = max(delay / dt - whole, 0.0) * dt
+        if frac < 1e-9 * dt:
+            frac = 0.0
         no, ni = self.shape
         num, den = [], []
         for o in range(no):
             rn, rd = [], []
             for i in range(ni):
-                b, a, _ = scipy.signal.cont2discrete((self.num[o][i], self.den[o][i]), dt, method="zoh")
-                b = np.trim_zeros(np.atleast_1d(np.squeeze(b)), "f")
+                b, a = _zoh_delayed(self.num[o][i], self.den[o][i], dt, frac)
+                b = np.trim_zeros(b, "f")
                 rn.append(tuple(b) if b.size else (0.0,))
-                rd.append(tuple(np.asarray(a, float)))
+                rd.append(tuple(np.concatenate([a, np.zeros(whole)])))   # z^-whole
             num.append(tuple(rn))
             den.append(tuple(rd))
         return TransferMatrix(tuple(num), tuple(den), dt)
+
+    def times(self, num: ArrayLike, den: ArrayLike) -> TransferMatrix:
+        """Every entry multiplied by the scalar transfer function ``num/den`` (same domain)."""
+        b = np.atleast_1d(np.asarray(num, float))
+        a = np.atleast_1d(np.asarray(den, float))
+        return TransferMatrix(tuple(tuple(tuple(np.polymul(e, b)) for e in row) for row in self.num),
+                              tuple(tuple(tuple(np.polymul(e, a)) for e in row) for row in self.den),
+                              self.dt)
 
     def to_ss(self) -> StateSpace:
         """A (non-minimal, block-diagonal) state-space realisation of all entries."""
@@ -123,3 +143,33 @@ class TransferMatrix:
 
     def poles(self) -> NDArray[np.complex128]:
         return np.concatenate([np.roots(d) for row in self.den for d in row])
+
+
+def _zoh_delayed(num: Poly, den: Poly, dt: float, frac: float) -> tuple[NDArray, NDArray]:
+    """ZOH discretisation of ``num/den`` with an input delay ``frac`` in [0, dt) seconds.
+
+    With ``x' = A x + B u(t - frac)`` and u held over each sample time:
+    ``x[k+1] = Phi x[k] + G0 u[k] + G1 u[k-1]``, ``G0 = int_0^(dt-frac) e^(As) ds B``,
+    ``G1 = e^(A(dt-frac)) int_0^frac e^(As) ds B``; ``y[k] = C x[k] + D u[k-1]`` when
+    frac > 0. Returns discrete (num, den) in descending powers of z.
+    """
+    if frac == 0.0:
+        b, a, _ = scipy.signal.cont2discrete((num, den), dt, method="zoh")
+        return np.atleast_1d(np.squeeze(b)).astype(float), np.asarray(a, float)
+    A, B, C, D = scipy.signal.tf2ss(num, den)
+    n = A.shape[0]
+
+    def hold_integral(t: float) -> tuple[NDArray, NDArray]:
+        E = scipy.linalg.expm(np.block([[A, B], [np.zeros((1, n + 1))]]) * t)
+        return E[:n, :n], E[:n, n:]
+
+    Phi_a, G0 = hold_integral(dt - frac)
+    _, Gf = hold_integral(frac)
+    Phi = Phi_a @ hold_integral(frac)[0]
+    G1 = Phi_a @ Gf
+    Ad = np.block([[Phi, G1], [np.zeros((1, n + 1))]])                  # state [x; u[k-1]]
+    Bd = np.vstack([G0, np.ones((1, 1))])
+    Cd = np.hstack([C, D])
+    Dd = np.zeros((1, 1))
+    b, a = scipy.signal.ss2tf(Ad, Bd, Cd, Dd)
+    return np.atleast_1d(np.squeeze(b)).astype(float), np.asarray(a, float)
