@@ -1,4 +1,4 @@
-"""Command line: ``mr-ident simulate | identify | paper | replay | record | demo``.
+"""Command line: ``mr-ident simulate | identify | paper | diagnose | replay | record | demo``.
 
 ``record``, ``replay --publish`` and ``demo`` need rclpy (imported only for them).
 
@@ -11,7 +11,7 @@ import argparse
 import sys
 import warnings
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -97,6 +97,21 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("out", type=Path, help="MCAP file to write")
     rc.add_argument("topics", nargs="*", help="topics (default: reference input output)")
     rc.add_argument("--duration", type=_positive_float, help="stop after this many seconds")
+
+    g = sub.add_parser("diagnose", help="where and why a model disagrees with measured data; extended model")
+    g.add_argument("model", type=Path, help="nominal model YAML")
+    g.add_argument("data", type=Path, help="measured data: .csv, .npz or .mcap (recording)")
+    g.add_argument("--validate", type=Path, help="independent validation data (default: the last 30 %% of DATA)")
+    g.add_argument("--json", type=Path, required=True, help="report .json")
+    g.add_argument("--report", type=Path, help="report .html (self-contained, figures embedded)")
+    g.add_argument("--out-model", type=Path, help="extended model YAML")
+    g.add_argument("--period", type=_int_at_least(2),
+                   help="samples per period of a periodic excitation (noise from the periods; first period dropped)")
+    g.add_argument("--topics", nargs=3, metavar=("R", "U", "Y"), help="MCAP topic names of r, u, y")
+    g.add_argument("--n", type=_int_at_least(1), default=8, help="LPM window half-width (default 8)")
+    g.add_argument("--degree", type=_int_at_least(0), default=2, help="LPM polynomial degree R (default 2)")
+    g.add_argument("--alpha", type=float, default=0.01, help="false-alarm level of the per-bin test (default 0.01)")
+    g.add_argument("--max-causes", type=_int_at_least(1), default=3, help="most causes applied in turn (default 3)")
 
     d = sub.add_parser("demo", help="live demo: simulated loop + node over DDS, recording, replay, plots")
     d.add_argument("--out-dir", type=Path, default=Path("out/demo"))
@@ -227,6 +242,69 @@ def cmd_record(args: argparse.Namespace) -> int:
     return 0
 
 
+def _read_record(path: Path, model: Model, period: int | None, topics: list[str] | None) -> Any:
+    """A validate.Record from a data file; rates from the file where it gives them, else the model."""
+    from .validate import Record
+    if path.suffix.lower() == ".mcap":
+        from .recording import recorded_signals
+        r, u, y, info = recorded_signals(path, model.ratio, topics=topics)
+        if info.truncated:
+            print(f"warning: {path} is truncated ({info.reason}); using the {r.shape[0]} samples read", file=sys.stderr)
+        fs, F = model.fs_high, model.ratio
+    else:
+        from .data import read_data
+        data = read_data(path)
+        r, u, y = data.r, data.u, data.y
+        fs = data.fs_high if data.fs_high is not None else model.fs_high
+        F = data.ratio if data.ratio is not None else model.ratio
+    if r.shape[0] % F:
+        raise DataError(f"{path}: N = {r.shape[0]} samples is not a multiple of ratio F={F}")
+    return Record(r, u, y, float(fs), int(F), period)
+
+
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    import json
+
+    import yaml
+
+    from .data import _atomic_write
+    from .model import model_to_dict
+    from .report import report_dict, report_html
+    from .validate import diagnose
+    if args.json.suffix.lower() != ".json":
+        raise ConfigError(f"--json must be a .json file, got {str(args.json)!r}")
+    if args.report is not None and args.report.suffix.lower() not in (".html", ".htm"):
+        raise ConfigError(f"--report must be an .html file, got {str(args.report)!r}")
+    if not 0.0 < args.alpha < 1.0:
+        raise ConfigError(f"--alpha must be in (0, 1), got {args.alpha}")
+    model = load_model(args.model)
+    data = _read_record(args.data, model, args.period, args.topics)
+    val = _read_record(args.validate, model, args.period, args.topics) if args.validate else None
+    d = diagnose(model, data, val, n=args.n, degree=args.degree, alpha=args.alpha, max_causes=args.max_causes)
+    summary = report_dict(d, extended_model=str(args.out_model) if args.out_model else None, alpha=args.alpha)
+    # Everything is computed; now write (each file atomically).
+    if args.out_model:
+        text = yaml.safe_dump(model_to_dict(d.extended), sort_keys=False)
+        header = (f"# Extended by mr-ident diagnose from {args.model} on {args.data}.\n"
+                  f"# Applied: {', '.join(a.cause for a in d.applied) or 'nothing (the model explains the data)'}\n")
+        _atomic_write(args.out_model, lambda fh: fh.write(header + text), binary=False)
+    _atomic_write(args.json, lambda fh: json.dump(summary, fh, indent=2), binary=False)
+    if args.report:
+        ext = None
+        if d.applied:
+            ext = d.extended.plant_discrete().freqresp(d.evidence_before.frequency)
+        page = report_html(d, summary, ext, f"mr-ident diagnose: {args.model.name} on {args.data.name}")
+        _atomic_write(args.report, lambda fh: fh.write(page), binary=False)
+    fu = "" if d.fit_before.u is None else f"; fit u {d.fit_before.u:.1f} % -> {d.fit_after.u:.1f} %"
+    params = ", ".join(f"{k} = {v:.6g}" for k, v in d.parameters.items())
+    print(f"cause: {d.cause}{' (' + params + ')' if params else ''}; applied: "
+          f"{', '.join(a.cause for a in d.applied) or 'none'}; fit y {d.fit_before.y:.1f} % -> {d.fit_after.y:.1f} %{fu}")
+    for path in (args.json, args.report, args.out_model):
+        if path:
+            print(f"wrote {path}")
+    return 0
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     from .ros.demo import run_demo
     return run_demo(args.out_dir, rate=args.rate, timeout=args.timeout)
@@ -235,7 +313,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     commands = {"simulate": cmd_simulate, "identify": cmd_identify, "paper": cmd_paper, "replay": cmd_replay,
-                "record": cmd_record, "demo": cmd_demo}
+                "record": cmd_record, "demo": cmd_demo, "diagnose": cmd_diagnose}
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("default")

@@ -50,6 +50,9 @@ def _atomic_write(path: Path, write: Callable[[Any], None], binary: bool) -> Non
     try:
         with os.fdopen(fd, "wb" if binary else "w") as fh:
             write(fh)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)        # mkstemp makes 0600; give the usual file mode
         os.replace(tmp, path)
     except BaseException:
         try:

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import IO, Any, Mapping, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 
 from .config import IdentConfig
 from .errors import DataError, MrIdentError
@@ -356,3 +357,27 @@ def replay(path: str | Path, config: IdentConfig, *, topics: Sequence[str] | Non
                         f"{config.min_samples} samples (min_window_s = {config.min_window_s:g} s); "
                         f"longest aligned span at the end: {max(0, hi - lo)} samples")
     return ReplayResult(estimate(w, config), al.stats, info, tuple(notes))
+
+
+def recorded_signals(path: str | Path, ratio: int, *, topics: Sequence[str] | None = None
+                     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], RecordingInfo]:
+    """r, u, y of the latest gap-free aligned span of a recording (all of it when clean).
+
+    Raises
+    ------
+    DataError
+        As :func:`read_blocks`, or when no aligned sample exists.
+    """
+    items, info, _ = read_blocks(path, topics)
+    total = sum(item.samples.shape[0] for _, _, item in items if isinstance(item, Block))
+    al = Aligner(max(total, ratio), ratio, reorder_blocks=8)
+    for stream, _, item in items:
+        if isinstance(item, BlockError):
+            al.count(stream, item.kind)
+        else:
+            al.push(stream, item)
+    al.expire(float("inf"), 0.0)
+    w = al.window(ratio)
+    if w is None:
+        raise DataError(f"{path}: the recording holds no aligned samples of r, u and y")
+    return w.r, w.u, w.y, info

@@ -438,7 +438,8 @@ class _Objective:
         with np.errstate(all="ignore"):
             E = np.fft.rfft(raw[0], axis=0, norm="ortho") * self.weight
         res = np.concatenate([E.real.ravel(), E.imag.ravel()])
-        return res if np.all(np.isfinite(res)) else np.full(2 * self.n_bins, 1e3)
+        ok = np.all(np.isfinite(res)) and float(np.max(np.abs(res), initial=0.0)) < 1e100
+        return res if ok else np.full(2 * self.n_bins, 1e3)
 
     def rss(self, model: Model) -> dict[str, float]:
         raw = self._raw(model)
@@ -488,7 +489,7 @@ def _modes(plant: TransferMatrix) -> list[tuple[float, float]]:
             z = -p.real / w
             if z < 0.7:
                 out.append((w / (2 * np.pi), z))
-    return out
+    return sorted(out)
 
 
 def _shift_mode(model: Model, f0: float, z0: float, f: float, z: float) -> Model:
@@ -583,7 +584,8 @@ def fit_cause(cause: str, rec: Record, base: Model, noise: NDArray[np.float64]) 
                 starts = [[f0 * s, z0] for s in (0.8, 0.9, 1.0, 1.1, 1.25)]
                 x, m = _least_squares(obj, build, _best_starts(obj, build, starts, 2),
                                       [0.4 * f0, 0.001], [min(2.5 * f0, 0.499 * fs), 0.9], [0.01 * f0, 0.01])
-                cost = float(np.sum(obj.residuals(m) ** 2))
+                with np.errstate(over="ignore"):
+                    cost = float(np.sum(obj.residuals(m) ** 2))
                 if best is None or cost < best[0]:
                     best = (cost, x, m)
             assert best is not None
@@ -598,10 +600,8 @@ def fit_cause(cause: str, rec: Record, base: Model, noise: NDArray[np.float64]) 
                  [(d, replace(base, control_delay=base.control_delay + d)) for d in range(1, 2 * F + 1)])
         scored = []
         for v, m in cands:
-            try:
+            with np.errstate(over="ignore"):
                 scored.append((float(np.sum(obj.residuals(m) ** 2)), v, m))
-            except Exception:
-                continue
         if not scored:
             return na
         _, v, model = min(scored, key=lambda t: t[0])
@@ -616,7 +616,8 @@ def fit_cause(cause: str, rec: Record, base: Model, noise: NDArray[np.float64]) 
             x, m = _least_squares(obj, build, [[f0, amp, 0.0], [f0, 0.0, amp]],
                                   [max(f0 - 2 * df, 1e-6), -np.inf, -np.inf], [min(f0 + 2 * df, fs / 2), np.inf, np.inf],
                                   [0.1 * df, max(amp, 1e-12), max(amp, 1e-12)])
-            cost = float(np.sum(obj.residuals(m) ** 2))
+            with np.errstate(over="ignore"):
+                cost = float(np.sum(obj.residuals(m) ** 2))
             if best_d is None or cost < best_d[0]:
                 best_d = (cost, x, m, o)
         assert best_d is not None
@@ -630,10 +631,8 @@ def _best_starts(obj: _Objective, build: Callable[[NDArray], Model], starts: lis
     """The ``keep`` starts with the smallest residual (a cheap grid before least squares)."""
     costs = []
     for x in starts:
-        try:
+        with np.errstate(over="ignore"):
             costs.append((float(np.sum(obj.residuals(build(np.asarray(x, float))) ** 2)), x))
-        except Exception:
-            continue
     return [x for _, x in sorted(costs, key=lambda t: t[0])[:keep]] or starts[:1]
 
 
