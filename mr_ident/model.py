@@ -340,26 +340,26 @@ def load_model(path: str | Path) -> Model:
 def model_to_dict(model: Model) -> dict[str, Any]:
     """The YAML mapping of a model (inverse of :func:`model_from_dict`)."""
     def sysd(t: TransferMatrix, domain: str | None) -> dict[str, Any]:
-        num = [[list(e) for e in row] for row in t.num]
-        den = [[list(e) for e in row] for row in t.den]
+        num = [[[float(c) for c in e] for e in row] for row in t.num]      # plain floats for YAML
+        den = [[[float(c) for c in e] for e in row] for row in t.den]
         out: dict[str, Any] = ({"num": num[0][0], "den": den[0][0]} if t.shape == (1, 1)
                                else {"num": num, "den": den})
         if domain:
             out["domain"] = domain
         return out
-    d: dict[str, Any] = {"fs_high": model.fs_high, "ratio": model.ratio,
+    d: dict[str, Any] = {"fs_high": float(model.fs_high), "ratio": int(model.ratio),
                          "plant": sysd(model.plant, "continuous" if model.plant.dt is None else "discrete")}
     if model.controller is not None:
         d["controller"] = sysd(model.controller, None)
-    d.update(noise_std=model.noise_std, reference_std=model.reference_std,
-             sample_phase=model.sample_phase, control_delay=model.control_delay)
+    d.update(noise_std=float(model.noise_std), reference_std=float(model.reference_std),
+             sample_phase=int(model.sample_phase), control_delay=int(model.control_delay))
     if model.plant_gain != 1.0:
-        d["plant_gain"] = model.plant_gain
+        d["plant_gain"] = float(model.plant_gain)
     if model.input_delay:
-        d["input_delay_s"] = model.input_delay
+        d["input_delay_s"] = float(model.input_delay)
     if model.extra_modes:
-        d["extra_modes"] = [{"frequency_hz": f, "damping": z} for f, z in model.extra_modes]
+        d["extra_modes"] = [{"frequency_hz": float(f), "damping": float(z)} for f, z in model.extra_modes]
     if model.disturbances:
-        d["disturbances"] = [{"frequency_hz": f, "amplitude": a, "phase_rad": ph, "output": o}
-                             for f, a, ph, o in model.disturbances]
+        d["disturbances"] = [{"frequency_hz": float(f), "amplitude": float(a), "phase_rad": float(ph),
+                              "output": int(o)} for f, a, ph, o in model.disturbances]
     return d

@@ -48,3 +48,20 @@ def test_a_missing_file_and_bad_yaml_are_model_errors(tmp_path):
     p.write_text("fs_high: [1,\n")
     with pytest.raises(ModelError, match="not valid YAML"):
         load_model(p)
+
+
+@pytest.mark.parametrize("delay_samples", [0.0, 0.4, 1.0, 2.3])
+def test_a_fractional_input_delay_is_discretised_exactly_for_held_inputs(delay_samples):
+    """Against a fine continuous-time simulation of the delayed plant with a held input (lsim, ZOH)."""
+    import scipy.signal
+    from mr_ident.systems import TransferMatrix
+    h, up = 0.01, 50
+    num, den = [1.0, 2.0], [1.0, 3.0, 100.0]
+    Pd = TransferMatrix.siso(num, den).discretize(h, delay=delay_samples * h)
+    b, a = np.array(Pd.num[0][0]), np.array(Pd.den[0][0])
+    u = np.random.default_rng(0).standard_normal(200)
+    y = scipy.signal.lfilter(np.concatenate([np.zeros(a.size - b.size), b]), a, u)
+    shift = int(round(delay_samples * up))
+    uf = np.concatenate([np.zeros(shift), np.repeat(u, up)])[:u.size * up]
+    _, yf, _ = scipy.signal.lsim((num, den), uf, np.arange(u.size * up) * h / up, interp=False)
+    np.testing.assert_allclose(y, yf[::up], atol=1e-9 * np.abs(y).max())
