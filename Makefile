@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 export ROS_LOG_DIR ?= $(CURDIR)/out/ros_log
 export MPLBACKEND := Agg
 
-.PHONY: demo paper test bench bench-live venv clean
+.PHONY: demo paper test bench bench-live motor-bench venv clean
 
 venv: $(STAMP)
 
@@ -33,3 +33,6 @@ clean:
 
 bench-live: $(STAMP)
 	$(PY) benchmarks/bench_live.py
+
+motor-bench: $(STAMP)
+	$(PY) scripts/motor_bench.py

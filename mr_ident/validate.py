@@ -565,13 +565,13 @@ def fit_cause(cause: str, rec: Record, base: Model, noise: NDArray[np.float64]) 
                 return replace(base, extra_modes=base.extra_modes + ((float(x[0]), float(x[1])),))
             ev = frf_evidence(base, rec) if rec.period is None else None
             fgrid = np.geomspace(fs / 200, 0.45 * fs, 12)
-            starts = [[f0, 0.05] for f0 in fgrid]
+            starts = [[f0, z0] for f0 in fgrid for z0 in (0.05, 1.0)]
             if ev is not None and ev.frequency.size:
                 ratio = np.abs(ev.P_hat / ev.P_model).reshape(ev.frequency.size, -1).max(axis=1)
                 k = int(np.nanargmax(ratio))
                 starts = [[float(ev.frequency[k]), float(np.clip(0.5 / max(ratio[k], 1.0), 0.005, 0.5))]] + starts
             x, model = _least_squares(obj, build, _best_starts(obj, build, starts, 3), [fs / 1000, 0.002],
-                                      [0.499 * fs, 0.9], [fs / 1000, 0.01])
+                                      [0.499 * fs, 5.0], [fs / 1000, 0.01])
             params = {"frequency_hz": float(x[0]), "damping": float(x[1])}
         else:
             modes = _modes(base.plant)
@@ -759,7 +759,7 @@ def diagnose(model: Model, data: Record, validation: Record | None = None, *, n:
     ev_after = frf_evidence(current, val_part, n=n, degree=degree, alpha=alpha)
     pred_b, pred_a = predict(model, val), predict(current, val)
     _, _, y_meas = _centred(val, model)
-    traces = {"start": val_start, "y": y_meas, "y_before": pred_b.y, "y_after": pred_a.y,
+    traces = {"start": max(val_start, pred_b.skip), "y": y_meas, "y_before": pred_b.y, "y_after": pred_a.y,
               "fs_high": val.fs_high}
     first = applied[0] if applied else None
     return Diagnosis(first.cause if first else "none", dict(first.parameters) if first else {},

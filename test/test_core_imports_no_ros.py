@@ -6,7 +6,8 @@ import sys
 CORE = ["mr_ident", "mr_ident.errors", "mr_ident.results", "mr_ident.lifting", "mr_ident.lpm",
         "mr_ident.loop", "mr_ident.pfg", "mr_ident.identify", "mr_ident.systems", "mr_ident.model",
         "mr_ident.simulate", "mr_ident.data", "mr_ident.plots", "mr_ident.paper", "mr_ident.cli",
-        "mr_ident.config", "mr_ident.stream", "mr_ident.live", "mr_ident.recording", "mcap_ros2.decoder"]
+        "mr_ident.config", "mr_ident.stream", "mr_ident.live", "mr_ident.recording", "mr_ident.validate",
+        "mr_ident.report", "mr_ident._parallel", "mcap_ros2.decoder"]
 
 
 def test_importing_the_core_loads_no_ros_module():
