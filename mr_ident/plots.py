@@ -6,7 +6,7 @@ Compute and plot are separate: every function takes result objects and a path.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -28,9 +28,12 @@ def _db(x: NDArray) -> NDArray:
         return 20 * np.log10(np.abs(x))
 
 
-def plot_bode(frf: FRF, path: str | Path, *, model: FRF | None = None,
-              nyquist_low: float | None = None, title: str | None = None) -> Path:
-    """Bode magnitude and phase of an estimate with a +-2 sigma band, and the model."""
+def bode_figure(frf: FRF, *, models: Sequence[tuple[str, FRF, Mapping[str, Any]]] = (),
+                nyquist_low: float | None = None, title: str | None = None) -> Figure:
+    """Bode magnitude and phase of an estimate with a +-2 sigma band, and reference curves.
+
+    ``models`` holds ``(label, frf, line style)`` triples drawn over the estimate.
+    """
     ny, nu = frf.n_out, frf.n_in
     fig = Figure(figsize=(5.5 * nu + 1, 6.5 * ny))
     axes = fig.subplots(2 * ny, nu, sharex=True, squeeze=False)
@@ -47,9 +50,9 @@ def plot_bode(frf: FRF, path: str | Path, *, model: FRF | None = None,
                                 lw=0, label="±2σ")
                 am.semilogx(f, _db(s), lw=0.6, color="C2", label="σ")
             ap.semilogx(f, np.degrees(np.angle(g)), lw=0.8, color="C0")
-            if model is not None:
-                am.semilogx(model.frequency, _db(model.response[:, o, i]), "k--", lw=1, label="model")
-                ap.semilogx(model.frequency, np.degrees(np.angle(model.response[:, o, i])), "k--", lw=1)
+            for label, m, style in models:
+                am.semilogx(m.frequency, _db(m.response[:, o, i]), lw=1, label=label, **style)
+                ap.semilogx(m.frequency, np.degrees(np.angle(m.response[:, o, i])), lw=1, **style)
             for ax in (am, ap):
                 if nyquist_low:
                     ax.axvline(nyquist_low, color="0.5", ls=":", lw=1)
@@ -57,15 +60,21 @@ def plot_bode(frf: FRF, path: str | Path, *, model: FRF | None = None,
             am.set_ylabel(f"|P[{o},{i}]| [dB]")
             ap.set_ylabel("phase [deg]")
             ap.set_yticks([-180, -90, 0, 90, 180])
-            ax_last = ap
     axes[0, 0].legend(loc="best", fontsize=8)
-    ax_last.set_xlabel("frequency [Hz]")
+    axes[-1, -1].set_xlabel("frequency [Hz]")
     if nyquist_low:
         axes[0, 0].text(nyquist_low, axes[0, 0].get_ylim()[1], " low-rate Nyquist", fontsize=7,
                         va="top", color="0.4")
     fig.suptitle(title or f"Plant estimate P_h ({frf.method})")
     fig.tight_layout()
-    return _save(fig, path)
+    return fig
+
+
+def plot_bode(frf: FRF, path: str | Path, *, model: FRF | None = None,
+              nyquist_low: float | None = None, title: str | None = None) -> Path:
+    """:func:`bode_figure` with the model (dashed black) when given, saved to ``path``."""
+    models = [("model", model, {"color": "k", "ls": "--"})] if model is not None else []
+    return _save(bode_figure(frf, models=models, nyquist_low=nyquist_low, title=title), path)
 
 
 def plot_pfg(pfg: PFG, path: str | Path, *, model: PFG | None = None, title: str | None = None) -> Path:

@@ -16,7 +16,9 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
-from .validate import CAUSE_PARAMETERS, Diagnosis, Evidence
+from .plots import bode_figure
+from .results import FRF
+from .validate import Diagnosis, Evidence
 
 
 def _finite(x: float | None) -> float | None:
@@ -70,38 +72,14 @@ def _png(fig: Figure) -> str:
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def _db(x: NDArray) -> NDArray:
-    with np.errstate(divide="ignore"):
-        return 20 * np.log10(np.abs(x))
-
-
 def fig_bode(ev: Evidence, extended: NDArray | None) -> Figure:
-    """Model (and extended model) against P̂_h ± 2σ, entry [0, 0]... for every entry."""
-    ny, nu = ev.P_hat.shape[1:]
-    fig = Figure(figsize=(6 * nu + 1, 5 * ny))
-    axes = fig.subplots(2 * ny, nu, squeeze=False, sharex=True)
-    f = ev.frequency
-    for o in range(ny):
-        for i in range(nu):
-            am, ap = axes[2 * o, i], axes[2 * o + 1, i]
-            g, s = ev.P_hat[:, o, i], ev.P_std[:, o, i]
-            lo = np.maximum(np.abs(g) - 2 * s, np.abs(g) * 1e-3)
-            am.fill_between(f, _db(lo), _db(np.abs(g) + 2 * s), color="C0", alpha=0.25, lw=0, label="P̂ ± 2σ")
-            am.semilogx(f, _db(g), color="C0", lw=0.7, label="P̂ (identified)")
-            am.semilogx(f, _db(ev.P_model[:, o, i]), "k--", lw=1, label="nominal model")
-            ap.semilogx(f, np.degrees(np.angle(g)), color="C0", lw=0.7)
-            ap.semilogx(f, np.degrees(np.angle(ev.P_model[:, o, i])), "k--", lw=1)
-            if extended is not None:
-                am.semilogx(f, _db(extended[:, o, i]), color="C3", lw=1, label="extended model")
-                ap.semilogx(f, np.degrees(np.angle(extended[:, o, i])), color="C3", lw=1)
-            am.set_ylabel(f"|P[{o},{i}]| [dB]")
-            ap.set_ylabel("phase [deg]")
-            for ax in (am, ap):
-                ax.grid(True, which="both", alpha=0.3)
-    axes[0, 0].legend(fontsize=8)
-    axes[-1, 0].set_xlabel("frequency [Hz]")
-    fig.tight_layout()
-    return fig
+    """Nominal (and extended) model against P̂_h ± 2σ, every entry."""
+    zero = np.zeros(ev.P_std.shape)
+    models = [("nominal model", FRF(ev.frequency, ev.P_model, zero, "model"), {"color": "k", "ls": "--"})]
+    if extended is not None:
+        models.append(("extended model", FRF(ev.frequency, extended, zero, "model"), {"color": "C3"}))
+    return bode_figure(FRF(ev.frequency, ev.P_hat, ev.P_std, "identified"), models=models,
+                       title="Plant: identified against the model")
 
 
 def fig_sigma(before: Evidence, after: Evidence) -> Figure:
@@ -218,5 +196,3 @@ def report_html(d: Diagnosis, summary: dict[str, Any], extended_frf: NDArray | N
             f"<title>{e(title)}</title><style>body{{font-family:sans-serif;max-width:1000px;margin:auto}}"
             "img{max-width:100%}</style></head><body>" + "".join(body) + "</body></html>")
 
-
-__all__ = ["CAUSE_PARAMETERS", "report_dict", "report_html"]
