@@ -45,6 +45,7 @@ from .errors import ConfigError, DataError
 from .identify import identify
 from .loop import closed_loop_maps
 from .model import Model
+from .results import Identification
 from .pfg import half_to_full
 from .simulate import LoopStream
 from .systems import TransferMatrix
@@ -176,9 +177,10 @@ class TimeFit:
     u: float | None
 
 
-def time_fit(model: Model, rec: Record, start: int = 0) -> TimeFit:
-    """Fit % of the model's simulated y (and u) against ``rec`` from sample ``start`` on."""
-    pred = predict(model, rec)
+def time_fit(model: Model, rec: Record, start: int = 0, pred: Prediction | None = None) -> TimeFit:
+    """Fit % of the model's simulated y (and u) against ``rec`` from sample ``start`` on
+    (``pred``: the model's :func:`predict` on ``rec`` when already at hand)."""
+    pred = pred or predict(model, rec)
     _, u, y = _centred(rec, model)
     s = max(start, pred.skip)
     fy = fit_percent(y[s:], pred.y[s:])
@@ -283,8 +285,21 @@ def _periodic_plant(rec: Record) -> tuple[NDArray, NDArray, NDArray, NDArray, in
     return lines, P[:, :, None], np.sqrt(np.maximum(var_P, 0.0))[:, :, None], Rm, n_per - 1
 
 
-def frf_evidence(model: Model, rec: Record, *, n: int = 8, degree: int = 2, alpha: float = 0.01) -> Evidence:
-    """Identify the record and hold the model against it, bin by bin (see the module docstring)."""
+def identify_record(rec: Record, model: Model, *, n: int = 8, degree: int = 2) -> Identification | None:
+    """``freq-lifted`` identification of a record, lifted maps kept (None for periodic data,
+    which is estimated from its periods instead). One run serves :func:`frf_evidence` for
+    any model with the same controller structure and :func:`noise_spectrum`."""
+    if rec.period is not None:
+        return None
+    _, u, y = _centred(rec, model)
+    return identify(rec.r, u, y, fs_high=rec.fs_high, ratio=rec.ratio, method="freq-lifted", n=n,
+                    degree=degree, keep_lifted=True)
+
+
+def frf_evidence(model: Model, rec: Record, *, n: int = 8, degree: int = 2, alpha: float = 0.01,
+                 ident: Identification | None = None) -> Evidence:
+    """Hold the model against the record's identification, bin by bin (see the module
+    docstring). ``ident``: :func:`identify_record` of ``rec``, computed when not given."""
     N = rec.n_samples
     empty = np.zeros(0)
     if rec.period is not None:
@@ -293,10 +308,9 @@ def frf_evidence(model: Model, rec: Record, *, n: int = 8, degree: int = 2, alph
         P_model = model.plant_discrete().freqresp(f)
         loop = (empty, empty, math.inf, np.zeros(0, bool))
     else:
-        _, u, y = _centred(rec, model)
         K_low = model.controller_frf(N // model.ratio) if model.controller is not None else None
-        ident = identify(rec.r, u, y, fs_high=rec.fs_high, ratio=rec.ratio, method="freq-lifted", n=n,
-                         degree=degree, keep_lifted=model.controller is not None)
+        ident = ident or identify_record(rec, model, n=n, degree=degree)
+        assert ident is not None
         f = ident.plant.frequency
         P_hat, P_std = ident.plant.response, ident.plant.std
         P_model = model.plant_frf(N)[1:]
@@ -355,14 +369,16 @@ class CauseFit:
     applicable: bool = True
 
 
-def noise_spectrum(rec: Record, model: Model, *, n: int = 8, degree: int = 2) -> NDArray[np.float64]:
+def noise_spectrum(rec: Record, model: Model, *, n: int = 8, degree: int = 2,
+                   ident: Identification | None = None) -> NDArray[np.float64]:
     """Noise variance of y on the bins of ``rfft(y[skip:], norm="ortho")``, shape (n_bins, n_y).
 
     Independent of any model: from the LPM noise covariance of the r -> y fit (the part of
     y that r does not explain: in closed loop the noise as the loop shapes it), or, for
     periodic data, from the spread of y over periods (interpolated to the record's bins).
     Smoothed by a running median over 33 bins, corrected to a mean, so that a single
-    sinusoid does not mask itself.
+    sinusoid does not mask itself. ``ident``: :func:`identify_record` of ``rec``, computed
+    when not given.
     """
     _, u, y = _centred(rec, model)
     if rec.period is not None:
@@ -375,8 +391,8 @@ def noise_spectrum(rec: Record, model: Model, *, n: int = 8, degree: int = 2) ->
         S = var[np.minimum(line, var.shape[0] - 1)]
         dof = 2 * (n_per - 1)
     else:
-        ident = identify(rec.r, u, y, fs_high=rec.fs_high, ratio=rec.ratio, method="freq-lifted", n=n,
-                         degree=degree, keep_lifted=True)
+        ident = ident or identify_record(rec, model, n=n, degree=degree)
+        assert ident is not None
         J = ident.lifted_J
         assert J is not None
         F, N, ny = rec.ratio, rec.n_samples, y.shape[1]
@@ -406,9 +422,11 @@ class _Objective:
     (one noise source), so counting it too would double the evidence, noise included.
     """
 
-    def __init__(self, rec: Record, base: Model, noise: NDArray[np.float64]):
+    def __init__(self, rec: Record, base: Model, noise: NDArray[np.float64],
+                 plant: tuple[NDArray, NDArray] | None = None):
         self.rec = rec
         self.base = base
+        self.plant = plant            # (frequency, P̂) of the record, for starting guesses
         _, u, y = _centred(rec, base)
         self.u, self.y = u, y
         self.skip = rec.period or 0
@@ -432,7 +450,9 @@ class _Objective:
         return parts
 
     def residuals(self, model: Model) -> NDArray[np.float64]:
-        raw = self._raw(model)
+        return self._whiten(self._raw(model))
+
+    def _whiten(self, raw: list[NDArray] | None) -> NDArray[np.float64]:
         if raw is None:
             return np.full(2 * self.n_bins, 1e3)
         with np.errstate(all="ignore"):
@@ -441,18 +461,17 @@ class _Objective:
         ok = np.all(np.isfinite(res)) and float(np.max(np.abs(res), initial=0.0)) < 1e100
         return res if ok else np.full(2 * self.n_bins, 1e3)
 
-    def rss(self, model: Model) -> dict[str, float]:
+    def evaluate(self, model: Model, p: int) -> tuple[float, dict[str, float]]:
+        """BIC ``2 sum |E|^2 / S + p ln(n_bins)`` and the residual sums of squares of y
+        (and u in closed loop), from one simulation."""
         raw = self._raw(model)
+        bic = 2.0 * float(np.sum(self._whiten(raw) ** 2)) + p * math.log(self.n_bins)
         if raw is None:
-            return {"y": math.inf} | ({"u": math.inf} if self.closed else {})
-        out = {"y": float(np.sum(raw[0] ** 2))}
+            return bic, {"y": math.inf} | ({"u": math.inf} if self.closed else {})
+        rss = {"y": float(np.sum(raw[0] ** 2))}
         if self.closed:
-            out["u"] = float(np.sum(raw[1] ** 2))
-        return out
-
-    def bic(self, model: Model, p: int) -> float:
-        """``2 sum |E|^2 / S + p ln(n_bins)``."""
-        return 2.0 * float(np.sum(self.residuals(model) ** 2)) + p * math.log(self.n_bins)
+            rss["u"] = float(np.sum(raw[1] ** 2))
+        return bic, rss
 
 
 def _least_squares(obj: _Objective, build: Callable[[NDArray], Model], starts: list[list[float]],
@@ -533,12 +552,23 @@ def _residual_peak(obj: _Objective, base: Model) -> list[tuple[float, int, float
     return out
 
 
-def fit_cause(cause: str, rec: Record, base: Model, noise: NDArray[np.float64]) -> CauseFit:
+def fit_cause(cause: str, rec: Record, base: Model, noise: NDArray[np.float64], *,
+              ident: Identification | None = None) -> CauseFit:
     """Fit one cause of :data:`CAUSES` on ``rec``, extending ``base``; ``noise`` from
-    :func:`noise_spectrum`."""
+    :func:`noise_spectrum`, ``ident`` (optional) from :func:`identify_record` for
+    starting guesses."""
     if cause not in CAUSES:
         raise ConfigError(f"cause must be one of {', '.join(CAUSES)}; got {cause!r}")
-    obj = _Objective(rec, base, noise)
+    return _fit_cause(cause, _objective(rec, base, noise, ident))
+
+
+def _objective(rec: Record, base: Model, noise: NDArray[np.float64], ident: Identification | None) -> _Objective:
+    plant = (ident.plant.frequency, ident.plant.response) if ident is not None else None
+    return _Objective(rec, base, noise, plant)
+
+
+def _fit_cause(cause: str, obj: _Objective) -> CauseFit:
+    rec, base = obj.rec, obj.base
     fs, F = base.fs_high, base.ratio
     h = 1.0 / fs
     na = CauseFit(cause, {}, math.inf, {}, base, applicable=False)
@@ -563,13 +593,13 @@ def fit_cause(cause: str, rec: Record, base: Model, noise: NDArray[np.float64]) 
         if cause == "extra_resonance":
             def build(x: NDArray) -> Model:
                 return replace(base, extra_modes=base.extra_modes + ((float(x[0]), float(x[1])),))
-            ev = frf_evidence(base, rec) if rec.period is None else None
             fgrid = np.geomspace(fs / 200, 0.45 * fs, 12)
             starts = [[f0, z0] for f0 in fgrid for z0 in (0.05, 1.0)]
-            if ev is not None and ev.frequency.size:
-                ratio = np.abs(ev.P_hat / ev.P_model).reshape(ev.frequency.size, -1).max(axis=1)
+            if obj.plant is not None and obj.plant[0].size:
+                f_id, P_id = obj.plant
+                ratio = np.abs(P_id / base.plant_discrete().freqresp(f_id)).reshape(f_id.size, -1).max(axis=1)
                 k = int(np.nanargmax(ratio))
-                starts = [[float(ev.frequency[k]), float(np.clip(0.5 / max(ratio[k], 1.0), 0.005, 0.5))]] + starts
+                starts = [[float(f_id[k]), float(np.clip(0.5 / max(ratio[k], 1.0), 0.005, 0.5))]] + starts
             x, model = _least_squares(obj, build, _best_starts(obj, build, starts, 3), [fs / 1000, 0.002],
                                       [0.499 * fs, 5.0], [fs / 1000, 0.01])
             params = {"frequency_hz": float(x[0]), "damping": float(x[1])}
@@ -623,7 +653,8 @@ def fit_cause(cause: str, rec: Record, base: Model, noise: NDArray[np.float64]) 
         assert best_d is not None
         x, model = best_d[1], best_d[2]
         params = {"frequency_hz": float(x[0]), "amplitude": float(math.hypot(x[1], x[2]))}
-    return CauseFit(cause, params, obj.bic(model, _N_FREE[cause]), obj.rss(model), model)
+    score, rss = obj.evaluate(model, _N_FREE[cause])
+    return CauseFit(cause, params, score, rss, model)
 
 
 def _best_starts(obj: _Objective, build: Callable[[NDArray], Model], starts: list[list[float]],
@@ -637,9 +668,13 @@ def _best_starts(obj: _Objective, build: Callable[[NDArray], Model], starts: lis
 
 
 def rank_causes(rec: Record, base: Model, noise: NDArray[np.float64],
-                causes: tuple[str, ...] = CAUSES) -> list[CauseFit]:
+                causes: tuple[str, ...] = CAUSES, *, ident: Identification | None = None) -> list[CauseFit]:
     """Fit every cause and rank them by BIC (lowest first; inapplicable ones last)."""
-    fits = [fit_cause(c, rec, base, noise) for c in causes]
+    for c in causes:
+        if c not in CAUSES:
+            raise ConfigError(f"cause must be one of {', '.join(CAUSES)}; got {c!r}")
+    obj = _objective(rec, base, noise, ident)
+    fits = [_fit_cause(c, obj) for c in causes]
     return sorted(fits, key=lambda c: (not c.applicable, c.score))
 
 
@@ -732,9 +767,12 @@ def diagnose(model: Model, data: Record, validation: Record | None = None, *, n:
         est_desc = f"samples 0..{cut - 1} of DATA (the first {100 * (1 - holdout):.0f} %)"
         val_desc = (f"samples {cut}..{data.n_samples - 1} of DATA (the last {100 * holdout:.0f} %, held out; "
                     f"simulated over the whole record so the state carries over)")
-    ev_before = frf_evidence(model, est, n=n, degree=degree, alpha=alpha)
-    noise = noise_spectrum(est, model, n=n, degree=degree)
-    ranking = rank_causes(est, model, noise)
+    if val_start and val.period is None and val.n_samples - val_start < 4 * (2 * n + 1) * model.ratio:
+        raise DataError(f"the held-out part ({val.n_samples - val_start} samples) is too short for the LPM window")
+    ident = identify_record(est, model, n=n, degree=degree)
+    ev_before = frf_evidence(model, est, n=n, degree=degree, alpha=alpha, ident=ident)
+    noise = noise_spectrum(est, model, n=n, degree=degree, ident=ident)
+    ranking = rank_causes(est, model, noise, ident=ident)
     none_score = next(c.score for c in ranking if c.cause == "none")
     applied: list[CauseFit] = []
     current, current_score = model, none_score
@@ -748,16 +786,15 @@ def diagnose(model: Model, data: Record, validation: Record | None = None, *, n:
             break
         applied.append(best)
         current = best.model
-        step = rank_causes(est, current, noise)
+        step = rank_causes(est, current, noise, ident=ident)
         current_score = next(c.score for c in step if c.cause == "none")
     val_part = val.part(val_start, val.n_samples) if val_start else val
-    fit_before = time_fit(model, val, val_start)
-    fit_after = time_fit(current, val, val_start)
-    if val_start and val.period is None and val_part.n_samples < 4 * (2 * n + 1) * model.ratio:
-        raise DataError(f"the held-out part ({val_part.n_samples} samples) is too short for the LPM window")
-    ev_val_before = frf_evidence(model, val_part, n=n, degree=degree, alpha=alpha)
-    ev_after = frf_evidence(current, val_part, n=n, degree=degree, alpha=alpha)
     pred_b, pred_a = predict(model, val), predict(current, val)
+    fit_before = time_fit(model, val, val_start, pred_b)
+    fit_after = time_fit(current, val, val_start, pred_a)
+    ident_val = identify_record(val_part, model, n=n, degree=degree)
+    ev_val_before = frf_evidence(model, val_part, n=n, degree=degree, alpha=alpha, ident=ident_val)
+    ev_after = frf_evidence(current, val_part, n=n, degree=degree, alpha=alpha, ident=ident_val)
     _, _, y_meas = _centred(val, model)
     traces = {"start": max(val_start, pred_b.skip), "y": y_meas, "y_before": pred_b.y, "y_after": pred_a.y,
               "fs_high": val.fs_high}
