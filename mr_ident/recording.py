@@ -318,6 +318,24 @@ def read_blocks(path: str | Path, topics: Sequence[str] | None = None
     return items, info, found
 
 
+def _feed(al: Aligner, items: Sequence[tuple[int, int, Block | BlockError]], stop: int | None = None) -> list[str]:
+    """Push decoded blocks (those starting before ``stop``) into ``al``, count the rejected
+    ones, then expire what never came; returns the anomaly notes."""
+    notes = []
+    for stream, _, item in items:
+        if isinstance(item, BlockError):
+            al.count(stream, item.kind)
+            notes.append(f"{STREAMS[stream]}: {item}")
+            continue
+        if stop is not None and item.first >= stop:
+            continue
+        note = al.push(stream, item)
+        if note:
+            notes.append(note)
+    notes += al.expire(float("inf"), 0.0)      # what is still missing at the end never came
+    return notes
+
+
 @dataclass(frozen=True)
 class ReplayResult:
     """Outcome of :func:`replay`."""
@@ -338,18 +356,7 @@ def replay(path: str | Path, config: IdentConfig, *, topics: Sequence[str] | Non
     """
     items, info, _ = read_blocks(path, topics)
     al = Aligner(config.window_samples, config.ratio, config.reorder_blocks)
-    notes = []
-    for stream, _, item in items:
-        if isinstance(item, BlockError):
-            al.count(stream, item.kind)
-            notes.append(f"{STREAMS[stream]}: {item}")
-            continue
-        if stop is not None and item.first >= stop:
-            continue
-        note = al.push(stream, item)
-        if note:
-            notes.append(note)
-    notes += al.expire(float("inf"), 0.0)      # what is still missing at the end never came
+    notes = _feed(al, items, stop)
     w = al.window(config.min_samples, stop=stop)
     if w is None:
         lo, hi = al.span(stop)
@@ -371,12 +378,7 @@ def recorded_signals(path: str | Path, ratio: int, *, topics: Sequence[str] | No
     items, info, _ = read_blocks(path, topics)
     total = sum(item.samples.shape[0] for _, _, item in items if isinstance(item, Block))
     al = Aligner(max(total, ratio), ratio, reorder_blocks=8)
-    for stream, _, item in items:
-        if isinstance(item, BlockError):
-            al.count(stream, item.kind)
-        else:
-            al.push(stream, item)
-    al.expire(float("inf"), 0.0)
+    _feed(al, items)
     w = al.window(ratio)
     if w is None:
         raise DataError(f"{path}: the recording holds no aligned samples of r, u and y")

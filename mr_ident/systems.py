@@ -164,8 +164,8 @@ def _zoh_delayed(num: Poly, den: Poly, dt: float, frac: float) -> tuple[NDArray,
         return E[:n, :n], E[:n, n:]
 
     Phi_a, G0 = hold_integral(dt - frac)
-    _, Gf = hold_integral(frac)
-    Phi = Phi_a @ hold_integral(frac)[0]
+    Phi_f, Gf = hold_integral(frac)
+    Phi = Phi_a @ Phi_f
     G1 = Phi_a @ Gf
     Ad = np.block([[Phi, G1], [np.zeros((1, n + 1))]])                  # state [x; u[k-1]]
     Bd = np.vstack([G0, np.ones((1, 1))])
