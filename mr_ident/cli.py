@@ -250,6 +250,9 @@ def _read_record(path: Path, model: Model, period: int | None, topics: list[str]
         r, u, y, info = recorded_signals(path, model.ratio, topics=topics)
         if info.truncated:
             print(f"warning: {path} is truncated ({info.reason}); using the {r.shape[0]} samples read", file=sys.stderr)
+        if info.broken:
+            print(f"warning: {path}: using the latest gap-free span [{info.span[0]}, {info.span[1]}) "
+                  f"of {r.shape[0]} samples ({info.broken})", file=sys.stderr)
         fs, F = model.fs_high, model.ratio
     else:
         from .data import read_data

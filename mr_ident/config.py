@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from .errors import ConfigError
+from .errors import ConfigError, yaml_problem
 from .identify import METHODS
 from .lpm import check_lpm_options
 from .systems import TransferMatrix
@@ -194,7 +194,7 @@ def load_params(path: str | Path, node_name: str = "mr_ident") -> IdentConfig:
     except OSError as err:
         raise ConfigError(f"cannot read params file {str(p)!r}: {err.strerror}") from err
     except yaml.YAMLError as err:
-        raise ConfigError(f"{p}: not valid YAML: {err}") from err
+        raise ConfigError(f"{p}: not valid YAML: {yaml_problem(err)}") from None
     if not isinstance(doc, dict):
         raise ConfigError(f"{p}: expected a mapping of node names to {{ros__parameters: ...}}")
     values: dict[str, Any] = {}

@@ -62,11 +62,34 @@ def _atomic_write(path: Path, write: Callable[[Any], None], binary: bool) -> Non
         raise
 
 
-def _check_finite(name: str, a: NDArray, where: str) -> None:
+def _check_finite(name: str, a: NDArray, where: str, csv: bool = False) -> None:
+    """Raise at the first NaN/inf: a CSV's line number (header = line 1), else the array index."""
     bad = ~np.isfinite(a)
     if bad.any():
         row, col = np.argwhere(bad)[0]
-        raise DataError(f"{where}: column {name!r} has NaN or inf at row {row + 1} (channel {col})")
+        value = a[row, col]
+        if csv:
+            raise DataError(f"{where}: line {row + 2}, column {name!r}: {value} (need a finite number)")
+        at = f"[{row}]" if a.shape[1] == 1 else f"[{row}, {col}]"
+        raise DataError(f"{where}: array {name!r} at index {at}: {value} (need a finite number)")
+
+
+def _first_bad_line(p: Path, header: list[str]) -> str:
+    """Where and why a CSV body does not parse as a table of numbers (for the error)."""
+    with open(p) as fh:
+        next(fh)
+        for lineno, line in enumerate(fh, start=2):
+            if not line.strip():
+                continue
+            values = line.rstrip("\r\n").split(",")
+            if len(values) != len(header):
+                return f"line {lineno} has {len(values)} values, the header names {len(header)} columns"
+            for name, v in zip(header, values):
+                try:
+                    float(v)
+                except ValueError:
+                    return f"line {lineno}, column {name.strip()!r}: {v.strip()!r} is not a number"
+    return "unreadable table"
 
 
 def _columns(header: list[str], where: str) -> dict[str, list[int]]:
@@ -109,18 +132,19 @@ def read_csv(path: str | Path) -> LoopData:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)     # "no data": reported below
             table = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
-    except ValueError as err:
-        raise DataError(f"{p}: {err}") from err
+    except ValueError:
+        raise DataError(f"{p}: {_first_bad_line(p, header)}") from None
     if table.shape[0] == 0:
         raise DataError(f"{p}: no data rows after the header")
     if table.shape[1] != len(header):
         raise DataError(f"{p}: rows have {table.shape[1]} values but the header names {len(header)} columns")
     t = table[:, header.index("t")]
-    _check_finite("t", t[:, None], str(p))
+    _check_finite("t", t[:, None], str(p), csv=True)
     arrays = {}
     for s in _SIGNALS:
         arrays[s] = table[:, cols[s]]
-        _check_finite(s, arrays[s], str(p))
+        for c, j in enumerate(cols[s]):
+            _check_finite(header[j].strip(), arrays[s][:, c:c + 1], str(p), csv=True)
     fs = None
     if t.size >= 2:
         dt = np.diff(t)
@@ -146,23 +170,23 @@ def read_npz(path: str | Path) -> LoopData:
             a = np.asarray(z[s])
             if a.dtype.kind not in "fiu":
                 raise DataError(f"{p}: array {s!r} must be numeric, got dtype {a.dtype}")
+            if a.ndim not in (1, 2) or a.shape[0] == 0 or a.size == 0:
+                raise DataError(f"{p}: array {s!r} must have shape (N,) or (N, channels) with N > 0, got {a.shape}")
             a = a.astype(float)
             if a.ndim == 1:
                 a = a[:, None]
-            if a.ndim != 2 or a.shape[0] == 0:
-                raise DataError(f"{p}: array {s!r} must have shape (N,) or (N, channels) with N > 0, got {a.shape}")
             _check_finite(s, a, str(p))
             arrays[s] = a
         fs = ratio = None
         if "fs_high" in z.files:
             v = np.asarray(z["fs_high"])
             if v.size != 1 or v.dtype.kind not in "fiu" or not np.isfinite(v).all() or float(v) <= 0:
-                raise DataError(f"{p}: fs_high must be one positive number, got {v!r}")
+                raise DataError(f"{p}: fs_high must be one positive number, got {v.tolist()!r}")
             fs = float(v)
         if "ratio" in z.files:
             v = np.asarray(z["ratio"])
             if v.size != 1 or v.dtype.kind not in "fiu" or float(v) != int(v) or int(v) < 1:
-                raise DataError(f"{p}: ratio must be one integer >= 1, got {v!r}")
+                raise DataError(f"{p}: ratio must be one integer >= 1, got {v.tolist()!r}")
             ratio = int(v)
     lens = {s: arrays[s].shape[0] for s in _SIGNALS}
     if len(set(lens.values())) != 1:

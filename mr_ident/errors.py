@@ -26,3 +26,14 @@ class ModelError(MrIdentError, ValueError):
 
 class ConfigError(MrIdentError, ValueError):
     """An option or parameter is out of range or of the wrong type."""
+
+
+def yaml_problem(err: Exception) -> str:
+    """A PyYAML error on one line, with the file's line and column (1-based)."""
+    mark = getattr(err, "problem_mark", None)
+    text = getattr(err, "problem", None) or str(err).splitlines()[0]
+    where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+    ctx, cmark = getattr(err, "context", None), getattr(err, "context_mark", None)
+    if ctx and cmark is not None:
+        text += f" ({ctx} at line {cmark.line + 1}, column {cmark.column + 1})"
+    return where + text

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from .errors import ModelError
+from .errors import ModelError, yaml_problem
 from .results import FRF
 from .systems import TransferMatrix
 
@@ -241,13 +241,16 @@ def model_from_dict(d: Any, *, source: str = "model") -> Model:
     domain = pd.get("domain", "continuous") if isinstance(pd, dict) else "continuous"
     if domain not in ("continuous", "discrete"):
         raise ModelError(f'{source}: plant.domain must be "continuous" or "discrete", got {domain!r}')
-    plant = _system(pd, "plant", None if domain == "continuous" else 1.0 / float(fs))
-    controller = None
-    if d.get("controller") is not None:
-        cd = d["controller"]
-        if isinstance(cd, dict) and cd.get("domain", "discrete") != "discrete":
-            raise ModelError(f"{source}: controller must be discrete (at the low rate), got domain {cd.get('domain')!r}")
-        controller = _system(cd, "controller", F / float(fs))
+    try:                        # _system's messages name the key; add the file
+        plant = _system(pd, "plant", None if domain == "continuous" else 1.0 / float(fs))
+        controller = None
+        if d.get("controller") is not None:
+            cd = d["controller"]
+            if isinstance(cd, dict) and cd.get("domain", "discrete") != "discrete":
+                raise ModelError(f"controller must be discrete (at the low rate), got domain {cd.get('domain')!r}")
+            controller = _system(cd, "controller", F / float(fs))
+    except ModelError as err:
+        raise ModelError(f"{source}: {err}") from None
         if controller.shape != (plant.shape[1], plant.shape[0]):
             raise ModelError(f"{source}: controller is {controller.shape[0]}x{controller.shape[1]}, "
                              f"expected n_u x n_y = {plant.shape[1]}x{plant.shape[0]}")
@@ -333,7 +336,7 @@ def load_model(path: str | Path) -> Model:
     try:
         d = yaml.safe_load(text)
     except yaml.YAMLError as err:
-        raise ModelError(f"{p}: not valid YAML: {err}") from err
+        raise ModelError(f"{p}: not valid YAML: {yaml_problem(err)}") from None
     return model_from_dict(d, source=str(p))
 
 

@@ -216,6 +216,8 @@ class RecordingInfo:
     bytes_read: int = 0
     file_bytes: int = 0
     reason: str = ""
+    span: tuple[int, int] = (0, 0)    # recorded_signals: the aligned index span returned
+    broken: str = ""                  # recorded_signals: why earlier samples were left out ("" if none)
 
 
 def _stream_of_topic(topic: str, topics: Sequence[str] | None) -> int | None:
@@ -269,6 +271,7 @@ def read_blocks(path: str | Path, topics: Sequence[str] | None = None
         fh.seek(0)
         if head != b"\x89MCAP0\r\n":
             raise DataError(f"{p}: not an MCAP file (bad magic)")
+        info.bytes_read = len(head)
         reader = StreamReader(fh, skip_magic=False)
         try:
             for rec in reader.records:
@@ -307,11 +310,15 @@ def read_blocks(path: str | Path, topics: Sequence[str] | None = None
             raise
         except Exception as err:     # cut short or corrupt: keep what was read (McapError, EOF, struct)
             info.truncated = True
-            info.reason = f"{type(err).__name__}: {err}"
+            detail = str(err).strip()
+            info.reason = (f"the file ends inside a record after byte {info.bytes_read}"
+                           if type(err).__name__ == "EndOfFile" else
+                           f"unreadable record after byte {info.bytes_read} "
+                           f"({type(err).__name__}{': ' + detail if detail else ''})")
     found = sorted({c.topic for c in channels.values()})
     if not channels:
-        raise DataError(f"{p}: no readable channel or message (file of {info.file_bytes} bytes"
-                        + (f"; {info.reason}" if info.reason else "") + ")")
+        raise DataError(f"{p}: no channel could be read ({info.reason or 'the file holds none'}; "
+                        f"file of {info.file_bytes} bytes): nothing to recover")
     missing = [name for s, name in enumerate(topics or STREAMS) if s not in set(stream_of.values())]
     if missing:
         raise DataError(f"{p}: topic(s) {missing} not in the recording; it holds {found}")
@@ -362,8 +369,24 @@ def replay(path: str | Path, config: IdentConfig, *, topics: Sequence[str] | Non
         lo, hi = al.span(stop)
         raise DataError(f"{path}: the recording holds no gap-free aligned window of at least "
                         f"{config.min_samples} samples (min_window_s = {config.min_window_s:g} s); "
-                        f"longest aligned span at the end: {max(0, hi - lo)} samples")
+                        f"aligned span at the end: {max(0, hi - lo)} samples" + _what_broke(al, info, notes))
     return ReplayResult(estimate(w, config), al.stats, info, tuple(notes))
+
+
+def _what_broke(al: Aligner, info: RecordingInfo, notes: Sequence[str]) -> str:
+    """Why a recording gives less aligned data than it should, for an error message."""
+    parts = []
+    if info.truncated:
+        parts.append(f"cut short: recovered {sum(info.messages.values())} messages, {info.bytes_read} of "
+                     f"{info.file_bytes} bytes ({info.reason})")
+    kinds = ("gaps", "restarts", "late", "malformed", "nonfinite")
+    for name, st in al.stats.items():
+        counts = [f"{getattr(st, k)} {k}" for k in kinds if getattr(st, k)]
+        if counts:
+            parts.append(f"{name}: {', '.join(counts)}")
+    if notes:
+        parts.append(f"first: {notes[0]}")
+    return "; " + "; ".join(parts) if parts else ""
 
 
 def recorded_signals(path: str | Path, ratio: int, *, topics: Sequence[str] | None = None
@@ -378,8 +401,12 @@ def recorded_signals(path: str | Path, ratio: int, *, topics: Sequence[str] | No
     items, info, _ = read_blocks(path, topics)
     total = sum(item.samples.shape[0] for _, _, item in items if isinstance(item, Block))
     al = Aligner(max(total, ratio), ratio, reorder_blocks=8)
-    _feed(al, items)
+    notes = _feed(al, items)
     w = al.window(ratio)
     if w is None:
-        raise DataError(f"{path}: the recording holds no aligned samples of r, u and y")
+        raise DataError(f"{path}: the recording holds no aligned samples of r, u and y"
+                        + _what_broke(al, info, notes))
+    info.span = (w.first, w.end)
+    if al.restarts:
+        info.broken = _what_broke(al, RecordingInfo(), notes)[2:]
     return w.r, w.u, w.y, info

@@ -140,20 +140,6 @@ class _Stream:
         self.stats.blocks += 1
         self.stats.samples += x.shape[0]
 
-    def drain(self) -> None:
-        while self.pending:
-            k = min(self.pending)
-            if k > self.end:
-                return
-            x = self.pending.pop(k)
-            if k + x.shape[0] <= self.end:
-                self.stats.duplicates += 1
-                continue
-            if k < self.end:
-                self.stats.overlaps += 1
-                x = x[self.end - k:]
-                k = self.end
-            self.append(k, x)
 
 
 @dataclass(frozen=True)
@@ -190,12 +176,15 @@ class Aligner:
     channels : sequence of 3 ints, optional
         Expected channel counts of r, u, y; otherwise fixed by each stream's first block.
 
-    Policy: a hole restarts the stream after it (so the window restarts); a block
-    wholly behind the stream's end is a duplicate when it equals the samples held
-    for those indices; one that ends where the held samples start is prepended
-    (the first blocks arrived out of order); one otherwise within a window before
-    the end is late (dropped); anything else means the publisher restarted its
-    index (the stream restarts at it).
+    Policy: a hole restarts the stream after it (so the window restarts). A block
+    that starts before the stream's end must repeat the samples held for the
+    indices they share: then it is a duplicate (wholly behind the end; ignored)
+    or an overlap (its new tail is kept). A block that ends where the held
+    samples start is prepended (the first blocks arrived out of order); one
+    otherwise before the retained start, within a window of the end, is late
+    (dropped). Anything else - an index that went back to other samples - means
+    the publisher restarted its index: the stream restarts at the block. So a
+    window never holds two different samples for one index.
     """
 
     def __init__(self, capacity: int, ratio: int, reorder_blocks: int = 8,
@@ -234,24 +223,22 @@ class Aligner:
             s.reset(first)
         if first == s.end:
             s.append(first, x)
-            s.drain()
+            note = self._drain(stream)
             if not s.pending:
                 s.pending_since = None
-            note = None
         elif first > s.end:
             if not s.pending:
                 s.pending_since = now
             s.pending[first] = x
             s.stats.reordered += 1
             note = self._declare_gap(stream) if len(s.pending) > self.reorder_blocks else None
-        elif first + n > s.end:
+        elif first + n > s.end and self._agrees(s, first, x):
             s.stats.overlaps += 1
             s.append(s.end, x[s.end - first:])
-            s.drain()
-            note = None
-        elif first >= s.start and np.array_equal(self._extract(s, first, first + n), x):
+            note = self._drain(stream)
+        elif first + n <= s.end and self._agrees(s, first, x):
             s.stats.duplicates += 1
-            return None
+            return f"{STREAMS[stream]}: block [{first}, {first + n}) received twice; ignored"
         elif first < s.start and s.end - first <= self.capacity + self.ratio and s.start == s.origin:
             # the stream's first blocks arrived out of order: put them in front
             s.stats.reordered += 1
@@ -270,13 +257,46 @@ class Aligner:
             s.stats.late += 1                    # before the retained start: too late to use
             return f"{STREAMS[stream]}: block at {first} arrived too late (stream starts at {s.start}); dropped"
         else:
-            s.stats.restarts += 1
-            note = f"{STREAMS[stream]}: index went back from {s.end} to {first}; stream restarts"
-            s.pending.clear()
-            s.reset(first)
-            self.restarts += 1
-            s.append(first, x)
+            note = self._restart(stream, first, x)
         self._trim(s)
+        return note
+
+    def _agrees(self, s: _Stream, first: int, x: NDArray) -> bool:
+        """Whether a block starting before the stream's end repeats the samples held there."""
+        hi = min(s.end, first + x.shape[0])
+        if hi <= first:
+            return True
+        if first < s.start:
+            return False
+        return bool(np.array_equal(self._extract(s, first, hi), x[:hi - first]))
+
+    def _restart(self, stream: int, first: int, x: NDArray) -> str:
+        """Index went back to samples that differ from those held: the publisher restarted."""
+        s = self._s[stream]
+        s.stats.restarts += 1
+        note = f"{STREAMS[stream]}: index went back from {s.end} to {first} with other samples; stream restarts"
+        s.pending.clear()
+        s.reset(first)
+        self.restarts += 1
+        s.append(first, x)
+        return note
+
+    def _drain(self, stream: int) -> str | None:
+        """Append the pending blocks that have become contiguous with the stream's end."""
+        s = self._s[stream]
+        note = None
+        while s.pending:
+            k = min(s.pending)
+            if k > s.end:
+                break
+            x = s.pending.pop(k)
+            if not self._agrees(s, k, x):
+                note = self._restart(stream, k, x)
+            elif k + x.shape[0] <= s.end:
+                s.stats.duplicates += 1
+            else:
+                s.stats.overlaps += 1
+                s.append(s.end, x[s.end - k:])
         return note
 
     def _declare_gap(self, stream: int) -> str:
@@ -288,7 +308,7 @@ class Aligner:
         note = f"{STREAMS[stream]}: gap of {k - s.end} samples at [{s.end}, {k}); window restarts at {k}"
         s.reset(k)
         self.restarts += 1
-        s.drain()
+        self._drain(stream)
         s.pending_since = None
         self._trim(s)
         return note
