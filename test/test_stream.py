@@ -111,6 +111,25 @@ def test_nan_block_is_a_hole_and_index_restart_is_detected():
     assert "restarts" in note and al.stats["reference"].restarts == 1
 
 
+def test_an_overlap_with_other_samples_restarts_the_stream_instead_of_splicing():
+    """A block whose index range overlaps held samples but disagrees there: the stream
+    restarts at it, so no window holds two different samples for one index."""
+    x = _streams(900)
+    al = Aligner(capacity=900, ratio=3)
+    for s in range(3):
+        for b in _blocks(x[s], [150] * 6):
+            al.push(s, b)
+    assert al.push(0, Block(300, x[0][300:450])) is not None          # an exact duplicate: reported
+    assert al.stats["reference"].duplicates == 1 and al.window().n_samples == 900
+    other = x[0][450:600] + 1.0
+    note = al.push(0, Block(820, other))                              # overlaps [820, 900) with other values
+    assert "index went back from 900 to 820 with other samples" in note
+    assert al.stats["reference"].restarts == 1 and al.stats["reference"].overlaps == 0
+    assert al.window() is None or al.window().first >= 820
+    al.push(0, Block(850, np.concatenate([other[30:], x[0][:30]])))   # agrees where it overlaps: kept
+    assert al.stats["reference"].overlaps == 1
+
+
 def test_channel_count_change_is_malformed():
     al = Aligner(capacity=100, ratio=1)
     al.push(0, Block(0, np.zeros((10, 1))))
