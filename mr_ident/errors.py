@@ -28,6 +28,10 @@ class ConfigError(MrIdentError, ValueError):
     """An option or parameter is out of range or of the wrong type."""
 
 
+class RecordingError(MrIdentError, OSError):
+    """A recording could not be written to the end (e.g. the disk filled up)."""
+
+
 def yaml_problem(err: Exception) -> str:
     """A PyYAML error on one line, with the file's line and column (1-based)."""
     mark = getattr(err, "problem_mark", None)

@@ -186,6 +186,14 @@ class McapRecorder:
             self.messages += 1
             return True
 
+    @property
+    def failure(self) -> str:
+        """"" or what stopped the recording (for a log line or an error)."""
+        if self.error is None:
+            return ""
+        return (f"writing {self.path} failed after {self.messages} messages: "
+                f"{self.error.strerror or self.error}; the file is readable up to its last finished chunk")
+
     def close(self) -> None:
         with self._lock:
             if self._fh is None:
@@ -197,7 +205,10 @@ class McapRecorder:
             except OSError as err:
                 self.error = err
             finally:
-                fh.close()
+                try:
+                    fh.close()
+                except OSError as err:     # the buffered tail did not fit either
+                    self.error = self.error or err
 
     def __enter__(self) -> McapRecorder:
         return self

@@ -282,6 +282,46 @@ def test_record_stopped_by_signal_leaves_a_readable_file(graph, tmp_path, sig):
     assert "/reference 20" in stdout
 
 
+def _file_size_limit(limit: int):
+    """preexec_fn: files the child writes stop at ``limit`` bytes (EFBIG, as a full disk would)."""
+    def apply():
+        import resource
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)     # else the kernel kills the writer
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+    return apply
+
+
+def test_record_on_a_full_disk_keeps_the_finished_chunks_and_replay_says_so(graph, tmp_path):
+    """The recorder's file may not grow past 1.5 MB (RLIMIT_FSIZE: the kernel refuses the write,
+    as with a full disk). record exits 2 naming the failure; the file reads up to its last
+    finished chunk (1 MB chunks); replay estimates from it and says how much it recovered."""
+    out = tmp_path / "rec.mcap"
+    proc = subprocess.Popen([_bin("mr-ident"), "record", str(out)], env=_env(graph.domain),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_file_size_limit(1_500_000))
+    try:
+        pubs = publishers(graph)
+        wait_for(lambda: all(p.get_subscription_count() > 0 for p in pubs), 20, "the recorder to subscribe")
+        sent = publish_sim(pubs, load_model(PAPER), 1200.0, block=2400)    # 3 x 6.9 MB of CDR
+        stdout, stderr = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+    assert proc.returncode == 2, stderr
+    assert f"error: writing {out} failed after" in stderr and "File too large" in stderr
+    assert "readable up to its last finished chunk" in stderr and "Traceback" not in stderr
+    assert 1_000_000 < out.stat().st_size <= 1_500_000
+    res = subprocess.run([_bin("mr-ident"), "replay", str(out), "--out", str(tmp_path / "r.npz")],
+                         env=_env(graph.domain), capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert f"warning: {out} is cut short; recovered" in res.stderr
+    recovered = int(res.stderr.split("recovered ")[1].split()[0])
+    assert 0 < recovered < 3 * len(sent)
+    z = np.load(tmp_path / "r.npz")
+    assert z["P"].shape[0] > 0 and np.isfinite(z["P"]).all()
+
+
 def test_node_console_script_takes_params_file_and_remaps(graph, tmp_path):
     params = tmp_path / "p.yaml"
     params.write_text("mr_ident:\n  ros__parameters:\n    window_s: 5.0\n    min_window_s: 5.0\n"

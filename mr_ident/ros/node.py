@@ -85,6 +85,7 @@ class IdentNode(Node):
         self._worker_thread: threading.Thread | None = None
         self._recorder: McapRecorder | None = None
         self._rec_channels: dict[int, int] = {}
+        self._record_error = ""
 
         self._subs = []
         for s, topic in enumerate(STREAMS):
@@ -125,6 +126,7 @@ class IdentNode(Node):
             self._update_timer = self.create_timer(new.update_period_s, self._on_update)
         if new.record_path != old.record_path:
             self._close_recorder()
+            self._record_error = ""
             if new.record_path:
                 self._open_recorder(new.record_path)
         return SetParametersResult(successful=True)
@@ -170,15 +172,17 @@ class IdentNode(Node):
             cid = self._rec_channels[stream] = rec.add_topic(topic, BLOCK_TYPE, qos)
         t = time.time_ns()
         if not rec.write(cid, raw, t, t) and rec.error is not None and rec is self._recorder:
-            self._note(f"recording to {rec.path} stopped: {rec.error}")
             self._close_recorder()
+            self._record_error = rec.failure        # ERROR on /diagnostics until record_path changes
+            self.get_logger().error(self._record_error)
 
     def _open_recorder(self, path: str) -> None:
+        self._record_error = ""
         try:
             self._recorder = McapRecorder(path)
         except OSError as err:
-            self._last_error, self._last_error_time = f"cannot record to {path}: {err}", time.monotonic()
-            self.get_logger().error(self._last_error)
+            self._record_error = f"cannot record to {path}: {err.strerror or err}"
+            self.get_logger().error(self._record_error)
         self._rec_channels = {}
 
     def _close_recorder(self) -> None:
@@ -253,7 +257,9 @@ class IdentNode(Node):
                    if t and now - t > cfg.stall_timeout_s]
         silent = [STREAMS[i] for i, t in enumerate(self._arrivals) if not t]
         level, reason = DiagnosticStatus.OK, "estimating"
-        if err and now - err_t < WARN_HOLD_S:
+        if self._record_error:
+            level, reason = DiagnosticStatus.ERROR, self._record_error
+        elif err and now - err_t < WARN_HOLD_S:
             level, reason = DiagnosticStatus.ERROR, err
         elif stalled:
             level, reason = DiagnosticStatus.WARN, f"stream(s) {', '.join(stalled)} stalled " \

@@ -3,7 +3,10 @@
 Recording subscribes raw (the CDR bytes rclpy received, never re-serialized) to
 each topic once a publisher appears, and stores it with
 :class:`~mr_ident.recording.McapRecorder`. SIGINT and SIGTERM end the
-recording cleanly: the file is finalised (summary and footer written).
+recording cleanly: the file is finalised (summary and footer written). A write
+that fails (the disk is full) ends the recording with a
+:class:`~mr_ident.errors.RecordingError`; the file then holds every finished
+chunk, and ``mr-ident replay`` reports how much it recovered.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from ..errors import DataError
+from ..errors import DataError, RecordingError
 from ..recording import McapRecorder
 from ..stream import STREAMS
 from .messages import qos_dict
@@ -90,7 +93,7 @@ def record(path: str | Path, topics: Sequence[str], *, duration: float | None = 
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         end = None if duration is None else time.monotonic() + duration
-        while rclpy.ok() and (end is None or time.monotonic() < end):
+        while rclpy.ok() and (end is None or time.monotonic() < end) and recorder.rec.error is None:
             executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
@@ -99,6 +102,8 @@ def record(path: str | Path, topics: Sequence[str], *, duration: float | None = 
             recorder.close()
         node.destroy_node()
         rclpy.try_shutdown()
+    if recorder is not None and recorder.rec.failure:
+        raise RecordingError(recorder.rec.failure)
     return recorder.counts if recorder else {}
 
 
