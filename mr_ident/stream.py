@@ -183,8 +183,9 @@ class Aligner:
     samples start is prepended (the first blocks arrived out of order); one
     otherwise before the retained start, within a window of the end, is late
     (dropped). Anything else - an index that went back to other samples - means
-    the publisher restarted its index: the stream restarts at the block. So a
-    window never holds two different samples for one index.
+    the publisher restarted its index, or the block is wrong: the stream restarts
+    after that block (which is not used). So a window never holds two different
+    samples for one index, nor the block that disagreed.
     """
 
     def __init__(self, capacity: int, ratio: int, reorder_blocks: int = 8,
@@ -271,14 +272,17 @@ class Aligner:
         return bool(np.array_equal(self._extract(s, first, hi), x[:hi - first]))
 
     def _restart(self, stream: int, first: int, x: NDArray) -> str:
-        """Index went back to samples that differ from those held: the publisher restarted."""
+        """Index went back to samples that differ from those held (the publisher restarted,
+        or the block is wrong): neither is trusted; the stream restarts after the block."""
         s = self._s[stream]
         s.stats.restarts += 1
-        note = f"{STREAMS[stream]}: index went back from {s.end} to {first} with other samples; stream restarts"
+        end = first + x.shape[0]
+        note = (f"{STREAMS[stream]}: index went back from {s.end} to {first} with other samples; "
+                f"stream restarts at {end}")
         s.pending.clear()
-        s.reset(first)
+        s.reset(end)
+        s.stats.end = end
         self.restarts += 1
-        s.append(first, x)
         return note
 
     def _drain(self, stream: int) -> str | None:

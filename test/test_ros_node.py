@@ -193,6 +193,151 @@ def test_dropped_block_is_reported_and_excluded(graph):
     assert np.median(np.abs(P.response - Ptrue) / np.abs(Ptrue)) < 1e-3     # 10 s window: bias ~1e-4
 
 
+class Feed:
+    """Clean simulated blocks on the three topics, remembering what each run published."""
+
+    def __init__(self, pubs, model, seed: int, block: int = 120):
+        self.pubs, self.model, self.block = pubs, model, block
+        self.runs: list[list[np.ndarray]] = []
+        self.restart(seed)
+
+    def restart(self, seed: int):
+        """The publisher starts over from index 0 (another run of the loop)."""
+        self.src = SimSource(self.model, block=self.block, seed=seed)
+        self.runs.append([np.zeros((0, 1))] * 3)
+
+    def take(self):
+        first, r, u, y = self.src.next()
+        run = self.runs[-1]
+        self.runs[-1] = [np.concatenate([a, x]) for a, x in zip(run, (r, u, y))]
+        return first, [r, u, y]
+
+    def send(self, n: int, pause: float = 0.002):
+        for _ in range(n):
+            first, xs = self.take()
+            for p, x in zip(self.pubs, xs):
+                p.publish(block_msg(first, x))
+            time.sleep(pause)
+
+    def truth_of(self, first: int, r, u, y) -> bool:
+        """Whether (r, u, y) at [first, ...) is exactly what one run published there."""
+        n = r.shape[0]
+        return any(run[0].shape[0] >= first + n and all(np.array_equal(a, b[first:first + n])
+                                                        for a, b in zip((r, u, y), run))
+                   for run in self.runs)
+
+
+def test_node_survives_faults_reports_each_and_never_estimates_across_one(graph, monkeypatch):
+    """Faults, one after another, between clean blocks: a NaN sample, a wrong layout, a wrong
+    length, a negative index, a repeated block, a repeated index with other samples, all streams
+    stopping, the publisher restarting from index 0, and a burst of 400 blocks at once.
+
+    Each is reported on /diagnostics (WARN, its reason in the message or recent_anomalies), the
+    node keeps estimating, and every window it identified is exactly one stretch of clean
+    published data: no gap, no NaN, no two runs mixed."""
+    import mr_ident.ros.node as node_mod
+    windows = []
+    real_estimate = node_mod.estimate
+
+    def checked(window, cfg):
+        windows.append((window.first, window.r.copy(), window.u.copy(), window.y.copy()))
+        return real_estimate(window, cfg)
+    monkeypatch.setattr(node_mod, "estimate", checked)
+
+    model = load_model(PAPER)
+    node = graph.ident(fast_params(window_s=5.0, stall_timeout_s=1.0))
+    lis = Listener(graph)
+    pubs = publishers(graph)
+    wait_for(lambda: all(p.get_subscription_count() > 0 for p in pubs), 10, "subscribers")
+    time.sleep(0.5)
+    feed = Feed(pubs, model, seed=1)
+
+    def estimates_after(n_before, what):
+        wait_for(lambda: node._estimates > n_before, 20, f"an estimate after {what}")
+
+    def reported(text, what, level=1):
+        def seen():
+            for st in list(lis.diag):
+                vals = {kv.key: kv.value for kv in st.values}
+                if st.level[0] == level and (text in st.message or text in vals.get("recent_anomalies", "")):
+                    return True
+            return False
+        wait_for(seen, 10, f"/diagnostics to report {what} ({text!r})")
+        lis.diag.clear()
+
+    feed.send(60)
+    estimates_after(0, "the clean start")
+
+    def fault(what, text, inject, level=1):
+        n = node._estimates
+        inject()
+        feed.send(9)                      # the first whole window that could include the fault ...
+        time.sleep(0.6)                   # ... is up for identification (3 update periods)
+        feed.send(51)
+        reported(text, what, level)
+        estimates_after(n, what)
+
+    def nan_block():
+        first, xs = feed.take()
+        xs[2] = xs[2].copy()
+        xs[2][17] = np.nan
+        for p, x in zip(pubs, xs):
+            p.publish(block_msg(first, x))
+
+    def bad(stream, edit):
+        msg = block_msg(feed.src.next_index, np.ones(feed.block))
+        edit(msg)
+        pubs[stream].publish(msg)
+
+    def relabel(m):
+        m.layout.dim[0].label = "rows"
+
+    def shorten(m):
+        m.data = m.data[:-5]
+
+    def negative(m):
+        m.data[0] = -240.0
+
+    def repeat_block():
+        first = feed.src.next_index - feed.block
+        run = feed.runs[-1]
+        for p, a in zip(pubs, run):
+            p.publish(block_msg(first, a[first:first + feed.block]))
+
+    def repeat_other():
+        first = feed.src.next_index - feed.block
+        pubs[0].publish(block_msg(first, np.zeros(feed.block)))
+
+    fault("a NaN sample", "is NaN or inf", nan_block)
+    fault("a wrong layout", "layout dims must be labelled", lambda: bad(1, relabel))
+    fault("a wrong length", "data has", lambda: bad(0, shorten))
+    fault("a negative index", "first sample index", lambda: bad(2, negative))
+    fault("a repeated block", "received twice", repeat_block)
+    fault("a repeated index with other samples", "with other samples", repeat_other)
+    fault("streams that stop", "stalled", lambda: time.sleep(1.6))
+    fault("a publisher restart", "index went back", lambda: feed.restart(seed=2))
+    n = node._estimates
+    feed.send(400, pause=0.0)                               # a burst: 48 000 samples per topic at once
+    estimates_after(n, "a burst")
+    feed.send(60)
+    wait_for(lambda: node.last_estimate is not None
+             and node.last_estimate.first + node.last_estimate.n_samples == feed.src.next_index, 20,
+             "the estimate of the final window")
+
+    stats = node._aligner.stats
+    assert stats["output"].nonfinite == 1 and stats["input"].malformed == 1
+    assert stats["reference"].malformed == 1 and stats["output"].malformed == 1
+    assert all(stats[s].duplicates >= 1 for s in stats) and stats["reference"].restarts >= 2
+    assert all(st.gaps == 0 or st.gap_samples > 0 for st in stats.values())
+    assert len(windows) >= 10
+    for first, r, u, y in windows:
+        assert np.isfinite(r).all() and np.isfinite(u).all() and np.isfinite(y).all()
+        assert feed.truth_of(first, r, u, y), f"window at {first} is not one clean stretch"
+    P = node.last_estimate.identification.plant
+    Ptrue = model.plant_discrete().freqresp(P.frequency)
+    assert np.median(np.abs(P.response - Ptrue) / np.abs(Ptrue)) < 1e-2     # 5 s window after the burst
+
+
 def test_parameters_are_validated_with_a_reason(graph):
     node = graph.ident(fast_params())
     bad = {"ratio": 0, "lifting_phase": "7", "method": "welch", "window_s": 1.0, "n": 1,

@@ -147,8 +147,8 @@ class IdentNode(Node):
         rec = self._recorder
         if rec is not None:
             self._record(rec, stream, raw)
-        msg = deserialize_message(raw, Float64MultiArray)
         try:
+            msg = deserialize_message(raw, Float64MultiArray)
             block = block_of(msg)
         except BlockError as err:
             self._aligner.count(stream, err.kind)
@@ -158,6 +158,10 @@ class IdentNode(Node):
                 self._note(self._aligner.hole(stream, int(msg.data[0]), int(n)) + f" ({err})")
             else:
                 self._note(f"{STREAMS[stream]}: malformed block dropped: {err}")
+            return
+        except Exception as err:          # undecodable bytes: never let a message stop the executor
+            self._aligner.count(stream, "malformed")
+            self._note(f"{STREAMS[stream]}: undecodable message dropped: {err}")
             return
         self._samples_in += block.samples.shape[0]
         note = self._aligner.push(stream, block, now)
@@ -252,7 +256,7 @@ class IdentNode(Node):
         with self._lock:
             est, err, err_t = self._last_estimate, self._last_error, self._last_error_time
             n_est, est_t = self._estimates, self._last_estimate_wall
-        recent = [t for t, _ in self._notes if now - t < WARN_HOLD_S]
+        recent = list(dict.fromkeys(text for t, text in self._notes if now - t < WARN_HOLD_S))
         stalled = [STREAMS[i] for i, t in enumerate(self._arrivals)
                    if t and now - t > cfg.stall_timeout_s]
         silent = [STREAMS[i] for i, t in enumerate(self._arrivals) if not t]
@@ -265,7 +269,8 @@ class IdentNode(Node):
             level, reason = DiagnosticStatus.WARN, f"stream(s) {', '.join(stalled)} stalled " \
                                                    f"(> {cfg.stall_timeout_s:g} s without a block)"
         elif recent:
-            level, reason = DiagnosticStatus.WARN, self._notes[-1][1]
+            more = f" (+{len(recent) - 1} more: recent_anomalies)" if len(recent) > 1 else ""
+            level, reason = DiagnosticStatus.WARN, self._notes[-1][1] + more
         elif silent and now - self._started > cfg.stall_timeout_s:
             level, reason = DiagnosticStatus.WARN, f"no data yet on {', '.join(silent)}"
         elif est is None:
@@ -275,7 +280,8 @@ class IdentNode(Node):
                   "window_first_index": lo, "window_end_index": hi, "estimates": n_est,
                   "last_update_age_s": f"{now - est_t:.3f}" if est is not None else "never",
                   "recording": self._recorder.path.as_posix() if self._recorder else "",
-                  "window_restarts": self._aligner.restarts}
+                  "window_restarts": self._aligner.restarts,
+                  "recent_anomalies": " | ".join(recent[-8:])}
         if est is not None:
             values.update({"compute_s": f"{est.compute_s:.4f}", "lifting_phase": est.phase,
                            "lifting_phase_source": est.phase_source,
