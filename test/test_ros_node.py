@@ -497,6 +497,34 @@ def test_node_console_script_takes_params_file_and_remaps(graph, tmp_path):
     assert summary.statistics.message_count == 3 * 7     # 7 s of 240-sample blocks at 240 Hz
 
 
+def test_node_recording_on_a_full_disk_is_an_error_on_diagnostics_and_estimation_goes_on(graph, tmp_path):
+    """The node's record_path file may not grow past 1.5 MB: /diagnostics turns ERROR naming the
+    failure, the node keeps estimating, and after SIGINT the file holds its finished chunks."""
+    rec = tmp_path / "node.mcap"
+    proc = subprocess.Popen([_bin("mr-ident-node"), "--ros-args", "-p", "window_s:=20.0", "-p", "min_window_s:=20.0",
+                             "-p", "update_period_s:=0.2", "-p", f"record_path:={rec}"], env=_env(graph.domain),
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            preexec_fn=_file_size_limit(1_500_000))
+    try:
+        lis = Listener(graph)
+        publish_sim(publishers(graph), load_model(PAPER), 1200.0, block=2400)
+        wait_for(lambda: any(st.level[0] == 2 and f"writing {rec} failed after" in st.message for st in lis.diag),
+                 20, "an ERROR on /diagnostics")
+        lis.msgs.pop("plant_frf", None)
+        publish_sim(publishers(graph), load_model(PAPER), 30.0, block=2400, seed=4)   # a new run from index 0
+        wait_for(lambda: "plant_frf" in lis.msgs, 20, "an estimate after the recording failed")
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+    assert proc.returncode == 0, out
+    assert "File too large" in out and "Traceback" not in out
+    res = replay(rec, IdentConfig(window_s=20.0, min_window_s=20.0))
+    assert res.info.truncated and 0 < sum(res.info.messages.values())
+
+
 def test_replay_publish_feeds_a_node(graph, tmp_path):
     """mr-ident replay --publish plays a recording onto the topics; the node identifies it."""
     model = load_model(PAPER)
