@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 export ROS_LOG_DIR ?= $(CURDIR)/out/ros_log
 export MPLBACKEND := Agg
 
-.PHONY: demo paper test bench bench-live motor-bench venv clean
+.PHONY: demo paper test bench bench-live soak motor-bench venv clean
 
 venv: $(STAMP)
 
@@ -33,6 +33,10 @@ clean:
 
 bench-live: $(STAMP)
 	$(PY) benchmarks/bench_live.py
+
+# 30 min of sim + node + recorder (SOAK_MINUTES=5 make soak for a shorter run); ~4 GB in out/soak
+soak: $(STAMP)
+	$(PY) benchmarks/soak.py
 
 motor-bench: $(STAMP)
 	$(PY) scripts/motor_bench.py

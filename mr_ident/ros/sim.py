@@ -85,12 +85,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--period", type=float, default=10.0, help="multisine period in seconds (default 10)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--wait", type=float, default=5.0,
-                   help="wait up to this many seconds for a subscriber on every topic (default 5)")
+                   help="wait up to this many seconds for subscribers on every topic (default 5)")
+    p.add_argument("--subscribers", type=int, default=1,
+                   help="subscribers to wait for on every topic, e.g. 2 for a node and a recorder (default 1)")
     return p
 
 
-def run(node: object, source: SimSource, *, rate: float, duration: float | None, wait: float) -> int:
-    """Publish blocks from ``source`` on ``node``'s three publishers; returns blocks sent per topic."""
+def run(node: object, source: SimSource, *, rate: float, duration: float | None, wait: float,
+        subscribers: int = 1) -> int:
+    """Publish blocks from ``source`` on ``node``'s three publishers, once ``subscribers``
+    match every topic (or ``wait`` s have passed); returns blocks sent per topic."""
     from rclpy.duration import Duration
     from std_msgs.msg import Float64MultiArray
 
@@ -98,7 +102,7 @@ def run(node: object, source: SimSource, *, rate: float, duration: float | None,
     pubs = [node.create_publisher(Float64MultiArray, t, BLOCK_QOS) for t in STREAMS]  # type: ignore[attr-defined]
     ctx = node.context                                                                     # type: ignore[attr-defined]
     deadline = time.monotonic() + wait
-    while time.monotonic() < deadline and ctx.ok() and any(p.get_subscription_count() == 0 for p in pubs):
+    while time.monotonic() < deadline and ctx.ok() and any(p.get_subscription_count() < subscribers for p in pubs):
         time.sleep(0.02)
     if wait > 0:
         time.sleep(min(wait, 0.5))     # matching is not symmetric: let the subscribers match us too
@@ -131,6 +135,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         model = load_model(args.model)
         if args.rate <= 0 or not math.isfinite(args.rate):
             raise MrIdentError(f"--rate must be a positive number, got {args.rate}")
+        if args.subscribers < 0:
+            raise MrIdentError(f"--subscribers must be >= 0, got {args.subscribers}")
         if args.block < 1:
             raise MrIdentError(f"--block must be >= 1 sample, got {args.block}")
         source = SimSource(model, block=args.block, excitation=args.excitation, seed=args.seed,
@@ -141,7 +147,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     rclpy.init(args=args_all)
     node = rclpy.create_node("mr_ident_sim")
     try:
-        sent = run(node, source, rate=args.rate, duration=args.duration, wait=args.wait)
+        sent = run(node, source, rate=args.rate, duration=args.duration, wait=args.wait,
+                   subscribers=args.subscribers)
         node.get_logger().info(f"published {sent} blocks of {args.block} samples per topic")
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
