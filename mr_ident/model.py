@@ -251,9 +251,9 @@ def model_from_dict(d: Any, *, source: str = "model") -> Model:
             controller = _system(cd, "controller", F / float(fs))
     except ModelError as err:
         raise ModelError(f"{source}: {err}") from None
-        if controller.shape != (plant.shape[1], plant.shape[0]):
-            raise ModelError(f"{source}: controller is {controller.shape[0]}x{controller.shape[1]}, "
-                             f"expected n_u x n_y = {plant.shape[1]}x{plant.shape[0]}")
+    if controller is not None and controller.shape != (plant.shape[1], plant.shape[0]):
+        raise ModelError(f"{source}: controller is {controller.shape[0]}x{controller.shape[1]}, "
+                         f"expected n_u x n_y = {plant.shape[1]}x{plant.shape[0]}")
     ext = _extensions(d, source, float(fs), plant)
     model = Model(float(fs), F, plant, controller, floats["noise_std"], floats["reference_std"],
                   ints["sample_phase"], ints["control_delay"], **ext)

@@ -35,6 +35,9 @@ def test_a_model_round_trips_through_its_dict(paper_model):
     ({"plant": {"num": [1.0], "den": [1.0, 2.0, 100.0], "gain": 1}}, r"plant: unknown key"),
     ({"controller": {"num": [500.0, 0.0], "den": [1.0, -0.9]}}, "closed loop is not stable"),
     ({"sample_phase": 3}, "sample_phase must be in 0..2"),
+    ({"plant": {"num": [[[1.0], [0.5]], [[0.2], [1.0]]], "den": [1.0, 2.0, 100.0]}},
+     r"controller is 1x1, expected n_u x n_y = 2x2"),
+    ({"controller": {"num": [0.1], "den": [1.0, -0.9], "domain": "continuous"}}, "controller must be discrete"),
 ])
 def test_bad_model_files_are_rejected_with_a_reason(change, match):
     with pytest.raises(ModelError, match=match):
