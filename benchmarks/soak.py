@@ -146,13 +146,15 @@ def main() -> int:
         rss: dict[str, list[tuple[float, float]]] = {k: [] for k in procs}
         t0 = time.monotonic()
         fill_s = args.window_s / args.rate + 5.0          # the node's window is full after this (wall)
+        next_print = 60.0
         try:
             while sim.poll() is None and time.monotonic() - t0 < seconds + 120:
                 mon.spin(5.0)
                 t = time.monotonic() - t0
                 for k, p in procs.items():
                     rss[k].append((t, rss_mb(p.pid)))
-                if int(t) % 60 < 5:
+                if t >= next_print:
+                    next_print += 300.0
                     d = mon.diag
                     print(f"  {t / 60:5.1f} min: node RSS {rss['node'][-1][1]:.0f} MB, recorder "
                           f"{rss['recorder'][-1][1]:.0f} MB, sim {rss['sim'][-1][1]:.0f} MB; aligned to "
