@@ -314,7 +314,7 @@ def test_node_survives_faults_reports_each_and_never_estimates_across_one(graph,
     fault("a negative index", "first sample index", lambda: bad(2, negative))
     fault("a repeated block", "received twice", repeat_block)
     fault("a repeated index with other samples", "with other samples", repeat_other)
-    fault("streams that stop", "stalled", lambda: time.sleep(1.6))
+    fault("streams that stop", "stalled", lambda: time.sleep(2.5))   # > stall_timeout_s + one 1 Hz tick
     fault("a publisher restart", "index went back", lambda: feed.restart(seed=2))
     n = node._estimates
     feed.send(400, pause=0.0)                               # a burst: 48 000 samples per topic at once
