@@ -283,7 +283,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     model = load_model(args.model)
     data = _read_record(args.data, model, args.period, args.topics)
     val = _read_record(args.validate, model, args.period, args.topics) if args.validate else None
-    d = diagnose(model, data, val, n=args.n, degree=args.degree, alpha=args.alpha, max_causes=args.max_causes)
+    d = diagnose(model, data, val, n=args.n, degree=args.degree, alpha=args.alpha, max_causes=args.max_causes,
+                 names=(str(args.data), str(args.validate)))
     summary = report_dict(d, extended_model=str(args.out_model) if args.out_model else None, alpha=args.alpha)
     # Everything is computed; now write (each file atomically).
     if args.out_model:

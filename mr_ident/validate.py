@@ -725,7 +725,8 @@ class Diagnosis:
 
 
 def diagnose(model: Model, data: Record, validation: Record | None = None, *, n: int = 8, degree: int = 2,
-             alpha: float = 0.01, max_causes: int = 3, holdout: float = 0.3) -> Diagnosis:
+             alpha: float = 0.01, max_causes: int = 3, holdout: float = 0.3,
+             names: tuple[str, str] = ("data", "validation data")) -> Diagnosis:
     """Where and why ``model`` disagrees with ``data``, the extended model, and its gain.
 
     Parameters
@@ -743,6 +744,8 @@ def diagnose(model: Model, data: Record, validation: Record | None = None, *, n:
         Family-wise false-alarm level of the per-bin test (default 0.01).
     max_causes : int
         Most causes applied in turn.
+    names : (str, str)
+        What to call ``data`` and ``validation`` in error messages (e.g. their files).
 
     Raises
     ------
@@ -753,9 +756,9 @@ def diagnose(model: Model, data: Record, validation: Record | None = None, *, n:
         raise ConfigError(f"alpha must be in (0, 1), got {alpha!r}")
     if not 0.05 <= holdout <= 0.5:
         raise ConfigError(f"holdout must be in [0.05, 0.5], got {holdout!r}")
-    check_record(model, data, n=n, what="data")
+    check_record(model, data, n=n, what=names[0])
     if validation is not None:
-        check_record(model, validation, n=n, what="validation data")
+        check_record(model, validation, n=n, what=names[1])
         est, val, val_start = data, validation, 0
         est_desc = f"all of DATA ({data.n_samples} samples)"
         val_desc = f"the validation data ({validation.n_samples} samples)"
@@ -763,12 +766,13 @@ def diagnose(model: Model, data: Record, validation: Record | None = None, *, n:
         cut = split(data, 1.0 - holdout)
         est = data.part(0, cut)
         val, val_start = data, cut
-        check_record(model, est, n=n, what="the estimation part of the data")
+        check_record(model, est, n=n, what=f"the estimation part of {names[0]}")
         est_desc = f"samples 0..{cut - 1} of DATA (the first {100 * (1 - holdout):.0f} %)"
         val_desc = (f"samples {cut}..{data.n_samples - 1} of DATA (the last {100 * holdout:.0f} %, held out; "
                     f"simulated over the whole record so the state carries over)")
     if val_start and val.period is None and val.n_samples - val_start < 4 * (2 * n + 1) * model.ratio:
-        raise DataError(f"the held-out part ({val.n_samples - val_start} samples) is too short for the LPM window")
+        raise DataError(f"the held-out part of {names[0]} ({val.n_samples - val_start} samples) "
+                        "is too short for the LPM window")
     ident = identify_record(est, model, n=n, degree=degree)
     ev_before = frf_evidence(model, est, n=n, degree=degree, alpha=alpha, ident=ident)
     noise = noise_spectrum(est, model, n=n, degree=degree, ident=ident)
