@@ -105,9 +105,9 @@ def check_record(model: Model, rec: Record, *, n: int = 8, what: str = "data") -
     DataError
     """
     if not math.isclose(rec.fs_high, model.fs_high, rel_tol=1e-9):
-        raise DataError(f"model and {what} disagree on fs_high: model {model.fs_high:g} Hz, {what} {rec.fs_high:g} Hz")
+        raise DataError(f"{what}: fs_high is {rec.fs_high:g} Hz but the model says {model.fs_high:g} Hz")
     if rec.ratio != model.ratio:
-        raise DataError(f"model and {what} disagree on the ratio F: model {model.ratio}, {what} {rec.ratio}")
+        raise DataError(f"{what}: the ratio F is {rec.ratio} but the model says {model.ratio}")
     if rec.u.shape[1] != model.n_u or rec.y.shape[1] != model.n_y:
         raise DataError(f"{what} has {rec.u.shape[1]} input and {rec.y.shape[1]} output channels; "
                         f"the model has n_u={model.n_u}, n_y={model.n_y}")

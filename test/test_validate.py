@@ -161,8 +161,8 @@ PAPER_TEXT = open("config/paper_example.yaml").read()
 
 
 @pytest.mark.parametrize("model_text,duration,fs,ratio,match", [
-    (PAPER_TEXT, 40.0, 250.0, 3, "model and data disagree on fs_high: model 240 Hz, data 250 Hz"),
-    (PAPER_TEXT, 40.0, 240.0, 2, "model and data disagree on the ratio F: model 3, data 2"),
+    (PAPER_TEXT, 40.0, 250.0, 3, r"data.npz: fs_high is 250 Hz but the model says 240 Hz"),
+    (PAPER_TEXT, 40.0, 240.0, 2, r"data.npz: the ratio F is 2 but the model says 3"),
     (PAPER_TEXT, 0.5, 240.0, 3, "too short for the LPM window"),
     (PAPER_TEXT + "plant_gian: 1.1\n", 40.0, 240.0, 3, "unknown key.*plant_gian"),
     (PAPER_TEXT + "extra_modes: [{frequency_hz: 80.0, damping: 0.05, q: 1}]\n", 40.0, 240.0, 3,
