@@ -168,7 +168,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
             K_low = model.controller_frf(N // F)
     ident = identify(data.r, data.u, data.y, fs_high=fs, ratio=F, method=args.method, n=args.n,
                      degree=args.degree, controller_low=K_low,
-                     phase=model.sample_phase if model else 0, delay=model.control_delay if model else 0)
+                     phase=model.sample_phase if model else 0, delay=model.control_delay if model else 0,
+                     keep_lifted=False)                    # the result file holds P_h and the PFG only
     write_result(args.out, ident)
     print(f"wrote {args.out} ({ident.plant.frequency.size} bins, method {args.method})")
     if args.plot:
