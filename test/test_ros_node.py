@@ -6,6 +6,7 @@ context; discovery is localhost-only; every wait is bounded.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -133,21 +134,58 @@ def fast_params(window_s=20.0, **extra):
     return [Parameter(k, value=v) for k, v in d.items()] + CONTROLLER
 
 
-def publish_sim(pubs, model, seconds: float, *, block=1000, skip=None, seed=3):
-    """Publish ``seconds`` of the simulated loop; ``skip`` = (stream, block number) not sent."""
-    src = SimSource(model, block=block, seed=seed)
-    n_blocks = int(np.ceil(seconds * model.fs_high / block))
-    wait_for(lambda: all(p.get_subscription_count() > 0 for p in pubs), 10, "subscribers")
+def await_subscribers(pubs, timeout: float = 10.0):
+    """Until every publisher has a subscriber (bounded), then a moment for the other side."""
+    wait_for(lambda: all(p.get_subscription_count() > 0 for p in pubs), timeout, "subscribers")
     time.sleep(0.5)     # matching is not symmetric: let the subscriber side match the writer too
-    sent = []
-    for b in range(n_blocks):
-        first, r, u, y = src.next()
-        for s, (p, x) in enumerate(zip(pubs, (r, u, y))):
-            if skip != (s, b):
-                p.publish(block_msg(first, x))
-        sent.append((first, r, u, y))
-        time.sleep(0.002)
-    return sent
+
+
+class Feed:
+    """Clean simulated blocks on the three topics, remembering what each run published."""
+
+    def __init__(self, pubs, model, seed: int, block: int = 120):
+        self.pubs, self.model, self.block = pubs, model, block
+        self.runs: list[list[tuple]] = []          # per run: (first, r, u, y) of every block taken
+        self.restart(seed)
+
+    def restart(self, seed: int):
+        """The publisher starts over from index 0 (another run of the loop)."""
+        self.src = SimSource(self.model, block=self.block, seed=seed)
+        self.runs.append([])
+
+    def take(self):
+        first, r, u, y = self.src.next()
+        self.runs[-1].append((first, r, u, y))
+        return first, [r, u, y]
+
+    def send(self, n: int, pause: float = 0.002, skip=None):
+        """Publish the next ``n`` blocks (``skip`` = (stream, block number) not sent); returns them."""
+        sent = []
+        for b in range(n):
+            first, xs = self.take()
+            for s, (p, x) in enumerate(zip(self.pubs, xs)):
+                if skip != (s, b):
+                    p.publish(block_msg(first, x))
+            sent.append((first, *xs))
+            time.sleep(pause)
+        return sent
+
+    def truth_of(self, first: int, r, u, y) -> bool:
+        """Whether (r, u, y) at [first, ...) is exactly what one run published there."""
+        n = r.shape[0]
+        for run in self.runs:
+            whole = [np.concatenate([blk[i] for blk in run]) for i in (1, 2, 3)]
+            if whole[0].shape[0] >= first + n and all(np.array_equal(a, b[first:first + n])
+                                                      for a, b in zip((r, u, y), whole)):
+                return True
+        return False
+
+
+def publish_sim(pubs, model, seconds: float, *, block=1000, skip=None, seed=3, wait=10.0):
+    """Publish ``seconds`` of the simulated loop, once subscribed (waiting at most ``wait`` s);
+    ``skip`` = (stream, block number) not sent."""
+    await_subscribers(pubs, wait)
+    return Feed(pubs, model, seed, block).send(int(np.ceil(seconds * model.fs_high / block)), skip=skip)
 
 
 def test_sim_to_node_estimate_matches_the_exact_plant(graph):
@@ -193,40 +231,6 @@ def test_dropped_block_is_reported_and_excluded(graph):
     assert np.median(np.abs(P.response - Ptrue) / np.abs(Ptrue)) < 1e-3     # 10 s window: bias ~1e-4
 
 
-class Feed:
-    """Clean simulated blocks on the three topics, remembering what each run published."""
-
-    def __init__(self, pubs, model, seed: int, block: int = 120):
-        self.pubs, self.model, self.block = pubs, model, block
-        self.runs: list[list[np.ndarray]] = []
-        self.restart(seed)
-
-    def restart(self, seed: int):
-        """The publisher starts over from index 0 (another run of the loop)."""
-        self.src = SimSource(self.model, block=self.block, seed=seed)
-        self.runs.append([np.zeros((0, 1))] * 3)
-
-    def take(self):
-        first, r, u, y = self.src.next()
-        run = self.runs[-1]
-        self.runs[-1] = [np.concatenate([a, x]) for a, x in zip(run, (r, u, y))]
-        return first, [r, u, y]
-
-    def send(self, n: int, pause: float = 0.002):
-        for _ in range(n):
-            first, xs = self.take()
-            for p, x in zip(self.pubs, xs):
-                p.publish(block_msg(first, x))
-            time.sleep(pause)
-
-    def truth_of(self, first: int, r, u, y) -> bool:
-        """Whether (r, u, y) at [first, ...) is exactly what one run published there."""
-        n = r.shape[0]
-        return any(run[0].shape[0] >= first + n and all(np.array_equal(a, b[first:first + n])
-                                                        for a, b in zip((r, u, y), run))
-                   for run in self.runs)
-
-
 def test_node_survives_faults_reports_each_and_never_estimates_across_one(graph, monkeypatch):
     """Faults, one after another, between clean blocks: a NaN sample, a wrong layout, a wrong
     length, a negative index, a repeated block, a repeated index with other samples, all streams
@@ -248,8 +252,7 @@ def test_node_survives_faults_reports_each_and_never_estimates_across_one(graph,
     node = graph.ident(fast_params(window_s=5.0, stall_timeout_s=1.0))
     lis = Listener(graph)
     pubs = publishers(graph)
-    wait_for(lambda: all(p.get_subscription_count() > 0 for p in pubs), 10, "subscribers")
-    time.sleep(0.5)
+    await_subscribers(pubs)
     feed = Feed(pubs, model, seed=1)
 
     def estimates_after(n_before, what):
@@ -299,10 +302,9 @@ def test_node_survives_faults_reports_each_and_never_estimates_across_one(graph,
         m.data[0] = -240.0
 
     def repeat_block():
-        first = feed.src.next_index - feed.block
-        run = feed.runs[-1]
-        for p, a in zip(pubs, run):
-            p.publish(block_msg(first, a[first:first + feed.block]))
+        first, *xs = feed.runs[-1][-1]
+        for p, x in zip(pubs, xs):
+            p.publish(block_msg(first, x))
 
     def repeat_other():
         first = feed.src.next_index - feed.block
@@ -401,25 +403,31 @@ def _bin(name: str) -> str:
     return str(Path(sys.executable).parent / name)
 
 
+@contextlib.contextmanager
+def child(graph: Graph, *argv: str, **popen):
+    """A console script of this venv in ``graph``'s domain, killed if still running at the end."""
+    proc = subprocess.Popen([_bin(argv[0]), *argv[1:]], env=_env(graph.domain), text=True, **popen)
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_record_stopped_by_signal_leaves_a_readable_file(graph, tmp_path, sig):
     from mcap.reader import make_reader
     out = tmp_path / "rec.mcap"
-    proc = subprocess.Popen([_bin("mr-ident"), "record", str(out)], env=_env(graph.domain),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
+    with child(graph, "mr-ident", "record", str(out), stdout=subprocess.PIPE, stderr=subprocess.PIPE) as proc:
         pubs = publishers(graph)
-        wait_for(lambda: all(p.get_subscription_count() > 0 for p in pubs), 20, "the recorder to subscribe")
+        await_subscribers(pubs, 20)                     # the recorder process starts up
         for k in range(20):
             for p in pubs:
                 p.publish(block_msg(k * 100, np.full(100, float(k))))
         time.sleep(0.5)
         proc.send_signal(sig)
         stdout, stderr = proc.communicate(timeout=20)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(5)
     assert proc.returncode == 0, stderr
     with open(out, "rb") as fh:
         summary = make_reader(fh).get_summary()
@@ -441,18 +449,10 @@ def test_record_on_a_full_disk_keeps_the_finished_chunks_and_replay_says_so(grap
     as with a full disk). record exits 2 naming the failure; the file reads up to its last
     finished chunk (1 MB chunks); replay estimates from it and says how much it recovered."""
     out = tmp_path / "rec.mcap"
-    proc = subprocess.Popen([_bin("mr-ident"), "record", str(out)], env=_env(graph.domain),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=_file_size_limit(1_500_000))
-    try:
-        pubs = publishers(graph)
-        wait_for(lambda: all(p.get_subscription_count() > 0 for p in pubs), 20, "the recorder to subscribe")
-        sent = publish_sim(pubs, load_model(PAPER), 1200.0, block=2400)    # 3 x 6.9 MB of CDR
+    with child(graph, "mr-ident", "record", str(out), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+               preexec_fn=_file_size_limit(1_500_000)) as proc:
+        sent = publish_sim(publishers(graph), load_model(PAPER), 1200.0, block=2400, wait=20)   # 3 x 6.9 MB
         stdout, stderr = proc.communicate(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(5)
     assert proc.returncode == 2, stderr
     assert f"error: writing {out} failed after" in stderr and "File too large" in stderr
     assert "readable up to its last finished chunk" in stderr and "Traceback" not in stderr
@@ -472,10 +472,8 @@ def test_node_console_script_takes_params_file_and_remaps(graph, tmp_path):
     params.write_text("mr_ident:\n  ros__parameters:\n    window_s: 5.0\n    min_window_s: 5.0\n"
                       "    update_period_s: 0.2\n")
     rec = tmp_path / "node.mcap"
-    proc = subprocess.Popen([_bin("mr-ident-node"), "--ros-args", "--params-file", str(params),
-                             "-r", "output:=y_meas", "-p", f"record_path:={rec}"], env=_env(graph.domain),
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
+    with child(graph, "mr-ident-node", "--ros-args", "--params-file", str(params), "-r", "output:=y_meas",
+               "-p", f"record_path:={rec}", stdout=subprocess.PIPE, stderr=subprocess.STDOUT) as proc:
         n = graph.node("blocks")
         pubs = [n.create_publisher(Float64MultiArray, t, BLOCK_QOS) for t in ("reference", "input", "y_meas")]
         lis = Listener(graph)
@@ -485,10 +483,6 @@ def test_node_console_script_takes_params_file_and_remaps(graph, tmp_path):
         assert abs(f[0] - 1 / 5.0) < 1e-9          # 5 s window from the params file
         proc.send_signal(signal.SIGINT)
         proc.wait(20)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(5)
     assert proc.returncode == 0
     from mcap.reader import make_reader                 # SIGINT finalised the node's recording
     with open(rec, "rb") as fh:
@@ -501,24 +495,19 @@ def test_node_recording_on_a_full_disk_is_an_error_on_diagnostics_and_estimation
     """The node's record_path file may not grow past 1.5 MB: /diagnostics turns ERROR naming the
     failure, the node keeps estimating, and after SIGINT the file holds its finished chunks."""
     rec = tmp_path / "node.mcap"
-    proc = subprocess.Popen([_bin("mr-ident-node"), "--ros-args", "-p", "window_s:=20.0", "-p", "min_window_s:=20.0",
-                             "-p", "update_period_s:=0.2", "-p", f"record_path:={rec}"], env=_env(graph.domain),
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            preexec_fn=_file_size_limit(1_500_000))
-    try:
+    with child(graph, "mr-ident-node", "--ros-args", "-p", "window_s:=20.0", "-p", "min_window_s:=20.0",
+               "-p", "update_period_s:=0.2", "-p", f"record_path:={rec}", stdout=subprocess.PIPE,
+               stderr=subprocess.STDOUT, preexec_fn=_file_size_limit(1_500_000)) as proc:
         lis = Listener(graph)
-        publish_sim(publishers(graph), load_model(PAPER), 1200.0, block=2400)
+        pubs = publishers(graph)
+        publish_sim(pubs, load_model(PAPER), 1200.0, block=2400)
         wait_for(lambda: any(st.level[0] == 2 and f"writing {rec} failed after" in st.message for st in lis.diag),
                  20, "an ERROR on /diagnostics")
         lis.msgs.pop("plant_frf", None)
-        publish_sim(publishers(graph), load_model(PAPER), 30.0, block=2400, seed=4)   # a new run from index 0
+        publish_sim(pubs, load_model(PAPER), 30.0, block=2400, seed=4)   # a new run from index 0
         wait_for(lambda: "plant_frf" in lis.msgs, 20, "an estimate after the recording failed")
         proc.send_signal(signal.SIGINT)
         out, _ = proc.communicate(timeout=20)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(5)
     assert proc.returncode == 0, out
     assert "File too large" in out and "Traceback" not in out
     res = replay(rec, IdentConfig(window_s=20.0, min_window_s=20.0))
