@@ -176,13 +176,11 @@ def main() -> int:
             mon.close()
             log.close()
     wall = time.monotonic() - t0
-    sent = int(round(loop_s * FS)) // BLOCK * BLOCK
-    sent += BLOCK if int(round(loop_s * FS)) % BLOCK else 0
+    sent = -(-int(round(loop_s * FS)) // BLOCK) * BLOCK       # the sim sends whole blocks until it has enough
     node_in = {s: int(final.get(f"{s}.samples", -1)) for s in STREAMS}
     node_gaps = {s: int(final.get(f"{s}.gaps", -1)) for s in STREAMS}
     rec = check_recording(rec_path)
     ticks = np.diff(mon.estimates)
-    after_fill = [(t, v) for t, v in rss["node"] if t >= fill_s]
 
     def first_last(k: str) -> tuple[float, float, float]:
         pts = [(t, v) for t, v in rss[k] if t >= fill_s and v > 0] or rss[k]
@@ -202,7 +200,7 @@ def main() -> int:
                                 "p99": float(np.percentile(ticks, 99)) if ticks.size else None,
                                 "max": float(ticks.max()) if ticks.size else None},
         "rss_mb": {k: dict(zip(("start", "end", "max"), first_last(k))) for k in procs},
-        "rss_start_at_s": after_fill[0][0] if after_fill else None,
+        "rss_start_at_s": next((t for t, _ in rss["node"] if t >= fill_s), None),
     }
     lost_node = {s: sent - node_in[s] for s in STREAMS}
     lost_rec = {s: sent - rec.get(s, {}).get("samples", 0) for s in STREAMS}
@@ -216,7 +214,7 @@ def main() -> int:
           f"at {args.rate * FS / 1e3:g} k samples/s per topic")
     print(f"  lost samples by index: node {lost_node} (gaps {node_gaps}), recording {lost_rec}; "
           f"{'ZERO LOSS' if ok else 'LOSS'}")
-    print(f"  RSS MB (start after the window filled -> end, max): " + ", ".join(
+    print("  RSS MB (start after the window filled -> end, max): " + ", ".join(
         f"{k} {v['start']:.0f} -> {v['end']:.0f} (max {v['max']:.0f})" for k, v in r.items()))
     iv = result["estimate_interval_s"]
     print(f"  estimates: {len(mon.estimates)}, interval median {iv['median']:.2f} s, p99 {iv['p99']:.2f} s, "

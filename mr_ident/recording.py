@@ -380,14 +380,15 @@ def replay(path: str | Path, config: IdentConfig, *, topics: Sequence[str] | Non
         lo, hi = al.span(stop)
         raise DataError(f"{path}: the recording holds no gap-free aligned window of at least "
                         f"{config.min_samples} samples (min_window_s = {config.min_window_s:g} s); "
-                        f"aligned span at the end: {max(0, hi - lo)} samples" + _what_broke(al, info, notes))
+                        f"aligned span at the end: {max(0, hi - lo)} samples" + _what_broke(al, notes, info))
     return ReplayResult(estimate(w, config), al.stats, info, tuple(notes))
 
 
-def _what_broke(al: Aligner, info: RecordingInfo, notes: Sequence[str]) -> str:
-    """Why a recording gives less aligned data than it should, for an error message."""
+def _what_broke(al: Aligner, notes: Sequence[str], info: RecordingInfo | None = None) -> str:
+    """Why a recording gives less aligned data than it should: "" or "; <parts>" to append
+    to a message (the truncation too when ``info`` is given)."""
     parts = []
-    if info.truncated:
+    if info is not None and info.truncated:
         parts.append(f"cut short: recovered {sum(info.messages.values())} messages, {info.bytes_read} of "
                      f"{info.file_bytes} bytes ({info.reason})")
     kinds = ("gaps", "restarts", "late", "malformed", "nonfinite")
@@ -416,8 +417,8 @@ def recorded_signals(path: str | Path, ratio: int, *, topics: Sequence[str] | No
     w = al.window(ratio)
     if w is None:
         raise DataError(f"{path}: the recording holds no aligned samples of r, u and y"
-                        + _what_broke(al, info, notes))
+                        + _what_broke(al, notes, info))
     info.span = (w.first, w.end)
     if al.restarts:
-        info.broken = _what_broke(al, RecordingInfo(), notes)[2:]
+        info.broken = _what_broke(al, notes).removeprefix("; ")
     return w.r, w.u, w.y, info
