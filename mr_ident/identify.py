@@ -24,6 +24,7 @@ import scipy.fft
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import ConfigError, DataError, DimensionError
+from . import _batched
 from ._parallel import resolve_workers, thread_map
 from .lifting import _check_ratio
 from .lpm import _lpm_core, _warn_bad, check_lpm_options
@@ -92,20 +93,23 @@ BLOCK_BINS = 16384
 
 
 def _indirect_diag(G: NDArray, Cv: NDArray, Ainv: NDArray, n_y: int) -> tuple[NDArray, NDArray, NDArray]:
-    """Indirect step with only the diagonals of the covariance factors.
+    """Indirect step on a joint LPM fit of [J; S], bins-last, keeping only the
+    diagonals of the covariance factors.
 
-    Returns P (K, n_y, n_u), ``diag(E C_v E^H)`` (K, n_y) and ``diag(S^-T A^-1 conj(S^-1))``
-    (K, n_u): enough for the standard deviation of every entry of P.
+    G (n_y + n_u, n_u, K), Cv (n_y + n_u, n_y + n_u, K), Ainv (n_u, n_u, K) as
+    :func:`~mr_ident.lpm._lpm_core` returns them. Returns P (n_y, n_u, K),
+    ``diag(E C_v E^H)`` (n_y, K) with ``E = [I, -P]`` and ``diag(S^-T A^-1 conj(S^-1))``
+    (n_u, K): enough for the standard deviation of every entry of P.
     """
-    J, S = G[:, :n_y], G[:, n_y:]
-    Sinv = np.linalg.inv(S)
-    P = J @ Sinv
-    # E = [I, -P]: diag(E Cv E^H)_a = Cv_yy[a,a] - 2 Re(Cv_yu[a,:] P[a,:]^H) + P[a,:] Cv_uu P[a,:]^H
-    Cyy = np.real(np.diagonal(Cv[:, :n_y, :n_y], axis1=1, axis2=2))
-    cross = np.real(np.einsum("kab,kab->ka", Cv[:, :n_y, n_y:], np.conj(P)))
-    quad = np.real(np.einsum("kab,kbc,kac->ka", P, Cv[:, n_y:, n_y:], np.conj(P)))
-    row = Cyy - 2.0 * cross + quad
-    col = np.real(np.einsum("kib,kij,kjb->kb", Sinv, Ainv, np.conj(Sinv)))
+    J, S = G[:n_y], G[n_y:]
+    Sinv = _batched.inv(S)
+    P = _batched.matmul(J, Sinv)
+    # diag(E Cv E^H)_a = Cv_yy[a,a] - 2 Re(Cv_yu[a,:] P[a,:]^H) + P[a,:] Cv_uu P[a,:]^H
+    d = np.arange(n_y)
+    row = (Cv[d, d].real - 2.0 * _batched.real_dot(Cv[:n_y, n_y:], P, axis=1)
+           + _batched.real_dot(_batched.matmul(P, Cv[n_y:, n_y:]), P, axis=1))
+    # diag(S^-T A^-1 conj(S^-1))_b = Re sum_j (S^-T A^-1)[b, j] conj(S^-1[j, b])
+    col = _batched.real_dot(_batched.matmul(Sinv.transpose(1, 0, 2), Ainv), Sinv.transpose(1, 0, 2), axis=1)
     return P, np.maximum(row, 0.0), np.maximum(col, 0.0)
 
 
@@ -192,23 +196,23 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
             kb = bins[b0:b0 + BLOCK_BINS]
             idx = (np.arange(kb[0] - n, kb[-1] + n + 1)[:, None] + aliases[None, :]) % N
             lifted = lambda X: X[idx].reshape(idx.shape[0], -1)         # noqa: E731  (alias-major)
-            G, Cv, Ainv, nb = _fit(lifted(Rf), np.concatenate([lifted(Yf), lifted(Uf)], axis=1),
-                                   n, degree, q)
+            G, Cv, Ainv, nb = _lpm_core(lifted(Rf), np.concatenate([lifted(Yf), lifted(Uf)], axis=1),
+                                        n, degree, q)                     # bins-last
             P, rdiag, cdiag = _indirect_diag(G, Cv, Ainv, F * ny)
-            Pb = P.reshape(kb.size, F, ny, F, nu)
-            rd = rdiag.reshape(kb.size, F, ny)
-            cd = cdiag.reshape(kb.size, F, nu)
+            Pb = P.reshape(F, ny, F, nu, kb.size)
+            rd = rdiag.reshape(F, ny, kb.size)
+            cd = cdiag.reshape(F, nu, kb.size)
             for l in range(F):
                 kappa = kb + l * M
-                Pl = Pb[:, l, :, l, :]
-                vl = rd[:, l, :, None] * cd[:, l, None, :]
+                Pl = Pb[l, :, l].transpose(2, 0, 1)
+                vl = (rd[l][:, None] * cd[l][None]).transpose(2, 0, 1)
                 direct = kappa <= half
                 P_half[kappa[direct]] = Pl[direct]
                 var_half[kappa[direct]] = vl[direct]
                 mirror = ~direct & (N - kappa <= half)
                 P_half[N - kappa[mirror]] = np.conj(Pl[mirror])
                 var_half[N - kappa[mirror]] = vl[mirror]
-            return nb, ((G, Cv, Ainv) if keep_lifted else None)
+            return nb, (tuple(a.transpose(2, 0, 1) for a in (G, Cv, Ainv)) if keep_lifted else None)
 
         done = thread_map(block, range(0, Kc + 1, BLOCK_BINS), n_workers)
         _warn_bad(sum(d[0] for d in done), Kc + 1)
@@ -247,11 +251,12 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
     elif method == "lpm":
         Rf, Uf, Yf = _spectra(ra, ua, ya)
         idx = np.arange(-n, half + n + 1) % N
-        G, Cv, Ainv, n_bad = _fit(Rf[idx], np.concatenate([Yf[idx], Uf[idx]], axis=1), n, degree, q,
-                                  n_workers)
+        G, Cv, Ainv, n_bad = _lpm_core(Rf[idx], np.concatenate([Yf[idx], Uf[idx]], axis=1), n, degree, q,
+                                       n_workers)                         # bins-last
         _warn_bad(n_bad, half + 1)
-        P_half, rdiag, cdiag = _indirect_diag(G, Cv, Ainv, ny)
-        var_half = rdiag[:, :, None] * cdiag[:, None, :]
+        P, rdiag, cdiag = _indirect_diag(G, Cv, Ainv, ny)
+        P_half = P.transpose(2, 0, 1)
+        var_half = (rdiag[:, None] * cdiag[None]).transpose(2, 0, 1)
     else:  # etfe
         if ny != 1 or nu != 1:
             raise DimensionError(

@@ -48,21 +48,24 @@ def half_to_full(X_half: NDArray, n_samples: int) -> NDArray:
 
 
 def _controller_factors(kappa: NDArray, ratio: int, n_samples: int, phase: int, delay: int
-                        ) -> tuple[NDArray, NDArray]:
+                        ) -> tuple[NDArray, NDArray | None]:
     """``a_l, b_l`` of the rank-n_u lifted controller ``C = A K B^T`` at the aliases of kappa.
 
     ``a_l = H0(kl) exp(-2j pi kl (phase+delay)/N) / F`` and ``b_l = exp(2j pi kl phase/N)``
-    with ``kl = kappa + l M``; shapes (K, F).
+    with ``kl = kappa + l M``; shapes (K, F). ``b`` is None when phase is 0 (all ones).
     """
     F, N = ratio, n_samples
     l = np.arange(F)
     s = phase + delay
     # exp(-2j pi kl x / N) = exp(-2j pi kappa x / N) * exp(-2j pi l x / F): one exp per bin.
     z = np.exp(-2j * np.pi * kappa / N)[:, None] * np.exp(-2j * np.pi * l / F)[None, :]   # (K, F)
-    h0 = np.ones_like(z)
-    for _ in range(F - 1):                                   # Horner: 1 + z + ... + z^(F-1)
-        h0 = 1.0 + z * h0
-    a = h0 * (np.exp(-2j * np.pi * kappa * s / N)[:, None] * np.exp(-2j * np.pi * l * s / F)[None, :]) / F
+    a = np.full_like(z, 1.0 / F)
+    for _ in range(F - 1):                                   # Horner: (1 + z + ... + z^(F-1)) / F
+        a = 1.0 / F + z * a
+    if s:
+        a *= np.exp(-2j * np.pi * kappa * s / N)[:, None] * np.exp(-2j * np.pi * l * s / F)[None, :]
+    if not phase:
+        return a, None
     b = np.exp(2j * np.pi * kappa * phase / N)[:, None] * np.exp(2j * np.pi * l * phase / F)[None, :]
     return a, b
 
@@ -108,13 +111,17 @@ def pfg_from_plant(P_half: ArrayLike, K_low: ArrayLike, ratio: int, n_samples: i
     Kl = np.asarray(K_low, dtype=complex)
     if Kl.shape[0] != M:
         raise DimensionError(f"K_low must cover all M={M} low-rate bins, got {Kl.shape[0]}")
-    sd_half = None if P_std_half is None else np.asarray(P_std_half, dtype=float)
+    # Whole spectra once (conjugate symmetry), so that the aliases of a block of bins
+    # are slices (wrapping at N) rather than gathers with conjugation.
+    P_full = half_to_full(Ph, N)
+    sd_full = None if P_std_half is None else half_to_full(np.asarray(P_std_half, dtype=float), N)
     gain = np.empty(N // 2 + 1)
     std = np.empty(N // 2 + 1)
 
     def block(k0: int) -> None:                     # blocks bound the memory and run on threads
         kappa = np.arange(k0, min(k0 + PFG_BLOCK, N // 2 + 1))
-        gain[kappa], std[kappa] = _pfg_block(kappa, Ph, Kl, F, N, sd_half, phase, delay)
+        gain[kappa[0]:kappa[-1] + 1], std[kappa[0]:kappa[-1] + 1] = _pfg_block(
+            kappa, P_full, sd_full, Kl, F, N, phase, delay)
 
     thread_map(block, range(0, N // 2 + 1, PFG_BLOCK), resolve_workers(workers))
     return gain, std
@@ -124,20 +131,25 @@ def pfg_from_plant(P_half: ArrayLike, K_low: ArrayLike, ratio: int, n_samples: i
 PFG_BLOCK = 65536
 
 
-def _pfg_block(kappa: NDArray, Ph: NDArray, Kl: NDArray, F: int, N: int, sd_half: NDArray | None,
+def _aliases(X_full: NDArray, kappa: NDArray, F: int, M: int) -> NDArray:
+    """``X_full[(kappa + l M) mod N]`` for consecutive kappa, shape (K, F, ...)."""
+    return np.stack([np.take(X_full, np.arange(kappa[0] + l * M, kappa[-1] + 1 + l * M), axis=0, mode="wrap")
+                     for l in range(F)], axis=1)
+
+
+def _pfg_block(kappa: NDArray, P_full: NDArray, sd_full: NDArray | None, Kl: NDArray, F: int, N: int,
                phase: int, delay: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """PFG and its std on consecutive high-rate bins kappa, from the plant on all N bins."""
     M = N // F
-    ny, nu = Ph.shape[1:]
-    alias = (kappa[:, None] + M * np.arange(F)[None, :]) % N           # (K, F)
-    fold = np.minimum(alias, N - alias)
-    flip = alias > N // 2
-    Pl = Ph[fold]                                                      # (K, F, ny, nu)
-    Pl[flip] = np.conj(Pl[flip])
-    Kk = Kl[kappa % M]                                                 # (K, nu, ny)
+    ny, nu = P_full.shape[1:]
+    Kk = np.take(Kl, kappa, axis=0, mode="wrap")                      # (K, nu, ny)
     a, b = _controller_factors(kappa, F, N, phase, delay)
     if ny == nu == 1:
-        sd = None if sd_half is None else sd_half[fold][..., 0, 0]
-        return _pfg_siso(Pl[..., 0, 0], Kk[:, 0, 0], a, b, sd)
+        sd = None if sd_full is None else _aliases(sd_full[:, 0, 0], kappa, F, M)
+        return _pfg_siso(_aliases(P_full[:, 0, 0], kappa, F, M), Kk[:, 0, 0], a, b, sd)
+    Pl = _aliases(P_full, kappa, F, M)                                 # (K, F, ny, nu)
+    if b is None:
+        b = np.ones_like(a)
     PK = Pl @ Kk[:, None]                                              # (K, F, ny, ny)
     Z = np.einsum("kl,klij->kij", a * b, PK)
     Minv = np.linalg.inv(np.eye(ny)[None] + Z)                         # (K, ny, ny)
@@ -146,8 +158,8 @@ def _pfg_block(kappa: NDArray, Ph: NDArray, Kl: NDArray, F: int, N: int, sd_half
     col[:, 0] += Pl[:, 0]
     gain, uvec, vvec = _column_gain(col.reshape(kappa.size, F * ny, nu))
     std = np.full(gain.shape, np.nan)
-    if sd_half is not None:
-        sd = sd_half[fold]                                             # (K, F, ny, nu)
+    if sd_full is not None:
+        sd = _aliases(sd_full, kappa, F, M)                            # (K, F, ny, nu)
         ul = uvec.reshape(kappa.size, F, ny)
         # u^H S_o, S_o = (I + P C)^-1 = I - P A K (I+Z)^-1 B^T: block l is
         # conj(u_l) - (sum_m conj(u_m) a_m P_m K) (I+Z)^-1 b_l.
@@ -162,24 +174,27 @@ def _pfg_block(kappa: NDArray, Ph: NDArray, Kl: NDArray, F: int, N: int, sd_half
     return gain, std
 
 
-def _pfg_siso(Pl: NDArray, Kk: NDArray, a: NDArray, b: NDArray, sd: NDArray | None
+def _pfg_siso(Pl: NDArray, Kk: NDArray, a: NDArray, b: NDArray | None, sd: NDArray | None
               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Scalar form of :func:`pfg_from_plant` (n_y = n_u = 1): elementwise, no stacked matmuls."""
-    PK = Pl * Kk[:, None]                                       # (K, F)
-    minv = 1.0 / (1.0 + np.sum(a * b * PK, axis=1))             # (K,)
-    mbp0 = minv * b[:, 0] * Pl[:, 0]
-    col = -a * PK * mbp0[:, None]
+    """Scalar form of :func:`pfg_from_plant` (n_y = n_u = 1): elementwise, no stacked matmuls.
+
+    Pl, a, b, sd have shape (K, F) (``b`` None means all ones), Kk (K,)."""
+    aPK = a * (Pl * Kk[:, None])                                # a_l P_l K, (K, F)
+    minv = 1.0 / (1.0 + np.sum(aPK if b is None else aPK * b, axis=1))
+    mbp0 = minv * Pl[:, 0] if b is None else minv * b[:, 0] * Pl[:, 0]
+    col = aPK * -mbp0[:, None]
     col[:, 0] += Pl[:, 0]
     gain = np.sqrt(np.sum(col.real ** 2 + col.imag ** 2, axis=1))
     if sd is None:
         return gain, np.full(gain.shape, np.nan)
     with np.errstate(invalid="ignore", divide="ignore"):
         u = col / gain[:, None]
-    w = np.sum(np.conj(u) * a * PK, axis=1) * minv
-    acoef = np.conj(u) - w[:, None] * b
-    bcoef = -a * (Kk * mbp0)[:, None]
+    w = np.sum(np.conj(u) * aPK, axis=1) * minv
+    acoef = np.conj(u) - (w[:, None] if b is None else w[:, None] * b)
+    bcoef = a * -(Kk * mbp0)[:, None]
     bcoef[:, 0] += 1.0
-    var = 0.5 * np.sum(np.abs(acoef * bcoef) ** 2 * sd ** 2, axis=1)
+    ab = acoef * bcoef * sd
+    var = 0.5 * np.sum(ab.real ** 2 + ab.imag ** 2, axis=1)
     return gain, np.sqrt(var)
 
 
