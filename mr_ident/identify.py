@@ -28,7 +28,7 @@ from . import _batched
 from ._parallel import resolve_workers, thread_map
 from .lifting import _check_ratio
 from .lpm import _lpm_core, _warn_bad, check_lpm_options
-from .pfg import pfg_from_plant
+from .pfg import half_to_full, pfg_from_plant
 from .results import FRF, PFG, Identification, LiftedFRF
 
 Method = Literal["freq-lifted", "time-lifted", "lpm", "etfe"]
@@ -61,9 +61,16 @@ def _check_signals(r: ArrayLike, u: ArrayLike, y: ArrayLike, ratio: int
     return ra, ua, ya
 
 
-def _spectra(*signals: NDArray[np.float64]) -> list[NDArray[np.complex128]]:
-    """DFTs of (N, c_i) signals, in one transform so that its columns run in parallel."""
-    X = scipy.fft.fft(np.concatenate(signals, axis=1), axis=0, norm="ortho", workers=-1)
+def _spectra(*signals: NDArray[np.float64], workers: int = 1) -> list[NDArray[np.complex128]]:
+    """DFTs of real (N, c_i) signals on all N bins.
+
+    One real transform per column, the columns on ``workers`` threads (scipy's own
+    ``workers`` does not split a few long columns); the upper half by conjugate symmetry.
+    """
+    N = signals[0].shape[0]
+    columns = [x[:, i] for x in signals for i in range(x.shape[1])]
+    half = thread_map(lambda c: scipy.fft.rfft(c, norm="ortho"), columns, workers)
+    X = half_to_full(np.stack(half, axis=1), N)
     return np.split(X, np.cumsum([x.shape[1] for x in signals])[:-1], axis=1)
 
 
@@ -89,7 +96,7 @@ def _indirect(G: NDArray, Cv: NDArray, Ainv: NDArray, n_y: int
 
 
 #: Low-rate bins per block of the freq-lifted path (bounds memory, ~20 MB per block in flight).
-BLOCK_BINS = 16384
+BLOCK_BINS = 8192
 
 
 def _indirect_diag(G: NDArray, Cv: NDArray, Ainv: NDArray, n_y: int) -> tuple[NDArray, NDArray, NDArray]:
@@ -184,7 +191,7 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
     lifted_J = lifted_S = None
 
     if method == "freq-lifted":
-        Rf, Uf, Yf = _spectra(ra, ua, ya)
+        Rf, Uf, Yf = _spectra(ra, ua, ya, workers=n_workers)
         Kc = M // 2
         bins = np.arange(Kc + 1)
         aliases = M * np.arange(F)
@@ -249,7 +256,7 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
         quad = np.real(np.einsum("ki,kijy,kj->ky", ph, rdiag, np.conj(ph)))
         var_half = quad[:, :, None] * c0[:, None, :]
     elif method == "lpm":
-        Rf, Uf, Yf = _spectra(ra, ua, ya)
+        Rf, Uf, Yf = _spectra(ra, ua, ya, workers=n_workers)
         idx = np.arange(-n, half + n + 1) % N
         G, Cv, Ainv, n_bad = _lpm_core(Rf[idx], np.concatenate([Yf[idx], Uf[idx]], axis=1), n, degree, q,
                                        n_workers)                         # bins-last

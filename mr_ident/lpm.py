@@ -32,6 +32,7 @@ whose regressor is rank deficient (no excitation) come out as NaN with a warning
 
 from __future__ import annotations
 
+import functools
 import warnings
 from dataclasses import dataclass
 
@@ -43,7 +44,7 @@ from .errors import ConfigError, DataError, DimensionError
 
 #: Bins processed per pass; bounds the working memory (about 60 MB for 3 inputs
 #: and 6 outputs) without a measurable loss of speed.
-CHUNK_BINS = 8192
+CHUNK_BINS = 4096
 
 
 @dataclass(frozen=True)
@@ -89,33 +90,47 @@ def check_lpm_options(n: int, degree: int, n_in: int, n_out: int) -> int:
     return q
 
 
+@functools.lru_cache(maxsize=16)
+def _window_kernel(n: int, n_moments: int, B: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Banded Toeplitz weights of :func:`_window_sums` for blocks of B >= 2n bins.
+
+    ``T[t, q, i] = ((t - i - n)/n)**q`` for ``0 <= t - i <= 2n``: output i of a block
+    draws on input t of that block (``t < B``, first matrix) and of the next one
+    (``t >= B``, second matrix, its first 2n rows).
+    """
+    r = np.arange(-n, n + 1) / n
+    T = np.zeros((2 * B, n_moments, B))
+    for q in range(n_moments):
+        w = r ** q
+        for i in range(B):
+            T[i:i + 2 * n + 1, q, i] = w
+    T.flags.writeable = False
+    return T[:B].reshape(B, -1), T[B:B + 2 * n].reshape(2 * n, -1)
+
+
 def _window_sums(Z: NDArray[np.complex128], n: int, n_moments: int, K: int) -> NDArray[np.complex128]:
     """Windowed sums ``S[q, c, k] = sum_{r=-n}^{n} (r/n)^q Z[c, k+n+r]``.
 
-    Z has shape (C, K+2n); the result (n_moments, C, K).
+    Z has shape (C, K+2n); the result (n_moments, C, K). The sums are a correlation
+    with 2n+1 taps, done as two real matrix products per block of B bins (BLAS):
+    the real and imaginary parts of every signal are rows, the weights a banded
+    Toeplitz matrix (:func:`_window_kernel`).
     """
     C = Z.shape[0]
-    r = np.arange(1, n + 1) / n
-    pair_sum = np.empty((n + 1, C, K), dtype=np.complex128)
-    pair_sum[0] = Z[:, n:n + K]
-    for j in range(1, n + 1):
-        np.add(Z[:, n + j:n + j + K], Z[:, n - j:n - j + K], out=pair_sum[j])
-    out = np.empty((n_moments, C, K), dtype=np.complex128)
-    q_even = np.arange(0, n_moments, 2)
-    w_even = np.zeros((q_even.size, n + 1))
-    w_even[:, 1:] = r[None, :] ** q_even[:, None]
-    w_even[0, 0] = 1.0  # r = 0 contributes to the zeroth moment only
-    flat = pair_sum.reshape(n + 1, -1).view(np.float64)
-    out[q_even] = (w_even @ flat).view(np.complex128).reshape(q_even.size, C, K)
-    q_odd = np.arange(1, n_moments, 2)
-    if q_odd.size:
-        pair_diff = pair_sum[1:]  # reuse the buffer
-        for j in range(1, n + 1):
-            np.subtract(Z[:, n + j:n + j + K], Z[:, n - j:n - j + K], out=pair_diff[j - 1])
-        w_odd = r[None, :] ** q_odd[:, None]
-        flat = pair_diff.reshape(n, -1).view(np.float64)
-        out[q_odd] = (w_odd @ flat).view(np.complex128).reshape(q_odd.size, C, K)
-    return out
+    B = max(2 * n, 16)
+    nb = -(-K // B)
+    X = np.zeros((2, C, (nb + 1) * B))
+    X[0, :, :Z.shape[1]] = Z.real
+    X[1, :, :Z.shape[1]] = Z.imag
+    X = X.reshape(2 * C, nb + 1, B)
+    T1, T2 = _window_kernel(n, n_moments, B)
+    o = X[:, :-1] @ T1                                    # (2C, nb, n_moments * B)
+    o += X[:, 1:, :2 * n] @ T2
+    o = o.reshape(2, C, nb, n_moments, B)
+    out = np.empty((n_moments, C, nb, B), dtype=np.complex128)
+    out.real = o[0].transpose(2, 0, 1, 3)
+    out.imag = o[1].transpose(2, 0, 1, 3)
+    return out.reshape(n_moments, C, nb * B)[:, :, :K]
 
 
 def _moment_index(n_in: int) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]:
@@ -224,7 +239,11 @@ def _lpm_core(Ua: NDArray[np.complex128], Ya: NDArray[np.complex128], n: int, de
             L[J, J] = ljj
             if J + 1 < Q:
                 L[J + 1:, J] = (col[1:] - np.einsum("imk,mk->ik", L[J + 1:, :J], np.conj(Lj))) / ljj
-            W[J] = (mUY[s_of[j], i_of[j]] - np.einsum("mk,mok->ok", Lj, W[:J])) / ljj
+            acc = mUY[s_of[j], i_of[j]] - Lj[0] * W[0]
+            for m in range(1, J):
+                acc -= Lj[m] * W[m]
+            acc /= ljj
+            W[J] = acc
 
         # Back substitution for the trailing (G_0) block only: L_tt^H theta = W_t.
         t0 = Q - n_in

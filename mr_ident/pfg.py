@@ -37,13 +37,11 @@ def _column_gain(col: NDArray[np.complex128]) -> tuple[NDArray, NDArray, NDArray
 
 
 def half_to_full(X_half: NDArray, n_samples: int) -> NDArray:
-    """Extend values on bins 0..N//2 to all N bins by conjugate symmetry."""
-    k = np.arange(n_samples)
-    idx = np.minimum(k, n_samples - k)
-    out = X_half[idx]
-    mirror = k > n_samples // 2
-    if np.iscomplexobj(out):
-        out[mirror] = np.conj(out[mirror])
+    """Extend values on bins 0..N//2 (axis 0) to all N bins by conjugate symmetry."""
+    h = n_samples // 2
+    out = np.empty((n_samples,) + X_half.shape[1:], dtype=X_half.dtype)
+    out[:h + 1] = X_half[:h + 1]
+    out[h + 1:] = np.conj(X_half[n_samples - h - 1:0:-1]) if np.iscomplexobj(X_half) else X_half[n_samples - h - 1:0:-1]
     return out
 
 
@@ -128,7 +126,7 @@ def pfg_from_plant(P_half: ArrayLike, K_low: ArrayLike, ratio: int, n_samples: i
 
 
 #: High-rate bins per block in :func:`pfg_from_plant`.
-PFG_BLOCK = 65536
+PFG_BLOCK = 16384
 
 
 def _aliases(X_full: NDArray, kappa: NDArray, F: int, M: int) -> NDArray:
