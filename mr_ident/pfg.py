@@ -50,21 +50,21 @@ def _controller_factors(kappa: NDArray, ratio: int, n_samples: int, phase: int, 
     """``a_l, b_l`` of the rank-n_u lifted controller ``C = A K B^T`` at the aliases of kappa.
 
     ``a_l = H0(kl) exp(-2j pi kl (phase+delay)/N) / F`` and ``b_l = exp(2j pi kl phase/N)``
-    with ``kl = kappa + l M``; shapes (K, F). ``b`` is None when phase is 0 (all ones).
+    with ``kl = kappa + l M``; shapes (F, K). ``b`` is None when phase is 0 (all ones).
     """
     F, N = ratio, n_samples
     l = np.arange(F)
     s = phase + delay
     # exp(-2j pi kl x / N) = exp(-2j pi kappa x / N) * exp(-2j pi l x / F): one exp per bin.
-    z = np.exp(-2j * np.pi * kappa / N)[:, None] * np.exp(-2j * np.pi * l / F)[None, :]   # (K, F)
+    z = np.exp(-2j * np.pi * l / F)[:, None] * np.exp(-2j * np.pi * kappa / N)[None, :]   # (F, K)
     a = np.full_like(z, 1.0 / F)
     for _ in range(F - 1):                                   # Horner: (1 + z + ... + z^(F-1)) / F
         a = 1.0 / F + z * a
     if s:
-        a *= np.exp(-2j * np.pi * kappa * s / N)[:, None] * np.exp(-2j * np.pi * l * s / F)[None, :]
+        a *= np.exp(-2j * np.pi * l * s / F)[:, None] * np.exp(-2j * np.pi * kappa * s / N)[None, :]
     if not phase:
         return a, None
-    b = np.exp(2j * np.pi * kappa * phase / N)[:, None] * np.exp(2j * np.pi * l * phase / F)[None, :]
+    b = np.exp(2j * np.pi * l * phase / F)[:, None] * np.exp(2j * np.pi * kappa * phase / N)[None, :]
     return a, b
 
 
@@ -129,10 +129,11 @@ def pfg_from_plant(P_half: ArrayLike, K_low: ArrayLike, ratio: int, n_samples: i
 PFG_BLOCK = 16384
 
 
-def _aliases(X_full: NDArray, kappa: NDArray, F: int, M: int) -> NDArray:
-    """``X_full[(kappa + l M) mod N]`` for consecutive kappa, shape (K, F, ...)."""
+def _aliases(X_full: NDArray, kappa: NDArray, F: int, M: int, axis: int = 1) -> NDArray:
+    """``X_full[(kappa + l M) mod N]`` for consecutive kappa, l on ``axis`` (shape (K, F, ...)
+    by default)."""
     return np.stack([np.take(X_full, np.arange(kappa[0] + l * M, kappa[-1] + 1 + l * M), axis=0, mode="wrap")
-                     for l in range(F)], axis=1)
+                     for l in range(F)], axis=axis)
 
 
 def _pfg_block(kappa: NDArray, P_full: NDArray, sd_full: NDArray | None, Kl: NDArray, F: int, N: int,
@@ -143,11 +144,11 @@ def _pfg_block(kappa: NDArray, P_full: NDArray, sd_full: NDArray | None, Kl: NDA
     Kk = np.take(Kl, kappa, axis=0, mode="wrap")                      # (K, nu, ny)
     a, b = _controller_factors(kappa, F, N, phase, delay)
     if ny == nu == 1:
-        sd = None if sd_full is None else _aliases(sd_full[:, 0, 0], kappa, F, M)
-        return _pfg_siso(_aliases(P_full[:, 0, 0], kappa, F, M), Kk[:, 0, 0], a, b, sd)
+        sd = None if sd_full is None else _aliases(sd_full[:, 0, 0], kappa, F, M, axis=0)
+        return _pfg_siso(_aliases(P_full[:, 0, 0], kappa, F, M, axis=0), Kk[:, 0, 0], a, b, sd)
     Pl = _aliases(P_full, kappa, F, M)                                 # (K, F, ny, nu)
-    if b is None:
-        b = np.ones_like(a)
+    a = a.T
+    b = np.ones_like(a) if b is None else b.T
     PK = Pl @ Kk[:, None]                                              # (K, F, ny, ny)
     Z = np.einsum("kl,klij->kij", a * b, PK)
     Minv = np.linalg.inv(np.eye(ny)[None] + Z)                         # (K, ny, ny)
@@ -176,23 +177,24 @@ def _pfg_siso(Pl: NDArray, Kk: NDArray, a: NDArray, b: NDArray | None, sd: NDArr
               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Scalar form of :func:`pfg_from_plant` (n_y = n_u = 1): elementwise, no stacked matmuls.
 
-    Pl, a, b, sd have shape (K, F) (``b`` None means all ones), Kk (K,)."""
-    aPK = a * (Pl * Kk[:, None])                                # a_l P_l K, (K, F)
-    minv = 1.0 / (1.0 + np.sum(aPK if b is None else aPK * b, axis=1))
-    mbp0 = minv * Pl[:, 0] if b is None else minv * b[:, 0] * Pl[:, 0]
-    col = aPK * -mbp0[:, None]
-    col[:, 0] += Pl[:, 0]
-    gain = np.sqrt(np.sum(col.real ** 2 + col.imag ** 2, axis=1))
+    Pl, a, b, sd have shape (F, K) (aliases first, so sums over them are vector adds;
+    ``b`` None means all ones), Kk (K,)."""
+    aPK = a * (Pl * Kk)                                         # a_l P_l K
+    minv = 1.0 / (1.0 + np.sum(aPK if b is None else aPK * b, axis=0))
+    mbp0 = minv * Pl[0] if b is None else minv * b[0] * Pl[0]
+    col = aPK * -mbp0
+    col[0] += Pl[0]
+    gain = np.sqrt(np.sum(col.real ** 2 + col.imag ** 2, axis=0))
     if sd is None:
         return gain, np.full(gain.shape, np.nan)
     with np.errstate(invalid="ignore", divide="ignore"):
-        u = col / gain[:, None]
-    w = np.sum(np.conj(u) * aPK, axis=1) * minv
-    acoef = np.conj(u) - (w[:, None] if b is None else w[:, None] * b)
-    bcoef = a * -(Kk * mbp0)[:, None]
-    bcoef[:, 0] += 1.0
+        u = col / gain
+    w = np.sum(np.conj(u) * aPK, axis=0) * minv
+    acoef = np.conj(u) - (w if b is None else w * b)
+    bcoef = a * -(Kk * mbp0)
+    bcoef[0] += 1.0
     ab = acoef * bcoef * sd
-    var = 0.5 * np.sum(ab.real ** 2 + ab.imag ** 2, axis=1)
+    var = 0.5 * np.sum(ab.real ** 2 + ab.imag ** 2, axis=0)
     return gain, np.sqrt(var)
 
 
