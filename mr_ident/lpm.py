@@ -218,7 +218,7 @@ def _lpm_core(Ua: NDArray[np.complex128], Ya: NDArray[np.complex128], n: int, de
         # solve L W = K^H Y, left-looking, vectorised over bins. The transient columns
         # are known: L_TT is constant and L_GT = A_GT L_TT^-T, so eliminating the
         # transient costs nothing beyond a longer inner product in each G column.
-        L = np.zeros((Q, Q, Kc), dtype=np.complex128)
+        L = np.empty((Q, Q, Kc), dtype=np.complex128)                      # lower triangle used
         W = np.empty((Q, n_out, Kc), dtype=np.complex128)
         L[:T, :T] = L_TT[:, :, None]
         A_GT = mU[mom_gt, i_of[None, :]]                                  # (T, P, Kc)
@@ -266,9 +266,10 @@ def _lpm_core(Ua: NDArray[np.complex128], Ya: NDArray[np.complex128], n: int, de
                 AI[a, b] = sum(np.conj(Li[m, a]) * Li[m, b] for m in range(b, n_in))
                 AI[b, a] = np.conj(AI[a, b])
         # V^H V = Y^H Y - W^H W; C_v = (V^H V)^T / q, upper triangle then mirrored.
+        Wc = np.conj(W)
         vhv = mYY
-        for j in range(Q):
-            vhv -= np.conj(W[j, ou]) * W[j, ov]
+        for p in range(ou.size):
+            vhv[p] -= np.einsum("jk,jk->k", Wc[:, ou[p]], W[:, ov[p]])
         C = Cv[:, :, k0:k0 + Kc]
         C[ov, ou] = vhv / q
         C[ou, ov] = np.conj(C[ov, ou])
