@@ -60,6 +60,8 @@ PARAMETERS: dict[str, Param] = {
     "record_path": Param("MCAP file the node records its three input topics to; empty: off"),
     "reorder_blocks": Param("blocks held per stream waiting for a missing one before it is a gap", 0, 10_000),
     "stall_timeout_s": Param("a stream silent this long is reported as stalled", 1e-3, 1e5),
+    "identify_threads": Param("threads each identification runs on (0: every CPU available to the "
+                              "process); ingestion has its own thread", 0, 1024),
 }
 
 
@@ -83,6 +85,7 @@ class IdentConfig:
     record_path: str = ""
     reorder_blocks: int = 8
     stall_timeout_s: float = 2.0
+    identify_threads: int = 0
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -155,6 +158,11 @@ class IdentConfig:
     def phase(self) -> int | None:
         """The configured lifting phase, None for "auto"."""
         return None if self.lifting_phase == "auto" else int(self.lifting_phase)
+
+    @property
+    def workers(self) -> int | None:
+        """``identify(workers=...)``: None (every CPU) for ``identify_threads = 0``."""
+        return self.identify_threads or None
 
     @property
     def controller(self) -> TransferMatrix | None:
