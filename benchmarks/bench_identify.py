@@ -48,22 +48,27 @@ def straightforward_lpm_core(Ua, Ya, n, degree, q, workers=1):
     return G.transpose(1, 2, 0), Cv.transpose(1, 2, 0), Ainv.transpose(1, 2, 0), 0
 
 
-def measure(fn, repeat: int):
-    """Best wall time of ``repeat`` untraced runs, then peak traced memory of one more run.
-
-    Timing and memory are separate passes: tracemalloc slows allocation-heavy code.
-    """
-    best = np.inf
-    out = None
+def best_times(fns: dict, repeat: int) -> tuple[dict, dict]:
+    """Best wall time of ``repeat`` untraced runs of each function, the runs interleaved
+    (a, b, c, a, b, c, ...) so that a slow phase of a shared machine hits all alike;
+    also the last result of each."""
+    best = {k: np.inf for k in fns}
+    out = {}
     for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t0)
+        for k, fn in fns.items():
+            t0 = time.perf_counter()
+            out[k] = fn()
+            best[k] = min(best[k], time.perf_counter() - t0)
+    return best, out
+
+
+def peak_mb(fn) -> float:
+    """Peak traced memory of one run (separate from timing: tracemalloc slows allocation)."""
     tracemalloc.start()
     fn()
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
-    return best, peak / 2**20, out
+    return peak / 2**20
 
 
 def main() -> None:
@@ -73,30 +78,39 @@ def main() -> None:
     ap.add_argument("--skip-reference", action="store_true", help="do not run the straightforward LPM")
     args = ap.parse_args()
     model = load_model(ROOT / "config" / "paper_example.yaml")
-    t_sim, m_sim, sim = measure(lambda: simulate(model, duration=args.duration, rng=np.random.default_rng(0)),
-                                args.repeat)
+    sim_fn = lambda: simulate(model, duration=args.duration, rng=np.random.default_rng(0))  # noqa: E731
+    t_sim, sim = best_times({"sim": sim_fn}, args.repeat)
+    t_sim, sim, m_sim = t_sim["sim"], sim["sim"], peak_mb(sim_fn)
     N = sim.r.shape[0]
     K_low = model.controller_frf(N // 3)
     def run(workers=None):
         return identify(sim.r, sim.u, sim.y, fs_high=240.0, ratio=3, controller_low=K_low,
                         keep_lifted=False, workers=workers)
 
+    def reference():
+        with mock.patch.object(sys.modules["mr_ident.identify"], "_lpm_core", straightforward_lpm_core):
+            return run(1)
+
     identify(sim.r[:3000], sim.u[:3000], sim.y[:3000], fs_high=240.0, ratio=3)   # warm-up
-    t_ours, m_ours, res = measure(run, args.repeat)
-    t_one, m_one, _ = measure(lambda: run(1), args.repeat)
+    fns = {"ours": run, "one": lambda: run(1)}
+    if not args.skip_reference:
+        fns["ref"] = reference
+    t, out = best_times(fns, args.repeat)
+    mem = {k: peak_mb(fn) for k, fn in fns.items()}
+    res = out["ours"]
     truth = model.plant_frf(N)[1:]
     err = np.median(np.abs(res.plant.response - truth) / np.abs(truth))
-    print(f"N = {N} samples ({args.duration:g} s at 240 Hz), F = 3, n = 8, R = 2")
+    print(f"N = {N} samples ({args.duration:g} s at 240 Hz), F = 3, n = 8, R = 2; best of {args.repeat} "
+          f"interleaved runs each")
     print(f"simulate              {t_sim:7.3f} s   peak {m_sim:7.1f} MB")
-    print(f"identify freq-lifted  {t_ours:7.3f} s   peak {m_ours:7.1f} MB   (P_h, std, PFG; median rel. error {err:.1e}; "
-          f"{resolve_workers(None)} threads)")
-    print(f"  same, one thread    {t_one:7.3f} s   peak {m_one:7.1f} MB")
+    print(f"identify freq-lifted  {t['ours']:7.3f} s   peak {mem['ours']:7.1f} MB   (P_h, std, PFG; median rel. "
+          f"error {err:.1e}; {resolve_workers(None)} threads)")
+    print(f"  same, one thread    {t['one']:7.3f} s   peak {mem['one']:7.1f} MB")
     if not args.skip_reference:
-        with mock.patch.object(sys.modules["mr_ident.identify"], "_lpm_core", straightforward_lpm_core):
-            t_ref, m_ref, ref = measure(lambda: run(1), 1)
-        d = np.max(np.abs(ref.plant.response - res.plant.response) / np.abs(truth))
-        print(f"straightforward QR    {t_ref:7.3f} s   peak {m_ref:7.1f} MB   (one thread; max rel. difference to ours {d:.1e})")
-        print(f"speed-up ratio        {t_ref / t_ours:7.1f} x   ({t_ref / t_one:.1f} x on one thread each)")
+        d = np.max(np.abs(out["ref"].plant.response - res.plant.response) / np.abs(truth))
+        print(f"straightforward QR    {t['ref']:7.3f} s   peak {mem['ref']:7.1f} MB   (one thread; max rel. "
+              f"difference to ours {d:.1e})")
+        print(f"speed-up ratio        {t['ref'] / t['ours']:7.1f} x   ({t['ref'] / t['one']:.1f} x on one thread each)")
 
 
 if __name__ == "__main__":
