@@ -238,7 +238,12 @@ def _lpm_core(Ua: NDArray[np.complex128], Ya: NDArray[np.complex128], n: int, de
             ljj = np.sqrt(np.where(tiny, 1.0, d))
             L[J, J] = ljj
             if J + 1 < Q:
-                L[J + 1:, J] = (col[1:] - np.einsum("imk,mk->ik", L[J + 1:, :J], np.conj(Lj))) / ljj
+                Ljc = np.conj(Lj)
+                acc = col[1:] - L[J + 1:, 0] * Ljc[0]
+                for m in range(1, J):
+                    acc -= L[J + 1:, m] * Ljc[m]
+                acc /= ljj
+                L[J + 1:, J] = acc
             acc = mUY[s_of[j], i_of[j]] - Lj[0] * W[0]
             for m in range(1, J):
                 acc -= Lj[m] * W[m]
