@@ -90,47 +90,78 @@ def check_lpm_options(n: int, degree: int, n_in: int, n_out: int) -> int:
     return q
 
 
-@functools.lru_cache(maxsize=16)
-def _window_kernel(n: int, n_moments: int, B: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Banded Toeplitz weights of :func:`_window_sums` for blocks of B >= 2n bins.
+@dataclass(frozen=True)
+class _Kernel:
+    """Weights ``w[q, r]`` (r = -n..n) of :func:`_window_sums` as banded Toeplitz blocks.
 
-    ``T[t, q, i] = ((t - i - n)/n)**q`` for ``0 <= t - i <= 2n``: output i of a block
-    draws on input t of that block (``t < B``, first matrix) and of the next one
-    (``t >= B``, second matrix, its first 2n rows).
+    For blocks of B >= 2n bins, output i of a block draws on input t of that block
+    (``t < B``: ``first[t, (q, i)] = w[q, t - i]``) and of the next one (``t >= B``:
+    ``second``, 2n rows).
     """
-    r = np.arange(-n, n + 1) / n
-    T = np.zeros((2 * B, n_moments, B))
-    for q in range(n_moments):
-        w = r ** q
+
+    first: NDArray[np.float64]
+    second: NDArray[np.float64]
+    n_out: int
+    B: int
+
+    @classmethod
+    def of(cls, w: NDArray[np.float64]) -> _Kernel:
+        nq, L = w.shape
+        n = (L - 1) // 2
+        B = max(2 * n, 16)
+        T = np.zeros((2 * B, nq, B))
         for i in range(B):
-            T[i:i + 2 * n + 1, q, i] = w
-    T.flags.writeable = False
-    return T[:B].reshape(B, -1), T[B:B + 2 * n].reshape(2 * n, -1)
+            T[i:i + L, :, i] = w.T
+        T.flags.writeable = False
+        return cls(T[:B].reshape(B, -1), T[B:B + 2 * n].reshape(2 * n, -1), nq, B)
 
 
-def _window_sums(Z: NDArray[np.complex128], n: int, n_moments: int, K: int) -> NDArray[np.complex128]:
-    """Windowed sums ``S[q, c, k] = sum_{r=-n}^{n} (r/n)^q Z[c, k+n+r]``.
+@functools.lru_cache(maxsize=16)
+def _kernels(n: int, degree: int) -> tuple[_Kernel, _Kernel, _Kernel, _Kernel]:
+    """Window kernels of :func:`_lpm_core` for half-width n and degree R.
 
-    Z has shape (C, K+2n); the result (n_moments, C, K). The sums are a correlation
-    with 2n+1 taps, done as two real matrix products per block of B bins (BLAS):
-    the real and imaginary parts of every signal are rows, the weights a banded
-    Toeplitz matrix (:func:`_window_kernel`).
+    With ``x = r/n`` and ``phi_u`` the polynomials orthonormal on the window
+    (``phi = V L_TT^-T``, ``V[r, t] = x^t``, ``L_TT L_TT^T = V^T V``):
+
+    * ``x^q``, q = 0..2R, for the products ``conj(U_i) U_j`` (the G-G block);
+    * ``phi_u(r) x^s``, u = 0..R, s = R..0, for ``conj(U_i)``: the G-transient block of
+      the Cholesky factor, ``L_GT = A_GT L_TT^-T``, directly;
+    * ``x^s``, s = 0..R, for ``conj(U_i) Y_o`` (the right-hand side of G);
+    * ``phi_u``, u = 0..R, for ``Y_o``: the transient rows of the forward solve directly.
+    """
+    x = np.arange(-n, n + 1) / n
+    T = degree + 1
+    V = x[:, None] ** np.arange(T)[None, :]
+    phi = V @ np.linalg.inv(np.linalg.cholesky(V.T @ V)).T                 # (2n+1, T)
+    powers = x[None, :] ** np.arange(2 * degree + 1)[:, None]              # (2R+1, 2n+1)
+    s_desc = np.arange(degree, -1, -1)
+    phi_x = (phi.T[:, None, :] * powers[s_desc][None, :, :]).reshape(T * T, -1)
+    return (_Kernel.of(powers), _Kernel.of(phi_x), _Kernel.of(powers[:T]), _Kernel.of(phi.T.copy()))
+
+
+def _window_sums(Z: NDArray[np.complex128], kernel: _Kernel, K: int) -> NDArray[np.complex128]:
+    """Windowed sums ``S[q, c, k] = sum_{r=-n}^{n} w[q, r] Z[c, k+n+r]``.
+
+    Z has shape (C, K+2n); the result (n_q, C, K). The sums are a correlation with
+    2n+1 taps, done as two real matrix products per block of B bins (BLAS): the
+    real and imaginary parts of every signal are rows, the weights a banded
+    Toeplitz matrix (:class:`_Kernel`).
     """
     C = Z.shape[0]
-    B = max(2 * n, 16)
+    B, nq = kernel.B, kernel.n_out
+    two_n = kernel.second.shape[0]
     nb = -(-K // B)
     X = np.zeros((2, C, (nb + 1) * B))
     X[0, :, :Z.shape[1]] = Z.real
     X[1, :, :Z.shape[1]] = Z.imag
     X = X.reshape(2 * C, nb + 1, B)
-    T1, T2 = _window_kernel(n, n_moments, B)
-    o = X[:, :-1] @ T1                                    # (2C, nb, n_moments * B)
-    o += X[:, 1:, :2 * n] @ T2
-    o = o.reshape(2, C, nb, n_moments, B)
-    out = np.empty((n_moments, C, nb, B), dtype=np.complex128)
+    o = X[:, :-1] @ kernel.first                          # (2C, nb, nq * B)
+    o += X[:, 1:, :two_n] @ kernel.second
+    o = o.reshape(2, C, nb, nq, B)
+    out = np.empty((nq, C, nb, B), dtype=np.complex128)
     out.real = o[0].transpose(2, 0, 1, 3)
     out.imag = o[1].transpose(2, 0, 1, 3)
-    return out.reshape(n_moments, C, nb * B)[:, :, :K]
+    return out.reshape(nq, C, nb * B)[:, :, :K]
 
 
 def _moment_index(n_in: int) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]:
@@ -175,10 +206,10 @@ def _lpm_core(Ua: NDArray[np.complex128], Ya: NDArray[np.complex128], n: int, de
     T = R + 1                     # transient unknowns
     P = T * n_in                  # G unknowns, ordered s = R..0 so that G_0 trails
     Q = T + P                     # all unknowns: transient first, its Cholesky factor is constant
+    k_uu, k_u, k_uy, k_y = _kernels(n, degree)
     rr = np.arange(-n, n + 1) / n
     V = rr[:, None] ** np.arange(T)[None, :]
     L_TT = np.linalg.cholesky(V.T @ V)
-    L_TT_inv = np.linalg.inv(L_TT)
     iu, ju, pair = _moment_index(n_in)
     npair = iu.size
     s_of = np.repeat(np.arange(R, -1, -1), n_in)
@@ -186,7 +217,6 @@ def _lpm_core(Ua: NDArray[np.complex128], Ya: NDArray[np.complex128], n: int, de
     mom_ab = s_of[:, None] + s_of[None, :]
     pair_ab = pair[i_of[:, None], i_of[None, :]]
     conj_ab = i_of[:, None] > i_of[None, :]
-    mom_gt = s_of[None, :] + np.arange(T)[:, None]          # (T, P): moment of A_GT[a, t]
     ou, ov = np.triu_indices(n_out)
     nio = n_in * n_out
 
@@ -200,31 +230,24 @@ def _lpm_core(Ua: NDArray[np.complex128], Ya: NDArray[np.complex128], n: int, de
         Uc = Ua[k0:k0 + width].T                                           # (n_in, width)
         Yc = Ya[k0:k0 + width].T                                           # (n_out, width)
         Ucj = np.conj(Uc)
-        # Product signals, grouped by the moments they need: 0..2R and 0..R.
-        ZA = np.empty((npair + n_in, width), dtype=np.complex128)          # conj(U_i) U_j, conj(U_i)
-        np.multiply(Ucj[iu], Uc[ju], out=ZA[:npair])
-        ZA[npair:] = Ucj
-        ZB = np.empty((nio + n_out, width), dtype=np.complex128)           # conj(U_i) Y_o, Y_o
-        np.multiply(Ucj[:, None, :], Yc[None, :, :], out=ZB[:nio].reshape(n_in, n_out, width))
-        ZB[nio:] = Yc
-        mA = _window_sums(ZA, n, 2 * R + 1, Kc)
-        mB = _window_sums(ZB, n, R + 1, Kc)
+        # Product signals and their windowed sums (see _kernels).
+        UU = np.multiply(Ucj[iu], Uc[ju])                                  # conj(U_i) U_j, i <= j
+        UY = np.multiply(Ucj[:, None, :], Yc[None, :, :]).reshape(nio, width)   # conj(U_i) Y_o
+        mUU = _window_sums(UU, k_uu, Kc)                                   # (2R+1, npair, Kc)
+        mUY = _window_sums(UY, k_uy, Kc).reshape(R + 1, n_in, n_out, Kc)
+        L_GT = _window_sums(Ucj, k_u, Kc).reshape(T, P, Kc)                # L_GT[u, (s, i)]
+        W_T = _window_sums(Yc, k_y, Kc)                                    # (T, n_out, Kc)
         mYY = _moving_sum(np.conj(Yc[ou]) * Yc[ov], n, Kc)                # (npair_o, Kc)
-        mUU, mU = mA[:, :npair], mA[:, npair:]
-        mUY = mB[:, :nio].reshape(R + 1, n_in, n_out, Kc)
-        mY = mB[:, nio:]
 
         # Cholesky L L^H of the normal matrix [[A_TT, A_TG], [A_GT, A_GG]] and forward
         # solve L W = K^H Y, left-looking, vectorised over bins. The transient columns
-        # are known: L_TT is constant and L_GT = A_GT L_TT^-T, so eliminating the
-        # transient costs nothing beyond a longer inner product in each G column.
+        # are known: L_TT is constant and L_GT, W_T came out of the window sums, so
+        # eliminating the transient costs only a longer inner product per G column.
         L = np.empty((Q, Q, Kc), dtype=np.complex128)                      # lower triangle used
         W = np.empty((Q, n_out, Kc), dtype=np.complex128)
         L[:T, :T] = L_TT[:, :, None]
-        A_GT = mU[mom_gt, i_of[None, :]]                                  # (T, P, Kc)
-        for u in range(T):
-            L[T:, u] = sum(L_TT_inv[u, t] * A_GT[t] for t in range(u + 1))
-            W[u] = sum(L_TT_inv[u, t] * mY[t] for t in range(u + 1))
+        L[T:, :T] = L_GT.transpose(1, 0, 2)
+        W[:T] = W_T
         bad = np.zeros(Kc, dtype=bool)
         for j in range(P):
             J = T + j
