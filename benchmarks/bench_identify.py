@@ -20,6 +20,7 @@ from unittest import mock
 import numpy as np
 
 import sys
+from mr_ident._alloc import keep_freed_memory
 from mr_ident._parallel import resolve_workers
 from mr_ident.identify import identify  # noqa: E402  (also loads the module patched below)
 from mr_ident.model import load_model
@@ -90,6 +91,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--skip-reference", action="store_true", help="do not run the straightforward LPM")
     args = ap.parse_args()
+    keep_freed_memory()           # as the mr-ident and mr-ident-node programs do
     model = load_model(ROOT / "config" / "paper_example.yaml")
     sim_fn = lambda: simulate(model, duration=args.duration, rng=np.random.default_rng(0))  # noqa: E731
     t_sim, sim = best_times({"sim": sim_fn}, args.repeat)

@@ -15,6 +15,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ._alloc import keep_freed_memory
 from .errors import ConfigError, DataError, MrIdentError
 from .identify import METHODS, identify
 from .model import Model, load_model
@@ -317,6 +318,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    keep_freed_memory()
     commands = {"simulate": cmd_simulate, "identify": cmd_identify, "paper": cmd_paper, "replay": cmd_replay,
                 "record": cmd_record, "demo": cmd_demo, "diagnose": cmd_diagnose}
     try:

@@ -24,6 +24,7 @@ from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 from std_msgs.msg import Float64MultiArray
 
+from .._alloc import keep_freed_memory
 from ..config import PARAMETERS, IdentConfig
 from ..errors import MrIdentError
 from ..live import Estimate, estimate, publish_grid
@@ -313,6 +314,7 @@ class IdentNode(Node):
 def main(argv: Sequence[str] | None = None) -> int:
     """Console script ``mr-ident-node`` (accepts ``--ros-args ...``)."""
     args = list(sys.argv if argv is None else argv)
+    keep_freed_memory()
     rclpy.init(args=args)
     node = None
     try:
