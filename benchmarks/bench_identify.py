@@ -94,8 +94,8 @@ def main() -> None:
     keep_freed_memory()           # as the mr-ident and mr-ident-node programs do
     model = load_model(ROOT / "config" / "paper_example.yaml")
     sim_fn = lambda: simulate(model, duration=args.duration, rng=np.random.default_rng(0))  # noqa: E731
-    t_sim, sim = best_times({"sim": sim_fn}, args.repeat)
-    t_sim, sim, m_sim = t_sim["sim"], sim["sim"], peak_mb(sim_fn)
+    best, out = best_times({"sim": sim_fn}, args.repeat)
+    t_sim, sim, m_sim = best["sim"], out["sim"], peak_mb(sim_fn)
     N = sim.r.shape[0]
     K_low = model.controller_frf(N // 3)
     def run(workers=None):

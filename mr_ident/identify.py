@@ -95,7 +95,8 @@ def _indirect(G: NDArray, Cv: NDArray, Ainv: NDArray, n_y: int
     return P, row, col
 
 
-#: Low-rate bins per block of the freq-lifted path (bounds memory, ~20 MB per block in flight).
+#: Low-rate bins per block of the freq-lifted path: bounds the memory in flight; the
+#: blocks run on the worker threads.
 BLOCK_BINS = 8192
 
 
