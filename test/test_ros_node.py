@@ -226,6 +226,7 @@ def test_dropped_block_is_reported_and_excluded(graph):
     level, message, values = lis.last_diag()
     assert level == b"\x01" or level == 1, (level, message)
     assert "gap" in message or "stalled" in message
+    assert float(values["warm_up_s"]) > 0.0                                 # done before the estimates
     P = node.last_estimate.identification.plant
     Ptrue = model.plant_discrete().freqresp(P.frequency)
     assert np.median(np.abs(P.response - Ptrue) / np.abs(Ptrue)) < 1e-3     # 10 s window: bias ~1e-4

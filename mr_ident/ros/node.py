@@ -3,7 +3,8 @@
 A thin adapter: messages -> :func:`~mr_ident.ros.messages.block_of` ->
 :class:`~mr_ident.stream.Aligner` (executor thread); every ``update_period_s`` the
 latest aligned window goes to a worker thread that runs
-:func:`~mr_ident.live.estimate` and publishes. Parameters are the fields of
+:func:`~mr_ident.live.estimate` and publishes (the first one waits for a
+:func:`~mr_ident.live.warm_up` started with the node). Parameters are the fields of
 :class:`~mr_ident.config.IdentConfig`, validated through it on every set.
 """
 
@@ -27,7 +28,7 @@ from std_msgs.msg import Float64MultiArray
 from .._alloc import keep_freed_memory
 from ..config import PARAMETERS, IdentConfig
 from ..errors import MrIdentError
-from ..live import Estimate, estimate, publish_grid
+from ..live import Estimate, estimate, publish_grid, warm_up
 from ..recording import McapRecorder
 from ..stream import STREAMS, Aligner, BlockError, Window
 from .messages import BLOCK_QOS, BLOCK_TYPE, RESULT_QOS, block_of, frf_msgs, qos_dict, vector_msg
@@ -81,6 +82,7 @@ class IdentNode(Node):
         self._last_error = ""
         self._last_error_time = 0.0
         self._last_end = -1
+        self._warm_up = ""                                 # "" while running, then its result
         self._busy = False
         self._stopping = False
         self._worker_thread: threading.Thread | None = None
@@ -102,6 +104,12 @@ class IdentNode(Node):
         self.create_timer(1.0, self._publish_diagnostics)
         if self.config.record_path:
             self._open_recorder(self.config.record_path)
+        # One identification of a synthetic full-size window, so that the first real one
+        # does not pay the one-time costs (see live.warm_up); estimates wait for it.
+        self._busy = True
+        self._worker_thread = threading.Thread(target=self._warm, args=(self.config,), daemon=True,
+                                               name="mr_ident-warm-up")
+        self._worker_thread.start()
 
     # -- parameters ------------------------------------------------------------------
     def _on_set(self, params: list[Parameter]) -> SetParametersResult:
@@ -230,6 +238,18 @@ class IdentNode(Node):
         finally:
             self._busy = False
 
+    def _warm(self, cfg: IdentConfig) -> None:
+        try:
+            seconds = warm_up(cfg)
+            self._warm_up = f"{seconds:.4f}"
+            self.get_logger().info(f"warm-up: one identification of {cfg.window_samples} samples "
+                                   f"took {seconds:.3f} s")
+        except Exception as err:          # only a speed-up: the node works without it
+            self._warm_up = f"failed: {err}"
+            self.get_logger().warning(f"warm-up identification failed: {err}")
+        finally:
+            self._busy = False
+
     def _publish(self, est: Estimate, cfg: IdentConfig) -> None:
         plant = est.identification.plant
         picks = publish_grid(plant.frequency.size, cfg.publish_points)
@@ -282,6 +302,7 @@ class IdentNode(Node):
                   "last_update_age_s": f"{now - est_t:.3f}" if est is not None else "never",
                   "recording": self._recorder.path.as_posix() if self._recorder else "",
                   "window_restarts": self._aligner.restarts,
+                  "warm_up_s": self._warm_up or "running",
                   "recent_anomalies": " | ".join(recent[-8:])}
         if est is not None:
             values.update({"compute_s": f"{est.compute_s:.4f}", "lifting_phase": est.phase,
