@@ -104,12 +104,21 @@ class _Listen:
         self.rclpy.shutdown()
 
 
-def _run_publisher(env: dict, rate: float, seconds: float) -> tuple[int, float]:
-    out = subprocess.run([sys.executable, __file__, "--publisher", str(rate), str(seconds)], env=env,
-                         capture_output=True, text=True, timeout=seconds * 10 + 60)
-    if out.returncode != 0:
-        raise RuntimeError(out.stderr)
-    n, t_last, elapsed = out.stdout.split()
+def _run_publisher(env: dict, rate: float, seconds: float, lis: _Listen) -> tuple[int, float]:
+    """Run the publisher process; the listener keeps spinning meanwhile, so that a result
+    published before the publisher has exited is received (and timed) when it arrives."""
+    proc = subprocess.Popen([sys.executable, __file__, "--publisher", str(rate), str(seconds)], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + seconds * 10 + 60
+    while proc.poll() is None:
+        if time.monotonic() > deadline:
+            proc.kill()
+            raise RuntimeError("publisher did not finish in time")
+        lis.spin(0.05)
+    out, err = proc.communicate()
+    if proc.returncode != 0:
+        raise RuntimeError(err)
+    n, t_last, elapsed = out.split()
     print(f"  publisher: {int(n)} samples per topic in {float(elapsed):.2f} s "
           f"({int(n) / float(elapsed) / 1e6:.2f} M samples/s)", flush=True)
     return int(n), float(t_last)
@@ -128,7 +137,7 @@ def main() -> None:
             lis = _Listen()
             try:
                 lis.spin(1.0)
-                sent, _ = _run_publisher(env, rate, 6.0)
+                sent, _ = _run_publisher(env, rate, 6.0, lis)
                 lis.spin(3.0)
                 d = lis.diag
                 got = [int(d.get(f"{s}.samples", 0)) for s in ("reference", "input", "output")]
@@ -149,7 +158,7 @@ def main() -> None:
         lis = _Listen()
         try:
             lis.spin(1.0)
-            sent, t_last = _run_publisher(env, 1e6, WINDOW / 1e6)
+            sent, t_last = _run_publisher(env, 1e6, WINDOW / 1e6, lis)
             t_wait = time.monotonic()
             while time.monotonic() - t_wait < 60 and not [t for t in lis.frf_times if t > t_last]:
                 lis.spin(0.1)
