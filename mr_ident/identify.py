@@ -28,7 +28,7 @@ from . import _batched
 from ._parallel import resolve_workers, thread_map
 from .lifting import _check_ratio
 from .lpm import _lpm_core, _warn_bad, check_lpm_options
-from .pfg import half_to_full, pfg_from_plant
+from .pfg import pfg_from_plant
 from .results import FRF, PFG, Identification, LiftedFRF
 
 Method = Literal["freq-lifted", "time-lifted", "lpm", "etfe"]
@@ -61,17 +61,26 @@ def _check_signals(r: ArrayLike, u: ArrayLike, y: ArrayLike, ratio: int
     return ra, ua, ya
 
 
-def _spectra(*signals: NDArray[np.float64], workers: int = 1) -> list[NDArray[np.complex128]]:
-    """DFTs of real (N, c_i) signals on all N bins.
+def _half_spectra(*signals: NDArray[np.float64], workers: int = 1) -> list[list[NDArray[np.complex128]]]:
+    """DFTs of real (N, c_i) signals on bins 0..N//2: per signal, one (N//2+1,) array per column.
 
     One real transform per column, the columns on ``workers`` threads (scipy's own
-    ``workers`` does not split a few long columns); the upper half by conjugate symmetry.
+    ``workers`` does not split a few long columns). The upper half is never formed:
+    :func:`_bins` reads any bin through conjugate symmetry.
     """
-    N = signals[0].shape[0]
     columns = [x[:, i] for x in signals for i in range(x.shape[1])]
     half = thread_map(lambda c: scipy.fft.rfft(c, norm="ortho"), columns, workers)
-    X = half_to_full(np.stack(half, axis=1), N)
-    return np.split(X, np.cumsum([x.shape[1] for x in signals])[:-1], axis=1)
+    ends = np.cumsum([x.shape[1] for x in signals])
+    return [half[e - x.shape[1]:e] for x, e in zip(signals, ends)]
+
+
+def _bins(columns: list[NDArray[np.complex128]], idx: NDArray[np.intp], n_samples: int) -> NDArray[np.complex128]:
+    """``X[idx]`` (shape ``idx.shape + (c,)``) of the full N-bin DFT of each column, from
+    its bins 0..N//2 (``X(N-k) = conj X(k)`` for a real signal); ``idx`` in 0..N-1."""
+    upper = idx > n_samples // 2
+    out = np.stack([c[np.where(upper, n_samples - idx, idx)] for c in columns], axis=-1)
+    np.conjugate(out, out=out, where=upper[..., None])
+    return out
 
 
 def _solve_right(J: NDArray, S: NDArray) -> NDArray:
@@ -192,7 +201,7 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
     lifted_J = lifted_S = None
 
     if method == "freq-lifted":
-        Rf, Uf, Yf = _spectra(ra, ua, ya, workers=n_workers)
+        Rh, Uh, Yh = _half_spectra(ra, ua, ya, workers=n_workers)
         Kc = M // 2
         bins = np.arange(Kc + 1)
         aliases = M * np.arange(F)
@@ -203,8 +212,8 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
             Blocks bound the memory and run on threads; each writes its own bins."""
             kb = bins[b0:b0 + BLOCK_BINS]
             idx = (np.arange(kb[0] - n, kb[-1] + n + 1)[:, None] + aliases[None, :]) % N
-            lifted = lambda X: X[idx].reshape(idx.shape[0], -1)         # noqa: E731  (alias-major)
-            G, Cv, Ainv, nb = _lpm_core(lifted(Rf), np.concatenate([lifted(Yf), lifted(Uf)], axis=1),
+            lifted = lambda X: _bins(X, idx, N).reshape(idx.shape[0], -1)   # noqa: E731  (alias-major)
+            G, Cv, Ainv, nb = _lpm_core(lifted(Rh), np.concatenate([lifted(Yh), lifted(Uh)], axis=1),
                                         n, degree, q)                     # bins-last
             P, rdiag, cdiag = _indirect_diag(G, Cv, Ainv, F * ny)
             Pb = P.reshape(F, ny, F, nu, kb.size)
@@ -257,9 +266,9 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
         quad = np.real(np.einsum("ki,kijy,kj->ky", ph, rdiag, np.conj(ph)))
         var_half = quad[:, :, None] * c0[:, None, :]
     elif method == "lpm":
-        Rf, Uf, Yf = _spectra(ra, ua, ya, workers=n_workers)
+        Rh, Uh, Yh = _half_spectra(ra, ua, ya, workers=n_workers)
         idx = np.arange(-n, half + n + 1) % N
-        G, Cv, Ainv, n_bad = _lpm_core(Rf[idx], np.concatenate([Yf[idx], Uf[idx]], axis=1), n, degree, q,
+        G, Cv, Ainv, n_bad = _lpm_core(_bins(Rh, idx, N), _bins(Yh + Uh, idx, N), n, degree, q,
                                        n_workers)                         # bins-last
         _warn_bad(n_bad, half + 1)
         P, rdiag, cdiag = _indirect_diag(G, Cv, Ainv, ny)
