@@ -16,7 +16,7 @@ How it is fast
   indirect method are fitted in one pass.
 * Every entry of ``K^H K``, ``K^H Y`` and ``Y^H Y`` is a windowed sum of a product
   signal with a kernel ``(r/n)^q``; those sums are computed for all bins at once as
-  two real BLAS products per block of bins against a banded Toeplitz weight matrix.
+  one real BLAS product per block of bins against a banded Toeplitz weight matrix.
 * The polynomial (transient) part is the same in every window: its Cholesky factor
   is constant, and the transient columns of the factor and of the forward solve come
   straight out of the windowed sums (kernels from the window's orthonormal
@@ -95,15 +95,14 @@ def check_lpm_options(n: int, degree: int, n_in: int, n_out: int) -> int:
 
 @dataclass(frozen=True)
 class _Kernel:
-    """Weights ``w[q, r]`` (r = -n..n) of :func:`_window_sums` as banded Toeplitz blocks.
+    """Weights ``w[q, r]`` (r = -n..n) of :func:`_window_sums` as a banded Toeplitz matrix.
 
-    For blocks of B >= 2n bins, output i of a block draws on input t of that block
-    (``t < B``: ``first[t, (q, i)] = w[q, t - i]``) and of the next one (``t >= B``:
-    ``second``, 2n rows).
+    For blocks of B >= 2n bins, output i of a block draws on inputs t = 0..B+2n-1
+    counted from the block's first bin (the block and the first 2n bins of the
+    next): ``taps[t, (q, i)] = w[q, t - i]``, shape (B + 2n, n_q * B).
     """
 
-    first: NDArray[np.float64]
-    second: NDArray[np.float64]
+    taps: NDArray[np.float64]
     n_out: int
     B: int
 
@@ -112,11 +111,12 @@ class _Kernel:
         nq, L = w.shape
         n = (L - 1) // 2
         B = max(2 * n, 16)
-        T = np.zeros((2 * B, nq, B))
+        T = np.zeros((B + 2 * n, nq, B))
         for i in range(B):
             T[i:i + L, :, i] = w.T
+        T = T.reshape(B + 2 * n, nq * B)
         T.flags.writeable = False
-        return cls(T[:B].reshape(B, -1), T[B:B + 2 * n].reshape(2 * n, -1), nq, B)
+        return cls(T, nq, B)
 
 
 @functools.lru_cache(maxsize=16)
@@ -149,21 +149,22 @@ def _window_sums(Z: NDArray[np.complex128], kernel: _Kernel, K: int) -> NDArray[
     """Windowed sums ``S[q, c, k] = sum_{r=-n}^{n} w[q, r] Z[c, k+n+r]``.
 
     Z has shape (C, K+2n); the result (n_q, C, K). The sums are a correlation with
-    2n+1 taps, done as two real matrix products per block of B bins (BLAS): the
-    real and imaginary parts of every signal are rows, the weights a banded
-    Toeplitz matrix (:class:`_Kernel`).
+    2n+1 taps, done as one real matrix product (BLAS) per block of B bins against a
+    banded Toeplitz matrix (:class:`_Kernel`): the real and imaginary parts of every
+    signal over the block and the 2n bins after it are rows.
     """
     C = Z.shape[0]
     B, nq = kernel.B, kernel.n_out
-    two_n = kernel.second.shape[0]
+    span = kernel.taps.shape[0]                           # B + 2n
     nb = -(-K // B)
-    X = np.zeros((2, C, (nb + 1) * B))
-    X[0, :, :Z.shape[1]] = Z.real
-    X[1, :, :Z.shape[1]] = Z.imag
-    X = X.reshape(2 * C, nb + 1, B)
-    o = X[:, :-1] @ kernel.first                          # (2C, nb, nq * B)
-    o += X[:, 1:, :two_n] @ kernel.second
-    o = o.reshape(2, C, nb, nq, B)
+    Zp = np.zeros((C, (nb - 1) * B + span), dtype=np.complex128)
+    Zp[:, :Z.shape[1]] = Z
+    blocks = np.lib.stride_tricks.as_strided(Zp, (C, nb, span), (Zp.strides[0], B * Zp.itemsize, Zp.itemsize),
+                                             writeable=False)     # overlapping: block b = Zp[:, bB : bB + span]
+    X = np.empty((2, C, nb, span))
+    X[0] = blocks.real
+    X[1] = blocks.imag
+    o = (X.reshape(2 * C, nb, span) @ kernel.taps).reshape(2, C, nb, nq, B)
     out = np.empty((nq, C, nb, B), dtype=np.complex128)
     out.real = o[0].transpose(2, 0, 1, 3)
     out.imag = o[1].transpose(2, 0, 1, 3)
@@ -251,6 +252,7 @@ def _lpm_core(Ua: NDArray[np.complex128], Ya: NDArray[np.complex128], n: int, de
         L[T:, :T] = L_GT.transpose(1, 0, 2)
         W[:T] = W_T
         bad = np.zeros(Kc, dtype=bool)
+        buf = np.empty((max(Q, n_out), Kc), dtype=np.complex128)         # products, reused
         for j in range(P):
             J = T + j
             col = mUU[mom_ab[j:, j], pair_ab[j:, j]]                       # A_GG[j:, j]
@@ -264,16 +266,16 @@ def _lpm_core(Ua: NDArray[np.complex128], Ya: NDArray[np.complex128], n: int, de
             L[J, J] = ljj
             if J + 1 < Q:
                 Ljc = np.conj(Lj)
-                acc = col[1:] - L[J + 1:, 0] * Ljc[0]
+                acc, tmp = L[J + 1:, J], buf[:Q - J - 1]
+                np.subtract(col[1:], np.multiply(L[J + 1:, 0], Ljc[0], out=tmp), out=acc)
                 for m in range(1, J):
-                    acc -= L[J + 1:, m] * Ljc[m]
-                acc /= ljj
-                L[J + 1:, J] = acc
-            acc = mUY[s_of[j], i_of[j]] - Lj[0] * W[0]
+                    acc -= np.multiply(L[J + 1:, m], Ljc[m], out=tmp)
+                acc *= 1.0 / ljj
+            acc, tmp = W[J], buf[:n_out]
+            np.subtract(mUY[s_of[j], i_of[j]], np.multiply(Lj[0], W[0], out=tmp), out=acc)
             for m in range(1, J):
-                acc -= Lj[m] * W[m]
-            acc /= ljj
-            W[J] = acc
+                acc -= np.multiply(Lj[m], W[m], out=tmp)
+            acc *= 1.0 / ljj
 
         # Back substitution for the trailing (G_0) block only: L_tt^H theta = W_t.
         t0 = Q - n_in
