@@ -157,10 +157,14 @@ def _window_sums(Z: NDArray[np.complex128], kernel: _Kernel, K: int) -> NDArray[
     B, nq = kernel.B, kernel.n_out
     span = kernel.taps.shape[0]                           # B + 2n
     nb = -(-K // B)
-    Zp = np.zeros((C, (nb - 1) * B + span), dtype=np.complex128)
-    Zp[:, :Z.shape[1]] = Z
-    blocks = np.lib.stride_tricks.as_strided(Zp, (C, nb, span), (Zp.strides[0], B * Zp.itemsize, Zp.itemsize),
-                                             writeable=False)     # overlapping: block b = Zp[:, bB : bB + span]
+    need = (nb - 1) * B + span                            # = K + 2n when B divides K (full chunks)
+    if Z.shape[1] < need:
+        Zp = np.zeros((C, need), dtype=np.complex128)
+        Zp[:, :Z.shape[1]] = Z
+        Z = Zp
+    c_st, k_st = Z.strides
+    blocks = np.lib.stride_tricks.as_strided(Z, (C, nb, span), (c_st, B * k_st, k_st),
+                                             writeable=False)     # overlapping: block b = Z[:, bB : bB + span]
     X = np.empty((2, C, nb, span))
     X[0] = blocks.real
     X[1] = blocks.imag
@@ -300,8 +304,12 @@ def _lpm_core(Ua: NDArray[np.complex128], Ya: NDArray[np.complex128], n: int, de
         # V^H V = Y^H Y - W^H W; C_v = (V^H V)^T / q, upper triangle then mirrored.
         Wc = np.conj(W)
         vhv = mYY
-        for p in range(ou.size):
-            vhv[p] -= np.einsum("jk,jk->k", Wc[:, ou[p]], W[:, ov[p]])
+        p0 = 0
+        for a in range(n_out):            # the pairs (a, a..n_out-1) are consecutive in ou, ov
+            v, tmp = vhv[p0:p0 + n_out - a], buf[:n_out - a]
+            for j in range(Q):
+                v -= np.multiply(W[j, a:], Wc[j, a], out=tmp)
+            p0 += n_out - a
         C = Cv[:, :, k0:k0 + Kc]
         C[ov, ou] = vhv / q
         C[ou, ov] = np.conj(C[ov, ou])
