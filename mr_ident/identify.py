@@ -268,7 +268,7 @@ def identify(r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio:
     elif method == "lpm":
         Rh, Uh, Yh = _half_spectra(ra, ua, ya, workers=n_workers)
         idx = np.arange(-n, half + n + 1) % N
-        G, Cv, Ainv, n_bad = _lpm_core(_bins(Rh, idx, N), _bins(Yh + Uh, idx, N), n, degree, q,
+        G, Cv, Ainv, n_bad = _lpm_core(_bins(Rh, idx, N), _bins(Yh + Uh, idx, N), n, degree, q,   # y, then u
                                        n_workers)                         # bins-last
         _warn_bad(n_bad, half + 1)
         P, rdiag, cdiag = _indirect_diag(G, Cv, Ainv, ny)

@@ -123,7 +123,7 @@ def warm_up(config: IdentConfig, n_samples: int | None = None) -> float:
 
     The first identification in a process pays one-time costs: FFT plans for the
     window length, the LPM's kernel tables, the first touch of its working memory
-    (measured on the 2-core development VM: 1.2-1.3 s instead of 0.75-0.9 s for a
+    (measured on the 2-core development VM: 1.2-1.6 s instead of 0.7-0.9 s for a
     1.44 M-sample window). The node calls this once at start-up, off the executor
     thread, so that its first real estimate does not. The window is
     ``n_samples`` (default ``config.window_samples``) of SISO white noise, with the
