@@ -78,7 +78,8 @@ def _bins(columns: list[NDArray[np.complex128]], idx: NDArray[np.intp], n_sample
     """``X[idx]`` (shape ``idx.shape + (c,)``) of the full N-bin DFT of each column, from
     its bins 0..N//2 (``X(N-k) = conj X(k)`` for a real signal); ``idx`` in 0..N-1."""
     upper = idx > n_samples // 2
-    out = np.stack([c[np.where(upper, n_samples - idx, idx)] for c in columns], axis=-1)
+    src = np.where(upper, n_samples - idx, idx)
+    out = np.stack([c[src] for c in columns], axis=-1)
     np.conjugate(out, out=out, where=upper[..., None])
     return out
 
