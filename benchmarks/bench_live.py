@@ -19,6 +19,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -109,17 +110,19 @@ class _Listen:
 def _run_publisher(env: dict, rate: float, seconds: float, lis: _Listen) -> tuple[int, float]:
     """Run the publisher process; the listener keeps spinning meanwhile, so that a result
     published before the publisher has exited is received (and timed) when it arrives."""
-    proc = subprocess.Popen([sys.executable, __file__, "--publisher", str(rate), str(seconds)], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + seconds * 10 + 60
-    while proc.poll() is None:
-        if time.monotonic() > deadline:
-            proc.kill()
-            raise RuntimeError("publisher did not finish in time")
-        lis.spin(0.05)
-    out, err = proc.communicate()
-    if proc.returncode != 0:
-        raise RuntimeError(err)
+    with tempfile.TemporaryFile("w+") as errors:      # a file, not a pipe: it never fills up
+        proc = subprocess.Popen([sys.executable, __file__, "--publisher", str(rate), str(seconds)], env=env,
+                                stdout=subprocess.PIPE, stderr=errors, text=True)
+        deadline = time.monotonic() + seconds * 10 + 60
+        while proc.poll() is None:
+            if time.monotonic() > deadline:
+                proc.kill()
+                raise RuntimeError("publisher did not finish in time")
+            lis.spin(0.05)
+        out, _ = proc.communicate()
+        if proc.returncode != 0:
+            errors.seek(0)
+            raise RuntimeError(errors.read())
     n, t_last, elapsed = out.split()
     print(f"  publisher: {int(n)} samples per topic in {float(elapsed):.2f} s "
           f"({int(n) / float(elapsed) / 1e6:.2f} M samples/s)", flush=True)
@@ -180,7 +183,7 @@ def main() -> None:
                 lis.close()
                 node.terminate()
                 node.wait(30)
-        print(f"latency over {LATENCY_RUNS} fresh nodes: worst {max(latencies):.2f} s, "
+        print(f"latency over {LATENCY_RUNS} fresh nodes: worst {np.max(latencies):.2f} s, "
               f"median {float(np.median(latencies)):.2f} s")
 
 
