@@ -28,8 +28,8 @@ setup(
     entry_points={
         "console_scripts": [
             "mr-ident = mr_ident.cli:main",
-            "mr-ident-node = mr_ident.ros.node:main",
-            "mr-ident-sim = mr_ident.ros.sim:main",
+            "mr-ident-node = mr_ident.ros.program:node_main",
+            "mr-ident-sim = mr_ident.ros.program:sim_main",
         ],
     },
 )

@@ -8,18 +8,18 @@ User errors print ``error: ...`` to stderr and exit with status 2, never a trace
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import warnings
 from pathlib import Path
-from typing import Any, Sequence
-
-import numpy as np
+from typing import TYPE_CHECKING, Any, Sequence
 
 from ._alloc import keep_freed_memory
 from .errors import ConfigError, DataError, MrIdentError
-from .identify import METHODS, identify
-from .model import Model, load_model
-from .results import Identification
+
+if TYPE_CHECKING:
+    from .model import Model
+    from .results import Identification
 
 EXIT_USAGE = 2
 
@@ -29,7 +29,7 @@ def _positive_float(text: str) -> float:
         v = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not np.isfinite(v) or v <= 0:
+    if not math.isfinite(v) or v <= 0:
         raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
     return v
 
@@ -54,6 +54,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .identify import METHODS
     p = _Parser(prog="mr-ident", description="Identify multirate control loops in the frequency domain.")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
@@ -122,7 +123,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from .data import write_data
+    from .model import load_model
     from .simulate import simulate
     model = load_model(args.model)
     sim = simulate(model, duration=args.duration, rng=np.random.default_rng(args.seed))
@@ -154,6 +158,8 @@ def _resolve_rates(args: argparse.Namespace, file_fs: float | None, file_ratio: 
 
 def cmd_identify(args: argparse.Namespace) -> int:
     from .data import read_data, write_result
+    from .identify import identify
+    from .model import load_model
     if args.out.suffix.lower() != ".npz":
         raise ConfigError(f"--out must be a .npz file, got {str(args.out)!r}")
     model = load_model(args.model) if args.model else None
@@ -192,10 +198,11 @@ def _write_plots(ident: Identification, path: Path, fs: float, F: int, N: int, m
 
 
 def cmd_paper(args: argparse.Namespace) -> int:
+    from .model import load_model
     from .paper import run_paper
     from .config import share_file
     model = load_model(args.model or share_file("config/paper_example.yaml", "; pass --model"))
-    if args.noise_std is not None and not (np.isfinite(args.noise_std) and args.noise_std >= 0):
+    if args.noise_std is not None and not (math.isfinite(args.noise_std) and args.noise_std >= 0):
         raise ConfigError(f"--noise-std must be >= 0, got {args.noise_std}")
     run = run_paper(model, args.out_dir, duration=args.duration, seed=args.seed, noise_std=args.noise_std)
     print(run.table)
@@ -232,6 +239,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
           f"{est.compute_s:.3f} s")
     print(f"wrote {args.out} ({est.identification.plant.frequency.size} bins, method {cfg.method})")
     if args.plot:
+        from .model import load_model
         model = load_model(args.model) if args.model else None
         _write_plots(est.identification, args.plot, cfg.fs_high, cfg.ratio, est.n_samples, model)
     return 0
@@ -275,6 +283,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from .data import _atomic_write
     from .model import model_to_dict
     from .report import report_dict, report_html
+    from .model import load_model
     from .validate import diagnose
     if args.json.suffix.lower() != ".json":
         raise ConfigError(f"--json must be a .json file, got {str(args.json)!r}")
@@ -316,7 +325,17 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return run_demo(args.out_dir, rate=args.rate, timeout=args.timeout)
 
 
+def _ros_program(argv: Sequence[str]) -> bool:
+    """Whether the command line runs a ROS program (record, demo, replay --publish)."""
+    command = next((a for a in argv if not a.startswith("-")), None)
+    return command in ("record", "demo") or (command == "replay" and "--publish" in argv)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if _ros_program(argv):
+        from .ros.program import handle_signals
+        handle_signals()                  # before anything slow: a signal from now on stops cleanly
     args = build_parser().parse_args(argv)
     keep_freed_memory()
     commands = {"simulate": cmd_simulate, "identify": cmd_identify, "paper": cmd_paper, "replay": cmd_replay,

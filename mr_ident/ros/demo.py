@@ -25,6 +25,7 @@ from ..config import load_params, share_file
 from ..errors import MrIdentError
 from ..model import load_model
 from ..results import FRF, PFG
+from .program import Stop, handle_signals, ros_context
 
 SIM_NOISE_STD = 1e-7      # output noise of the demo loop (the paper example's |y| is ~1e-5)
 
@@ -40,10 +41,13 @@ def _stop(proc: subprocess.Popen, timeout: float = 20.0) -> int:
     return proc.returncode
 
 
-def run_demo(out_dir: Path, *, rate: float = 20.0, timeout: float = 120.0) -> int:
+def run_demo(out_dir: Path, *, rate: float = 20.0, timeout: float = 120.0, stop: Stop | None = None) -> int:
+    """Run the demo (module docstring); a stop (SIGINT/SIGTERM) ends it early with exit 0,
+    the children stopped and the node's recording finalised."""
     import yaml
     from domain_coordinator import domain_id
 
+    stop = stop if stop is not None else handle_signals()
     out_dir.mkdir(parents=True, exist_ok=True)
     model_path = share_file("config/paper_example.yaml")
     params_path = share_file("config/node.yaml")
@@ -57,31 +61,42 @@ def run_demo(out_dir: Path, *, rate: float = 20.0, timeout: float = 120.0) -> in
     recording = out_dir / "live.mcap"
     recording.unlink(missing_ok=True)
     bindir = Path(sys.executable).parent
+    live = _Live()
+    procs: dict[str, subprocess.Popen] = {}
     with domain_id() as dom:
         env = dict(os.environ, ROS_DOMAIN_ID=str(dom), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
         env.setdefault("ROS_LOG_DIR", str((out_dir / "ros_log").resolve()))
         os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR")})
         logs = {name: open(out_dir / f"{name}.log", "w") for name in ("node", "sim")}
-        node = subprocess.Popen([str(bindir / "mr-ident-node"), "--ros-args", "--params-file", str(params_path),
-                                 "-p", f"record_path:={recording}", "-p", "update_period_s:=0.5"],
-                                env=env, stdout=logs["node"], stderr=subprocess.STDOUT)
-        sim = subprocess.Popen([str(bindir / "mr-ident-sim"), str(demo_model), "--rate", str(rate),
-                                "--wait", "10"], env=env, stdout=logs["sim"], stderr=subprocess.STDOUT)
-        rclpy, listener, live = _node_and_live()
         try:
-            try:
-                _listen(rclpy, listener, live, cfg, node, sim, timeout)
-            finally:
-                _stop(sim)
-                time.sleep(0.5)
-            _settle(rclpy, listener, live, 20.0)
+            procs["node"] = subprocess.Popen(
+                [str(bindir / "mr-ident-node"), "--ros-args", "--params-file", str(params_path),
+                 "-p", f"record_path:={recording}", "-p", "update_period_s:=0.5"],
+                env=env, stdout=logs["node"], stderr=subprocess.STDOUT)
+            procs["sim"] = subprocess.Popen(
+                [str(bindir / "mr-ident-sim"), str(demo_model), "--rate", str(rate), "--wait", "10"],
+                env=env, stdout=logs["sim"], stderr=subprocess.STDOUT)
+            with ros_context() as rclpy:
+                listener = _listener(rclpy, live)
+                try:
+                    try:
+                        _listen(rclpy, listener, live, cfg, procs["node"], procs["sim"], timeout, stop)
+                    finally:
+                        _stop(procs["sim"])
+                        stop.wait(0.5)
+                    _settle(rclpy, listener, live, 20.0, stop)
+                finally:
+                    listener.destroy_node()
         finally:
-            listener.destroy_node()
-            rclpy.try_shutdown()
-            _stop(node)
+            for proc in procs.values():     # the node finalises its recording on SIGINT
+                _stop(proc)
             for f in logs.values():
                 f.close()
-    return _report(out_dir, cfg, model, recording, live, node.returncode)
+    if stop.requested:
+        print(f"demo stopped by signal {stop.signal}; the node's recording {recording} is finalised"
+              if recording.exists() else f"demo stopped by signal {stop.signal}")
+        return 0
+    return _report(out_dir, cfg, model, recording, live, procs["node"].returncode)
 
 
 class _Live:
@@ -98,15 +113,13 @@ class _Live:
         self.t_converged: float | None = None
 
 
-def _node_and_live():  # type: ignore[no-untyped-def]
-    import rclpy
+def _listener(rclpy, live: _Live):  # type: ignore[no-untyped-def]
+    """A node that keeps the node's latest estimate and diagnostics in ``live``."""
     from diagnostic_msgs.msg import DiagnosticArray
     from std_msgs.msg import Float64MultiArray
 
     from .messages import RESULT_QOS
-    rclpy.init()
     n = rclpy.create_node("mr_ident_demo")
-    live = _Live()
 
     def frf(m: Float64MultiArray) -> None:
         d = [x.size for x in m.layout.dim]
@@ -134,13 +147,16 @@ def _node_and_live():  # type: ignore[no-untyped-def]
     n.create_subscription(Float64MultiArray, "/mr_ident/pfg", setter("pfg"), RESULT_QOS)
     n.create_subscription(Float64MultiArray, "/mr_ident/pfg_std", setter("pfg_std"), RESULT_QOS)
     n.create_subscription(DiagnosticArray, "/diagnostics", diag, 10)
-    return rclpy, n, live
+    return n
 
 
-def _listen(rclpy, n, live: _Live, cfg, node_proc, sim_proc, timeout: float) -> None:  # type: ignore[no-untyped-def]
-    """Spin until two successive full-window estimates agree to 2 % (median)."""
+def _listen(rclpy, n, live: _Live, cfg, node_proc, sim_proc, timeout: float,  # type: ignore[no-untyped-def]
+            stop: Stop) -> None:
+    """Spin until two successive full-window estimates agree to 2 % (median), or a stop."""
     t0 = time.monotonic()
     while time.monotonic() - t0 < timeout:
+        if stop.requested:
+            return
         rclpy.spin_once(n, timeout_sec=0.1)
         if node_proc.poll() is not None or sim_proc.poll() is not None:
             raise MrIdentError(f"{'node' if node_proc.poll() is not None else 'simulator'} exited early; "
@@ -155,17 +171,17 @@ def _listen(rclpy, n, live: _Live, cfg, node_proc, sim_proc, timeout: float) -> 
     raise MrIdentError(f"no converged estimate within {timeout:g} s (last diagnostics: {live.diag.get('message')})")
 
 
-def _settle(rclpy, n, live: _Live, timeout: float) -> None:  # type: ignore[no-untyped-def]
+def _settle(rclpy, n, live: _Live, timeout: float, stop: Stop) -> None:  # type: ignore[no-untyped-def]
     """After the simulator stopped: wait until the node's last estimate covers the final window."""
     t0 = time.monotonic()
-    while time.monotonic() - t0 < timeout:
+    while time.monotonic() - t0 < timeout and not stop.requested:
         rclpy.spin_once(n, timeout_sec=0.1)
         d = live.diag
         if d.get("estimate_first_index") and d.get("window_end_index") and \
                 int(d["estimate_first_index"]) + int(d["estimate_samples"]) == int(d["window_end_index"]):
             # one more diagnostics round so the published estimate is the one described
             t1 = time.monotonic()
-            while time.monotonic() - t1 < 1.5:
+            while time.monotonic() - t1 < 1.5 and not stop.requested:
                 rclpy.spin_once(n, timeout_sec=0.1)
             return
 

@@ -19,7 +19,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType,
                                 SetParametersResult)
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
@@ -32,6 +32,7 @@ from ..live import Estimate, estimate, publish_grid, warm_up
 from ..recording import McapRecorder
 from ..stream import STREAMS, Aligner, BlockError, Window
 from .messages import BLOCK_QOS, BLOCK_TYPE, RESULT_QOS, block_of, frf_msgs, qos_dict, vector_msg
+from .program import handle_signals, ros_context, spin_until_stopped
 
 WARN_HOLD_S = 10.0     # an anomaly keeps the level at WARN this long
 REORDER_WAIT_S = 0.5   # blocks wait this long (wall clock) for a missing one before it is a gap
@@ -333,30 +334,35 @@ class IdentNode(Node):
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Console script ``mr-ident-node`` (accepts ``--ros-args ...``)."""
+    """Console script ``mr-ident-node`` (accepts ``--ros-args ...``).
+
+    SIGINT and SIGTERM stop it at any moment through one path
+    (:mod:`mr_ident.ros.program`): the running identification is awaited, the
+    recording finalised, then rclpy shut down; exit 0.
+    """
+    stop = handle_signals()
     args = list(sys.argv if argv is None else argv)
     keep_freed_memory()
-    rclpy.init(args=args)
-    node = None
     try:
-        node = IdentNode()
-        # Not rclpy.experimental.EventsExecutor: in rclpy 7.1.6 its spin() starves other
-        # Python threads (measured: the identification thread and publishers from other
-        # threads stall), and the identification must run off the executor thread.
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        with ros_context(args):
+            node = None
+            try:
+                node = IdentNode()
+                # Not rclpy.experimental.EventsExecutor: in rclpy 7.1.6 its spin() starves other
+                # Python threads (measured: the identification thread and publishers from other
+                # threads stall), and the identification must run off the executor thread.
+                executor = SingleThreadedExecutor()
+                executor.add_node(node)
+                spin_until_stopped(executor, node, stop)
+                executor.shutdown()
+            finally:
+                if node is not None:
+                    node.shutdown()
+                    node.destroy_node()
     except (MrIdentError, rclpy.exceptions.InvalidParameterTypeException,
             rclpy.exceptions.InvalidParameterValueException) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    finally:
-        if node is not None:
-            node.shutdown()
-            node.destroy_node()
-        rclpy.try_shutdown()
     return 0
 
 

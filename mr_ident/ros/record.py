@@ -3,7 +3,8 @@
 Recording subscribes raw (the CDR bytes rclpy received, never re-serialized) to
 each topic once a publisher appears, and stores it with
 :class:`~mr_ident.recording.McapRecorder`. SIGINT and SIGTERM end the
-recording cleanly: the file is finalised (summary and footer written). A write
+recording cleanly (one shutdown path, :mod:`mr_ident.ros.program`): the file is
+finalised (summary and footer written), whenever the signal comes. A write
 that fails (the disk is full) ends the recording with a
 :class:`~mr_ident.errors.RecordingError`; the file then holds every finished
 chunk, and ``mr-ident replay`` reports how much it recovered.
@@ -16,9 +17,8 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
-import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.duration import Duration
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -26,6 +26,7 @@ from ..errors import DataError, RecordingError
 from ..recording import McapRecorder
 from ..stream import STREAMS
 from .messages import qos_dict
+from .program import Stop, handle_signals, ros_context, spin_until_stopped
 
 
 def message_class(type_name: str) -> Any:
@@ -41,10 +42,12 @@ def _absolute(topic: str) -> str:
 class Recorder:
     """Record ``topics`` of ``node``'s graph into ``path`` (call :meth:`poll` periodically)."""
 
-    def __init__(self, node: Node, path: str | Path, topics: Sequence[str]):
+    def __init__(self, node: Node, path: str | Path, topics: Sequence[str],
+                 on_failure: Callable[[], Any] | None = None):
         self.node = node
         self.topics = [_absolute(t) for t in topics]
         self.rec = McapRecorder(path)
+        self._on_failure = on_failure
         self._subs: dict[str, Any] = {}
         self.counts: dict[str, int] = {t: 0 for t in self.topics}
 
@@ -75,6 +78,8 @@ class Recorder:
             t = time.time_ns()
             if self.rec.write(cid, raw, t, t):
                 self.counts[topic] += 1
+            elif self.rec.error is not None and self._on_failure is not None:
+                self._on_failure()
         return write
 
     def close(self) -> None:
@@ -82,47 +87,57 @@ class Recorder:
 
 
 def record(path: str | Path, topics: Sequence[str], *, duration: float | None = None,
-           args: Sequence[str] | None = None) -> dict[str, int]:
-    """Record until ``duration`` s have passed, or SIGINT/SIGTERM; returns messages per topic."""
-    rclpy.init(args=list(args) if args is not None else None)
-    node = rclpy.create_node("mr_ident_record")
-    recorder = None
-    try:
-        recorder = Recorder(node, path, topics or STREAMS)
-        node.create_timer(0.1, recorder.poll)
+           args: Sequence[str] | None = None, stop: Stop | None = None) -> dict[str, int]:
+    """Record until ``duration`` s have passed, or a stop (SIGINT/SIGTERM, see
+    :func:`~mr_ident.ros.program.handle_signals`); returns messages per topic.
+
+    The file is opened first and finalised on every way out.
+
+    Raises
+    ------
+    RecordingError
+        When a write failed (e.g. the disk is full); the file keeps its finished chunks.
+    """
+    stop = stop if stop is not None else handle_signals()
+    with ros_context(args) as rclpy:
+        node = rclpy.create_node("mr_ident_record")
         executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        end = None if duration is None else time.monotonic() + duration
-        while rclpy.ok() and (end is None or time.monotonic() < end) and recorder.rec.error is None:
-            executor.spin_once(timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if recorder is not None:
-            recorder.close()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    if recorder is not None and recorder.rec.failure:
+        recorder: Recorder | None = None
+        try:
+            recorder = Recorder(node, path, topics or STREAMS, on_failure=stop.request)
+            node.create_timer(0.1, recorder.poll)
+            if duration is not None:
+                node.create_timer(duration, stop.request)
+            executor.add_node(node)
+            spin_until_stopped(executor, node, stop)
+        finally:
+            if recorder is not None:
+                recorder.close()
+            executor.shutdown()
+            node.destroy_node()
+    assert recorder is not None
+    if recorder.rec.failure:
         raise RecordingError(recorder.rec.failure)
-    return recorder.counts if recorder else {}
+    return recorder.counts
 
 
 def publish_recording(path: str | Path, *, rate: float = 1.0, wait: float = 5.0,
-                      args: Sequence[str] | None = None) -> int:
+                      args: Sequence[str] | None = None, stop: Stop | None = None) -> int:
     """Re-publish every message of an MCAP recording on its topic (raw CDR), paced by
-    its log times divided by ``rate``. Returns the number of messages published."""
+    its log times divided by ``rate``, until the end or a stop. Returns the number of
+    messages published."""
     from mcap.reader import make_reader
 
     from .messages import BLOCK_QOS
+    stop = stop if stop is not None else handle_signals()
     try:
         fh = open(path, "rb")
     except OSError as err:
         raise DataError(f"cannot read recording {str(path)!r}: {err.strerror}") from err
-    rclpy.init(args=list(args) if args is not None else None)
-    node = rclpy.create_node("mr_ident_replay")
     sent = 0
-    try:
-        with fh:
+    with fh, ros_context(args) as rclpy:
+        node = rclpy.create_node("mr_ident_replay")
+        try:
             reader = make_reader(fh)
             try:
                 summary = reader.get_summary()
@@ -134,27 +149,24 @@ def publish_recording(path: str | Path, *, rate: float = 1.0, wait: float = 5.0,
                                                BLOCK_QOS)
                     for cid, ch in summary.channels.items()}
             deadline = time.monotonic() + wait
-            while time.monotonic() < deadline and rclpy.ok() and \
+            while time.monotonic() < deadline and not stop.requested and \
                     any(p.get_subscription_count() == 0 for p in pubs.values()):
-                time.sleep(0.02)
+                stop.wait(0.02)
             if wait > 0:
-                time.sleep(min(wait, 0.5))    # matching is not symmetric: let subscribers match us too
+                stop.wait(min(wait, 0.5))    # matching is not symmetric: let subscribers match us too
             t0 = time.monotonic()
             first_log = None
             for _, channel, message in reader.iter_messages(log_time_order=True):
-                if not rclpy.ok():
+                if stop.requested:
                     break
                 first_log = message.log_time if first_log is None else first_log
                 due = t0 + (message.log_time - first_log) * 1e-9 / rate
-                while (d := due - time.monotonic()) > 0 and rclpy.ok():
-                    time.sleep(min(d, 0.1))
+                while (d := due - time.monotonic()) > 0 and not stop.requested:
+                    stop.wait(min(d, 0.1))
                 pubs[channel.id].publish(bytes(message.data))
                 sent += 1
             for p in pubs.values():       # reliable delivery: do not exit before the readers have it
-                p.wait_for_all_acked(Duration(seconds=5))
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+                p.wait_for_all_acked(Duration(seconds=1 if stop.requested else 5))
+        finally:
+            node.destroy_node()
     return sent

@@ -21,6 +21,7 @@ from ..errors import MrIdentError
 from ..model import Model, load_model
 from ..simulate import LoopStream
 from ..stream import STREAMS
+from .program import Stop, handle_signals, ros_context
 
 
 def multisine(model: Model, period_s: float, rng: np.random.Generator) -> NDArray[np.float64]:
@@ -92,41 +93,46 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def run(node: object, source: SimSource, *, rate: float, duration: float | None, wait: float,
-        subscribers: int = 1) -> int:
+        subscribers: int = 1, stop: Stop | None = None) -> int:
     """Publish blocks from ``source`` on ``node``'s three publishers, once ``subscribers``
-    match every topic (or ``wait`` s have passed); returns blocks sent per topic."""
+    match every topic (or ``wait`` s have passed), until ``duration`` or a stop; returns
+    blocks sent per topic."""
     from rclpy.duration import Duration
     from std_msgs.msg import Float64MultiArray
 
     from .messages import BLOCK_QOS, block_msg
+    stop = stop if stop is not None else Stop()
     pubs = [node.create_publisher(Float64MultiArray, t, BLOCK_QOS) for t in STREAMS]  # type: ignore[attr-defined]
-    ctx = node.context                                                                     # type: ignore[attr-defined]
     deadline = time.monotonic() + wait
-    while time.monotonic() < deadline and ctx.ok() and any(p.get_subscription_count() < subscribers for p in pubs):
-        time.sleep(0.02)
+    while time.monotonic() < deadline and not stop.requested and \
+            any(p.get_subscription_count() < subscribers for p in pubs):
+        stop.wait(0.02)
     if wait > 0:
-        time.sleep(min(wait, 0.5))     # matching is not symmetric: let the subscribers match us too
+        stop.wait(min(wait, 0.5))      # matching is not symmetric: let the subscribers match us too
     fs = source.model.fs_high
     total = None if duration is None else int(round(duration * fs))
     t0 = time.monotonic()
     sent = 0
     start = source.next_index
-    while ctx.ok() and (total is None or source.next_index - start < total):
+    while not stop.requested and (total is None or source.next_index - start < total):
         first, r, u, y = source.next()
         due = t0 + (first + source.block - start) / fs / rate
-        while (delay := due - time.monotonic()) > 0 and ctx.ok():
-            time.sleep(min(delay, 0.1))
+        while (delay := due - time.monotonic()) > 0 and not stop.requested:
+            stop.wait(min(delay, 0.1))
+        if stop.requested:
+            break
         for pub, x in zip(pubs, (r, u, y)):
             pub.publish(block_msg(first, x))
         sent += 1
     for pub in pubs:                      # reliable delivery: do not exit before the readers have it
-        pub.wait_for_all_acked(Duration(seconds=5))
+        pub.wait_for_all_acked(Duration(seconds=1 if stop.requested else 5))
     return sent
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    import rclpy
-    from rclpy.executors import ExternalShutdownException
+    """Console script ``mr-ident-sim``; SIGINT/SIGTERM stop it through one path
+    (:mod:`mr_ident.ros.program`) with exit 0."""
+    stop = handle_signals()
     from rclpy.utilities import remove_ros_args
 
     args_all = list(sys.argv if argv is None else argv)
@@ -144,17 +150,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     except MrIdentError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    rclpy.init(args=args_all)
-    node = rclpy.create_node("mr_ident_sim")
-    try:
-        sent = run(node, source, rate=args.rate, duration=args.duration, wait=args.wait,
-                   subscribers=args.subscribers)
-        node.get_logger().info(f"published {sent} blocks of {args.block} samples per topic")
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    with ros_context(args_all) as rclpy:
+        node = rclpy.create_node("mr_ident_sim")
+        try:
+            sent = run(node, source, rate=args.rate, duration=args.duration, wait=args.wait,
+                       subscribers=args.subscribers, stop=stop)
+            node.get_logger().info(f"published {sent} blocks of {args.block} samples per topic")
+        finally:
+            node.destroy_node()
     return 0
 
 
