@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 export ROS_LOG_DIR ?= $(CURDIR)/out/ros_log
 export MPLBACKEND := Agg
 
-.PHONY: demo paper test bench bench-live soak motor-bench venv clean
+.PHONY: demo paper test lint bench bench-live soak motor-bench venv clean
 
 venv: $(STAMP)
 
@@ -23,7 +23,13 @@ paper: $(STAMP)
 	$(VENV)/bin/mr-ident paper --out-dir out/paper
 
 test: $(STAMP)
-	$(PY) -m pytest -q test
+	$(PY) -m pytest -q
+
+# ruff (lint, format) and mypy (strict on numerics and I/O); .ci/run runs it before the tests
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+	$(VENV)/bin/mypy
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_identify.py

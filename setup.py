@@ -1,6 +1,8 @@
 """Build script (ament_python for colcon, plain setuptools for pip)."""
 
+import re
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
@@ -8,7 +10,10 @@ package_name = "mr_ident"
 
 setup(
     name=package_name,
-    version="0.1.0",
+    version=re.search(
+        r"__version__ = \"(.+)\"",
+        (Path(__file__).resolve().parent / "mr_ident" / "version.py").read_text(),
+    ).group(1),
     packages=find_packages(exclude=["test", "test.*", "benchmarks"]),
     package_data={package_name: ["py.typed"]},
     data_files=[
@@ -17,7 +22,16 @@ setup(
         ("share/" + package_name + "/config", glob("config/*.yaml")),
         ("share/" + package_name + "/launch", glob("launch/*.launch.py")),
     ],
-    install_requires=["setuptools", "numpy", "scipy", "threadpoolctl", "PyYAML", "matplotlib", "mcap", "mcap-ros2-support"],
+    install_requires=[
+        "setuptools",
+        "numpy",
+        "scipy",
+        "threadpoolctl",
+        "PyYAML",
+        "matplotlib",
+        "mcap",
+        "mcap-ros2-support",
+    ],
     zip_safe=True,
     maintainer="mr_ident developers",
     maintainer_email="mr-ident@example.org",
@@ -28,8 +42,8 @@ setup(
     entry_points={
         "console_scripts": [
             "mr-ident = mr_ident.cli:main",
-            "mr-ident-node = mr_ident.ros.program:node_main",
-            "mr-ident-sim = mr_ident.ros.program:sim_main",
+            "mr-ident-node = mr_ident.ros.entry:node_main",
+            "mr-ident-sim = mr_ident.ros.entry:sim_main",
         ],
     },
 )

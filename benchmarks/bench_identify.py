@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import sys
 import time
 import tracemalloc
 from pathlib import Path
@@ -19,12 +20,11 @@ from unittest import mock
 
 import numpy as np
 
-import sys
-from mr_ident._alloc import keep_freed_memory
-from mr_ident._parallel import resolve_workers
-from mr_ident.identify import identify  # noqa: E402  (also loads the module patched below)
-from mr_ident.model import load_model
-from mr_ident.simulate import simulate
+from mr_ident.allocator import keep_freed_memory
+from mr_ident.io.modelfile import load_model
+from mr_ident.numerics.identify import identify  # (also loads the module patched below)
+from mr_ident.numerics.simulate import simulate
+from mr_ident.numerics.threads import resolve_workers
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -35,13 +35,15 @@ def _straightforward_fit(Ua, Yg, n, degree):
     L = 2 * n + 1
     r = np.arange(-n, n + 1) / n
     idx = np.arange(K)[:, None] + np.arange(L)[None, :]
-    Uw = Ua[idx]                                                     # (K, L, ni)
-    Yw = Yg[idx]                                                     # (K, L, no)
-    cols = [Uw * (r ** s)[None, :, None] for s in range(degree + 1)]
-    cols.append(np.broadcast_to((r[:, None] ** np.arange(degree + 1)).astype(complex), (K, L, degree + 1)))
-    Km = np.concatenate(cols, axis=2)                                 # (K, L, p)
+    Uw = Ua[idx]  # (K, L, ni)
+    Yw = Yg[idx]  # (K, L, no)
+    cols = [Uw * (r**s)[None, :, None] for s in range(degree + 1)]
+    cols.append(
+        np.broadcast_to((r[:, None] ** np.arange(degree + 1)).astype(complex), (K, L, degree + 1))
+    )
+    Km = np.concatenate(cols, axis=2)  # (K, L, p)
     Q, Rr = np.linalg.qr(Km)
-    theta = np.linalg.solve(Rr, np.conj(np.swapaxes(Q, 1, 2)) @ Yw)   # (K, p, no)
+    theta = np.linalg.solve(Rr, np.conj(np.swapaxes(Q, 1, 2)) @ Yw)  # (K, p, no)
     return theta, Yw - Km @ theta, Rr
 
 
@@ -86,28 +88,44 @@ def peak_mb(fn) -> float:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--duration", type=float, default=6000.0)
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--skip-reference", action="store_true", help="do not run the straightforward LPM")
+    ap.add_argument(
+        "--skip-reference", action="store_true", help="do not run the straightforward LPM"
+    )
     args = ap.parse_args()
-    keep_freed_memory()           # as the mr-ident and mr-ident-node programs do
+    keep_freed_memory()  # as the mr-ident and mr-ident-node programs do
     model = load_model(ROOT / "config" / "paper_example.yaml")
     sim_fn = lambda: simulate(model, duration=args.duration, rng=np.random.default_rng(0))  # noqa: E731
     best, out = best_times({"sim": sim_fn}, args.repeat)
     t_sim, sim, m_sim = best["sim"], out["sim"], peak_mb(sim_fn)
     N = sim.r.shape[0]
     K_low = model.controller_frf(N // 3)
-    def run(workers=None):
-        return identify(sim.r, sim.u, sim.y, fs_high=240.0, ratio=3, controller_low=K_low,
-                        keep_lifted=False, workers=workers)
 
-    def reference(split=3):          # split = F * n_y: J (r -> y) and S (r -> u) fitted separately
-        with mock.patch.object(sys.modules["mr_ident.identify"], "_lpm_core",
-                               functools.partial(straightforward_lpm_core, split=split)):
+    def run(workers=None):
+        return identify(
+            sim.r,
+            sim.u,
+            sim.y,
+            fs_high=240.0,
+            ratio=3,
+            controller_low=K_low,
+            keep_lifted=False,
+            workers=workers,
+        )
+
+    def reference(split=3):  # split = F * n_y: J (r -> y) and S (r -> u) fitted separately
+        with mock.patch.object(
+            sys.modules["mr_ident.numerics.methods"],
+            "lpm_bins_last",
+            functools.partial(straightforward_lpm_core, split=split),
+        ):
             return run(1)
 
-    identify(sim.r[:3000], sim.u[:3000], sim.y[:3000], fs_high=240.0, ratio=3)   # warm-up
+    identify(sim.r[:3000], sim.u[:3000], sim.y[:3000], fs_high=240.0, ratio=3)  # warm-up
     fns = {"ours": run, "one": lambda: run(1)}
     if not args.skip_reference:
         fns["ref"] = reference
@@ -117,19 +135,31 @@ def main() -> None:
     res = out["ours"]
     truth = model.plant_frf(N)[1:]
     err = np.median(np.abs(res.plant.response - truth) / np.abs(truth))
-    print(f"N = {N} samples ({args.duration:g} s at 240 Hz), F = 3, n = 8, R = 2; best of {args.repeat} "
-          f"interleaved runs each")
+    print(
+        f"N = {N} samples ({args.duration:g} s at 240 Hz), F = 3, n = 8, R = 2; best of "
+        f"{args.repeat} "
+        f"interleaved runs each"
+    )
     print(f"simulate              {t_sim:7.3f} s   peak {m_sim:7.1f} MB")
-    print(f"identify freq-lifted  {t['ours']:7.3f} s   peak {mem['ours']:7.1f} MB   (P_h, std, PFG; median rel. "
-          f"error {err:.1e}; {resolve_workers(None)} threads)")
+    print(
+        f"identify freq-lifted  {t['ours']:7.3f} s   peak {mem['ours']:7.1f} MB   (P_h, std, "
+        "PFG; median rel. "
+        f"error {err:.1e}; {resolve_workers(None)} threads)"
+    )
     print(f"  same, one thread    {t['one']:7.3f} s   peak {mem['one']:7.1f} MB")
     if not args.skip_reference:
         d = np.max(np.abs(out["ref"].plant.response - res.plant.response) / np.abs(truth))
-        print(f"straightforward QR    {t['ref']:7.3f} s   peak {mem['ref']:7.1f} MB   (J and S fitted separately; "
-              f"one thread; max rel. difference to ours {d:.1e})")
+        print(
+            f"straightforward QR    {t['ref']:7.3f} s   peak {mem['ref']:7.1f} MB   (J and S "
+            "fitted separately; "
+            f"one thread; max rel. difference to ours {d:.1e})"
+        )
         print(f"  one QR for J and S  {t['ref_joint']:7.3f} s   peak {mem['ref_joint']:7.1f} MB")
-        print(f"speed-up ratio        {t['ref'] / t['ours']:7.1f} x   ({t['ref'] / t['one']:.1f} x on one thread each; "
-              f"{t['ref_joint'] / t['ours']:.1f} x against the joint QR)")
+        print(
+            f"speed-up ratio        {t['ref'] / t['ours']:7.1f} x   ({t['ref'] / t['one']:.1f} "
+            "x on one thread each; "
+            f"{t['ref_joint'] / t['ours']:.1f} x against the joint QR)"
+        )
 
 
 if __name__ == "__main__":

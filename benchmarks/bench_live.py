@@ -28,13 +28,14 @@ import numpy as np
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 BLOCK = 1000
 WINDOW = 1_440_000
-FS = 1e6            # the node is told 1 MHz so that 1 M samples/s is real time
-LATENCY_RUNS = 3    # each with a fresh node (its first estimate, after the warm-up)
+FS = 1e6  # the node is told 1 MHz so that 1 M samples/s is real time
+LATENCY_RUNS = 3  # each with a fresh node (its first estimate, after the warm-up)
 
 
 def _signals(n: int) -> np.ndarray:
-    from mr_ident.model import load_model
-    from mr_ident.simulate import simulate
+    from mr_ident.io.modelfile import load_model
+    from mr_ident.numerics.simulate import simulate
+
     m = load_model(Path(__file__).resolve().parents[1] / "config" / "paper_example.yaml")
     sim = simulate(m, n_samples=n, rng=np.random.default_rng(0))
     return np.stack([sim.r[:, 0], sim.u[:, 0], sim.y[:, 0]])
@@ -46,9 +47,13 @@ def publisher(rate: float, seconds: float) -> None:
     from std_msgs.msg import Float64MultiArray
 
     from mr_ident.ros.messages import BLOCK_QOS, block_msg
+
     rclpy.init()
     node = rclpy.create_node("bench_pub")
-    pubs = [node.create_publisher(Float64MultiArray, t, BLOCK_QOS) for t in ("reference", "input", "output")]
+    pubs = [
+        node.create_publisher(Float64MultiArray, t, BLOCK_QOS)
+        for t in ("reference", "input", "output")
+    ]
     x = _signals(WINDOW)
     t_end = time.monotonic() + 10
     while any(p.get_subscription_count() == 0 for p in pubs) and time.monotonic() < t_end:
@@ -63,7 +68,7 @@ def publisher(rate: float, seconds: float) -> None:
             while (d := due - time.monotonic()) > 0:
                 time.sleep(d)
         for s, p in enumerate(pubs):
-            p.publish(block_msg(b * BLOCK, x[s, k:k + BLOCK]))
+            p.publish(block_msg(b * BLOCK, x[s, k : k + BLOCK]))
     print(f"{n_blocks * BLOCK} {time.time():.6f} {time.monotonic() - t0:.3f}", flush=True)
     time.sleep(1.0)
     node.destroy_node()
@@ -71,11 +76,25 @@ def publisher(rate: float, seconds: float) -> None:
 
 
 def _node(env: dict, update: float) -> subprocess.Popen:
-    return subprocess.Popen([str(Path(sys.executable).parent / "mr-ident-node"), "--ros-args",
-                             "-p", f"fs_high:={FS}", "-p", f"window_s:={WINDOW / FS}",
-                             "-p", f"min_window_s:={WINDOW / FS}", "-p", f"update_period_s:={update}",
-                             "-p", "reorder_blocks:=64"],
-                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    return subprocess.Popen(
+        [
+            str(Path(sys.executable).parent / "mr-ident-node"),
+            "--ros-args",
+            "-p",
+            f"fs_high:={FS}",
+            "-p",
+            f"window_s:={WINDOW / FS}",
+            "-p",
+            f"min_window_s:={WINDOW / FS}",
+            "-p",
+            f"update_period_s:={update}",
+            "-p",
+            "reorder_blocks:=64",
+        ],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
 
 
 class _Listen:
@@ -85,14 +104,19 @@ class _Listen:
         from std_msgs.msg import Float64MultiArray
 
         from mr_ident.ros.messages import RESULT_QOS
+
         self.rclpy = rclpy
         rclpy.init()
         self.node = rclpy.create_node("bench_listen")
         self.diag: dict[str, str] = {}
         self.frf_times: list[float] = []
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._diag, 10)
-        self.node.create_subscription(Float64MultiArray, "/mr_ident/plant_frf",
-                                      lambda m: self.frf_times.append(time.time()), RESULT_QOS)
+        self.node.create_subscription(
+            Float64MultiArray,
+            "/mr_ident/plant_frf",
+            lambda m: self.frf_times.append(time.time()),
+            RESULT_QOS,
+        )
 
     def _diag(self, m) -> None:  # type: ignore[no-untyped-def]
         self.diag = {kv.key: kv.value for kv in m.status[0].values}
@@ -110,9 +134,14 @@ class _Listen:
 def _run_publisher(env: dict, rate: float, seconds: float, lis: _Listen) -> tuple[int, float]:
     """Run the publisher process; the listener keeps spinning meanwhile, so that a result
     published before the publisher has exited is received (and timed) when it arrives."""
-    with tempfile.TemporaryFile("w+") as errors:      # a file, not a pipe: it never fills up
-        proc = subprocess.Popen([sys.executable, __file__, "--publisher", str(rate), str(seconds)], env=env,
-                                stdout=subprocess.PIPE, stderr=errors, text=True)
+    with tempfile.TemporaryFile("w+") as errors:  # a file, not a pipe: it never fills up
+        proc = subprocess.Popen(
+            [sys.executable, __file__, "--publisher", str(rate), str(seconds)],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=errors,
+            text=True,
+        )
         deadline = time.monotonic() + seconds * 10 + 60
         while proc.poll() is None:
             if time.monotonic() > deadline:
@@ -124,18 +153,24 @@ def _run_publisher(env: dict, rate: float, seconds: float, lis: _Listen) -> tupl
             errors.seek(0)
             raise RuntimeError(errors.read())
     n, t_last, elapsed = out.split()
-    print(f"  publisher: {int(n)} samples per topic in {float(elapsed):.2f} s "
-          f"({int(n) / float(elapsed) / 1e6:.2f} M samples/s)", flush=True)
+    print(
+        f"  publisher: {int(n)} samples per topic in {float(elapsed):.2f} s "
+        f"({int(n) / float(elapsed) / 1e6:.2f} M samples/s)",
+        flush=True,
+    )
     return int(n), float(t_last)
 
 
 def main() -> None:
     from domain_coordinator import domain_id
+
     with domain_id() as dom:
         env = dict(os.environ, ROS_DOMAIN_ID=str(dom))
         os.environ["ROS_DOMAIN_ID"] = str(dom)
-        print(f"# live benchmark: blocks of {BLOCK} samples, 3 topics, window {WINDOW} samples, "
-              f"SingleThreadedExecutor, localhost DDS (domain {dom})")
+        print(
+            f"# live benchmark: blocks of {BLOCK} samples, 3 topics, window {WINDOW} samples, "
+            f"SingleThreadedExecutor, localhost DDS (domain {dom})"
+        )
         best = 0.0
         for rate in (250e3, 500e3, 1e6, 2e6, 3e6, 4e6, 6e6):
             node = _node(env, update=2.0)
@@ -148,8 +183,12 @@ def main() -> None:
                 got = [int(d.get(f"{s}.samples", 0)) for s in ("reference", "input", "output")]
                 gaps = sum(int(d.get(f"{s}.gaps", 0)) for s in ("reference", "input", "output"))
                 ok = all(g == sent for g in got) and gaps == 0
-                print(f"rate {rate / 1e6:5.2f} MS/s per topic: sent {sent}, received {got}, gaps {gaps}, "
-                      f"estimates {d.get('estimates')} -> {'OK' if ok else 'LOSS'}", flush=True)
+                print(
+                    f"rate {rate / 1e6:5.2f} MS/s per topic: sent {sent}, received {got}, gaps "
+                    f"{gaps}, "
+                    f"estimates {d.get('estimates')} -> {'OK' if ok else 'LOSS'}",
+                    flush=True,
+                )
             finally:
                 lis.close()
                 node.terminate()
@@ -157,7 +196,10 @@ def main() -> None:
             if not ok:
                 break
             best = rate
-        print(f"highest sustained rate with zero lost samples: {best / 1e6:.2f} M samples/s per topic")
+        print(
+            f"highest sustained rate with zero lost samples: {best / 1e6:.2f} M samples/s per "
+            "topic"
+        )
 
         latencies = []
         for run in range(LATENCY_RUNS):
@@ -167,24 +209,35 @@ def main() -> None:
                 lis.spin(1.0)
                 sent, t_last = _run_publisher(env, 1e6, WINDOW / 1e6, lis)
                 t_wait = time.monotonic()
-                while time.monotonic() - t_wait < 60 and not [t for t in lis.frf_times if t > t_last]:
+                while time.monotonic() - t_wait < 60 and not [
+                    t for t in lis.frf_times if t > t_last
+                ]:
                     lis.spin(0.1)
                 after = [t for t in lis.frf_times if t > t_last]
                 lis.spin(1.5)
                 d = lis.diag
                 latencies.append((after[0] - t_last) if after else float("nan"))
-                print(f"  (diagnostics: {d.get('window_end_index')} aligned, gaps "
-                      f"{[d.get(s + '.gaps') for s in ('reference', 'input', 'output')]}, "
-                      f"warm-up {d.get('warm_up_s')} s)")
-                print(f"latency {run + 1}/{LATENCY_RUNS}, last block published -> estimate of the {WINDOW}-sample "
-                      f"window received: {latencies[-1]:.2f} s (identification {d.get('compute_s')} s, "
-                      f"window [{d.get('estimate_first_index')}, +{d.get('estimate_samples')}))", flush=True)
+                print(
+                    f"  (diagnostics: {d.get('window_end_index')} aligned, gaps "
+                    f"{[d.get(s + '.gaps') for s in ('reference', 'input', 'output')]}, "
+                    f"warm-up {d.get('warm_up_s')} s)"
+                )
+                print(
+                    f"latency {run + 1}/{LATENCY_RUNS}, last block published -> estimate of the "
+                    f"{WINDOW}-sample "
+                    f"window received: {latencies[-1]:.2f} s (identification "
+                    f"{d.get('compute_s')} s, "
+                    f"window [{d.get('estimate_first_index')}, +{d.get('estimate_samples')}))",
+                    flush=True,
+                )
             finally:
                 lis.close()
                 node.terminate()
                 node.wait(30)
-        print(f"latency over {LATENCY_RUNS} fresh nodes: worst {np.max(latencies):.2f} s, "
-              f"median {float(np.median(latencies)):.2f} s")
+        print(
+            f"latency over {LATENCY_RUNS} fresh nodes: worst {np.max(latencies):.2f} s, "
+            f"median {float(np.median(latencies)):.2f} s"
+        )
 
 
 if __name__ == "__main__":

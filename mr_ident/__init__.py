@@ -1,7 +1,9 @@
 """mr_ident: frequency-domain identification of multirate control loops.
 
-The core (this package minus the ``ros`` adapters) is pure numpy/scipy and imports
-no ROS code. Shapes: signals (n_samples, n_channels); FRFs (n_freq, n_out, n_in)
+Layers, each importing only those beneath it: :mod:`~mr_ident.numerics` (pure
+numpy/scipy), :mod:`~mr_ident.io`, :mod:`~mr_ident.live`, :mod:`~mr_ident.diagnosis`,
+then the adapters (``ros/``, ``cli``, ``plots``, ``paper``, ``htmlreport``). Only
+``ros/`` imports ROS code. Shapes: signals (n_samples, n_channels); FRFs (n_freq, n_out, n_in)
 complex128.
 
 The public names below are imported on first use (PEP 562), so that ``import
@@ -14,20 +16,36 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-__version__ = "0.1.0"
+from .version import __version__  # noqa: F401  (re-exported)
 
 #: public name -> module (relative to this package) that defines it
 _EXPORTS: dict[str, str] = {
-    **dict.fromkeys(("ConfigError", "DataError", "DimensionError", "ModelError", "MrIdentError"), "errors"),
-    **dict.fromkeys(("METHODS", "identify"), "identify"),
-    **dict.fromkeys(("dft", "idft", "freq_lift", "freq_unlift", "time_lift", "time_unlift", "lift_frf",
-                     "unlift_frf"), "lifting"),
-    **dict.fromkeys(("LPMFit", "lpm", "pad_circular"), "lpm"),
-    **dict.fromkeys(("Model", "load_model", "model_from_dict"), "model"),
-    **dict.fromkeys(("pfg_from_lifted", "pfg_from_plant"), "pfg"),
-    **dict.fromkeys(("FRF", "PFG", "Identification", "LiftedFRF"), "results"),
-    **dict.fromkeys(("Simulation", "lifted_loop", "simulate"), "simulate"),
-    **dict.fromkeys(("StateSpace", "TransferMatrix"), "systems"),
+    **dict.fromkeys(
+        ("ConfigError", "DataError", "DimensionError", "ModelError", "MrIdentError"), "errors"
+    ),
+    **dict.fromkeys(("METHODS", "identify"), "numerics.identify"),
+    **dict.fromkeys(
+        (
+            "dft",
+            "idft",
+            "freq_lift",
+            "freq_unlift",
+            "time_lift",
+            "time_unlift",
+            "lift_frf",
+            "unlift_frf",
+        ),
+        "numerics.lifting",
+    ),
+    **dict.fromkeys(("LPMFit", "lpm", "pad_circular"), "numerics.lpm"),
+    "Model": "numerics.model",
+    **dict.fromkeys(("load_model", "model_from_dict", "model_to_dict"), "io.modelfile"),
+    **dict.fromkeys(("pfg_from_lifted", "pfg_from_plant"), "numerics.pfg"),
+    **dict.fromkeys(("FRF", "PFG", "Identification", "LiftedFRF"), "numerics.results"),
+    "LoopData": "numerics.signals",
+    **dict.fromkeys(("lifted_loop", "simulate"), "numerics.simulate"),
+    **dict.fromkeys(("StateSpace", "TransferMatrix"), "numerics.systems"),
+    **dict.fromkeys(("Diagnosis", "diagnose"), "diagnosis"),
 }
 
 __all__ = sorted(_EXPORTS)
@@ -46,14 +64,25 @@ def __dir__() -> list[str]:
     return sorted(set(globals()) | set(__all__))
 
 
-if TYPE_CHECKING:   # for type checkers and IDEs: the same names, eagerly
+if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
+    from .diagnosis import Diagnosis, diagnose  # noqa: F401
     from .errors import ConfigError, DataError, DimensionError, ModelError, MrIdentError  # noqa: F401
-    from .identify import METHODS, identify  # noqa: F401
-    from .lifting import (dft, freq_lift, freq_unlift, idft, lift_frf, time_lift,  # noqa: F401
-                          time_unlift, unlift_frf)
-    from .lpm import LPMFit, lpm, pad_circular  # noqa: F401
-    from .model import Model, load_model, model_from_dict  # noqa: F401
-    from .pfg import pfg_from_lifted, pfg_from_plant  # noqa: F401
-    from .results import FRF, PFG, Identification, LiftedFRF  # noqa: F401
-    from .simulate import Simulation, lifted_loop, simulate  # noqa: F401
-    from .systems import StateSpace, TransferMatrix  # noqa: F401
+    from .io.modelfile import load_model, model_from_dict, model_to_dict  # noqa: F401
+    from .numerics.identify import METHODS, identify  # noqa: F401
+    from .numerics.lifting import (
+        dft,
+        freq_lift,
+        freq_unlift,
+        idft,
+        lift_frf,
+        time_lift,  # noqa: F401
+        time_unlift,
+        unlift_frf,
+    )
+    from .numerics.lpm import LPMFit, lpm, pad_circular  # noqa: F401
+    from .numerics.model import Model  # noqa: F401
+    from .numerics.pfg import pfg_from_lifted, pfg_from_plant  # noqa: F401
+    from .numerics.results import FRF, PFG, Identification, LiftedFRF  # noqa: F401
+    from .numerics.signals import LoopData  # noqa: F401
+    from .numerics.simulate import lifted_loop, simulate  # noqa: F401
+    from .numerics.systems import StateSpace, TransferMatrix  # noqa: F401

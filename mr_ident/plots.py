@@ -5,15 +5,16 @@ Compute and plot are separate: every function takes result objects and a path.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
-from .results import FRF, PFG
+from .numerics.results import FRF, PFG
 
 
 def _save(fig: Figure, path: str | Path) -> Path:
@@ -28,8 +29,13 @@ def _db(x: NDArray) -> NDArray:
         return 20 * np.log10(np.abs(x))
 
 
-def bode_figure(frf: FRF, *, models: Sequence[tuple[str, FRF, Mapping[str, Any]]] = (),
-                nyquist_low: float | None = None, title: str | None = None) -> Figure:
+def bode_figure(
+    frf: FRF,
+    *,
+    models: Sequence[tuple[str, FRF, Mapping[str, Any]]] = (),
+    nyquist_low: float | None = None,
+    title: str | None = None,
+) -> Figure:
     """Bode magnitude and phase of an estimate with a +-2 sigma band, and reference curves.
 
     ``models`` holds ``(label, frf, line style)`` triples drawn over the estimate.
@@ -46,8 +52,9 @@ def bode_figure(frf: FRF, *, models: Sequence[tuple[str, FRF, Mapping[str, Any]]
             am.semilogx(f, _db(g), lw=0.8, color="C0", label=f"estimate ({frf.method})")
             if np.isfinite(s).any():
                 lo = np.maximum(np.abs(g) - 2 * s, np.abs(g) * 1e-3)
-                am.fill_between(f, _db(lo), _db(np.abs(g) + 2 * s), color="C0", alpha=0.25,
-                                lw=0, label="±2σ")
+                am.fill_between(
+                    f, _db(lo), _db(np.abs(g) + 2 * s), color="C0", alpha=0.25, lw=0, label="±2σ"
+                )
                 am.semilogx(f, _db(s), lw=0.6, color="C2", label="σ")
             ap.semilogx(f, np.degrees(np.angle(g)), lw=0.8, color="C0")
             for label, m, style in models:
@@ -63,29 +70,50 @@ def bode_figure(frf: FRF, *, models: Sequence[tuple[str, FRF, Mapping[str, Any]]
     axes[0, 0].legend(loc="best", fontsize=8)
     axes[-1, -1].set_xlabel("frequency [Hz]")
     if nyquist_low:
-        axes[0, 0].text(nyquist_low, axes[0, 0].get_ylim()[1], " low-rate Nyquist", fontsize=7,
-                        va="top", color="0.4")
+        axes[0, 0].text(
+            nyquist_low,
+            axes[0, 0].get_ylim()[1],
+            " low-rate Nyquist",
+            fontsize=7,
+            va="top",
+            color="0.4",
+        )
     fig.suptitle(title or f"Plant estimate P_h ({frf.method})")
     fig.tight_layout()
     return fig
 
 
-def plot_bode(frf: FRF, path: str | Path, *, model: FRF | None = None,
-              nyquist_low: float | None = None, title: str | None = None) -> Path:
+def plot_bode(
+    frf: FRF,
+    path: str | Path,
+    *,
+    model: FRF | None = None,
+    nyquist_low: float | None = None,
+    title: str | None = None,
+) -> Path:
     """:func:`bode_figure` with the model (dashed black) when given, saved to ``path``."""
     models = [("model", model, {"color": "k", "ls": "--"})] if model is not None else []
     return _save(bode_figure(frf, models=models, nyquist_low=nyquist_low, title=title), path)
 
 
-def plot_pfg(pfg: PFG, path: str | Path, *, model: PFG | None = None, title: str | None = None) -> Path:
+def plot_pfg(
+    pfg: PFG, path: str | Path, *, model: PFG | None = None, title: str | None = None
+) -> Path:
     """PFG of the multirate loop with a +-2 sigma band, and the model's."""
     fig = Figure(figsize=(7, 4))
     ax = fig.subplots()
     f, g, s = pfg.frequency, pfg.gain, pfg.std
     ax.semilogx(f, _db(g), lw=0.8, color="C0", label=f"PFG from {pfg.source}")
     if np.isfinite(s).any():
-        ax.fill_between(f, _db(np.maximum(g - 2 * s, g * 1e-3)), _db(g + 2 * s), color="C0", alpha=0.25,
-                        lw=0, label="±2σ")
+        ax.fill_between(
+            f,
+            _db(np.maximum(g - 2 * s, g * 1e-3)),
+            _db(g + 2 * s),
+            color="C0",
+            alpha=0.25,
+            lw=0,
+            label="±2σ",
+        )
     if model is not None:
         ax.semilogx(model.frequency, _db(model.gain), "k--", lw=1, label="model")
     ax.set_xlabel("frequency [Hz]")
@@ -97,8 +125,15 @@ def plot_pfg(pfg: PFG, path: str | Path, *, model: PFG | None = None, title: str
     return _save(fig, path)
 
 
-def plot_errors(frequency: NDArray, errors: Mapping[str, NDArray], path: str | Path, *,
-                ylabel: str, title: str, nyquist_low: float | None = None) -> Path:
+def plot_errors(
+    frequency: NDArray,
+    errors: Mapping[str, NDArray],
+    path: str | Path,
+    *,
+    ylabel: str,
+    title: str,
+    nyquist_low: float | None = None,
+) -> Path:
     """One error curve per method (log-log), as in the paper's figures."""
     fig = Figure(figsize=(7.5, 4.2))
     ax = fig.subplots()

@@ -18,14 +18,15 @@ ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "test" / "corpus"
 sys.path.insert(0, str(ROOT))
 
-FS, F, N = 240.0, 3, 300           # CSV/NPZ: 300 samples of the paper example's rates
-BLOCK, BLOCKS = 120, 12            # MCAP: 12 blocks of 120 samples per topic (6 s at 240 Hz)
-CHUNK = 4096                       # small MCAP chunks, so a cut lands after some finished chunks
+FS, F, N = 240.0, 3, 300  # CSV/NPZ: 300 samples of the paper example's rates
+BLOCK, BLOCKS = 120, 12  # MCAP: 12 blocks of 120 samples per topic (6 s at 240 Hz)
+CHUNK = 4096  # small MCAP chunks, so a cut lands after some finished chunks
 
 
 def signals(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    from mr_ident.model import load_model
-    from mr_ident.simulate import simulate
+    from mr_ident.io.modelfile import load_model
+    from mr_ident.numerics.simulate import simulate
+
     model = load_model(ROOT / "config" / "paper_example.yaml")
     sim = simulate(model, duration=n / FS, rng=np.random.default_rng(7))
     return sim.r[:, 0], sim.u[:, 0], sim.y[:, 0]
@@ -33,7 +34,7 @@ def signals(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def table(r: np.ndarray, u: np.ndarray, y: np.ndarray) -> list[list[str]]:
     t = np.arange(r.size) / FS
-    return [[repr(float(v)) for v in row] for row in zip(t, r, u, y)]
+    return [[repr(float(v)) for v in row] for row in zip(t, r, u, y, strict=False)]
 
 
 def write_csv(name: str, rows: list[list[str]], header: str = "t,r,u,y") -> None:
@@ -43,25 +44,39 @@ def write_csv(name: str, rows: list[list[str]], header: str = "t,r,u,y") -> None
 def csv_files(r: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:
     rows = table(r, u, y)
     bad = [row[:] for row in rows]
-    bad[41][3] = "nan"                                   # y at data row 42
+    bad[41][3] = "nan"  # y at data row 42
     write_csv("csv_nan.csv", bad)
     bad = [row[:] for row in rows]
-    bad[99][2] = "inf"                                   # u at data row 100
+    bad[99][2] = "inf"  # u at data row 100
     write_csv("csv_inf.csv", bad)
     bad = [row[:] for row in rows]
-    bad[6][1] = "abc"                                    # text in r, data row 7
+    bad[6][1] = "abc"  # text in r, data row 7
     write_csv("csv_text.csv", bad)
     write_csv("csv_missing_column.csv", [[a, b, d] for a, b, _, d in rows], header="t,r,y")
     bad = [row[:] for row in rows]
-    bad[150] = bad[150][:3]                              # data row 151 has 3 values
+    bad[150] = bad[150][:3]  # data row 151 has 3 values
     write_csv("csv_unequal_lengths.csv", bad)
-    (OUT / "csv_zero_rows.csv").write_text("")           # an empty file: not even a header
+    (OUT / "csv_zero_rows.csv").write_text("")  # an empty file: not even a header
     write_csv("csv_header_only.csv", [])
 
 
 def npz_files(r: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:
-    np.savez(OUT / "npz_wrong_shape.npz", r=r.reshape(-1, 3, 2)[:50], u=u[:300], y=y[:300], fs_high=FS, ratio=F)
-    np.savez(OUT / "npz_empty_arrays.npz", r=np.zeros(0), u=np.zeros(0), y=np.zeros(0), fs_high=FS, ratio=F)
+    np.savez(
+        OUT / "npz_wrong_shape.npz",
+        r=r.reshape(-1, 3, 2)[:50],
+        u=u[:300],
+        y=y[:300],
+        fs_high=FS,
+        ratio=F,
+    )
+    np.savez(
+        OUT / "npz_empty_arrays.npz",
+        r=np.zeros(0),
+        u=np.zeros(0),
+        y=np.zeros(0),
+        fs_high=FS,
+        ratio=F,
+    )
     np.savez(OUT / "npz_non_integer_ratio.npz", r=r, u=u, y=y, fs_high=FS, ratio=2.5)
     np.savez(OUT / "npz_unequal_lengths.npz", r=r, u=u[:-3], y=y, fs_high=FS, ratio=F)
     np.savez(OUT / "npz_text_array.npz", r=np.array(["a"] * r.size), u=u, y=y, fs_high=FS, ratio=F)
@@ -84,32 +99,44 @@ def model_files() -> None:
     (OUT / "model_non_numeric.yaml").write_text(MODEL.format(ratio=3, k="29850.0x", kp=6000.0))
     (OUT / "model_unstable.yaml").write_text(MODEL.format(ratio=3, k=29850.0, kp=60000.0))
     (OUT / "model_ratio_zero.yaml").write_text(MODEL.format(ratio=0, k=29850.0, kp=6000.0))
-    (OUT / "model_unknown_key.yaml").write_text(MODEL.format(ratio=3, k=29850.0, kp=6000.0)
-                                                + "noise_sdt: 0.01\n")
-    (OUT / "model_not_yaml.yaml").write_text("fs_high: 240.0\nplant: {num: [1.0, den: [1.0, 2.0]\n")
+    (OUT / "model_unknown_key.yaml").write_text(
+        MODEL.format(ratio=3, k=29850.0, kp=6000.0) + "noise_sdt: 0.01\n"
+    )
+    (OUT / "model_not_yaml.yaml").write_text(
+        "fs_high: 240.0\nplant: {num: [1.0, den: [1.0, 2.0]\n"
+    )
 
 
 def mcap_files(r: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:
     from rclpy.serialization import serialize_message
     from std_msgs.msg import Float64MultiArray, String
 
-    from mr_ident.recording import McapRecorder
+    from mr_ident.io.recording import McapRecorder
     from mr_ident.ros.messages import BLOCK_QOS, BLOCK_TYPE, block_msg, qos_dict
 
     qos = [qos_dict(BLOCK_QOS)]
     sig = {"/reference": r, "/input": u, "/output": y}
 
-    def write(name: str, order: list[tuple[str, int]], types: dict[str, str] | None = None,
-              override: dict[tuple[str, int], int] | None = None) -> Path:
+    def write(
+        name: str,
+        order: list[tuple[str, int]],
+        types: dict[str, str] | None = None,
+        override: dict[tuple[str, int], int] | None = None,
+    ) -> Path:
         """Blocks (topic, block number) in this order; override maps one to another first index."""
         path = OUT / name
         types = types or {}
         with McapRecorder(path, chunk_size=CHUNK, library="mr_ident corpus") as rec:
-            cids = {t: rec.add_topic(t, types.get(t, BLOCK_TYPE), qos) for t in dict.fromkeys(t for t, _ in order)}
+            cids = {
+                t: rec.add_topic(t, types.get(t, BLOCK_TYPE), qos)
+                for t in dict.fromkeys(t for t, _ in order)
+            }
             for i, (topic, b) in enumerate(order):
                 if types.get(topic, BLOCK_TYPE) == BLOCK_TYPE:
                     first = (override or {}).get((topic, b), b * BLOCK)
-                    data = serialize_message(block_msg(first, sig[topic][b * BLOCK:(b + 1) * BLOCK]))
+                    data = serialize_message(
+                        block_msg(first, sig[topic][b * BLOCK : (b + 1) * BLOCK])
+                    )
                 else:
                     data = serialize_message(String(data=f"block {b}"))
                 t = 1_700_000_000_000_000_000 + i * 10_000_000
@@ -122,17 +149,23 @@ def mcap_files(r: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:
     (OUT / "_whole.mcap").unlink()
     # Cut at several offsets: inside the magic, inside the header/schemas, inside the
     # first chunk, and after the first finished chunks (too little for one window).
-    first_chunk = 8                  # walk the records (opcode u8, length u64 LE) to the first Chunk (0x06)
+    first_chunk = 8  # walk the records (opcode u8, length u64 LE) to the first Chunk (0x06)
     while whole[first_chunk] != 0x06:
-        first_chunk += 9 + int.from_bytes(whole[first_chunk + 1:first_chunk + 9], "little")
-    for name, cut in [("mcap_truncated_magic.mcap", 5), ("mcap_truncated_header.mcap", 40),
-                      ("mcap_truncated_first_chunk.mcap", first_chunk + 200),
-                      ("mcap_truncated_late.mcap", len(whole) * 2 // 3)]:
+        first_chunk += 9 + int.from_bytes(whole[first_chunk + 1 : first_chunk + 9], "little")
+    for name, cut in [
+        ("mcap_truncated_magic.mcap", 5),
+        ("mcap_truncated_header.mcap", 40),
+        ("mcap_truncated_first_chunk.mcap", first_chunk + 200),
+        ("mcap_truncated_late.mcap", len(whole) * 2 // 3),
+    ]:
         (OUT / name).write_bytes(whole[:cut])
     write("mcap_wrong_schema.mcap", order, types={"/reference": "std_msgs/msg/String"})
     # The reference stream's index goes back every other block, with other samples there.
-    write("mcap_non_monotonic.mcap", order,
-          override={("/reference", b): (b - 1) * BLOCK + 7 for b in range(2, BLOCKS, 2)})
+    write(
+        "mcap_non_monotonic.mcap",
+        order,
+        override={("/reference", b): (b - 1) * BLOCK + 7 for b in range(2, BLOCKS, 2)},
+    )
     write("mcap_missing_topic.mcap", [(t, b) for t, b in order if t != "/output"])
     (OUT / "mcap_not_mcap.mcap").write_text("t,r,u,y\n0,1,2,3\n")
 

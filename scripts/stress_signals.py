@@ -52,7 +52,7 @@ class Outcome:
     delay: float
     signal: int
     returncode: int | None
-    problem: str            # "" when the run passed
+    problem: str  # "" when the run passed
 
     @property
     def ok(self) -> bool:
@@ -77,21 +77,26 @@ def _env(domain: int) -> dict[str, str]:
 
 
 def _finalised(path: Path) -> str:
-    """"" when ``path`` is an MCAP file with its summary, else what is wrong."""
+    """ "" when ``path`` is an MCAP file with its summary, else what is wrong."""
     from mcap.reader import make_reader
+
     if not path.exists():
         return f"{path.name} does not exist"
     try:
         with open(path, "rb") as fh:
             summary = make_reader(fh).get_summary()
-    except Exception as err:        # noqa: BLE001 - any reader failure is the finding
+    except Exception as err:  # noqa: BLE001 - any reader failure is the finding
         return f"{path.name} unreadable: {type(err).__name__}: {err}"
     return "" if summary is not None else f"{path.name} has no summary (not finalised)"
 
 
 def _feeder(env: dict[str, str]) -> subprocess.Popen:
-    return subprocess.Popen([str(BIN / "mr-ident-sim"), str(PAPER), "--rate", "20", "--wait", "20",
-                             "--block", "240"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    return subprocess.Popen(
+        [str(BIN / "mr-ident-sim"), str(PAPER), "--rate", "20", "--wait", "20", "--block", "240"],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
 
 
 def _command(program: str, work: Path) -> tuple[list[str], Path | None]:
@@ -100,12 +105,38 @@ def _command(program: str, work: Path) -> tuple[list[str], Path | None]:
         return [str(BIN / "mr-ident"), "record", str(out)], out
     if program == "node":
         out = work / "node.mcap"
-        return [str(BIN / "mr-ident-node"), "--ros-args", "-p", f"record_path:={out}", "-p", "window_s:=5.0",
-                "-p", "min_window_s:=5.0", "-p", "update_period_s:=0.2"], out
+        return [
+            str(BIN / "mr-ident-node"),
+            "--ros-args",
+            "-p",
+            f"record_path:={out}",
+            "-p",
+            "window_s:=5.0",
+            "-p",
+            "min_window_s:=5.0",
+            "-p",
+            "update_period_s:=0.2",
+        ], out
     if program == "sim":
-        return [str(BIN / "mr-ident-sim"), str(PAPER), "--rate", "20", "--wait", "0", "--block", "240"], None
+        return [
+            str(BIN / "mr-ident-sim"),
+            str(PAPER),
+            "--rate",
+            "20",
+            "--wait",
+            "0",
+            "--block",
+            "240",
+        ], None
     if program == "demo":
-        return [str(BIN / "mr-ident"), "demo", "--out-dir", str(work), "--timeout", "60"], work / "live.mcap"
+        return [
+            str(BIN / "mr-ident"),
+            "demo",
+            "--out-dir",
+            str(work),
+            "--timeout",
+            "60",
+        ], work / "live.mcap"
     raise ValueError(f"program must be one of {sorted(SPAN)}, got {program!r}")
 
 
@@ -116,8 +147,14 @@ def signal_run(program: str, delay: float, sig: int, work: Path, domain: int) ->
     argv, output = _command(program, work)
     feeder = _feeder(env) if program in ("record", "node", "sim") else None
     try:
-        proc = subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                start_new_session=True)      # the signal reaches this process only
+        proc = subprocess.Popen(
+            argv,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            start_new_session=True,
+        )  # the signal reaches this process only
         time.sleep(delay)
         proc.send_signal(sig)
         try:
@@ -156,6 +193,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out-dir", type=Path, default=ROOT / "out" / "stress")
     args = p.parse_args(argv)
     from domain_coordinator import domain_id
+
     rng = random.Random(args.seed)
     start = interpreter_start()
     print(f"interpreter start (no handler can exist before): {start:.3f} s", flush=True)
@@ -170,12 +208,19 @@ def main(argv: list[str] | None = None) -> int:
                 o = signal_run(program, delay, sig, args.out_dir / program / str(k), dom)
             outcomes.append(o)
             if not o.ok:
-                print(f"  FAIL {program} run {k}: {signal.Signals(sig).name} after {delay:.3f} s: {o.problem}",
-                      flush=True)
+                print(
+                    f"  FAIL {program} run {k}: {signal.Signals(sig).name} after {delay:.3f} s: "
+                    f"{o.problem}",
+                    flush=True,
+                )
         bad = [o for o in outcomes if not o.ok]
         failures += len(bad)
-        print(f"{program:7s} {len(outcomes) - len(bad)}/{len(outcomes)} runs exited 0 with finalised outputs "
-              f"(signals after {start:.2f}-{SPAN[program]:g} s; {time.monotonic() - t0:.0f} s)", flush=True)
+        print(
+            f"{program:7s} {len(outcomes) - len(bad)}/{len(outcomes)} runs exited 0 with "
+            "finalised outputs "
+            f"(signals after {start:.2f}-{SPAN[program]:g} s; {time.monotonic() - t0:.0f} s)",
+            flush=True,
+        )
     return 1 if failures else 0
 
 

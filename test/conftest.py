@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mr_ident.model import Model, load_model
+from mr_ident.io.modelfile import load_model
+from mr_ident.numerics.model import Model
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -17,7 +18,9 @@ def paper_model() -> Model:
     return load_model(ROOT / "config" / "paper_example.yaml")
 
 
-def brute_force_loop(model: Model, r: np.ndarray, v: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def brute_force_loop(
+    model: Model, r: np.ndarray, v: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Simulate the multirate loop sample by sample, straight from its definition.
 
     u_h[n] = r_h[n] - u_c[m] held from sample mF + phase + delay; the controller

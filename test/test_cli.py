@@ -1,4 +1,7 @@
-"""The command line: round trips and argument errors (bad files: test_corpus.py). `error:`, exit 2, no traceback."""
+"""The command line: round trips and argument errors (bad files: test_corpus.py).
+
+`error:`, exit 2, no traceback.
+"""
 
 import subprocess
 import sys
@@ -25,12 +28,26 @@ def test_simulate_then_identify_round_trips_with_the_pfg(tmp_path, capsys, suffi
     assert run(capsys, "simulate", PAPER, "--duration", 30, "--seed", 1, "--out", data)[0] == 0
     res = tmp_path / "r.npz"
     extra = ["--ratio", 3] if suffix == "csv" else []
-    code, out, err = run(capsys, "identify", data, "--model", PAPER, *extra, "--out", res,
-                         "--plot", tmp_path / "bode.png")
+    code, out, err = run(
+        capsys,
+        "identify",
+        data,
+        "--model",
+        PAPER,
+        *extra,
+        "--out",
+        res,
+        "--plot",
+        tmp_path / "bode.png",
+    )
     assert code == 0, err
     z = np.load(res)
     K = 7200 // 2
-    assert z["frequency"].shape == (K,) and z["P"].shape == (K, 1, 1) and z["P_std"].shape == (K, 1, 1)
+    assert (
+        z["frequency"].shape == (K,)
+        and z["P"].shape == (K, 1, 1)
+        and z["P_std"].shape == (K, 1, 1)
+    )
     assert z["pfg"].shape == (K,) and z["pfg_std"].shape == (K,)
     assert z["frequency"][0] > 0 and z["frequency"][-1] == pytest.approx(120.0)
     assert (tmp_path / "bode.png").stat().st_size > 10_000
@@ -47,14 +64,24 @@ def _rows(n=300):
     return [f"{i / 240},{a},{b},{c}" for i, (a, b, c) in enumerate(rng.standard_normal((n, 3)))]
 
 
-@pytest.mark.parametrize("name,make,extra,match", [
-    ("extra column", lambda p: _csv(p, [x + ",1" for x in _rows()], "t,r,u,y,z"), [], "unexpected column 'z'"),
-    ("not multiple of F", lambda p: _csv(p, _rows(301)), [], "not a multiple of ratio F=3"),
-    ("too short", lambda p: _csv(p, _rows(30)), [], "too few samples for the LPM window"),
-])
+@pytest.mark.parametrize(
+    "name,make,extra,match",
+    [
+        (
+            "extra column",
+            lambda p: _csv(p, [x + ",1" for x in _rows()], "t,r,u,y,z"),
+            [],
+            "unexpected column 'z'",
+        ),
+        ("not multiple of F", lambda p: _csv(p, _rows(301)), [], "not a multiple of ratio F=3"),
+        ("too short", lambda p: _csv(p, _rows(30)), [], "too few samples for the LPM window"),
+    ],
+)
 def test_bad_csv_input_is_an_error_with_exit_2(tmp_path, capsys, name, make, extra, match):
     data = make(tmp_path / "bad.csv")
-    code, out, err = run(capsys, "identify", data, "--ratio", 3, *extra, "--out", tmp_path / "r.npz")
+    code, out, err = run(
+        capsys, "identify", data, "--ratio", 3, *extra, "--out", tmp_path / "r.npz"
+    )
     assert code == 2
     assert err.startswith("error: ") and match in err, err
     assert "Traceback" not in err
@@ -76,9 +103,23 @@ def test_fs_disagreement_between_file_and_model_is_an_error(tmp_path, capsys):
 
 
 def test_the_console_script_prints_no_traceback(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "mr_ident.cli", "identify", str(tmp_path / "none.csv"),
-                           "--ratio", "3", "--out", str(tmp_path / "r.npz")],
-                          capture_output=True, text=True, timeout=60, cwd=ROOT)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "mr_ident.cli",
+            "identify",
+            str(tmp_path / "none.csv"),
+            "--ratio",
+            "3",
+            "--out",
+            str(tmp_path / "r.npz"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+    )
     assert proc.returncode == 2
     assert proc.stderr.startswith("error: ") and "Traceback" not in proc.stderr
 
@@ -86,7 +127,12 @@ def test_the_console_script_prints_no_traceback(tmp_path):
 def test_paper_writes_figures_and_a_table(tmp_path, capsys):
     code, out, err = run(capsys, "paper", "--duration", 30, "--out-dir", tmp_path)
     assert code == 0, err
-    for name in ("paper_plant_error.png", "paper_pfg_error.png", "paper_errors.md",
-                 "paper_bode_freq_lifted.png", "paper_pfg_freq_lifted.png"):
+    for name in (
+        "paper_plant_error.png",
+        "paper_pfg_error.png",
+        "paper_errors.md",
+        "paper_bode_freq_lifted.png",
+        "paper_pfg_freq_lifted.png",
+    ):
         assert (tmp_path / name).is_file()
     assert "| freq-lifted |" in out

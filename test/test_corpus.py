@@ -24,7 +24,8 @@ CASES = {
     "csv_unequal_lengths.csv": "line 152 has 3 values, the header names 4 columns",
     "csv_zero_rows.csv": "empty file",
     "csv_header_only.csv": "no data rows after the header",
-    "npz_wrong_shape.npz": "array 'r' must have shape (N,) or (N, channels) with N > 0, got (50, 3, 2)",
+    "npz_wrong_shape.npz": "array 'r' must have shape (N,) or (N, channels) with N > 0, "
+    "got (50, 3, 2)",
     "npz_empty_arrays.npz": "array 'r' must have shape (N,) or (N, channels) with N > 0, got (0,)",
     "npz_non_integer_ratio.npz": "ratio must be one integer >= 1, got 2.5",
     "npz_unequal_lengths.npz": "r, u, y have unequal lengths {'r': 300, 'u': 297, 'y': 300}",
@@ -36,7 +37,8 @@ CASES = {
     "model_not_yaml.yaml": "not valid YAML: line 3, column 1",
     "mcap_truncated_magic.mcap": "not an MCAP file",
     "mcap_truncated_header.mcap": "the file ends inside a record after byte 8",
-    "mcap_truncated_first_chunk.mcap": "no channel could be read (the file ends inside a record after byte",
+    "mcap_truncated_first_chunk.mcap": "no channel could be read "
+    "(the file ends inside a record after byte",
     "mcap_truncated_late.mcap": "cut short: recovered 25 messages",
     "mcap_wrong_schema.mcap": "topic '/reference' has schema 'std_msgs/msg/String'",
     "mcap_non_monotonic.mcap": "index went back from 240 to 127 with other samples",
@@ -48,8 +50,18 @@ CASES = {
 def _command(path: Path, out: Path) -> list[str]:
     kind = path.name.split("_", 1)[0]
     if kind in ("csv", "npz"):
-        return ["identify", str(path), "--ratio", "3", "--fs-high", "240", "--out", str(out / "result.npz"),
-                "--plot", str(out / "bode.png")]
+        return [
+            "identify",
+            str(path),
+            "--ratio",
+            "3",
+            "--fs-high",
+            "240",
+            "--out",
+            str(out / "result.npz"),
+            "--plot",
+            str(out / "bode.png"),
+        ]
     if kind == "model":
         return ["simulate", str(path), "--duration", "1", "--out", str(out / "data.csv")]
     return ["replay", str(path), "--out", str(out / "result.npz"), "--plot", str(out / "bode.png")]
@@ -64,7 +76,7 @@ def test_bad_file_is_an_error_naming_what_and_where(name, tmp_path, capsys):
     path = CORPUS / name
     out = tmp_path / "out"
     out.mkdir()
-    code = main(_command(path, out))        # an uncaught exception (a traceback) fails the test
+    code = main(_command(path, out))  # an uncaught exception (a traceback) fails the test
     err = capsys.readouterr().err
     assert code == 2, err
     lines = err.strip().splitlines()
@@ -75,7 +87,15 @@ def test_bad_file_is_an_error_naming_what_and_where(name, tmp_path, capsys):
 
 def test_diagnose_reads_what_a_cut_recording_holds_and_says_so(tmp_path, capsys):
     """A recording cut short is still data: diagnose warns, uses its finished chunks."""
-    code = main(["diagnose", str(PAPER), str(CORPUS / "mcap_truncated_late.mcap"), "--json", str(tmp_path / "d.json")])
+    code = main(
+        [
+            "diagnose",
+            str(PAPER),
+            str(CORPUS / "mcap_truncated_late.mcap"),
+            "--json",
+            str(tmp_path / "d.json"),
+        ]
+    )
     out, err = capsys.readouterr()
     assert code == 0, err
     assert "is truncated" in err and "using the 960 samples read" in err

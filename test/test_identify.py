@@ -8,13 +8,14 @@ Tolerances (noise-free, 600 s = 144 000 samples, n = 8, R = 2):
 * etfe: leakage of the transient, O(N^-1/2): median < 0.2 (measured ~3e-2).
 """
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from mr_ident.errors import ConfigError, DataError, DimensionError
-from mr_ident.identify import METHODS, identify
-from mr_ident.simulate import simulate
-from dataclasses import replace
+from mr_ident.numerics.identify import METHODS, identify
+from mr_ident.numerics.simulate import simulate
 
 
 @pytest.fixture(scope="module")
@@ -65,7 +66,7 @@ def test_the_reported_std_matches_the_spread_over_noisy_runs(paper_model, method
         est.append(res.plant.response[:, 0, 0])
         var.append(res.plant.std[:, 0, 0] ** 2)
     est = np.array(est)
-    emp = np.var(est, axis=0, ddof=1)          # E|dP|^2 across runs
+    emp = np.var(est, axis=0, ddof=1)  # E|dP|^2 across runs
     rep = np.mean(var, axis=0)
     ratio = np.sqrt(np.median(emp) / np.median(rep))
     per_bin = np.median(np.sqrt(emp / rep))
@@ -74,12 +75,16 @@ def test_the_reported_std_matches_the_spread_over_noisy_runs(paper_model, method
 
 
 def test_mimo_freq_lifted_recovers_the_plant():
-    from mr_ident.model import model_from_dict
-    model = model_from_dict({
-        "fs_high": 100.0, "ratio": 2,
-        "plant": {"num": [[[1.0], [0.2]], [[0.1], [2.0]]], "den": [1.0, 3.0, 10.0]},
-        "controller": {"num": [[[0.5, 0.0], [0.0]], [[0.0], [0.4, 0.0]]], "den": [1.0, -0.5]},
-    })
+    from mr_ident.io.modelfile import model_from_dict
+
+    model = model_from_dict(
+        {
+            "fs_high": 100.0,
+            "ratio": 2,
+            "plant": {"num": [[[1.0], [0.2]], [[0.1], [2.0]]], "den": [1.0, 3.0, 10.0]},
+            "controller": {"num": [[[0.5, 0.0], [0.0]], [[0.0], [0.4, 0.0]]], "den": [1.0, -0.5]},
+        }
+    )
     sim = simulate(model, duration=200.0, rng=np.random.default_rng(3))
     res = identify(sim.r, sim.u, sim.y, fs_high=100.0, ratio=2, n=10)
     truth = model.plant_frf(sim.r.shape[0])[1:]
@@ -87,13 +92,16 @@ def test_mimo_freq_lifted_recovers_the_plant():
     assert np.median(err) < 1e-6
 
 
-@pytest.mark.parametrize("kwargs,exc,match", [
-    (dict(ratio=0), ConfigError, "ratio must be an integer >= 1"),
-    (dict(method="welch"), ConfigError, "method must be one of"),
-    (dict(fs_high=-1.0), ConfigError, "fs_high must be a positive"),
-    (dict(n=0), ConfigError, "n .window half-width. must be an integer >= 1"),
-    (dict(workers=0), ConfigError, "workers must be None or an integer >= 1, got 0"),
-])
+@pytest.mark.parametrize(
+    "kwargs,exc,match",
+    [
+        (dict(ratio=0), ConfigError, "ratio must be an integer >= 1"),
+        (dict(method="welch"), ConfigError, "method must be one of"),
+        (dict(fs_high=-1.0), ConfigError, "fs_high must be a positive"),
+        (dict(n=0), ConfigError, "n .window half-width. must be an integer >= 1"),
+        (dict(workers=0), ConfigError, "workers must be None or an integer >= 1, got 0"),
+    ],
+)
 def test_bad_options_are_named(kwargs, exc, match):
     x = np.random.default_rng(0).standard_normal(300)
     args = dict(fs_high=240.0, ratio=3) | kwargs
@@ -119,13 +127,29 @@ def test_bad_data_is_named():
 def test_threads_do_not_change_a_single_bit(paper_model, method, monkeypatch):
     """Blocks of bins are independent: the result is the same on 1 or 3 threads."""
     import sys
-    monkeypatch.setattr(sys.modules["mr_ident.identify"], "BLOCK_BINS", 1000)   # several blocks
-    monkeypatch.setattr(sys.modules["mr_ident.lpm"], "CHUNK_BINS", 700)
-    monkeypatch.setattr(sys.modules["mr_ident.pfg"], "PFG_BLOCK", 900)
-    sim = simulate(replace(paper_model, noise_std=1e-3), duration=60.0, rng=np.random.default_rng(5))
+
+    monkeypatch.setattr(
+        sys.modules["mr_ident.numerics.methods"], "BLOCK_BINS", 1000
+    )  # several blocks
+    monkeypatch.setattr(sys.modules["mr_ident.numerics.lpm"], "CHUNK_BINS", 700)
+    monkeypatch.setattr(sys.modules["mr_ident.numerics.pfg"], "PFG_BLOCK", 900)
+    sim = simulate(
+        replace(paper_model, noise_std=1e-3), duration=60.0, rng=np.random.default_rng(5)
+    )
     K_low = paper_model.controller_frf(sim.r.shape[0] // 3)
-    one, three = (identify(sim.r, sim.u, sim.y, fs_high=240.0, ratio=3, method=method,
-                           controller_low=K_low, workers=w) for w in (1, 3))
+    one, three = (
+        identify(
+            sim.r,
+            sim.u,
+            sim.y,
+            fs_high=240.0,
+            ratio=3,
+            method=method,
+            controller_low=K_low,
+            workers=w,
+        )
+        for w in (1, 3)
+    )
     np.testing.assert_array_equal(one.plant.response, three.plant.response)
     np.testing.assert_array_equal(one.plant.std, three.plant.std)
     np.testing.assert_array_equal(one.pfg.gain, three.pfg.gain)

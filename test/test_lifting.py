@@ -3,9 +3,18 @@
 import numpy as np
 import pytest
 
-from mr_ident.errors import DimensionError, ConfigError
-from mr_ident.lifting import (dft, freq_lift, freq_unlift, idft, lift_frf, lifting_transform,
-                              time_lift, time_unlift, unlift_frf)
+from mr_ident.errors import ConfigError, DimensionError
+from mr_ident.numerics.lifting import (
+    dft,
+    freq_lift,
+    freq_unlift,
+    idft,
+    lift_frf,
+    lifting_transform,
+    time_lift,
+    time_unlift,
+    unlift_frf,
+)
 
 
 @pytest.mark.parametrize("F", [1, 2, 3, 5])
@@ -41,11 +50,13 @@ def test_the_time_lifted_spectrum_maps_to_the_frequency_lifted_one_by_the_unitar
     rng = np.random.default_rng(F)
     c, M = 2, 16
     x = rng.standard_normal((F * M, c))
-    Xt = freq_lift(dft(x), F)                                   # (M, F c)
-    Xb = dft(time_lift(x, F))                                   # (M, F c), M-point DFT
+    Xt = freq_lift(dft(x), F)  # (M, F c)
+    Xb = dft(time_lift(x, F))  # (M, F c), M-point DFT
     T = lifting_transform(np.arange(M), F, F * M, c)
     np.testing.assert_allclose(np.einsum("kab,kb->ka", T, Xb), Xt, atol=1e-12)
-    np.testing.assert_allclose(T @ np.conj(np.swapaxes(T, 1, 2)), np.broadcast_to(np.eye(F * c), T.shape), atol=1e-12)
+    np.testing.assert_allclose(
+        T @ np.conj(np.swapaxes(T, 1, 2)), np.broadcast_to(np.eye(F * c), T.shape), atol=1e-12
+    )
 
 
 @pytest.mark.parametrize("domain", ["frequency", "time"])
@@ -59,14 +70,15 @@ def test_lifting_an_lti_frf_and_unlifting_it_is_the_identity(domain, F):
 
 
 def test_the_time_lifted_frf_is_the_frf_of_the_lifted_system():
-    # y = g * u with a short FIR g: the lifted system's M-point FRF must equal lift_frf(..., "time").
+    # y = g * u with a short FIR g: the lifted system's M-point FRF must equal
+    # lift_frf(..., "time").
     F, M = 3, 32
     N = F * M
     g = np.array([1.0, 0.5, -0.25, 0.125, 0.3])
     G = np.fft.fft(g, N)[:, None, None]
     rng = np.random.default_rng(0)
     u = rng.standard_normal(N)
-    y = np.real(np.fft.ifft(np.fft.fft(u) * G[:, 0, 0]))        # circular convolution
+    y = np.real(np.fft.ifft(np.fft.fft(u) * G[:, 0, 0]))  # circular convolution
     Ub, Yb = dft(time_lift(u, F)), dft(time_lift(y, F))
     Gb = lift_frf(G, F, domain="time")
     np.testing.assert_allclose(np.einsum("kab,kb->ka", Gb, Ub), Yb, atol=1e-12)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from mr_ident.errors import ConfigError, DataError
-from mr_ident.lpm import lpm
+from mr_ident.numerics.lpm import lpm
 
 
 def per_bin_reference(U, Y, n, R):
@@ -16,9 +16,12 @@ def per_bin_reference(U, Y, n, R):
     Cv = np.empty((K, no, no), complex)
     Ai = np.empty((K, ni, ni), complex)
     for k in range(K):
-        Uw, Yw = U[k:k + 2 * n + 1], Y[k:k + 2 * n + 1]
-        Km = np.stack([Uw[:, i] * r ** s for s in range(R + 1) for i in range(ni)]
-                      + [r ** s + 0j for s in range(R + 1)], axis=1)
+        Uw, Yw = U[k : k + 2 * n + 1], Y[k : k + 2 * n + 1]
+        Km = np.stack(
+            [Uw[:, i] * r**s for s in range(R + 1) for i in range(ni)]
+            + [r**s + 0j for s in range(R + 1)],
+            axis=1,
+        )
         th, *_ = np.linalg.lstsq(Km, Yw, rcond=None)
         G[k] = th[:ni].T
         V = Yw - Km @ th
@@ -45,8 +48,8 @@ def test_lpm_recovers_a_polynomial_frf_and_transient_exactly():
     n, R, K = 8, 2, 200
     k = np.arange(K + 2 * n) / 50.0
     U = rng.standard_normal((K + 2 * n, 2)) + 1j * rng.standard_normal((K + 2 * n, 2))
-    G = np.stack([1 + 0.5j * k + 0.1 * k ** 2, -2 + k, 0.3j * k ** 2, 1 - 1j * k], 1).reshape(-1, 2, 2)
-    T = (0.2 - 0.3j * k + 0.05 * k ** 2)[:, None] * np.array([1.0, -2.0])
+    G = np.stack([1 + 0.5j * k + 0.1 * k**2, -2 + k, 0.3j * k**2, 1 - 1j * k], 1).reshape(-1, 2, 2)
+    T = (0.2 - 0.3j * k + 0.05 * k**2)[:, None] * np.array([1.0, -2.0])
     Y = np.einsum("kab,kb->ka", G, U) + T
     fit = lpm(U, Y, n=n, degree=R)
     np.testing.assert_allclose(fit.G, G[n:-n], atol=1e-10)

@@ -4,12 +4,12 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
 from conftest import brute_force_loop
-from mr_ident.identify import identify
-from mr_ident.pfg import pfg_from_lifted, pfg_from_plant
-from mr_ident.simulate import loop_poles, simulate
-from mr_ident.systems import TransferMatrix
+
+from mr_ident.numerics.identify import identify
+from mr_ident.numerics.pfg import pfg_from_lifted, pfg_from_plant
+from mr_ident.numerics.simulate import loop_poles, simulate
+from mr_ident.numerics.systems import TransferMatrix
 
 
 @pytest.mark.parametrize("phase,delay,gain", [(0, 0, 6000.0), (1, 1, 2000.0), (2, 2, 2000.0)])
@@ -17,18 +17,20 @@ def test_pfg_from_the_true_plant_equals_a_single_sine_simulation(paper_model, ph
     # A computation delay costs phase margin: the delayed cases use a gentler controller.
     K = TransferMatrix.siso([gain, -0.9 * gain], [1.0, -0.3], 3 / 240.0)
     model = replace(paper_model, controller=K, sample_phase=phase, control_delay=delay)
-    assert np.max(np.abs(loop_poles(model))) < 0.9      # steady state within 11 periods
+    assert np.max(np.abs(loop_poles(model))) < 0.9  # steady state within 11 periods
     F, N = 3, 240
     M = N // F
-    g, _ = pfg_from_plant(model.plant_frf(N), model.controller_frf(M), F, N, phase=phase, delay=delay)
-    periods = 12                                    # the first 11 let the transient die out
+    g = pfg_from_plant(
+        model.plant_frf(N), model.controller_frf(M), F, N, phase=phase, delay=delay
+    ).gain
+    periods = 12  # the first 11 let the transient die out
     for kappa in (7, 23, 50, 101):
-        assert (2 * kappa) % M                      # the +w and -w aliases stay apart
+        assert (2 * kappa) % M  # the +w and -w aliases stay apart
         n = np.arange(periods * N)
         r = np.cos(2 * np.pi * kappa * n / N)[:, None]
         _, y = brute_force_loop(model, r)
         Y = np.fft.fft(y[-N:, 0]) / np.sqrt(N)
-        R = np.sqrt(N) / 2                          # DFT of the e^{+jwn} half of the cosine
+        R = np.sqrt(N) / 2  # DFT of the e^{+jwn} half of the cosine
         aliases = (kappa + M * np.arange(F)) % N
         brute = np.linalg.norm(Y[aliases]) / R
         assert abs(g[kappa] - brute) < 0.01 * brute, (kappa, g[kappa], brute)
@@ -37,12 +39,25 @@ def test_pfg_from_the_true_plant_equals_a_single_sine_simulation(paper_model, ph
 def test_pfg_from_the_identified_lifted_map_equals_the_true_pfg(paper_model):
     sim = simulate(paper_model, duration=200.0, rng=np.random.default_rng(4))
     N = sim.r.shape[0]
-    res = identify(sim.r, sim.u, sim.y, fs_high=240.0, ratio=3,
-                   controller_low=paper_model.controller_frf(N // 3))
-    g, _ = pfg_from_plant(paper_model.plant_frf(N), paper_model.controller_frf(N // 3), 3, N)
+    res = identify(
+        sim.r,
+        sim.u,
+        sim.y,
+        fs_high=240.0,
+        ratio=3,
+        controller_low=paper_model.controller_frf(N // 3),
+    )
+    g = pfg_from_plant(paper_model.plant_frf(N), paper_model.controller_frf(N // 3), 3, N).gain
     assert res.lifted_J is not None and res.pfg is not None
-    kappa, gain, std = pfg_from_lifted(res.lifted_J.response, res.lifted_J.bins, 3, N,
-                                       row_cov=res.lifted_J.row_cov, col_cov=res.lifted_J.col_cov)
+    direct = pfg_from_lifted(
+        res.lifted_J.response,
+        res.lifted_J.bins,
+        3,
+        N,
+        row_cov=res.lifted_J.row_cov,
+        col_cov=res.lifted_J.col_cov,
+    )
+    kappa, gain, std = np.rint(direct.frequency * N).astype(int), direct.gain, direct.std
     # Noise-free, 200 s: the LPM error is ~2e-6 of the largest gain at worst; small gains far
     # below the peak are therefore checked against the peak.
     for est, ref in ((gain, g[kappa]), (res.pfg.gain, g[1:])):
@@ -56,7 +71,6 @@ def test_pfg_std_follows_the_noise(paper_model):
     rng = np.random.default_rng(8)
     r = rng.standard_normal((6000, 1))
     K = model.controller_frf(2000)
-    g_true, _ = pfg_from_plant(model.plant_frf(6000), K, 3, 6000)
     runs, stds = [], []
     for _ in range(40):
         sim = simulate(model, reference=r, rng=rng)
@@ -69,13 +83,14 @@ def test_pfg_std_follows_the_noise(paper_model):
 
 
 def test_the_dense_closed_loop_maps_agree_with_the_structured_pfg(paper_model):
-    from mr_ident.loop import closed_loop_maps
-    from mr_ident.pfg import half_to_full
+    from mr_ident.numerics.lifting import half_to_full
+    from mr_ident.numerics.loop import closed_loop_maps
+
     F, N = 3, 300
     M = N // F
     P_half = paper_model.plant_frf(N)
     K = paper_model.controller_frf(M)
-    g, _ = pfg_from_plant(P_half, K, F, N, phase=1, delay=1)
+    g = pfg_from_plant(P_half, K, F, N, phase=1, delay=1).gain
     ks = np.arange(M)
     J, S = closed_loop_maps(half_to_full(P_half, N), K, ks, F, phase=1, delay=1)
     kappa = np.arange(N // 2 + 1)

@@ -12,12 +12,23 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mr_ident.lifting import freq_lift, freq_unlift, lift_frf, time_lift, time_unlift, unlift_frf
-from mr_ident.lpm import lpm
-from mr_ident.stream import Aligner, Block
+from mr_ident.io.blocks import Block
+from mr_ident.live.align import Aligner
+from mr_ident.numerics.lifting import (
+    freq_lift,
+    freq_unlift,
+    lift_frf,
+    time_lift,
+    time_unlift,
+    unlift_frf,
+)
+from mr_ident.numerics.lpm import lpm
 
-SETTINGS = settings(max_examples=int(os.environ.get("MR_IDENT_HYPOTHESIS_EXAMPLES", 40)), deadline=None,
-                    derandomize=os.environ.get("MR_IDENT_HYPOTHESIS_EXAMPLES") is None)
+SETTINGS = settings(
+    max_examples=int(os.environ.get("MR_IDENT_HYPOTHESIS_EXAMPLES", 40)),
+    deadline=None,
+    derandomize=os.environ.get("MR_IDENT_HYPOTHESIS_EXAMPLES") is None,
+)
 
 
 @SETTINGS
@@ -30,14 +41,21 @@ def test_signal_lifting_round_trips(F, M, c, seed):
 
 
 @SETTINGS
-@given(F=st.integers(1, 5), M=st.integers(1, 12), ny=st.integers(1, 2), nu=st.integers(1, 2),
-       seed=st.integers(0, 2**31))
+@given(
+    F=st.integers(1, 5),
+    M=st.integers(1, 12),
+    ny=st.integers(1, 2),
+    nu=st.integers(1, 2),
+    seed=st.integers(0, 2**31),
+)
 def test_frf_lifting_round_trips(F, M, ny, nu, seed):
     rng = np.random.default_rng(seed)
     N = F * M
     G = rng.standard_normal((N, ny, nu)) + 1j * rng.standard_normal((N, ny, nu))
-    def high_rate(out):          # (M, F, ny, nu), entry [k, l] at bin k + l M -> (N, ny, nu)
+
+    def high_rate(out):  # (M, F, ny, nu), entry [k, l] at bin k + l M -> (N, ny, nu)
         return out.transpose(1, 0, 2, 3).reshape(N, ny, nu)
+
     Gf = high_rate(unlift_frf(lift_frf(G, F, domain="frequency"), F, domain="frequency"))
     np.testing.assert_allclose(Gf, G, rtol=0, atol=1e-12)
     Gt = high_rate(unlift_frf(lift_frf(G, F, domain="time"), F, domain="time"))
@@ -55,7 +73,9 @@ def test_lpm_estimate_scales_inversely_with_the_input(scale, n_in, seed):
     a = lpm(U, Y, n=n, degree=1)
     b = lpm(scale * U, Y, n=n, degree=1)
     np.testing.assert_allclose(b.G * scale, a.G, rtol=1e-9, atol=1e-9 * np.abs(a.G).max())
-    np.testing.assert_allclose(b.noise_cov, a.noise_cov, rtol=1e-8, atol=1e-9 * np.abs(a.noise_cov).max())
+    np.testing.assert_allclose(
+        b.noise_cov, a.noise_cov, rtol=1e-8, atol=1e-9 * np.abs(a.noise_cov).max()
+    )
 
 
 @SETTINGS
@@ -65,9 +85,11 @@ def test_split_and_reordered_blocks_align_to_the_original_stream(data, N, F, see
     x = [rng.standard_normal((N, 1)) for _ in range(3)]
     al = Aligner(capacity=F * (N // F), ratio=F, reorder_blocks=10_000)
     for s in range(3):
-        cuts = sorted(set(data.draw(st.lists(st.integers(1, N - 1), max_size=12), label=f"cuts{s}")))
+        cuts = sorted(
+            set(data.draw(st.lists(st.integers(1, N - 1), max_size=12), label=f"cuts{s}"))
+        )
         edges = [0, *cuts, N]
-        blocks = [Block(a, x[s][a:b]) for a, b in zip(edges[:-1], edges[1:])]
+        blocks = [Block(a, x[s][a:b]) for a, b in zip(edges[:-1], edges[1:], strict=False)]
         for i in data.draw(st.permutations(range(len(blocks))), label=f"order{s}"):
             al.push(s, blocks[i])
     w = al.window()

@@ -4,11 +4,11 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
 from conftest import brute_force_loop
+
 from mr_ident.errors import ConfigError, DimensionError
-from mr_ident.model import model_from_dict
-from mr_ident.simulate import simulate
+from mr_ident.io.modelfile import model_from_dict
+from mr_ident.numerics.simulate import simulate
 
 
 @pytest.mark.parametrize("phase,delay", [(0, 0), (1, 0), (2, 1), (0, 4)])
@@ -26,11 +26,14 @@ def test_lifted_simulation_equals_the_per_sample_loop(paper_model, phase, delay)
 
 
 def test_mimo_lifted_simulation_equals_the_per_sample_loop():
-    model = model_from_dict({
-        "fs_high": 100.0, "ratio": 2,
-        "plant": {"num": [[[1.0], [0.2]], [[0.1], [2.0]]], "den": [1.0, 3.0, 10.0]},
-        "controller": {"num": [[[0.5, 0.0], [0.0]], [[0.0], [0.4, 0.0]]], "den": [1.0, -0.5]},
-    })
+    model = model_from_dict(
+        {
+            "fs_high": 100.0,
+            "ratio": 2,
+            "plant": {"num": [[[1.0], [0.2]], [[0.1], [2.0]]], "den": [1.0, 3.0, 10.0]},
+            "controller": {"num": [[[0.5, 0.0], [0.0]], [[0.0], [0.4, 0.0]]], "den": [1.0, -0.5]},
+        }
+    )
     rng = np.random.default_rng(2)
     r = rng.standard_normal((400, 2))
     sim = simulate(model, reference=r)

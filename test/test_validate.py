@@ -20,21 +20,33 @@ import numpy as np
 import pytest
 
 from mr_ident.cli import main
+from mr_ident.diagnosis import diagnose
+from mr_ident.diagnosis.causes import modes, shift_mode
 from mr_ident.errors import ModelError
-from mr_ident.model import Model, load_model, model_from_dict, model_to_dict
-from mr_ident.simulate import simulate
-from mr_ident.systems import TransferMatrix
-from mr_ident.validate import Record, _modes, _shift_mode, diagnose
+from mr_ident.io.modelfile import load_model, model_from_dict, model_to_dict
+from mr_ident.numerics.model import Model
+from mr_ident.numerics.signals import LoopData
+from mr_ident.numerics.simulate import simulate
+from mr_ident.numerics.systems import TransferMatrix
 
 FS, F, DURATION = 240.0, 3, 30.0
 NOISE_FRACTION = 0.02
-MARGIN = {"gain_error": 3.0, "input_delay": 3.0, "extra_resonance": 3.0, "resonance_shift": 3.0,
-          "sampling_offset": 3.0, "control_delay": 3.0, "periodic_disturbance": 0.5}
+MARGIN = {
+    "gain_error": 3.0,
+    "input_delay": 3.0,
+    "extra_resonance": 3.0,
+    "resonance_shift": 3.0,
+    "sampling_offset": 3.0,
+    "control_delay": 3.0,
+    "periodic_disturbance": 0.5,
+}
 
 
 @pytest.fixture(scope="module")
 def nominal(paper_model) -> Model:
-    return replace(paper_model, controller=TransferMatrix.siso([3000.0, -2700.0], [1.0, -0.3], F / FS))
+    return replace(
+        paper_model, controller=TransferMatrix.siso([3000.0, -2700.0], [1.0, -0.3], F / FS)
+    )
 
 
 def _stable(m: Model) -> Model | None:
@@ -44,7 +56,9 @@ def _stable(m: Model) -> Model | None:
         return None
 
 
-def _draw(cause: str, nominal: Model, rng: np.random.Generator, y_std: float) -> tuple[Model, dict]:
+def _draw(
+    cause: str, nominal: Model, rng: np.random.Generator, y_std: float
+) -> tuple[Model, dict]:
     """A true loop differing from ``nominal`` by ``cause``, parameters drawn from ``rng``."""
     for _ in range(50):
         if cause == "gain_error":
@@ -57,10 +71,12 @@ def _draw(cause: str, nominal: Model, rng: np.random.Generator, y_std: float) ->
             p = {"frequency_hz": rng.uniform(70.0, 110.0), "damping": rng.uniform(0.03, 0.1)}
             m = replace(nominal, extra_modes=((p["frequency_hz"], p["damping"]),))
         elif cause == "resonance_shift":
-            f0, z0 = _modes(nominal.plant)[-1]
-            p = {"frequency_hz": f0 * rng.choice([rng.uniform(0.85, 0.95), rng.uniform(1.05, 1.2)]),
-                 "damping": rng.uniform(0.03, 0.08)}
-            m = _shift_mode(nominal, f0, z0, p["frequency_hz"], p["damping"])
+            f0, z0 = modes(nominal.plant)[-1]
+            p = {
+                "frequency_hz": f0 * rng.choice([rng.uniform(0.85, 0.95), rng.uniform(1.05, 1.2)]),
+                "damping": rng.uniform(0.03, 0.08),
+            }
+            m = shift_mode(nominal, f0, z0, p["frequency_hz"], p["damping"])
         elif cause == "sampling_offset":
             p = {"offset_samples": float(rng.integers(1, F))}
             m = replace(nominal, sample_phase=int(p["offset_samples"]))
@@ -68,8 +84,14 @@ def _draw(cause: str, nominal: Model, rng: np.random.Generator, y_std: float) ->
             p = {"delay_samples": float(rng.integers(1, 4))}
             m = replace(nominal, control_delay=int(p["delay_samples"]))
         elif cause == "periodic_disturbance":
-            p = {"frequency_hz": rng.uniform(5.0, 100.0), "amplitude": rng.uniform(0.05, 0.2) * y_std}
-            m = replace(nominal, disturbances=((p["frequency_hz"], p["amplitude"], rng.uniform(0, 6.28), 0),))
+            p = {
+                "frequency_hz": rng.uniform(5.0, 100.0),
+                "amplitude": rng.uniform(0.05, 0.2) * y_std,
+            }
+            m = replace(
+                nominal,
+                disturbances=((p["frequency_hz"], p["amplitude"], rng.uniform(0, 6.28), 0),),
+            )
         else:
             raise AssertionError(cause)
         true = _stable(m)
@@ -78,11 +100,14 @@ def _draw(cause: str, nominal: Model, rng: np.random.Generator, y_std: float) ->
     raise AssertionError(f"no stable draw for {cause}")
 
 
-def _data(true: Model, nominal: Model, seed: int) -> Record:
+def _data(true: Model, nominal: Model, seed: int) -> LoopData:
     y_std = simulate(nominal, duration=DURATION, rng=np.random.default_rng(seed)).y.std()
-    sim = simulate(replace(true, noise_std=NOISE_FRACTION * y_std), duration=DURATION,
-                   rng=np.random.default_rng(seed))
-    return Record(sim.r, sim.u, sim.y, FS, F)
+    sim = simulate(
+        replace(true, noise_std=NOISE_FRACTION * y_std),
+        duration=DURATION,
+        rng=np.random.default_rng(seed),
+    )
+    return LoopData(sim.r, sim.u, sim.y, FS, F)
 
 
 def _y_std(nominal: Model) -> float:
@@ -92,9 +117,18 @@ def _y_std(nominal: Model) -> float:
 TOL = {"gain": 0.01, "frequency_hz": 0.01, "damping": 0.15, "amplitude": 0.10}
 
 
-@pytest.mark.parametrize("cause,seed", [("gain_error", 11), ("input_delay", 12), ("extra_resonance", 13),
-                                        ("resonance_shift", 14), ("sampling_offset", 15), ("control_delay", 16),
-                                        ("periodic_disturbance", 17)])
+@pytest.mark.parametrize(
+    "cause,seed",
+    [
+        ("gain_error", 11),
+        ("input_delay", 12),
+        ("extra_resonance", 13),
+        ("resonance_shift", 14),
+        ("sampling_offset", 15),
+        ("control_delay", 16),
+        ("periodic_disturbance", 17),
+    ],
+)
 def test_diagnose_names_the_hidden_cause_recovers_it_and_raises_the_fit(nominal, cause, seed):
     rng = np.random.default_rng(seed)
     true, p = _draw(cause, nominal, rng, _y_std(nominal))
@@ -147,7 +181,9 @@ def test_the_extended_model_diagnosed_again_gives_none(nominal):
     assert again.cause == "none"
 
 
-def _write_case(tmp_path, model_text: str, duration: float = 40.0, fs: float = 240.0, ratio: int = 3):
+def _write_case(
+    tmp_path, model_text: str, duration: float = 40.0, fs: float = 240.0, ratio: int = 3
+):
     mp = tmp_path / "model.yaml"
     mp.write_text(model_text)
     paper = load_model("config/paper_example.yaml")
@@ -160,20 +196,43 @@ def _write_case(tmp_path, model_text: str, duration: float = 40.0, fs: float = 2
 PAPER_TEXT = open("config/paper_example.yaml").read()
 
 
-@pytest.mark.parametrize("model_text,duration,fs,ratio,match", [
-    (PAPER_TEXT, 40.0, 250.0, 3, r"data.npz: fs_high is 250 Hz but the model says 240 Hz"),
-    (PAPER_TEXT, 40.0, 240.0, 2, r"data.npz: the ratio F is 2 but the model says 3"),
-    (PAPER_TEXT, 0.5, 240.0, 3, "too short for the LPM window"),
-    (PAPER_TEXT + "plant_gian: 1.1\n", 40.0, 240.0, 3, "unknown key.*plant_gian"),
-    (PAPER_TEXT + "extra_modes: [{frequency_hz: 80.0, damping: 0.05, q: 1}]\n", 40.0, 240.0, 3,
-     r"extra_modes\[0\]: unknown key"),
-], ids=["fs-disagrees", "ratio-disagrees", "too-short", "unknown-key", "unknown-mode-key"])
-def test_bad_input_is_an_error_with_exit_2_and_no_output(tmp_path, capsys, model_text, duration, fs, ratio, match):
+@pytest.mark.parametrize(
+    "model_text,duration,fs,ratio,match",
+    [
+        (PAPER_TEXT, 40.0, 250.0, 3, r"data.npz: fs_high is 250 Hz but the model says 240 Hz"),
+        (PAPER_TEXT, 40.0, 240.0, 2, r"data.npz: the ratio F is 2 but the model says 3"),
+        (PAPER_TEXT, 0.5, 240.0, 3, "too short for the LPM window"),
+        (PAPER_TEXT + "plant_gian: 1.1\n", 40.0, 240.0, 3, "unknown key.*plant_gian"),
+        (
+            PAPER_TEXT + "extra_modes: [{frequency_hz: 80.0, damping: 0.05, q: 1}]\n",
+            40.0,
+            240.0,
+            3,
+            r"extra_modes\[0\]: unknown key",
+        ),
+    ],
+    ids=["fs-disagrees", "ratio-disagrees", "too-short", "unknown-key", "unknown-mode-key"],
+)
+def test_bad_input_is_an_error_with_exit_2_and_no_output(
+    tmp_path, capsys, model_text, duration, fs, ratio, match
+):
     import re
+
     mp, dp = _write_case(tmp_path, model_text, duration, fs, ratio)
     out = tmp_path / "r.json"
-    code = main(["diagnose", str(mp), str(dp), "--json", str(out), "--report", str(tmp_path / "r.html"),
-                 "--out-model", str(tmp_path / "ext.yaml")])
+    code = main(
+        [
+            "diagnose",
+            str(mp),
+            str(dp),
+            "--json",
+            str(out),
+            "--report",
+            str(tmp_path / "r.html"),
+            "--out-model",
+            str(tmp_path / "ext.yaml"),
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 2
     assert err.startswith("error: ") and re.search(match, err), err
@@ -183,6 +242,7 @@ def test_bad_input_is_an_error_with_exit_2_and_no_output(tmp_path, capsys, model
 
 def test_cli_writes_the_report_the_model_and_the_json_fields(tmp_path, nominal):
     import json
+
     rng = np.random.default_rng(51)
     true, p = _draw("gain_error", nominal, rng, _y_std(nominal))
     rec = _data(true, nominal, 51)
@@ -190,12 +250,32 @@ def test_cli_writes_the_report_the_model_and_the_json_fields(tmp_path, nominal):
     np.savez(dp, r=rec.r, u=rec.u, y=rec.y, fs_high=FS, ratio=F)
     mp = tmp_path / "nominal.yaml"
     import yaml
+
     mp.write_text(yaml.safe_dump(model_to_dict(nominal)))
-    code = main(["diagnose", str(mp), str(dp), "--json", str(tmp_path / "r.json"), "--report",
-                 str(tmp_path / "r.html"), "--out-model", str(tmp_path / "ext.yaml")])
+    code = main(
+        [
+            "diagnose",
+            str(mp),
+            str(dp),
+            "--json",
+            str(tmp_path / "r.json"),
+            "--report",
+            str(tmp_path / "r.html"),
+            "--out-model",
+            str(tmp_path / "ext.yaml"),
+        ]
+    )
     assert code == 0
     rep = json.loads((tmp_path / "r.json").read_text())
-    for key in ("cause", "parameters", "causes", "fit_before", "fit_after", "significant_bands", "extended_model"):
+    for key in (
+        "cause",
+        "parameters",
+        "causes",
+        "fit_before",
+        "fit_after",
+        "significant_bands",
+        "extended_model",
+    ):
         assert key in rep
     assert rep["cause"] == "gain_error" and rep["extended_model"] == str(tmp_path / "ext.yaml")
     assert rep["causes"][0]["cause"] == "gain_error" and rep["significant_bands"]

@@ -1,1 +1,1 @@
-"""ROS 2 adapters (rclpy): the identification node, the simulated loop, recording and replay publishing."""
+"""ROS 2 adapters (rclpy): the node, the simulated loop, recording, replay publishing."""

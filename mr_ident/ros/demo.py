@@ -21,13 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import load_params, share_file
 from ..errors import MrIdentError
-from ..model import load_model
-from ..results import FRF, PFG
+from ..io.config import load_params, share_file
+from ..io.modelfile import load_model
+from ..numerics.results import FRF, PFG
 from .program import Stop, handle_signals, ros_context
 
-SIM_NOISE_STD = 1e-7      # output noise of the demo loop (the paper example's |y| is ~1e-5)
+SIM_NOISE_STD = 1e-7  # output noise of the demo loop (the paper example's |y| is ~1e-5)
 
 
 def _stop(proc: subprocess.Popen, timeout: float = 20.0) -> int:
@@ -41,9 +41,14 @@ def _stop(proc: subprocess.Popen, timeout: float = 20.0) -> int:
     return proc.returncode
 
 
-def run_demo(out_dir: Path, *, rate: float = 20.0, timeout: float = 120.0, stop: Stop | None = None) -> int:
-    """Run the demo (module docstring); a stop (SIGINT/SIGTERM) ends it early with exit 0,
-    the children stopped and the node's recording finalised."""
+def run_demo(
+    out_dir: Path, *, rate: float = 20.0, timeout: float = 120.0, stop: Stop | None = None
+) -> int:
+    """Run the demo (module docstring).
+
+    A stop (SIGINT/SIGTERM) ends it early with exit 0, the children stopped and the node's
+    recording finalised.
+    """
     import yaml
     from domain_coordinator import domain_id
 
@@ -66,21 +71,46 @@ def run_demo(out_dir: Path, *, rate: float = 20.0, timeout: float = 120.0, stop:
     with domain_id() as dom:
         env = dict(os.environ, ROS_DOMAIN_ID=str(dom), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
         env.setdefault("ROS_LOG_DIR", str((out_dir / "ros_log").resolve()))
-        os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR")})
+        os.environ.update(
+            {k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR")}
+        )
         logs = {name: open(out_dir / f"{name}.log", "w") for name in ("node", "sim")}
         try:
             procs["node"] = subprocess.Popen(
-                [str(bindir / "mr-ident-node"), "--ros-args", "--params-file", str(params_path),
-                 "-p", f"record_path:={recording}", "-p", "update_period_s:=0.5"],
-                env=env, stdout=logs["node"], stderr=subprocess.STDOUT)
+                [
+                    str(bindir / "mr-ident-node"),
+                    "--ros-args",
+                    "--params-file",
+                    str(params_path),
+                    "-p",
+                    f"record_path:={recording}",
+                    "-p",
+                    "update_period_s:=0.5",
+                ],
+                env=env,
+                stdout=logs["node"],
+                stderr=subprocess.STDOUT,
+            )
             procs["sim"] = subprocess.Popen(
-                [str(bindir / "mr-ident-sim"), str(demo_model), "--rate", str(rate), "--wait", "10"],
-                env=env, stdout=logs["sim"], stderr=subprocess.STDOUT)
+                [
+                    str(bindir / "mr-ident-sim"),
+                    str(demo_model),
+                    "--rate",
+                    str(rate),
+                    "--wait",
+                    "10",
+                ],
+                env=env,
+                stdout=logs["sim"],
+                stderr=subprocess.STDOUT,
+            )
             with ros_context() as rclpy:
                 listener = _listener(rclpy, live)
                 try:
                     try:
-                        _listen(rclpy, listener, live, cfg, procs["node"], procs["sim"], timeout, stop)
+                        _listen(
+                            rclpy, listener, live, cfg, procs["node"], procs["sim"], timeout, stop
+                        )
                     finally:
                         _stop(procs["sim"])
                         stop.wait(0.5)
@@ -88,13 +118,16 @@ def run_demo(out_dir: Path, *, rate: float = 20.0, timeout: float = 120.0, stop:
                 finally:
                     listener.destroy_node()
         finally:
-            for proc in procs.values():     # the node finalises its recording on SIGINT
+            for proc in procs.values():  # the node finalises its recording on SIGINT
                 _stop(proc)
             for f in logs.values():
                 f.close()
     if stop.requested:
-        print(f"demo stopped by signal {stop.signal}; the node's recording {recording} is finalised"
-              if recording.exists() else f"demo stopped by signal {stop.signal}")
+        print(
+            f"demo stopped by signal {stop.signal}; the node's recording {recording} is finalised"
+            if recording.exists()
+            else f"demo stopped by signal {stop.signal}"
+        )
         return 0
     return _report(out_dir, cfg, model, recording, live, procs["node"].returncode)
 
@@ -113,21 +146,22 @@ class _Live:
         self.t_converged: float | None = None
 
 
-def _listener(rclpy, live: _Live):  # type: ignore[no-untyped-def]
+def _listener(rclpy, live: _Live):
     """A node that keeps the node's latest estimate and diagnostics in ``live``."""
     from diagnostic_msgs.msg import DiagnosticArray
     from std_msgs.msg import Float64MultiArray
 
     from .messages import RESULT_QOS
+
     n = rclpy.create_node("mr_ident_demo")
 
     def frf(m: Float64MultiArray) -> None:
         d = [x.size for x in m.layout.dim]
-        P = np.frombuffer(m.data, dtype=float).reshape(d)          # out x in x part x freq
+        P = np.frombuffer(m.data, dtype=float).reshape(d)  # out x in x part x freq
         live.P = np.transpose(P[:, :, 0] + 1j * P[:, :, 1], (2, 0, 1))
         live.history.append(live.P)
 
-    def setter(name: str):  # type: ignore[no-untyped-def]
+    def setter(name: str):
         return lambda m: setattr(live, name, np.frombuffer(m.data, dtype=float).copy())
 
     def std(m: Float64MultiArray) -> None:
@@ -138,7 +172,9 @@ def _listener(rclpy, live: _Live):  # type: ignore[no-untyped-def]
         for s in m.status:
             if s.name.startswith("mr_ident"):
                 live.diag = {kv.key: kv.value for kv in s.values}
-                live.diag["level"] = str(int.from_bytes(s.level, "little") if isinstance(s.level, bytes) else s.level)
+                live.diag["level"] = str(
+                    int.from_bytes(s.level, "little") if isinstance(s.level, bytes) else s.level
+                )
                 live.diag["message"] = s.message
 
     n.create_subscription(Float64MultiArray, "/mr_ident/plant_frf", frf, RESULT_QOS)
@@ -150,8 +186,16 @@ def _listener(rclpy, live: _Live):  # type: ignore[no-untyped-def]
     return n
 
 
-def _listen(rclpy, n, live: _Live, cfg, node_proc, sim_proc, timeout: float,  # type: ignore[no-untyped-def]
-            stop: Stop) -> None:
+def _listen(
+    rclpy,
+    n,
+    live: _Live,
+    cfg,
+    node_proc,
+    sim_proc,
+    timeout: float,
+    stop: Stop,
+) -> None:
     """Spin until two successive full-window estimates agree to 2 % (median), or a stop."""
     t0 = time.monotonic()
     while time.monotonic() - t0 < timeout:
@@ -159,8 +203,10 @@ def _listen(rclpy, n, live: _Live, cfg, node_proc, sim_proc, timeout: float,  # 
             return
         rclpy.spin_once(n, timeout_sec=0.1)
         if node_proc.poll() is not None or sim_proc.poll() is not None:
-            raise MrIdentError(f"{'node' if node_proc.poll() is not None else 'simulator'} exited early; "
-                               "see its log in the demo directory")
+            raise MrIdentError(
+                f"{'node' if node_proc.poll() is not None else 'simulator'} exited early; "
+                "see its log in the demo directory"
+            )
         full = live.diag.get("estimate_samples") == str(cfg.window_samples)
         if full and len(live.history) >= 2 and live.history[-1].shape == live.history[-2].shape:
             a, b = live.history[-1], live.history[-2]
@@ -168,17 +214,24 @@ def _listen(rclpy, n, live: _Live, cfg, node_proc, sim_proc, timeout: float,  # 
             if change < 0.02:
                 live.t_converged = time.monotonic() - t0
                 return
-    raise MrIdentError(f"no converged estimate within {timeout:g} s (last diagnostics: {live.diag.get('message')})")
+    raise MrIdentError(
+        f"no converged estimate within {timeout:g} s (last diagnostics: "
+        f"{live.diag.get('message')})"
+    )
 
 
-def _settle(rclpy, n, live: _Live, timeout: float, stop: Stop) -> None:  # type: ignore[no-untyped-def]
+def _settle(rclpy, n, live: _Live, timeout: float, stop: Stop) -> None:
     """After the simulator stopped: wait until the node's last estimate covers the final window."""
     t0 = time.monotonic()
     while time.monotonic() - t0 < timeout and not stop.requested:
         rclpy.spin_once(n, timeout_sec=0.1)
         d = live.diag
-        if d.get("estimate_first_index") and d.get("window_end_index") and \
-                int(d["estimate_first_index"]) + int(d["estimate_samples"]) == int(d["window_end_index"]):
+        if (
+            d.get("estimate_first_index")
+            and d.get("window_end_index")
+            and int(d["estimate_first_index"]) + int(d["estimate_samples"])
+            == int(d["window_end_index"])
+        ):
             # one more diagnostics round so the published estimate is the one described
             t1 = time.monotonic()
             while time.monotonic() - t1 < 1.5 and not stop.requested:
@@ -186,18 +239,21 @@ def _settle(rclpy, n, live: _Live, timeout: float, stop: Stop) -> None:  # type:
             return
 
 
-def _report(out_dir: Path, cfg, model, recording: Path, live: _Live, node_rc: int) -> int:  # type: ignore[no-untyped-def]
-    from ..pfg import pfg_of_model, pfg_result
+def _report(out_dir: Path, cfg, model, recording: Path, live: _Live, node_rc: int) -> int:
+    from ..live.replay import replay
+    from ..numerics.pfg import pfg_of_model
     from ..plots import plot_bode, plot_pfg
-    from ..recording import replay
+
     if live.P is None or live.freq is None or live.P_std is None:
         raise MrIdentError("no estimate was received from the node")
     first, count = int(live.diag["estimate_first_index"]), int(live.diag["estimate_samples"])
     res = replay(recording, cfg, stop=first + count)
     est = res.estimate
     if (est.first, est.n_samples) != (first, count):
-        raise MrIdentError(f"replay found window [{est.first}, {est.first + est.n_samples}), the node "
-                           f"published [{first}, {first + count})")
+        raise MrIdentError(
+            f"replay found window [{est.first}, {est.first + est.n_samples}), the node "
+            f"published [{first}, {first + count})"
+        )
     plant = est.identification.plant
     picks = np.searchsorted(plant.frequency, live.freq)
     replay_diff = float(np.max(np.abs(plant.response[picks] - live.P)) / np.max(np.abs(live.P)))
@@ -205,21 +261,37 @@ def _report(out_dir: Path, cfg, model, recording: Path, live: _Live, node_rc: in
     rel = np.abs(live.P - P_true) / np.abs(P_true)
     live_frf = FRF(live.freq, live.P, live.P_std, "live " + cfg.method)
     model_frf = FRF(live.freq, P_true, np.zeros(P_true.shape), "model")
-    files = {"bode": plot_bode(live_frf, out_dir / "live_bode.png", model=model_frf,
-                               nyquist_low=cfg.fs_high / cfg.ratio / 2, title="mr-ident-node live estimate vs model"),
-             "recording": recording}
-    files["replay_bode"] = plot_bode(plant, out_dir / "replay_bode.png", model=model.plant_result(count),
-                                     nyquist_low=cfg.fs_high / cfg.ratio / 2, title="offline replay of the recording")
+    files = {
+        "bode": plot_bode(
+            live_frf,
+            out_dir / "live_bode.png",
+            model=model_frf,
+            nyquist_low=cfg.fs_high / cfg.ratio / 2,
+            title="mr-ident-node live estimate vs model",
+        ),
+        "recording": recording,
+    }
+    files["replay_bode"] = plot_bode(
+        plant,
+        out_dir / "replay_bode.png",
+        model=model.plant_result(count),
+        nyquist_low=cfg.fs_high / cfg.ratio / 2,
+        title="offline replay of the recording",
+    )
     if live.pfg is not None and live.pfg_std is not None and est.identification.pfg is not None:
         ref = pfg_of_model(model, count)
-        live_pfg = pfg_result(live.freq, live.pfg, live.pfg_std, "live")
+        live_pfg = PFG(live.freq, live.pfg, live.pfg_std, "live")
         ref_at = PFG(live.freq, ref.gain[picks], np.zeros(picks.size), "model")
-        files["pfg"] = plot_pfg(live_pfg, out_dir / "live_pfg.png", model=ref_at, title="live PFG vs model")
+        files["pfg"] = plot_pfg(
+            live_pfg, out_dir / "live_pfg.png", model=ref_at, title="live PFG vs model"
+        )
     for name, path in files.items():
         print(f"{name:12s} {path}")
     within = float(np.mean(np.abs(live.P - P_true) <= 2 * live.P_std + 1e-300))
-    print(f"live estimate after {live.t_converged:.1f} s wall ({count / cfg.fs_high:g} s of data, "
-          f"{live.P.shape[0]} published bins): median |P-P_true|/|P_true| = {np.median(rel):.2e}, "
-          f"{100 * within:.0f} % of bins within 2 sigma; replay equals live to {replay_diff:.1e}; "
-          f"node exit {node_rc}")
+    print(
+        f"live estimate after {live.t_converged:.1f} s wall ({count / cfg.fs_high:g} s of data, "
+        f"{live.P.shape[0]} published bins): median |P-P_true|/|P_true| = {np.median(rel):.2e}, "
+        f"{100 * within:.0f} % of bins within 2 sigma; replay equals live to {replay_diff:.1e}; "
+        f"node exit {node_rc}"
+    )
     return 0

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import array
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -11,21 +12,44 @@ from rclpy.duration import Duration
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
-from ..stream import Block, decode_block, encode_fields
+from ..io.blocks import BLOCK_TYPE, Block, BlockError, decode_block, encode_fields
 
-BLOCK_TYPE = "std_msgs/msg/Float64MultiArray"
+__all__ = [
+    "BLOCK_TYPE",
+    "BLOCK_QOS",
+    "RESULT_QOS",
+    "block_msg",
+    "block_of",
+    "decode_raw",
+    "frf_msgs",
+    "qos_dict",
+    "vector_msg",
+]
 
 #: Sample blocks: reliable, volatile, deep enough for ~1 s of 1000-sample blocks at 1 MS/s.
-BLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.VOLATILE)
+BLOCK_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1000,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
 #: Estimates: the latest one reaches a late subscriber.
-RESULT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+RESULT_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
 
 
-def multiarray(dims: Sequence[tuple[str, int, int]], data: NDArray, data_offset: int = 0) -> Float64MultiArray:
+def multiarray(
+    dims: Sequence[tuple[str, int, int]], data: NDArray, data_offset: int = 0
+) -> Float64MultiArray:
     msg = Float64MultiArray()
-    msg.layout.dim = [MultiArrayDimension(label=lab, size=int(size), stride=int(stride)) for lab, size, stride in dims]
+    msg.layout.dim = [
+        MultiArrayDimension(label=lab, size=int(size), stride=int(stride))
+        for lab, size, stride in dims
+    ]
     msg.layout.data_offset = int(data_offset)
     # array.array from bytes is ~70x faster than assigning a numpy array
     msg.data = array.array("d", np.ascontiguousarray(data, dtype=np.float64).tobytes())
@@ -39,9 +63,25 @@ def block_msg(first: int, samples: NDArray) -> Float64MultiArray:
 
 
 def block_of(msg: Float64MultiArray) -> Block:
-    """Decode a block message; raises :class:`~mr_ident.stream.BlockError`."""
+    """Decode a block message; raises :class:`~mr_ident.io.blocks.BlockError`."""
     dims = [(d.label, d.size, d.stride) for d in msg.layout.dim]
     return decode_block(dims, msg.layout.data_offset, np.frombuffer(msg.data, dtype=np.float64))
+
+
+def decode_raw(raw: bytes) -> Block | BlockError:
+    """A block from the CDR bytes of a block message.
+
+    Or the BlockError saying why not (undecodable bytes are "malformed"): never raises, so
+    no message can stop an executor.
+    """
+    from rclpy.serialization import deserialize_message
+
+    try:
+        return block_of(deserialize_message(raw, Float64MultiArray))
+    except BlockError as err:
+        return err
+    except Exception as err:  # noqa: BLE001 - undecodable bytes
+        return BlockError("malformed", f"undecodable message: {err}")
 
 
 def frf_msgs(frequency: NDArray, response: NDArray, std: NDArray) -> tuple[Float64MultiArray, ...]:
@@ -52,26 +92,44 @@ def frf_msgs(frequency: NDArray, response: NDArray, std: NDArray) -> tuple[Float
     """
     K, ny, nu = response.shape
     f = multiarray([("frequency", K, 1)], frequency)
-    parts = np.stack([response.real, response.imag], axis=0)           # (2, K, ny, nu)
-    P = np.transpose(parts, (2, 3, 0, 1))                                  # (ny, nu, 2, K)
-    p = multiarray([("output", ny, ny * nu * 2 * K), ("input", nu, nu * 2 * K), ("part", 2, 2 * K),
-                    ("frequency", K, K)], P)
-    s = multiarray([("output", ny, ny * nu * K), ("input", nu, nu * K), ("frequency", K, K)],
-                   np.transpose(std, (1, 2, 0)))
+    parts = np.stack([response.real, response.imag], axis=0)  # (2, K, ny, nu)
+    P = np.transpose(parts, (2, 3, 0, 1))  # (ny, nu, 2, K)
+    p = multiarray(
+        [
+            ("output", ny, ny * nu * 2 * K),
+            ("input", nu, nu * 2 * K),
+            ("part", 2, 2 * K),
+            ("frequency", K, K),
+        ],
+        P,
+    )
+    s = multiarray(
+        [("output", ny, ny * nu * K), ("input", nu, nu * K), ("frequency", K, K)],
+        np.transpose(std, (1, 2, 0)),
+    )
     return f, p, s
 
 
 def vector_msg(values: NDArray, label: str = "frequency") -> Float64MultiArray:
+    """A 1-D Float64MultiArray labelled ``label``."""
     return multiarray([(label, len(values), 1)], values)
 
 
 def qos_dict(q: QoSProfile) -> dict[str, Any]:
     """A QoS profile as rosbag2 Jazzy's ``offered_qos_profiles`` entry."""
+
     def dur(d: Duration) -> dict[str, int]:
         sec, nsec = divmod(int(d.nanoseconds), 1_000_000_000)
         return {"sec": sec, "nsec": nsec}
-    return {"history": q.history.name.lower(), "depth": int(q.depth),
-            "reliability": q.reliability.name.lower(), "durability": q.durability.name.lower(),
-            "deadline": dur(q.deadline), "lifespan": dur(q.lifespan), "liveliness": q.liveliness.name.lower(),
-            "liveliness_lease_duration": dur(q.liveliness_lease_duration),
-            "avoid_ros_namespace_conventions": bool(q.avoid_ros_namespace_conventions)}
+
+    return {
+        "history": q.history.name.lower(),
+        "depth": int(q.depth),
+        "reliability": q.reliability.name.lower(),
+        "durability": q.durability.name.lower(),
+        "deadline": dur(q.deadline),
+        "lifespan": dur(q.lifespan),
+        "liveliness": q.liveliness.name.lower(),
+        "liveliness_lease_duration": dur(q.liveliness_lease_duration),
+        "avoid_ros_namespace_conventions": bool(q.avoid_ros_namespace_conventions),
+    }

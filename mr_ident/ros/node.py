@@ -1,53 +1,65 @@
 """``mr-ident-node``: live identification of a multirate loop on a ROS 2 graph.
 
-A thin adapter: messages -> :func:`~mr_ident.ros.messages.block_of` ->
-:class:`~mr_ident.stream.Aligner` (executor thread); every ``update_period_s`` the
+A thin adapter: messages -> :func:`~mr_ident.ros.messages.decode_raw` ->
+:class:`~mr_ident.live.ingest.Ingest` (the path replay takes too) -> the
+:class:`~mr_ident.live.align.Aligner` (executor thread); every ``update_period_s`` the
 latest aligned window goes to a worker thread that runs
-:func:`~mr_ident.live.estimate` and publishes (the first one waits for a
-:func:`~mr_ident.live.warm_up` started with the node). Parameters are the fields of
-:class:`~mr_ident.config.IdentConfig`, validated through it on every set.
+:func:`~mr_ident.live.estimate.estimate` and publishes (the first one waits for a
+:func:`~mr_ident.live.estimate.warm_up` started with the node). Parameters are the fields
+of :class:`~mr_ident.io.config.IdentConfig`, validated through it on every set.
 """
 
 from __future__ import annotations
 
+import functools
 import sys
 import threading
 import time
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType,
-                                SetParametersResult)
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    ParameterType,
+    SetParametersResult,
+)
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.serialization import deserialize_message
 from std_msgs.msg import Float64MultiArray
 
-from .._alloc import keep_freed_memory
-from ..config import PARAMETERS, IdentConfig
+from ..allocator import keep_freed_memory
 from ..errors import MrIdentError
-from ..live import Estimate, estimate, publish_grid, warm_up
-from ..recording import McapRecorder
-from ..stream import STREAMS, Aligner, BlockError, Window
-from .messages import BLOCK_QOS, BLOCK_TYPE, RESULT_QOS, block_of, frf_msgs, qos_dict, vector_msg
+from ..io.blocks import STREAMS, Block
+from ..io.config import PARAMETERS, IdentConfig
+from ..io.recording import McapRecorder
+from ..live.align import Aligner
+from ..live.estimate import Estimate, estimate, publish_grid, warm_up
+from ..live.ingest import Ingest
+from ..numerics.signals import LoopData
+from .messages import BLOCK_QOS, BLOCK_TYPE, RESULT_QOS, decode_raw, frf_msgs, qos_dict, vector_msg
 from .program import handle_signals, ros_context, spin_until_stopped
 
-WARN_HOLD_S = 10.0     # an anomaly keeps the level at WARN this long
-REORDER_WAIT_S = 0.5   # blocks wait this long (wall clock) for a missing one before it is a gap
+WARN_HOLD_S = 10.0  # an anomaly keeps the level at WARN this long
+REORDER_WAIT_S = 0.5  # blocks wait this long (wall clock) for a missing one before it is a gap
 
 
 def _descriptor(name: str, default: Any) -> ParameterDescriptor:
     spec = PARAMETERS[name]
     d = ParameterDescriptor(name=name, description=spec.description)
+    low, high = (spec.low or 0.0), (spec.high or 0.0)
     if isinstance(default, float):
         d.type = ParameterType.PARAMETER_DOUBLE
-        d.floating_point_range = [FloatingPointRange(from_value=float(spec.low), to_value=float(spec.high),
-                                                     step=0.0)]
+        d.floating_point_range = [
+            FloatingPointRange(from_value=float(low), to_value=float(high), step=0.0)
+        ]
     elif isinstance(default, int):
         d.type = ParameterType.PARAMETER_INTEGER
-        d.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high), step=1)]
+        d.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=1)]
     elif isinstance(default, str):
         d.type = ParameterType.PARAMETER_STRING
     else:
@@ -64,15 +76,18 @@ class IdentNode(Node):
         values = {}
         for key, default in defaults.items():
             if isinstance(default, list):
-                p = self.declare_parameter(key, Parameter.Type.DOUBLE_ARRAY, _descriptor(key, default))
+                p = self.declare_parameter(
+                    key, Parameter.Type.DOUBLE_ARRAY, _descriptor(key, default)
+                )
                 values[key] = tuple(p.value) if p.value is not None else ()
             else:
                 values[key] = self.declare_parameter(key, default, _descriptor(key, default)).value
-        self.config = IdentConfig().replace(**values)      # raises ConfigError on a bad params file
+        self.config = IdentConfig().replace(**values)  # raises ConfigError on a bad params file
         self.add_on_set_parameters_callback(self._on_set)
 
-        self._lock = threading.Lock()                      # guards the estimate state below
+        self._lock = threading.Lock()  # guards the estimate state below
         self._aligner = self._new_aligner(self.config)
+        self._ingest = Ingest(self._aligner)
         self._notes: list[tuple[float, str]] = []
         self._arrivals = [0.0, 0.0, 0.0]
         self._samples_in = 0
@@ -83,7 +98,7 @@ class IdentNode(Node):
         self._last_error = ""
         self._last_error_time = 0.0
         self._last_end = -1
-        self._warm_up = ""                                 # "" while running, then its result
+        self._warm_up = ""  # "" while running, then its result
         self._busy = False
         self._stopping = False
         self._worker_thread: threading.Thread | None = None
@@ -93,8 +108,15 @@ class IdentNode(Node):
 
         self._subs = []
         for s, topic in enumerate(STREAMS):
-            self._subs.append(self.create_subscription(
-                Float64MultiArray, topic, lambda raw, s=s: self._on_block(s, raw), BLOCK_QOS, raw=True))
+            self._subs.append(
+                self.create_subscription(
+                    Float64MultiArray,
+                    topic,
+                    functools.partial(self._on_block, s),
+                    BLOCK_QOS,
+                    raw=True,
+                )
+            )
         self._pub_f = self.create_publisher(Float64MultiArray, "~/frequencies", RESULT_QOS)
         self._pub_p = self.create_publisher(Float64MultiArray, "~/plant_frf", RESULT_QOS)
         self._pub_ps = self.create_publisher(Float64MultiArray, "~/plant_frf_std", RESULT_QOS)
@@ -108,8 +130,9 @@ class IdentNode(Node):
         # One identification of a synthetic full-size window, so that the first real one
         # does not pay the one-time costs (see live.warm_up); estimates wait for it.
         self._busy = True
-        self._worker_thread = threading.Thread(target=self._warm, args=(self.config,), daemon=True,
-                                               name="mr_ident-warm-up")
+        self._worker_thread = threading.Thread(
+            target=self._warm, args=(self.config,), daemon=True, name="mr_ident-warm-up"
+        )
         self._worker_thread.start()
 
     # -- parameters ------------------------------------------------------------------
@@ -126,9 +149,14 @@ class IdentNode(Node):
         except MrIdentError as err:
             return SetParametersResult(successful=False, reason=str(err))
         old, self.config = self.config, new
-        if (new.fs_high, new.ratio, new.window_samples, new.reorder_blocks) != \
-                (old.fs_high, old.ratio, old.window_samples, old.reorder_blocks):
+        if (new.fs_high, new.ratio, new.window_samples, new.reorder_blocks) != (
+            old.fs_high,
+            old.ratio,
+            old.window_samples,
+            old.reorder_blocks,
+        ):
             self._aligner = self._new_aligner(new)
+            self._ingest = Ingest(self._aligner)
             self._note("parameters changed (rate, F, window or reorder): window restarts")
         if new.update_period_s != old.update_period_s:
             self._update_timer.cancel()
@@ -157,24 +185,10 @@ class IdentNode(Node):
         rec = self._recorder
         if rec is not None:
             self._record(rec, stream, raw)
-        try:
-            msg = deserialize_message(raw, Float64MultiArray)
-            block = block_of(msg)
-        except BlockError as err:
-            self._aligner.count(stream, err.kind)
-            if err.kind == "nonfinite":
-                # the block's index range is known from its header: make it a hole
-                n = msg.layout.dim[0].size
-                self._note(self._aligner.hole(stream, int(msg.data[0]), int(n)) + f" ({err})")
-            else:
-                self._note(f"{STREAMS[stream]}: malformed block dropped: {err}")
-            return
-        except Exception as err:          # undecodable bytes: never let a message stop the executor
-            self._aligner.count(stream, "malformed")
-            self._note(f"{STREAMS[stream]}: undecodable message dropped: {err}")
-            return
-        self._samples_in += block.samples.shape[0]
-        note = self._aligner.push(stream, block, now)
+        item = decode_raw(raw)  # a Block or a BlockError, never an exception
+        if isinstance(item, Block):
+            self._samples_in += item.samples.shape[0]
+        note = self._ingest.offer(stream, item, now)
         if note:
             self._note(note)
 
@@ -187,7 +201,7 @@ class IdentNode(Node):
         t = time.time_ns()
         if not rec.write(cid, raw, t, t) and rec.error is not None and rec is self._recorder:
             self._close_recorder()
-            self._record_error = rec.failure        # ERROR on /diagnostics until record_path changes
+            self._record_error = rec.failure  # ERROR on /diagnostics until record_path changes
             self.get_logger().error(self._record_error)
 
     def _open_recorder(self, path: str) -> None:
@@ -206,7 +220,7 @@ class IdentNode(Node):
 
     # -- estimation ---------------------------------------------------------------------
     def _on_update(self) -> None:
-        for note in self._aligner.expire(time.monotonic(), REORDER_WAIT_S):
+        for note in self._ingest.expire(time.monotonic(), REORDER_WAIT_S):
             self._note(note)
         if self._busy or self._stopping:
             return
@@ -219,11 +233,12 @@ class IdentNode(Node):
             return
         self._last_end = window.end
         self._busy = True
-        self._worker_thread = threading.Thread(target=self._work, args=(window, cfg), daemon=True,
-                                               name="mr_ident-estimate")
+        self._worker_thread = threading.Thread(
+            target=self._work, args=(window, cfg), daemon=True, name="mr_ident-estimate"
+        )
         self._worker_thread.start()
 
-    def _work(self, window: Window, cfg: IdentConfig) -> None:
+    def _work(self, window: LoopData, cfg: IdentConfig) -> None:
         try:
             est = estimate(window, cfg)
             if not self._stopping:
@@ -232,9 +247,12 @@ class IdentNode(Node):
                 self._last_estimate = est
                 self._last_estimate_wall = time.monotonic()
                 self._estimates += 1
-        except Exception as err:          # keep the node alive; report on /diagnostics
+        except Exception as err:  # keep the node alive; report on /diagnostics
             with self._lock:
-                self._last_error, self._last_error_time = f"identification failed: {err}", time.monotonic()
+                self._last_error, self._last_error_time = (
+                    f"identification failed: {err}",
+                    time.monotonic(),
+                )
             self.get_logger().error(self._last_error)
         finally:
             self._busy = False
@@ -243,9 +261,10 @@ class IdentNode(Node):
         try:
             seconds = warm_up(cfg)
             self._warm_up = f"{seconds:.4f}"
-            self.get_logger().info(f"warm-up: one identification of {cfg.window_samples} samples "
-                                   f"took {seconds:.3f} s")
-        except Exception as err:          # only a speed-up: the node works without it
+            self.get_logger().info(
+                f"warm-up: one identification of {cfg.window_samples} samples took {seconds:.3f} s"
+            )
+        except Exception as err:  # only a speed-up: the node works without it
             self._warm_up = f"failed: {err}"
             self.get_logger().warning(f"warm-up identification failed: {err}")
         finally:
@@ -265,11 +284,13 @@ class IdentNode(Node):
 
     @property
     def last_estimate(self) -> Estimate | None:
+        """The latest estimate (None before the first)."""
         with self._lock:
             return self._last_estimate
 
     # -- diagnostics --------------------------------------------------------------------
     def diagnostic_status(self) -> DiagnosticStatus:
+        """The node's status for /diagnostics: level, message, every counter."""
         now = time.monotonic()
         cfg = self.config
         stats = self._aligner.stats
@@ -279,8 +300,9 @@ class IdentNode(Node):
             est, err, err_t = self._last_estimate, self._last_error, self._last_error_time
             n_est, est_t = self._estimates, self._last_estimate_wall
         recent = list(dict.fromkeys(text for t, text in self._notes if now - t < WARN_HOLD_S))
-        stalled = [STREAMS[i] for i, t in enumerate(self._arrivals)
-                   if t and now - t > cfg.stall_timeout_s]
+        stalled = [
+            STREAMS[i] for i, t in enumerate(self._arrivals) if t and now - t > cfg.stall_timeout_s
+        ]
         silent = [STREAMS[i] for i, t in enumerate(self._arrivals) if not t]
         level, reason = DiagnosticStatus.OK, "estimating"
         if self._record_error:
@@ -288,33 +310,53 @@ class IdentNode(Node):
         elif err and now - err_t < WARN_HOLD_S:
             level, reason = DiagnosticStatus.ERROR, err
         elif stalled:
-            level, reason = DiagnosticStatus.WARN, f"stream(s) {', '.join(stalled)} stalled " \
-                                                   f"(> {cfg.stall_timeout_s:g} s without a block)"
+            level, reason = (
+                DiagnosticStatus.WARN,
+                f"stream(s) {', '.join(stalled)} stalled "
+                f"(> {cfg.stall_timeout_s:g} s without a block)",
+            )
         elif recent:
             more = f" (+{len(recent) - 1} more: recent_anomalies)" if len(recent) > 1 else ""
             level, reason = DiagnosticStatus.WARN, self._notes[-1][1] + more
         elif silent and now - self._started > cfg.stall_timeout_s:
             level, reason = DiagnosticStatus.WARN, f"no data yet on {', '.join(silent)}"
         elif est is None:
-            reason = f"filling window ({100 * fill:.0f} %, first estimate at " \
-                     f"{100 * cfg.min_samples / cfg.window_samples:.0f} %)"
-        values = {"samples_in": self._samples_in, "window_fill": f"{fill:.4f}",
-                  "window_first_index": lo, "window_end_index": hi, "estimates": n_est,
-                  "last_update_age_s": f"{now - est_t:.3f}" if est is not None else "never",
-                  "recording": self._recorder.path.as_posix() if self._recorder else "",
-                  "window_restarts": self._aligner.restarts,
-                  "warm_up_s": self._warm_up or "running",
-                  "recent_anomalies": " | ".join(recent[-8:])}
+            reason = (
+                f"filling window ({100 * fill:.0f} %, first estimate at "
+                f"{100 * cfg.min_samples / cfg.window_samples:.0f} %)"
+            )
+        values = {
+            "samples_in": self._samples_in,
+            "window_fill": f"{fill:.4f}",
+            "window_first_index": lo,
+            "window_end_index": hi,
+            "estimates": n_est,
+            "last_update_age_s": f"{now - est_t:.3f}" if est is not None else "never",
+            "recording": self._recorder.path.as_posix() if self._recorder else "",
+            "window_restarts": self._aligner.restarts,
+            "warm_up_s": self._warm_up or "running",
+            "recent_anomalies": " | ".join(recent[-8:]),
+        }
         if est is not None:
-            values.update({"compute_s": f"{est.compute_s:.4f}", "lifting_phase": est.phase,
-                           "lifting_phase_source": est.phase_source,
-                           "estimate_first_index": est.first, "estimate_samples": est.n_samples})
+            values.update(
+                {
+                    "compute_s": f"{est.compute_s:.4f}",
+                    "lifting_phase": est.phase,
+                    "lifting_phase_source": est.phase_source,
+                    "estimate_first_index": est.first,
+                    "estimate_samples": est.n_samples,
+                }
+            )
         else:
             values["lifting_phase"] = cfg.lifting_phase
         for name, st in stats.items():
             values.update({f"{name}.{k}": v for k, v in st.as_dict().items()})
-        st = DiagnosticStatus(level=level, name=f"{self.get_name()}: identification", message=reason,
-                              hardware_id=self.get_fully_qualified_name())
+        st = DiagnosticStatus(
+            level=level,
+            name=f"{self.get_name()}: identification",
+            message=reason,
+            hardware_id=self.get_fully_qualified_name(),
+        )
         st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         return st
 
@@ -359,8 +401,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                 if node is not None:
                     node.shutdown()
                     node.destroy_node()
-    except (MrIdentError, rclpy.exceptions.InvalidParameterTypeException,
-            rclpy.exceptions.InvalidParameterValueException) as err:
+    except (
+        MrIdentError,
+        rclpy.exceptions.InvalidParameterTypeException,
+        rclpy.exceptions.InvalidParameterValueException,
+    ) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     return 0

@@ -60,7 +60,7 @@ class Stop:
         for wake in wakers:
             try:
                 wake()
-            except Exception:       # noqa: BLE001 - a waker of an entity already destroyed
+            except Exception:  # noqa: BLE001 - a waker of an entity already destroyed
                 pass
 
     def on_request(self, wake: Callable[[], Any]) -> None:
@@ -128,8 +128,10 @@ def ros_context(args: Sequence[str] | None = None) -> Iterator[Any]:
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
-    rclpy.init(args=list(args) if args is not None else None,
-               signal_handler_options=SignalHandlerOptions.NO)
+    rclpy.init(
+        args=list(args) if args is not None else None,
+        signal_handler_options=SignalHandlerOptions.NO,
+    )
     try:
         yield rclpy
     finally:
@@ -146,17 +148,3 @@ def spin_until_stopped(executor: Any, node: Any, stop: Stop) -> None:
     stop.on_request(guard.trigger)
     while not stop.requested:
         executor.spin_once()
-
-
-def node_main() -> int:
-    """Entry point of ``mr-ident-node``: signal handling first, then the (slow) imports."""
-    handle_signals()
-    from .node import main
-    return main()
-
-
-def sim_main() -> int:
-    """Entry point of ``mr-ident-sim``: signal handling first, then the (slow) imports."""
-    handle_signals()
-    from .sim import main
-    return main()

@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import importlib
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
@@ -23,8 +24,8 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ..errors import DataError, RecordingError
-from ..recording import McapRecorder
-from ..stream import STREAMS
+from ..io.blocks import STREAMS
+from ..io.recording import McapRecorder
 from .messages import qos_dict
 from .program import Stop, handle_signals, ros_context, spin_until_stopped
 
@@ -42,8 +43,13 @@ def _absolute(topic: str) -> str:
 class Recorder:
     """Record ``topics`` of ``node``'s graph into ``path`` (call :meth:`poll` periodically)."""
 
-    def __init__(self, node: Node, path: str | Path, topics: Sequence[str],
-                 on_failure: Callable[[], Any] | None = None):
+    def __init__(
+        self,
+        node: Node,
+        path: str | Path,
+        topics: Sequence[str],
+        on_failure: Callable[[], Any] | None = None,
+    ):
         self.node = node
         self.topics = [_absolute(t) for t in topics]
         self.rec = McapRecorder(path)
@@ -61,16 +67,19 @@ class Recorder:
                 continue
             type_name = infos[0].topic_type
             qos = QoSProfile(
-                history=HistoryPolicy.KEEP_LAST, depth=1000,
+                history=HistoryPolicy.KEEP_LAST,
+                depth=1000,
                 reliability=ReliabilityPolicy.RELIABLE
                 if all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
                 else ReliabilityPolicy.BEST_EFFORT,
                 durability=DurabilityPolicy.TRANSIENT_LOCAL
                 if all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
-                else DurabilityPolicy.VOLATILE)
+                else DurabilityPolicy.VOLATILE,
+            )
             cid = self.rec.add_topic(topic, type_name, [qos_dict(i.qos_profile) for i in infos])
             self._subs[topic] = self.node.create_subscription(
-                message_class(type_name), topic, self._writer(topic, cid), qos, raw=True)
+                message_class(type_name), topic, self._writer(topic, cid), qos, raw=True
+            )
             self.node.get_logger().info(f"recording {topic} ({type_name})")
 
     def _writer(self, topic: str, cid: int) -> Callable[[bytes], None]:
@@ -80,16 +89,26 @@ class Recorder:
                 self.counts[topic] += 1
             elif self.rec.error is not None and self._on_failure is not None:
                 self._on_failure()
+
         return write
 
     def close(self) -> None:
+        """Finalise the recording."""
         self.rec.close()
 
 
-def record(path: str | Path, topics: Sequence[str], *, duration: float | None = None,
-           args: Sequence[str] | None = None, stop: Stop | None = None) -> dict[str, int]:
-    """Record until ``duration`` s have passed, or a stop (SIGINT/SIGTERM, see
-    :func:`~mr_ident.ros.program.handle_signals`); returns messages per topic.
+def record(
+    path: str | Path,
+    topics: Sequence[str],
+    *,
+    duration: float | None = None,
+    args: Sequence[str] | None = None,
+    stop: Stop | None = None,
+) -> dict[str, int]:
+    """Record until ``duration`` s have passed.
+
+    Or a stop (SIGINT/SIGTERM, see :func:`~mr_ident.ros.program.handle_signals`); returns
+    messages per topic.
 
     The file is opened first and finalised on every way out.
 
@@ -121,14 +140,23 @@ def record(path: str | Path, topics: Sequence[str], *, duration: float | None = 
     return recorder.counts
 
 
-def publish_recording(path: str | Path, *, rate: float = 1.0, wait: float = 5.0,
-                      args: Sequence[str] | None = None, stop: Stop | None = None) -> int:
-    """Re-publish every message of an MCAP recording on its topic (raw CDR), paced by
-    its log times divided by ``rate``, until the end or a stop. Returns the number of
-    messages published."""
+def publish_recording(
+    path: str | Path,
+    *,
+    rate: float = 1.0,
+    wait: float = 5.0,
+    args: Sequence[str] | None = None,
+    stop: Stop | None = None,
+) -> int:
+    """Re-publish every message of an MCAP recording on its topic (raw CDR).
+
+    Paced by its log times divided by ``rate``, until the end or a stop. Returns the number
+    of messages published.
+    """
     from mcap.reader import make_reader
 
     from .messages import BLOCK_QOS
+
     stop = stop if stop is not None else handle_signals()
     try:
         fh = open(path, "rb")
@@ -142,18 +170,28 @@ def publish_recording(path: str | Path, *, rate: float = 1.0, wait: float = 5.0,
             try:
                 summary = reader.get_summary()
             except Exception as err:
-                raise DataError(f"{path}: cannot read the summary ({err}); is the file finalised?") from err
+                raise DataError(
+                    f"{path}: cannot read the summary ({err}); is the file finalised?"
+                ) from err
             if summary is None:
                 raise DataError(f"{path}: no summary section; is the file finalised?")
-            pubs = {cid: node.create_publisher(message_class(summary.schemas[ch.schema_id].name), ch.topic,
-                                               BLOCK_QOS)
-                    for cid, ch in summary.channels.items()}
+            pubs = {
+                cid: node.create_publisher(
+                    message_class(summary.schemas[ch.schema_id].name), ch.topic, BLOCK_QOS
+                )
+                for cid, ch in summary.channels.items()
+            }
             deadline = time.monotonic() + wait
-            while time.monotonic() < deadline and not stop.requested and \
-                    any(p.get_subscription_count() == 0 for p in pubs.values()):
+            while (
+                time.monotonic() < deadline
+                and not stop.requested
+                and any(p.get_subscription_count() == 0 for p in pubs.values())
+            ):
                 stop.wait(0.02)
             if wait > 0:
-                stop.wait(min(wait, 0.5))    # matching is not symmetric: let subscribers match us too
+                stop.wait(
+                    min(wait, 0.5)
+                )  # matching is not symmetric: let subscribers match us too
             t0 = time.monotonic()
             first_log = None
             for _, channel, message in reader.iter_messages(log_time_order=True):
@@ -165,7 +203,7 @@ def publish_recording(path: str | Path, *, rate: float = 1.0, wait: float = 5.0,
                     stop.wait(min(d, 0.1))
                 pubs[channel.id].publish(bytes(message.data))
                 sent += 1
-            for p in pubs.values():       # reliable delivery: do not exit before the readers have it
+            for p in pubs.values():  # reliable delivery: do not exit before the readers have it
                 p.wait_for_all_acked(Duration(seconds=1 if stop.requested else 5))
         finally:
             node.destroy_node()

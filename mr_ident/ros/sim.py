@@ -12,103 +12,83 @@ import argparse
 import math
 import sys
 import time
-from typing import Sequence
-
-import numpy as np
-from numpy.typing import NDArray
+from collections.abc import Sequence
 
 from ..errors import MrIdentError
-from ..model import Model, load_model
-from ..simulate import LoopStream
-from ..stream import STREAMS
+from ..io.blocks import STREAMS
+from ..io.modelfile import load_model
+from ..numerics.excitation import SimSource
 from .program import Stop, handle_signals, ros_context
 
 
-def multisine(model: Model, period_s: float, rng: np.random.Generator) -> NDArray[np.float64]:
-    """One period (P, n_u) of a random-phase multisine, flat over bins 1..P/2-1, RMS reference_std."""
-    F = model.ratio
-    P = F * max(2, int(round(period_s * model.fs_high / F)))
-    spec = np.zeros((P // 2 + 1, model.n_u), dtype=complex)
-    spec[1:P // 2] = np.exp(2j * np.pi * rng.random((P // 2 - 1, model.n_u)))
-    x = np.fft.irfft(spec, n=P, axis=0)
-    return model.reference_std * x / np.sqrt(np.mean(x ** 2, axis=0))
-
-
-class Excitation:
-    """Endless reference: white noise, or a multisine repeated period after period."""
-
-    def __init__(self, model: Model, kind: str, rng: np.random.Generator, period_s: float = 10.0):
-        self.model, self.kind, self.rng = model, kind, rng
-        self._period = multisine(model, period_s, rng) if kind == "multisine" else None
-
-    def take(self, first: int, n: int) -> NDArray[np.float64]:
-        if self._period is None:
-            return self.model.reference_std * self.rng.standard_normal((n, self.model.n_u))
-        P = self._period.shape[0]
-        return self._period[(first + np.arange(n)) % P]
-
-
-class SimSource:
-    """Blocks of (first, r, u, y), exactly continuous, of ``block`` samples each."""
-
-    def __init__(self, model: Model, *, block: int, excitation: str = "white", seed: int = 0,
-                 period_s: float = 10.0, start_index: int = 0):
-        self.model, self.block = model, int(block)
-        self.rng = np.random.default_rng(seed)
-        self.exc = Excitation(model, excitation, self.rng, period_s)
-        self.loop = LoopStream(model)
-        self.next_index = start_index
-        self._buf = np.zeros((0, model.n_u + model.n_u + model.n_y))
-
-    def next(self) -> tuple[int, NDArray, NDArray, NDArray]:
-        m, F, b = self.model, self.model.ratio, self.block
-        if self._buf.shape[0] < b:
-            n = F * math.ceil((b - self._buf.shape[0]) / F)
-            start = self.next_index + self._buf.shape[0]
-            r = self.exc.take(start, n)
-            v = m.noise_std * self.rng.standard_normal((n, m.n_y)) if m.noise_std > 0 else None
-            u, y = self.loop.next(r, v)
-            self._buf = np.concatenate([self._buf, np.concatenate([r, u, y], axis=1)])
-        out, self._buf = self._buf[:b], self._buf[b:]
-        first = self.next_index
-        self.next_index += b
-        nu = m.n_u
-        return first, out[:, :nu], out[:, nu:2 * nu], out[:, 2 * nu:]
-
-
 def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``mr-ident-sim``."""
     p = argparse.ArgumentParser(prog="mr-ident-sim", description=__doc__.splitlines()[0])
     p.add_argument("model", help="model file (YAML), e.g. config/paper_example.yaml")
-    p.add_argument("--rate", type=float, default=1.0, help="times faster than real time (default 1)")
-    p.add_argument("--block", type=int, default=1000, help="samples per block message (default 1000)")
-    p.add_argument("--duration", type=float, default=None, help="seconds of simulated time (default: until Ctrl-C)")
+    p.add_argument(
+        "--rate", type=float, default=1.0, help="times faster than real time (default 1)"
+    )
+    p.add_argument(
+        "--block", type=int, default=1000, help="samples per block message (default 1000)"
+    )
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        help="seconds of simulated time (default: until Ctrl-C)",
+    )
     p.add_argument("--excitation", choices=("white", "multisine"), default="white")
-    p.add_argument("--period", type=float, default=10.0, help="multisine period in seconds (default 10)")
+    p.add_argument(
+        "--period", type=float, default=10.0, help="multisine period in seconds (default 10)"
+    )
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--wait", type=float, default=5.0,
-                   help="wait up to this many seconds for subscribers on every topic (default 5)")
-    p.add_argument("--subscribers", type=int, default=1,
-                   help="subscribers to wait for on every topic, e.g. 2 for a node and a recorder (default 1)")
+    p.add_argument(
+        "--wait",
+        type=float,
+        default=5.0,
+        help="wait up to this many seconds for subscribers on every topic (default 5)",
+    )
+    p.add_argument(
+        "--subscribers",
+        type=int,
+        default=1,
+        help="subscribers to wait for on every topic, e.g. 2 for a node and a recorder "
+        "(default 1)",
+    )
     return p
 
 
-def run(node: object, source: SimSource, *, rate: float, duration: float | None, wait: float,
-        subscribers: int = 1, stop: Stop | None = None) -> int:
-    """Publish blocks from ``source`` on ``node``'s three publishers, once ``subscribers``
-    match every topic (or ``wait`` s have passed), until ``duration`` or a stop; returns
-    blocks sent per topic."""
+def run(
+    node: object,
+    source: SimSource,
+    *,
+    rate: float,
+    duration: float | None,
+    wait: float,
+    subscribers: int = 1,
+    stop: Stop | None = None,
+) -> int:
+    """Publish blocks from ``source`` on ``node``'s three publishers.
+
+    Once ``subscribers`` match every topic (or ``wait`` s have passed), until ``duration``
+    or a stop; returns blocks sent per topic.
+    """
     from rclpy.duration import Duration
     from std_msgs.msg import Float64MultiArray
 
     from .messages import BLOCK_QOS, block_msg
+
     stop = stop if stop is not None else Stop()
     pubs = [node.create_publisher(Float64MultiArray, t, BLOCK_QOS) for t in STREAMS]  # type: ignore[attr-defined]
     deadline = time.monotonic() + wait
-    while time.monotonic() < deadline and not stop.requested and \
-            any(p.get_subscription_count() < subscribers for p in pubs):
+    while (
+        time.monotonic() < deadline
+        and not stop.requested
+        and any(p.get_subscription_count() < subscribers for p in pubs)
+    ):
         stop.wait(0.02)
     if wait > 0:
-        stop.wait(min(wait, 0.5))      # matching is not symmetric: let the subscribers match us too
+        stop.wait(min(wait, 0.5))  # matching is not symmetric: let the subscribers match us too
     fs = source.model.fs_high
     total = None if duration is None else int(round(duration * fs))
     t0 = time.monotonic()
@@ -121,17 +101,19 @@ def run(node: object, source: SimSource, *, rate: float, duration: float | None,
             stop.wait(min(delay, 0.1))
         if stop.requested:
             break
-        for pub, x in zip(pubs, (r, u, y)):
+        for pub, x in zip(pubs, (r, u, y), strict=True):
             pub.publish(block_msg(first, x))
         sent += 1
-    for pub in pubs:                      # reliable delivery: do not exit before the readers have it
+    for pub in pubs:  # reliable delivery: do not exit before the readers have it
         pub.wait_for_all_acked(Duration(seconds=1 if stop.requested else 5))
     return sent
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Console script ``mr-ident-sim``; SIGINT/SIGTERM stop it through one path
-    (:mod:`mr_ident.ros.program`) with exit 0."""
+    """Console script ``mr-ident-sim``.
+
+    SIGINT/SIGTERM stop it through one path (:mod:`mr_ident.ros.program`) with exit 0.
+    """
     stop = handle_signals()
     from rclpy.utilities import remove_ros_args
 
@@ -145,16 +127,28 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise MrIdentError(f"--subscribers must be >= 0, got {args.subscribers}")
         if args.block < 1:
             raise MrIdentError(f"--block must be >= 1 sample, got {args.block}")
-        source = SimSource(model, block=args.block, excitation=args.excitation, seed=args.seed,
-                           period_s=args.period)
+        source = SimSource(
+            model,
+            block=args.block,
+            excitation=args.excitation,
+            seed=args.seed,
+            period_s=args.period,
+        )
     except MrIdentError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     with ros_context(args_all) as rclpy:
         node = rclpy.create_node("mr_ident_sim")
         try:
-            sent = run(node, source, rate=args.rate, duration=args.duration, wait=args.wait,
-                       subscribers=args.subscribers, stop=stop)
+            sent = run(
+                node,
+                source,
+                rate=args.rate,
+                duration=args.duration,
+                wait=args.wait,
+                subscribers=args.subscribers,
+                stop=stop,
+            )
             node.get_logger().info(f"published {sent} blocks of {args.block} samples per topic")
         finally:
             node.destroy_node()

@@ -1,0 +1,61 @@
+"""Command line: ``mr-ident simulate | identify | paper | diagnose | replay | record | demo``.
+
+``record``, ``replay --publish`` and ``demo`` need rclpy (imported only for them).
+
+User errors print ``error: ...`` to stderr and exit with status 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import sys
+import warnings
+from collections.abc import Sequence
+
+from ..allocator import keep_freed_memory
+from ..errors import MrIdentError
+from .parser import EXIT_USAGE, build_parser
+
+__all__ = ["build_parser", "main"]
+
+
+def _ros_program(argv: Sequence[str]) -> bool:
+    """Whether the command line runs a ROS program (record, demo, replay --publish)."""
+    command = next((a for a in argv if not a.startswith("-")), None)
+    return command in ("record", "demo") or (command == "replay" and "--publish" in argv)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Console script ``mr-ident``; user errors print ``error: ...`` and return 2."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if _ros_program(argv):
+        from ..ros.program import handle_signals
+
+        handle_signals()  # before anything slow: a signal from now on stops cleanly
+    args = build_parser().parse_args(argv)
+    keep_freed_memory()
+    from . import commands as c
+
+    commands = {
+        "simulate": c.cmd_simulate,
+        "identify": c.cmd_identify,
+        "paper": c.cmd_paper,
+        "replay": c.cmd_replay,
+        "record": c.cmd_record,
+        "demo": c.cmd_demo,
+        "diagnose": c.cmd_diagnose,
+    }
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("default")
+            warnings.simplefilter("ignore", DeprecationWarning)  # third-party import noise (lark)
+            return commands[args.command](args)
+    except MrIdentError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    except OSError as err:
+        print(f"error: {err.filename or ''}: {err.strerror or err}", file=sys.stderr)
+        return EXIT_USAGE
+
+
+if __name__ == "__main__":
+    sys.exit(main())

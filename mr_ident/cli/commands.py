@@ -1,0 +1,321 @@
+"""The subcommands of ``mr-ident``: each reads its inputs, calls the library, writes its outputs.
+
+Imports are lazy (inside each command), so that ``mr-ident --help`` starts at once.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from ..errors import ConfigError, DataError
+
+if TYPE_CHECKING:
+    from ..numerics.model import Model
+    from ..numerics.results import Identification
+    from ..numerics.signals import LoopData
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    """``mr-ident simulate``: simulate a model's loop and write CSV/NPZ."""
+    import numpy as np
+
+    from ..io.datafile import write_data
+    from ..io.modelfile import load_model
+    from ..numerics.simulate import simulate
+
+    model = load_model(args.model)
+    sim = simulate(model, duration=args.duration, rng=np.random.default_rng(args.seed))
+    write_data(args.out, sim.r, sim.u, sim.y, fs_high=model.fs_high, ratio=model.ratio)
+    print(
+        f"wrote {args.out} ({sim.r.shape[0]} samples at {model.fs_high:g} Hz, F = {model.ratio})"
+    )
+    return 0
+
+
+def _resolve_rates(
+    args: argparse.Namespace, file_fs: float | None, file_ratio: int | None, model: Model | None
+) -> tuple[float, int]:
+    fs_sources = [
+        (n, v)
+        for n, v in (
+            ("--fs-high", args.fs_high),
+            ("the data file", file_fs),
+            ("the model", model.fs_high if model else None),
+        )
+        if v is not None
+    ]
+    r_sources = [
+        (n, v)
+        for n, v in (
+            ("--ratio", args.ratio),
+            ("the data file", file_ratio),
+            ("the model", model.ratio if model else None),
+        )
+        if v is not None
+    ]
+    if not fs_sources:
+        raise ConfigError(
+            "fs_high unknown: pass --fs-high or --model, or use an NPZ/CSV that gives it"
+        )
+    if not r_sources:
+        raise ConfigError("ratio F unknown: pass --ratio or --model, or use an NPZ that gives it")
+    fs = fs_sources[0][1]
+    for name, v in fs_sources[1:]:
+        if abs(v - fs) > 1e-6 * fs:
+            raise ConfigError(
+                f"fs_high disagrees: {fs_sources[0][0]} says {fs:g} Hz, {name} says {v:g} Hz"
+            )
+    F = r_sources[0][1]
+    for name, v in r_sources[1:]:
+        if v != F:
+            raise ConfigError(f"ratio disagrees: {r_sources[0][0]} says {F}, {name} says {v}")
+    return float(fs), int(F)
+
+
+def cmd_identify(args: argparse.Namespace) -> int:
+    """``mr-ident identify``: identify P_h (and the PFG) from a data file."""
+    from ..io.datafile import read_data, write_result
+    from ..io.modelfile import load_model
+    from ..numerics.identify import identify
+
+    if args.out.suffix.lower() != ".npz":
+        raise ConfigError(f"--out must be a .npz file, got {str(args.out)!r}")
+    model = load_model(args.model) if args.model else None
+    data = read_data(args.data)
+    fs, F = _resolve_rates(args, data.fs_high, data.ratio, model)
+    N = data.n_samples
+    loop: dict[str, Any] = {}
+    if model is not None:
+        if model.n_y != data.y.shape[1] or model.n_u != data.u.shape[1]:
+            raise DataError(
+                f"model is {model.n_y}x{model.n_u} (n_y x n_u) but the data has "
+                f"{data.y.shape[1]} output and {data.u.shape[1]} input channel(s)"
+            )
+        loop = model.identify_arguments(N)
+    ident = identify(
+        data.r,
+        data.u,
+        data.y,
+        fs_high=fs,
+        ratio=F,
+        method=args.method,
+        n=args.n,
+        degree=args.degree,
+        keep_lifted=False,
+        **loop,
+    )  # the result file holds P_h and the PFG
+    write_result(args.out, ident)
+    print(f"wrote {args.out} ({ident.plant.frequency.size} bins, method {args.method})")
+    if args.plot:
+        _write_plots(ident, args.plot, fs, F, N, model)
+    return 0
+
+
+def _write_plots(
+    ident: Identification, path: Path, fs: float, F: int, N: int, model: Model | None
+) -> None:
+    """Bode plot of P_h at ``path`` (model drawn when given); with a PFG, ``<path>_pfg``."""
+    from ..numerics.pfg import pfg_of_model
+    from ..plots import plot_bode, plot_pfg
+
+    nyq = fs / F / 2 if F > 1 else None
+    mfrf = model.plant_result(N) if model is not None else None
+    print(f"wrote {plot_bode(ident.plant, path, model=mfrf, nyquist_low=nyq)}")
+    if ident.pfg is not None:
+        ref = (
+            pfg_of_model(model, N) if model is not None and model.controller is not None else None
+        )
+        pfg_path = path.with_name(path.stem + "_pfg" + path.suffix)
+        print(f"wrote {plot_pfg(ident.pfg, pfg_path, model=ref)}")
+
+
+def cmd_paper(args: argparse.Namespace) -> int:
+    """``mr-ident paper``: the paper's example end to end."""
+    from ..io.config import share_file
+    from ..io.modelfile import load_model
+    from ..paper import run_paper
+
+    model = load_model(args.model or share_file("config/paper_example.yaml", "; pass --model"))
+    if args.noise_std is not None and not (math.isfinite(args.noise_std) and args.noise_std >= 0):
+        raise ConfigError(f"--noise-std must be >= 0, got {args.noise_std}")
+    run = run_paper(
+        model, args.out_dir, duration=args.duration, seed=args.seed, noise_std=args.noise_std
+    )
+    print(run.table)
+    for name, path in run.files.items():
+        print(f"{name:12s} {path}")
+    return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    """``mr-ident replay``: a recording through the node's steps, or re-published."""
+    from ..io.config import IdentConfig, load_params
+    from ..io.datafile import write_result
+    from ..live.replay import replay
+
+    if args.publish:
+        from ..ros.record import publish_recording
+
+        n = publish_recording(args.recording, rate=args.rate)
+        print(f"published {n} messages from {args.recording}")
+        return 0
+    if args.out is None:
+        raise ConfigError("replay needs --out RESULT.npz (or --publish)")
+    if args.out.suffix.lower() != ".npz":
+        raise ConfigError(f"--out must be a .npz file, got {str(args.out)!r}")
+    cfg = load_params(args.params) if args.params else IdentConfig()
+    res = replay(args.recording, cfg, topics=args.topics, stop=args.stop)
+    info, est = res.info, res.estimate
+    if info.truncated:
+        print(
+            f"warning: {args.recording} is cut short; recovered {sum(info.messages.values())} "
+            "messages "
+            f"({info.bytes_read} of {info.file_bytes} bytes) ({info.reason})",
+            file=sys.stderr,
+        )
+    for note in res.anomalies[:20]:
+        print(f"note: {note}", file=sys.stderr)
+    write_result(args.out, est.identification)
+    counts = ", ".join(f"{k} {v}" for k, v in info.messages.items())
+    print(
+        f"read {counts} messages; window [{est.first}, {est.first + est.n_samples}) "
+        f"({est.n_samples / cfg.fs_high:g} s), lifting phase {est.phase} ({est.phase_source}), "
+        f"{est.compute_s:.3f} s"
+    )
+    print(
+        f"wrote {args.out} ({est.identification.plant.frequency.size} bins, method {cfg.method})"
+    )
+    if args.plot:
+        from ..io.modelfile import load_model
+
+        model = load_model(args.model) if args.model else None
+        _write_plots(est.identification, args.plot, cfg.fs_high, cfg.ratio, est.n_samples, model)
+    return 0
+
+
+def cmd_record(args: argparse.Namespace) -> int:
+    """``mr-ident record``: record topics to MCAP until stopped."""
+    from ..ros.record import record
+
+    counts = record(args.out, args.topics, duration=args.duration)
+    print(
+        f"wrote {args.out}: "
+        + (", ".join(f"{t} {n}" for t, n in counts.items()) or "nothing")
+        + " messages"
+    )
+    return 0
+
+
+def _read_record(
+    path: Path, model: Model, period: int | None, topics: list[str] | None
+) -> LoopData:
+    """Data for diagnose from a file; rates from the file where it gives them, else the model."""
+    from dataclasses import replace
+
+    if path.suffix.lower() == ".mcap":
+        from ..live.replay import recorded_signals
+
+        data, info = recorded_signals(path, model.ratio, topics=topics)
+        if info.truncated:
+            print(
+                f"warning: {path} is truncated ({info.reason}); using the {data.n_samples} "
+                "samples read",
+                file=sys.stderr,
+            )
+        if info.broken:
+            print(
+                f"warning: {path}: using the latest gap-free span [{info.span[0]}, "
+                f"{info.span[1]}) "
+                f"of {data.n_samples} samples ({info.broken})",
+                file=sys.stderr,
+            )
+        fs, F = model.fs_high, model.ratio
+    else:
+        from ..io.datafile import read_data
+
+        data = read_data(path)
+        fs = data.fs_high if data.fs_high is not None else model.fs_high
+        F = data.ratio if data.ratio is not None else model.ratio
+    if data.n_samples % F:
+        raise DataError(f"{path}: N = {data.n_samples} samples is not a multiple of ratio F={F}")
+    return replace(data, fs_high=float(fs), ratio=int(F), period=period)
+
+
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    """``mr-ident diagnose``: where and why a model disagrees with data."""
+    import json
+
+    import yaml
+
+    from ..diagnosis import diagnose
+    from ..diagnosis.report import report_dict
+    from ..htmlreport import report_html
+    from ..io.atomic import atomic_write
+    from ..io.modelfile import load_model, model_to_dict
+
+    if args.json.suffix.lower() != ".json":
+        raise ConfigError(f"--json must be a .json file, got {str(args.json)!r}")
+    if args.report is not None and args.report.suffix.lower() not in (".html", ".htm"):
+        raise ConfigError(f"--report must be an .html file, got {str(args.report)!r}")
+    if not 0.0 < args.alpha < 1.0:
+        raise ConfigError(f"--alpha must be in (0, 1), got {args.alpha}")
+    model = load_model(args.model)
+    data = _read_record(args.data, model, args.period, args.topics)
+    val = _read_record(args.validate, model, args.period, args.topics) if args.validate else None
+    d = diagnose(
+        model,
+        data,
+        val,
+        n=args.n,
+        degree=args.degree,
+        alpha=args.alpha,
+        max_causes=args.max_causes,
+        names=(str(args.data), str(args.validate)),
+    )
+    summary = report_dict(
+        d, extended_model=str(args.out_model) if args.out_model else None, alpha=args.alpha
+    )
+    applied = ", ".join(a.cause for a in d.applied)
+    # Everything is computed; now write (each file atomically).
+    if args.out_model:
+        text = yaml.safe_dump(model_to_dict(d.extended), sort_keys=False)
+        header = (
+            f"# Extended by mr-ident diagnose from {args.model} on {args.data}.\n"
+            f"# Applied: {applied or 'nothing (the model explains the data)'}\n"
+        )
+        atomic_write(args.out_model, lambda fh: fh.write(header + text), binary=False)
+    atomic_write(args.json, lambda fh: json.dump(summary, fh, indent=2), binary=False)
+    if args.report:
+        ext = None
+        if d.applied:
+            ext = d.extended.plant_discrete().freqresp(d.evidence_before.frequency)
+        page = report_html(
+            d, summary, ext, f"mr-ident diagnose: {args.model.name} on {args.data.name}"
+        )
+        atomic_write(args.report, lambda fh: fh.write(page), binary=False)
+    fu = (
+        ""
+        if d.fit_before.u is None
+        else f"; fit u {d.fit_before.u:.1f} % -> {d.fit_after.u:.1f} %"
+    )
+    params = ", ".join(f"{k} = {v:.6g}" for k, v in d.parameters.items())
+    print(
+        f"cause: {d.cause}{' (' + params + ')' if params else ''}; applied: "
+        f"{', '.join(a.cause for a in d.applied) or 'none'}; fit y {d.fit_before.y:.1f} % -> "
+        f"{d.fit_after.y:.1f} %{fu}"
+    )
+    for path in (args.json, args.report, args.out_model):
+        if path:
+            print(f"wrote {path}")
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """``mr-ident demo``: the live pipeline end to end."""
+    from ..ros.demo import run_demo
+
+    return run_demo(args.out_dir, rate=args.rate, timeout=args.timeout)

@@ -1,0 +1,199 @@
+"""The argument parser of ``mr-ident``: every subcommand, its options and their checks."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+EXIT_USAGE = 2
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(v) or v <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return v
+
+
+def _int_at_least(low: int) -> Callable[[str], int]:
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if v < low:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {v}")
+        return v
+
+    return parse
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.print_usage(sys.stderr)
+        print(f"error: {message}", file=sys.stderr)
+        raise SystemExit(EXIT_USAGE)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``mr-ident`` and its subcommands."""
+    from ..numerics.methods import METHODS
+
+    p = _Parser(
+        prog="mr-ident", description="Identify multirate control loops in the frequency domain."
+    )
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    s = sub.add_parser("simulate", help="simulate a model's loop with white-noise excitation")
+    s.add_argument("model", type=Path, help="model YAML")
+    s.add_argument(
+        "--duration",
+        type=_positive_float,
+        required=True,
+        help="seconds (rounded to whole low-rate periods)",
+    )
+    s.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    s.add_argument("--out", type=Path, required=True, help="data file, .csv or .npz")
+
+    i = sub.add_parser("identify", help="identify P_h (and the PFG) from r, u, y data")
+    i.add_argument("data", type=Path, help="data file, .csv or .npz")
+    i.add_argument(
+        "--fs-high",
+        type=_positive_float,
+        help="high sample rate in Hz (else from the file or model)",
+    )
+    i.add_argument("--ratio", type=_int_at_least(1), help="F (else from the file or model)")
+    i.add_argument(
+        "--model",
+        type=Path,
+        help="model YAML: gives the controller for the PFG and the reference curve",
+    )
+    i.add_argument("--method", choices=METHODS, default="freq-lifted")
+    i.add_argument(
+        "--n", type=_int_at_least(1), default=8, help="LPM window half-width (default 8)"
+    )
+    i.add_argument(
+        "--degree", type=_int_at_least(0), default=2, help="LPM polynomial degree R (default 2)"
+    )
+    i.add_argument("--out", type=Path, required=True, help="result .npz")
+    i.add_argument(
+        "--plot", type=Path, help="Bode plot PNG (the PFG goes next to it as *_pfg.png)"
+    )
+
+    q = sub.add_parser("paper", help="the paper's example end to end: figures and an error table")
+    q.add_argument("--duration", type=_positive_float, default=600.0, help="seconds (default 600)")
+    q.add_argument(
+        "--model", type=Path, default=None, help="model YAML (default: config/paper_example.yaml)"
+    )
+    q.add_argument(
+        "--noise-std", type=float, default=None, help="override the model's output noise std"
+    )
+    q.add_argument("--seed", type=int, default=0)
+    q.add_argument(
+        "--out-dir",
+        type=Path,
+        default=Path("out/paper"),
+        help="where to write (default out/paper)",
+    )
+
+    rp = sub.add_parser(
+        "replay", help="identify from an MCAP recording as the node would (or re-publish it)"
+    )
+    rp.add_argument(
+        "recording", type=Path, help="MCAP file (recorded by mr-ident record or the node)"
+    )
+    rp.add_argument(
+        "--params",
+        type=Path,
+        help="node params file (ROS 2 form), e.g. config/node.yaml; default: the node's defaults",
+    )
+    rp.add_argument(
+        "--topics",
+        nargs=3,
+        metavar=("R", "U", "Y"),
+        help="recorded topic names of r, u, y (default: .../reference, .../input, .../output)",
+    )
+    rp.add_argument(
+        "--stop",
+        type=_int_at_least(1),
+        help="use the window ending at or before this sample index",
+    )
+    rp.add_argument("--out", type=Path, help="result .npz (same form as identify)")
+    rp.add_argument("--plot", type=Path, help="Bode plot PNG (PFG next to it as *_pfg.png)")
+    rp.add_argument("--model", type=Path, help="model YAML: reference curve in the plot")
+    rp.add_argument(
+        "--publish", action="store_true", help="re-publish the recording on its topics instead"
+    )
+    rp.add_argument(
+        "--rate",
+        type=_positive_float,
+        default=1.0,
+        help="with --publish: times real time (default 1)",
+    )
+
+    rc = sub.add_parser("record", help="record topics to an MCAP file (rosbag2 form) until Ctrl-C")
+    rc.add_argument("out", type=Path, help="MCAP file to write")
+    rc.add_argument("topics", nargs="*", help="topics (default: reference input output)")
+    rc.add_argument("--duration", type=_positive_float, help="stop after this many seconds")
+
+    g = sub.add_parser(
+        "diagnose", help="where and why a model disagrees with measured data; extended model"
+    )
+    g.add_argument("model", type=Path, help="nominal model YAML")
+    g.add_argument("data", type=Path, help="measured data: .csv, .npz or .mcap (recording)")
+    g.add_argument(
+        "--validate",
+        type=Path,
+        help="independent validation data (default: the last 30 %% of DATA)",
+    )
+    g.add_argument("--json", type=Path, required=True, help="report .json")
+    g.add_argument("--report", type=Path, help="report .html (self-contained, figures embedded)")
+    g.add_argument("--out-model", type=Path, help="extended model YAML")
+    g.add_argument(
+        "--period",
+        type=_int_at_least(2),
+        help="samples per period of a periodic excitation (noise from the periods; "
+        "first period dropped)",
+    )
+    g.add_argument(
+        "--topics", nargs=3, metavar=("R", "U", "Y"), help="MCAP topic names of r, u, y"
+    )
+    g.add_argument(
+        "--n", type=_int_at_least(1), default=8, help="LPM window half-width (default 8)"
+    )
+    g.add_argument(
+        "--degree", type=_int_at_least(0), default=2, help="LPM polynomial degree R (default 2)"
+    )
+    g.add_argument(
+        "--alpha",
+        type=float,
+        default=0.01,
+        help="false-alarm level of the per-bin test (default 0.01)",
+    )
+    g.add_argument(
+        "--max-causes",
+        type=_int_at_least(1),
+        default=3,
+        help="most causes applied in turn (default 3)",
+    )
+
+    d = sub.add_parser(
+        "demo", help="live demo: simulated loop + node over DDS, recording, replay, plots"
+    )
+    d.add_argument("--out-dir", type=Path, default=Path("out/demo"))
+    d.add_argument(
+        "--rate", type=_positive_float, default=20.0, help="simulation speed-up (default 20)"
+    )
+    d.add_argument(
+        "--timeout",
+        type=_positive_float,
+        default=120.0,
+        help="give up after this many s (default 120)",
+    )
+    return p

@@ -1,0 +1,277 @@
+"""Model validation: where a nominal model is wrong, why, and how much a fix gains.
+
+Given measured r_h, u_h, y_h (a :class:`~mr_ident.numerics.signals.LoopData` with its
+rates) and a nominal :class:`~mr_ident.numerics.model.Model`, :func:`diagnose`:
+
+1. **Where** (:mod:`~mr_ident.diagnosis.evidence`): the identified P̂_h (and, with a
+   controller, the lifted J̃ and S̃) against the model's, bin by bin in σ units, with a
+   test whose false-alarm rate under noise alone is at most ``alpha``.
+2. **Why** (:mod:`~mr_ident.diagnosis.causes`): every cause of the registry is a
+   parametric extension of the model, fitted to the data by least squares on the
+   whitened spectrum of the simulation residual y - ŷ
+   (:class:`~mr_ident.diagnosis.objective.Objective`, noise from
+   :mod:`~mr_ident.diagnosis.noise`). Causes are ranked by the Bayesian information
+   criterion ``BIC = 2 sum_k |E(k)|^2 / S(k) + p ln n`` (n the number of bins, p the
+   cause's free parameters; lower is better). The model being extended is the cause
+   ``none`` (p = 0). A cause is accepted only when its BIC is below that of the model it
+   extends; accepted causes are applied greedily (up to ``max_causes``), each step
+   re-ranking the rest against the extended model.
+3. **Gain** (:mod:`~mr_ident.diagnosis.prediction`): fit % of y and u, and the FRF error
+   in σ units, of the nominal and the extended model on validation data.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from ..errors import ConfigError, DataError
+from ..numerics.identify import min_samples
+from ..numerics.model import Model
+from ..numerics.signals import LoopData
+from .causes import CAUSES, CauseFit, rank_causes
+from .evidence import Evidence, frf_evidence, identify_record
+from .noise import noise_spectrum
+from .prediction import TimeFit, centred, predict, time_fit
+
+
+def min_record(n: int, ratio: int) -> int:
+    """The shortest record diagnose takes.
+
+    Twice what ``freq-lifted`` identification needs
+    (:func:`~mr_ident.numerics.identify.min_samples`), i.e. 4 (2n+1) F, so that the noise
+    spectrum, smoothed over 33 bins, rests on enough bins.
+    """
+    return 2 * min_samples("freq-lifted", n, ratio)
+
+
+def check_record(model: Model, rec: LoopData, *, n: int = 8, what: str = "data") -> None:
+    """Model and data must agree on rates and channels, and the data must be long enough.
+
+    Raises
+    ------
+    DataError
+    """
+    if rec.fs_high is None or rec.ratio is None:
+        raise DataError(
+            f"{what}: fs_high and ratio must be known (got {rec.fs_high}, {rec.ratio})"
+        )
+    if not math.isclose(rec.fs_high, model.fs_high, rel_tol=1e-9):
+        raise DataError(
+            f"{what}: fs_high is {rec.fs_high:g} Hz but the model says {model.fs_high:g} Hz"
+        )
+    if rec.ratio != model.ratio:
+        raise DataError(f"{what}: the ratio F is {rec.ratio} but the model says {model.ratio}")
+    if rec.u.shape[1] != model.n_u or rec.y.shape[1] != model.n_y:
+        raise DataError(
+            f"{what} has {rec.u.shape[1]} input and {rec.y.shape[1]} output channels; "
+            f"the model has n_u={model.n_u}, n_y={model.n_y}"
+        )
+    if rec.period is not None:
+        if rec.period < 2 or rec.n_samples % rec.period or rec.n_samples // rec.period < 4:
+            raise DataError(
+                f"{what}: period {rec.period} must divide N = {rec.n_samples} into at least "
+                f"4 periods (the first is dropped as transient)"
+            )
+        return
+    need = min_record(n, model.ratio)
+    if rec.n_samples < need:
+        raise DataError(
+            f"{what} is too short for the LPM window: N = {rec.n_samples} samples, "
+            f"need at least {need} (4 x (2n+1) x F with n = {n})"
+        )
+
+
+def split(rec: LoopData, fraction: float = 0.7) -> int:
+    """Sample index where the estimation part ends and the held-out part begins.
+
+    The first ``fraction`` of the record, rounded down to whole periods (periodic data)
+    or to a multiple of F.
+    """
+    unit = rec.period or rec.ratio or 1
+    return int(rec.n_samples * fraction) // unit * unit
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """Everything :func:`diagnose` found.
+
+    Attributes
+    ----------
+    cause : str
+        The first accepted cause, or ``"none"``.
+    parameters : dict
+        Its fitted parameters.
+    ranking : list of CauseFit
+        All causes fitted against the nominal model, best first.
+    applied : list of CauseFit
+        The causes applied in turn (greedy), each fitted on top of the previous ones.
+    extended : Model
+        The nominal model with every applied cause.
+    evidence_before : Evidence
+        Nominal model against the estimation data.
+    evidence_after : Evidence
+        Extended model against the validation data.
+    evidence_validation_before : Evidence
+        Nominal model against the validation data.
+    fit_before, fit_after : TimeFit
+        On the validation data.
+    estimation, validation : str
+        Which data were used for what.
+    """
+
+    cause: str
+    parameters: dict[str, float]
+    ranking: list[CauseFit]
+    applied: list[CauseFit]
+    extended: Model
+    evidence_before: Evidence
+    evidence_validation_before: Evidence
+    evidence_after: Evidence
+    fit_before: TimeFit
+    fit_after: TimeFit
+    estimation: str
+    validation: str
+    traces: dict[str, Any] = field(default_factory=dict)
+
+
+def diagnose(
+    model: Model,
+    data: LoopData,
+    validation: LoopData | None = None,
+    *,
+    n: int = 8,
+    degree: int = 2,
+    alpha: float = 0.01,
+    max_causes: int = 3,
+    holdout: float = 0.3,
+    names: tuple[str, str] = ("data", "validation data"),
+) -> Diagnosis:
+    """Where and why ``model`` disagrees with ``data``, the extended model, and its gain.
+
+    Parameters
+    ----------
+    model : Model
+        Nominal model.
+    data : LoopData
+        Measured data for estimation (and, without ``validation``, its last
+        ``holdout`` fraction is held out for validation).
+    validation : LoopData, optional
+        Independent validation data.
+    n, degree : int
+        LPM window half-width and degree for the frequency-domain evidence.
+    alpha : float
+        Family-wise false-alarm level of the per-bin test (default 0.01).
+    max_causes : int
+        Most causes applied in turn.
+    names : (str, str)
+        What to call ``data`` and ``validation`` in error messages (e.g. their files).
+
+    Raises
+    ------
+    DataError
+        Model and data disagree on rates or channels, or the data are too short.
+
+    Examples
+    --------
+    The plant's gain is 30 % higher than the model says; diagnose names the cause,
+    measures it and gives the extended model:
+
+    >>> import dataclasses
+    >>> import numpy as np
+    >>> from mr_ident import simulate
+    >>> from mr_ident.diagnosis import diagnose
+    >>> from mr_ident.io.modelfile import model_from_dict
+    >>> model = model_from_dict({"fs_high": 100.0, "ratio": 2,
+    ...                          "plant": {"num": [10.0], "den": [1.0, 10.0]},
+    ...                          "controller": {"num": [0.5], "den": [1.0]}})
+    >>> true = dataclasses.replace(model, plant_gain=1.3, noise_std=0.01)
+    >>> data = simulate(true, duration=20.0, rng=np.random.default_rng(0))
+    >>> d = diagnose(model, data)
+    >>> d.cause, round(d.parameters["gain"], 2), d.extended.plant_gain == d.parameters["gain"]
+    ('gain_error', 1.3, True)
+    """
+    if not 0.0 < alpha < 1.0:
+        raise ConfigError(f"alpha must be in (0, 1), got {alpha!r}")
+    if not 0.05 <= holdout <= 0.5:
+        raise ConfigError(f"holdout must be in [0.05, 0.5], got {holdout!r}")
+    check_record(model, data, n=n, what=names[0])
+    if validation is not None:
+        check_record(model, validation, n=n, what=names[1])
+        est, val, val_start = data, validation, 0
+        est_desc = f"all of DATA ({data.n_samples} samples)"
+        val_desc = f"the validation data ({validation.n_samples} samples)"
+    else:
+        cut = split(data, 1.0 - holdout)
+        est = data.part(0, cut)
+        val, val_start = data, cut
+        check_record(model, est, n=n, what=f"the estimation part of {names[0]}")
+        est_desc = f"samples 0..{cut - 1} of DATA (the first {100 * (1 - holdout):.0f} %)"
+        val_desc = (
+            f"samples {cut}..{data.n_samples - 1} of DATA (the last {100 * holdout:.0f} %, held "
+            "out; "
+            f"simulated over the whole record so the state carries over)"
+        )
+    if val_start and val.period is None and val.n_samples - val_start < min_record(n, model.ratio):
+        raise DataError(
+            f"the held-out part of {names[0]} ({val.n_samples - val_start} samples) "
+            "is too short for the LPM window"
+        )
+    ident = identify_record(est, model, n=n, degree=degree)
+    ev_before = frf_evidence(model, est, n=n, degree=degree, alpha=alpha, ident=ident)
+    noise = noise_spectrum(est, model, n=n, degree=degree, ident=ident)
+    ranking = rank_causes(est, model, noise, ident=ident)
+    none_score = next(c.score for c in ranking if c.cause == "none")
+    applied: list[CauseFit] = []
+    current, current_score = model, none_score
+    step = ranking
+    for _ in range(max_causes):
+        done = {c.cause for c in applied}
+        best = next(
+            (
+                c
+                for c in step
+                if c.applicable
+                and c.cause != "none"
+                and (c.cause not in done or CAUSES[c.cause].repeatable)
+            ),
+            None,
+        )
+        if best is None or not best.score < current_score:
+            break
+        applied.append(best)
+        current = best.model
+        step = rank_causes(est, current, noise, ident=ident)
+        current_score = next(c.score for c in step if c.cause == "none")
+    val_part = val.part(val_start, val.n_samples) if val_start else val
+    pred_b, pred_a = predict(model, val), predict(current, val)
+    fit_before = time_fit(model, val, val_start, pred_b)
+    fit_after = time_fit(current, val, val_start, pred_a)
+    ident_val = identify_record(val_part, model, n=n, degree=degree)
+    ev_val_before = frf_evidence(model, val_part, n=n, degree=degree, alpha=alpha, ident=ident_val)
+    ev_after = frf_evidence(current, val_part, n=n, degree=degree, alpha=alpha, ident=ident_val)
+    _, _, y_meas = centred(val, model)
+    traces = {
+        "start": max(val_start, pred_b.skip),
+        "y": y_meas,
+        "y_before": pred_b.y,
+        "y_after": pred_a.y,
+        "fs_high": val.fs_high,
+    }
+    first = applied[0] if applied else None
+    return Diagnosis(
+        first.cause if first else "none",
+        dict(first.parameters) if first else {},
+        ranking,
+        applied,
+        current,
+        ev_before,
+        ev_val_before,
+        ev_after,
+        fit_before,
+        fit_after,
+        est_desc,
+        val_desc,
+        traces,
+    )

@@ -1,0 +1,62 @@
+"""The noise spectrum of a record, from the data alone (no model)."""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.ndimage
+import scipy.stats
+
+from ..numerics.arrays import FloatArray
+from ..numerics.model import Model
+from ..numerics.results import Identification
+from ..numerics.signals import LoopData
+from .evidence import identify_record
+from .prediction import centred
+
+
+def noise_spectrum(
+    rec: LoopData,
+    model: Model,
+    *,
+    n: int = 8,
+    degree: int = 2,
+    ident: Identification | None = None,
+) -> FloatArray:
+    """Noise variance of y on the bins of ``rfft(y[skip:], norm="ortho")``, shape (n_bins, n_y).
+
+    Independent of any model: from the LPM noise covariance of the r -> y fit (the part of
+    y that r does not explain: in closed loop the noise as the loop shapes it), or, for
+    periodic data, from the spread of y over periods (interpolated to the record's bins).
+    Smoothed by a running median over 33 bins, corrected to a mean, so that a single
+    sinusoid does not mask itself. ``ident``: :func:`identify_record` of ``rec``, computed
+    when not given.
+    """
+    _, u, y = centred(rec, model)
+    if rec.period is not None:
+        Pn = rec.period
+        n_per = rec.n_samples // Pn - 1
+        Y = np.fft.rfft(y[Pn:].reshape(n_per, Pn, -1), axis=1, norm="ortho")
+        var = np.var(Y, axis=0, ddof=1).real if n_per > 1 else np.abs(Y[0]) ** 2  # (Pn//2+1, n_y)
+        n_bins = (rec.n_samples - Pn) // 2 + 1
+        line = np.rint(np.arange(n_bins) * Pn / (rec.n_samples - Pn)).astype(int)
+        S = var[np.minimum(line, var.shape[0] - 1)]
+        dof = 2 * (n_per - 1)
+    else:
+        ident = ident or identify_record(rec, model, n=n, degree=degree)
+        assert ident is not None
+        J = ident.lifted_J
+        assert J is not None
+        F, N, ny = rec.rates()[1], rec.n_samples, y.shape[1]
+        M = N // F
+        cv = np.real(np.diagonal(J.row_cov, axis1=1, axis2=2)).reshape(-1, F, ny)  # (K, F, n_y)
+        S = np.full((N // 2 + 1, ny), np.nan)
+        kappa = J.bins[:, None] + M * np.arange(F)[None, :]
+        kappa = np.minimum(kappa, N - kappa)
+        S[kappa.ravel()] = cv.reshape(-1, ny)
+        dof = 2 * J.dof
+    S = np.where(np.isfinite(S) & (S > 0), S, np.nan)
+    fill = np.nanmedian(S, axis=0) if np.any(np.isfinite(S)) else np.ones(S.shape[1])
+    S = np.where(np.isnan(S), fill, S)
+    med = scipy.ndimage.median_filter(S, size=(33, 1), mode="nearest")
+    S = med * dof / scipy.stats.chi2.median(dof)
+    return np.maximum(S, 1e-30 * max(float(S.max()), 1e-300))

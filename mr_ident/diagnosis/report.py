@@ -1,0 +1,70 @@
+"""The diagnosis as a JSON-ready summary.
+
+Every field is listed in the README's "Model validation" section. The HTML page is an
+adapter: :mod:`mr_ident.htmlreport`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from .diagnose import Diagnosis
+
+
+def _finite(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> dict[str, Any]:
+    """The JSON report (see the README's "Model validation" section for every field)."""
+    none = next(c.score for c in d.ranking if c.cause == "none")
+    causes = [
+        {
+            "cause": c.cause,
+            "parameters": c.parameters,
+            "score": _finite(c.score),
+            "delta_bic": _finite(c.score - none),
+            "applicable": c.applicable,
+        }
+        for c in d.ranking
+    ]
+    return {
+        "cause": d.cause,
+        "parameters": d.parameters,
+        "causes": causes,
+        "applied": [{"cause": c.cause, "parameters": c.parameters} for c in d.applied],
+        "criterion": "BIC = 2 sum_k |E(k)|^2/S_noise(k) + p ln(n_bins) of the residual y - y_sim; "
+        "lower is better; a cause is accepted when it lowers the BIC of the model it extends",
+        "fit_before": _finite(d.fit_before.y),
+        "fit_after": _finite(d.fit_after.y),
+        "fit_u_before": _finite(d.fit_before.u),
+        "fit_u_after": _finite(d.fit_after.u),
+        "frf_sigma_error_before": _finite(d.evidence_validation_before.median_sigma_error),
+        "frf_sigma_error_after": _finite(d.evidence_after.median_sigma_error),
+        "significant_bands": [list(b) for b in d.evidence_before.bands()],
+        "significant_bands_after": [list(b) for b in d.evidence_after.bands()],
+        "significant_bins": {
+            "before": int(
+                d.evidence_before.significant.sum() + d.evidence_before.loop_significant.sum()
+            ),
+            "after": int(
+                d.evidence_after.significant.sum() + d.evidence_after.loop_significant.sum()
+            ),
+        },
+        "test": {
+            "statistic": "|P_hat - P_model| / sigma_hat per bin (max over entries)",
+            "null": "F(2, 2q) for the squared statistic, Bonferroni over bins and entries",
+            "alpha": alpha,
+            "q": d.evidence_before.dof,
+            "threshold_sigma": _finite(d.evidence_before.threshold),
+            "loop_threshold_sigma": _finite(d.evidence_before.loop_threshold),
+        },
+        "extended_model": extended_model,
+        "estimation": d.estimation,
+        "validation": d.validation,
+        "unexplained": {
+            "significant_bands": [list(b) for b in d.evidence_after.bands()],
+            "fit_gap_percent": _finite(100.0 - d.fit_after.y),
+        },
+    }

@@ -1,0 +1,271 @@
+"""Identification settings shared by the ROS node, ``mr-ident replay`` and the CLI.
+
+One frozen dataclass, :class:`IdentConfig`, validated on construction; the
+node declares one ROS parameter per field (with the description and range of
+:data:`PARAMETERS`), validates every set through :meth:`IdentConfig.replace`, and
+``mr-ident replay --params`` reads the same ``config/node.yaml``.
+
+Params file form (the ROS 2 one)::
+
+    mr_ident:                 # node name (or "/**" for every node)
+      ros__parameters:
+        fs_high: 240.0
+        ratio: 3
+        ...
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from ..errors import ConfigError, yaml_problem
+from ..numerics.identify import METHODS, check_options
+from ..numerics.identify import min_samples as record_minimum
+from ..numerics.systems import TransferMatrix
+
+
+@dataclass(frozen=True)
+class Param:
+    """Description of one parameter: text, and the closed range for numbers."""
+
+    description: str
+    low: float | None = None
+    high: float | None = None
+
+
+#: Every field of :class:`IdentConfig`, described once (the node's descriptors).
+PARAMETERS: dict[str, Param] = {
+    "fs_high": Param("high sample rate of r, u, y in Hz", 1e-3, 1e9),
+    "ratio": Param("F = h_l / h_h: high-rate samples per controller sample", 1, 1000),
+    "method": Param(f"identification method: one of {', '.join(METHODS)}"),
+    "n": Param("LPM window half-width (bins each side)", 1, 1000),
+    "degree": Param("LPM polynomial degree R of G and of the transient", 0, 10),
+    "window_s": Param("length of the sliding window identified, in seconds", 1e-3, 1e7),
+    "min_window_s": Param(
+        "first estimate once the aligned window holds this many seconds", 1e-3, 1e7
+    ),
+    "update_period_s": Param("re-identify every this many seconds (wall clock)", 1e-3, 1e5),
+    "lifting_phase": Param(
+        'high-rate index (mod F) at which the controller samples y: "auto" or 0..F-1'
+    ),
+    "control_delay": Param(
+        "high-rate samples between the controller sampling and its held output", 0, 1000
+    ),
+    "controller_num": Param(
+        "low-rate controller K_l numerator, descending powers of z (SISO); empty: no PFG"
+    ),
+    "controller_den": Param("low-rate controller K_l denominator, descending powers of z"),
+    "publish_points": Param(
+        "at most this many log-spaced bins published per estimate", 2, 1_000_000
+    ),
+    "record_path": Param("MCAP file the node records its three input topics to; empty: off"),
+    "reorder_blocks": Param(
+        "blocks held per stream waiting for a missing one before it is a gap", 0, 10_000
+    ),
+    "stall_timeout_s": Param("a stream silent this long is reported as stalled", 1e-3, 1e5),
+    "identify_threads": Param(
+        "threads each identification runs on (0: every CPU available to the "
+        "process); ingestion has its own thread",
+        0,
+        1024,
+    ),
+}
+
+
+@dataclass(frozen=True)
+class IdentConfig:
+    """Validated identification settings. Errors name the parameter."""
+
+    fs_high: float = 240.0
+    ratio: int = 3
+    method: str = "freq-lifted"
+    n: int = 8
+    degree: int = 2
+    window_s: float = 60.0
+    min_window_s: float = 10.0
+    update_period_s: float = 2.0
+    lifting_phase: str = "auto"
+    control_delay: int = 0
+    controller_num: tuple[float, ...] = ()
+    controller_den: tuple[float, ...] = ()
+    publish_points: int = 1000
+    record_path: str = ""
+    reorder_blocks: int = 8
+    stall_timeout_s: float = 2.0
+    identify_threads: int = 0
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            spec = PARAMETERS[f.name]
+            if f.type in ("float", float):
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                    raise ConfigError(f"{f.name} must be a finite number, got {v!r}")
+                object.__setattr__(self, f.name, float(v))
+            elif f.type in ("int", int):
+                if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+                    raise ConfigError(f"{f.name} must be an integer, got {v!r}")
+                object.__setattr__(self, f.name, int(v))
+            elif f.type in ("str", str):
+                if not isinstance(v, str):
+                    raise ConfigError(f"{f.name} must be a string, got {v!r}")
+            else:  # coefficient tuples
+                if isinstance(v, (str, bytes)) or not hasattr(v, "__iter__"):
+                    raise ConfigError(f"{f.name} must be a list of numbers, got {v!r}")
+                vals = tuple(v)
+                for j, c in enumerate(vals):
+                    if (
+                        isinstance(c, bool)
+                        or not isinstance(c, (int, float))
+                        or not math.isfinite(c)
+                    ):
+                        raise ConfigError(f"{f.name}[{j}] must be a finite number, got {c!r}")
+                object.__setattr__(self, f.name, tuple(float(c) for c in vals))
+                continue
+            v = getattr(self, f.name)
+            if spec.low is not None and not (spec.low <= v <= spec.high):
+                raise ConfigError(f"{f.name} must be in [{spec.low:g}, {spec.high:g}], got {v!r}")
+        if self.method not in METHODS:
+            raise ConfigError(f"method must be one of {', '.join(METHODS)}; got {self.method!r}")
+        if self.lifting_phase != "auto":
+            try:
+                p = int(self.lifting_phase)
+            except ValueError:
+                p = -1
+            if not 0 <= p < self.ratio:
+                raise ConfigError(
+                    f'lifting_phase must be "auto" or an integer in 0..{self.ratio - 1} '
+                    f"(F = {self.ratio}), got {self.lifting_phase!r}"
+                )
+        if bool(self.controller_num) != bool(self.controller_den):
+            raise ConfigError(
+                "controller_num and controller_den must be given together (or both empty), got "
+                f"{len(self.controller_num)} and {len(self.controller_den)} coefficients"
+            )
+        if self.controller_den:
+            if self.controller_den[0] == 0.0:
+                raise ConfigError("controller_den[0] must not be 0 (leading coefficient)")
+            if len(np.trim_zeros(np.array(self.controller_num), "f")) > len(self.controller_den):
+                raise ConfigError(
+                    "controller is improper: controller_num has a higher degree than "
+                    "controller_den"
+                )
+        if self.min_window_s > self.window_s:
+            raise ConfigError(
+                f"min_window_s ({self.min_window_s:g}) must not exceed window_s "
+                f"({self.window_s:g})"
+            )
+        if self.method != "etfe":
+            check_options(self.method, self.n, self.degree, self.ratio, 1, 1)
+            need = record_minimum(self.method, self.n, self.ratio)
+            if self.min_samples < need:
+                raise ConfigError(
+                    f"min_window_s = {self.min_window_s:g} s gives {self.min_samples} samples at "
+                    f"fs_high = {self.fs_high:g} Hz; {self.method} with n = {self.n} needs at "
+                    f"least {need} "
+                    f"(raise min_window_s to >= {need / self.fs_high:g} s)"
+                )
+
+    # -- derived -----------------------------------------------------------------
+    @property
+    def window_samples(self) -> int:
+        """Window length in high-rate samples: a multiple of F."""
+        return self.ratio * max(1, int(self.window_s * self.fs_high) // self.ratio)
+
+    @property
+    def min_samples(self) -> int:
+        """``min_window_s`` in samples, a multiple of F."""
+        return self.ratio * max(
+            1, int(math.ceil(self.min_window_s * self.fs_high - 1e-9)) // self.ratio
+        )
+
+    @property
+    def phase(self) -> int | None:
+        """The configured lifting phase, None for "auto"."""
+        return None if self.lifting_phase == "auto" else int(self.lifting_phase)
+
+    @property
+    def workers(self) -> int | None:
+        """``identify(workers=...)``: None (every CPU) for ``identify_threads = 0``."""
+        return self.identify_threads or None
+
+    @property
+    def controller(self) -> TransferMatrix | None:
+        """K_l from ``controller_num``/``controller_den`` (discrete at the low rate), or None."""
+        if not self.controller_num:
+            return None
+        return TransferMatrix.siso(
+            self.controller_num, self.controller_den, self.ratio / self.fs_high
+        )
+
+    def replace(self, **changes: Any) -> IdentConfig:
+        """A validated copy with ``changes``; unknown names are an error."""
+        unknown = set(changes) - set(PARAMETERS)
+        if unknown:
+            raise ConfigError(
+                f"unknown parameter(s) {sorted(unknown)}; known: {sorted(PARAMETERS)}"
+            )
+        return dataclasses.replace(self, **changes)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Every parameter by name (tuples as lists, for ROS and YAML)."""
+        return {
+            f.name: (list(v) if isinstance(v := getattr(self, f.name), tuple) else v)
+            for f in dataclasses.fields(self)
+        }
+
+
+def share_file(rel: str, hint: str = "") -> Path:
+    """A shipped file (``config/...``): from the source tree, else ``<prefix>/share/mr_ident``."""
+    for cand in (
+        Path(__file__).resolve().parents[2] / rel,
+        Path(sys.prefix) / "share" / "mr_ident" / rel,
+    ):
+        if cand.is_file():
+            return cand
+    raise ConfigError(
+        f"{rel} not found (looked in the source tree and {sys.prefix}/share/mr_ident){hint}"
+    )
+
+
+def load_params(path: str | Path, node_name: str = "mr_ident") -> IdentConfig:
+    """Read a ROS 2 params file (``node: ros__parameters: {...}``) into a config.
+
+    Entries under ``/**`` apply first, then those under ``node_name`` (with or
+    without a leading ``/``). Unknown parameter names are an error.
+    """
+    p = Path(path)
+    try:
+        doc = yaml.safe_load(p.read_text())
+    except OSError as err:
+        raise ConfigError(f"cannot read params file {str(p)!r}: {err.strerror}") from err
+    except yaml.YAMLError as err:
+        raise ConfigError(f"{p}: not valid YAML: {yaml_problem(err)}") from None
+    if not isinstance(doc, dict):
+        raise ConfigError(f"{p}: expected a mapping of node names to {{ros__parameters: ...}}")
+    values: dict[str, Any] = {}
+    found = False
+    for key in ("/**", node_name, "/" + node_name):
+        entry = doc.get(key)
+        if entry is None:
+            continue
+        if not isinstance(entry, dict) or not isinstance(entry.get("ros__parameters"), dict):
+            raise ConfigError(f"{p}: {key!r} must hold a 'ros__parameters' mapping")
+        values.update(entry["ros__parameters"])
+        found = True
+    if not found:
+        raise ConfigError(
+            f"{p}: no entry for node {node_name!r} (nor '/**'); top-level keys: {sorted(doc)}"
+        )
+    try:
+        return IdentConfig().replace(**values)
+    except ConfigError as err:
+        raise ConfigError(f"{p}: {err}") from err

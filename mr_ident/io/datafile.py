@@ -1,0 +1,255 @@
+"""Data files: measured or simulated r_h, u_h, y_h, and identification results.
+
+CSV
+    A header line naming the columns ``t,r,u,y`` (t in s), or for several
+    channels ``t,r0,r1,...,u0,u1,...,y0,...``; one row per high-rate sample.
+    fs_high is taken from ``t`` (uniform spacing required); F from the caller.
+NPZ (data)
+    Arrays ``r``, ``u``, ``y`` of shape (N,) or (N, channels), and scalars
+    ``fs_high`` (Hz) and ``ratio`` (F).
+NPZ (result, written by ``mr-ident identify``)
+    ``frequency`` (K,), ``P`` (K, n_y, n_u) complex, ``P_std`` (K, n_y, n_u) and,
+    with a controller, ``pfg``, ``pfg_std`` (K,); plus ``method``, ``fs_high``, ``ratio``.
+
+Writers go through a temporary file and a rename: a failed write leaves nothing.
+"""
+
+from __future__ import annotations
+
+import re
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from ..errors import DataError
+from ..numerics.arrays import FloatArray
+from ..numerics.results import Identification
+from ..numerics.signals import LoopData
+from .atomic import atomic_write
+
+_SIGNALS = ("r", "u", "y")
+
+
+def _check_finite(name: str, a: FloatArray, where: str, csv: bool = False) -> None:
+    """Raise at the first NaN/inf: a CSV's line number (header = line 1), else the array index."""
+    bad = ~np.isfinite(a)
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        value = a[row, col]
+        if csv:
+            raise DataError(
+                f"{where}: line {row + 2}, column {name!r}: {value} (need a finite number)"
+            )
+        at = f"[{row}]" if a.shape[1] == 1 else f"[{row}, {col}]"
+        raise DataError(f"{where}: array {name!r} at index {at}: {value} (need a finite number)")
+
+
+def _first_bad_line(p: Path, header: list[str]) -> str:
+    """Where and why a CSV body does not parse as a table of numbers (for the error)."""
+    with open(p) as fh:
+        next(fh)
+        for lineno, line in enumerate(fh, start=2):
+            if not line.strip():
+                continue
+            values = line.rstrip("\r\n").split(",")
+            if len(values) != len(header):
+                return (
+                    f"line {lineno} has {len(values)} values, "
+                    f"the header names {len(header)} columns"
+                )
+            for name, v in zip(header, values, strict=True):
+                try:
+                    float(v)
+                except ValueError:
+                    return f"line {lineno}, column {name.strip()!r}: {v.strip()!r} is not a number"
+    return "unreadable table"
+
+
+def _columns(header: list[str], where: str) -> dict[str, list[int]]:
+    cols: dict[str, list[tuple[int, int]]] = {s: [] for s in _SIGNALS}
+    seen_t = False
+    for j, name in enumerate(header):
+        name = name.strip()
+        if name == "t":
+            seen_t = True
+            continue
+        m = re.fullmatch(r"([ruy])(\d*)", name)
+        if not m:
+            raise DataError(
+                f"{where}: unexpected column {name!r}; expected t, r, u, y (or r0, r1, ... for "
+                "MIMO)"
+            )
+        cols[m.group(1)].append((int(m.group(2)) if m.group(2) else 0, j))
+    if not seen_t:
+        raise DataError(f"{where}: missing column 't' (time in s)")
+    out = {}
+    for s in _SIGNALS:
+        if not cols[s]:
+            raise DataError(f"{where}: missing column {s!r}")
+        idx = sorted(cols[s])
+        if [i for i, _ in idx] != list(range(len(idx))):
+            raise DataError(
+                f"{where}: columns for {s!r} must be {s} or {s}0..{s}{len(idx) - 1}, "
+                f"got {[header[j] for _, j in idx]}"
+            )
+        out[s] = [j for _, j in idx]
+    return out
+
+
+def read_csv(path: str | Path) -> LoopData:
+    """Read a CSV data file (module docstring); fs_high from its ``t`` column."""
+    p = Path(path)
+    try:
+        with open(p) as fh:
+            header = fh.readline().strip().split(",")
+    except OSError as err:
+        raise DataError(f"cannot read {str(p)!r}: {err.strerror}") from err
+    if header == [""]:
+        raise DataError(f"{p}: empty file (expected a header line t,r,u,y)")
+    cols = _columns(header, str(p))
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # "no data": reported below
+            table = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
+    except ValueError:
+        raise DataError(f"{p}: {_first_bad_line(p, header)}") from None
+    if table.shape[0] == 0:
+        raise DataError(f"{p}: no data rows after the header")
+    if table.shape[1] != len(header):
+        raise DataError(
+            f"{p}: rows have {table.shape[1]} values but the header names {len(header)} columns"
+        )
+    t = table[:, header.index("t")]
+    _check_finite("t", t[:, None], str(p), csv=True)
+    arrays = {}
+    for s in _SIGNALS:
+        arrays[s] = table[:, cols[s]]
+        for c, j in enumerate(cols[s]):
+            _check_finite(header[j].strip(), arrays[s][:, c : c + 1], str(p), csv=True)
+    fs = None
+    if t.size >= 2:
+        dt = np.diff(t)
+        h = float(np.median(dt))
+        if h <= 0 or np.max(np.abs(dt - h)) > 1e-6 * max(h, 1e-12) + 1e-9:
+            raise DataError(f"{p}: column 't' is not uniformly increasing (median step {h:g} s)")
+        fs = 1.0 / h
+    return LoopData(arrays["r"], arrays["u"], arrays["y"], fs, None)
+
+
+def read_npz(path: str | Path) -> LoopData:
+    """Read an NPZ data file (module docstring)."""
+    p = Path(path)
+    try:
+        z = np.load(p, allow_pickle=False)
+    except (OSError, ValueError) as err:
+        raise DataError(f"cannot read {str(p)!r} as NPZ: {err}") from err
+    with z:
+        missing = [s for s in _SIGNALS if s not in z.files]
+        if missing:
+            raise DataError(
+                f"{p}: missing array(s) {missing}; an NPZ data file holds r, u, y, fs_high, ratio"
+            )
+        arrays = {}
+        for s in _SIGNALS:
+            a = np.asarray(z[s])
+            if a.dtype.kind not in "fiu":
+                raise DataError(f"{p}: array {s!r} must be numeric, got dtype {a.dtype}")
+            if a.ndim not in (1, 2) or a.shape[0] == 0 or a.size == 0:
+                raise DataError(
+                    f"{p}: array {s!r} must have shape (N,) or (N, channels) with N > 0, got "
+                    f"{a.shape}"
+                )
+            a = a.astype(float)
+            if a.ndim == 1:
+                a = a[:, None]
+            _check_finite(s, a, str(p))
+            arrays[s] = a
+        fs = ratio = None
+        if "fs_high" in z.files:
+            v = np.asarray(z["fs_high"])
+            if (
+                v.size != 1
+                or v.dtype.kind not in "fiu"
+                or not np.isfinite(v).all()
+                or float(v) <= 0
+            ):
+                raise DataError(f"{p}: fs_high must be one positive number, got {v.tolist()!r}")
+            fs = float(v)
+        if "ratio" in z.files:
+            v = np.asarray(z["ratio"])
+            if v.size != 1 or v.dtype.kind not in "fiu" or float(v) != int(v) or int(v) < 1:
+                raise DataError(f"{p}: ratio must be one integer >= 1, got {v.tolist()!r}")
+            ratio = int(v)
+    lens = {s: arrays[s].shape[0] for s in _SIGNALS}
+    if len(set(lens.values())) != 1:
+        raise DataError(f"{p}: r, u, y have unequal lengths {lens}")
+    return LoopData(arrays["r"], arrays["u"], arrays["y"], fs, ratio)
+
+
+def read_data(path: str | Path) -> LoopData:
+    """Read a CSV or NPZ data file (chosen by suffix)."""
+    suffix = Path(path).suffix.lower()
+    if suffix == ".csv":
+        return read_csv(path)
+    if suffix == ".npz":
+        return read_npz(path)
+    raise DataError(f"unsupported data file {str(path)!r}: expected a .csv or .npz suffix")
+
+
+def write_data(
+    path: str | Path, r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio: int
+) -> None:
+    """Write r, u, y as CSV or NPZ (by suffix)."""
+    p = Path(path)
+    r2, u2, y2 = (np.atleast_2d(np.asarray(a, float).T).T for a in (r, u, y))
+    suffix = p.suffix.lower()
+    if suffix == ".npz":
+
+        def w(fh: Any) -> None:
+            np.savez(
+                fh,
+                r=r2.squeeze(1) if r2.shape[1] == 1 else r2,
+                u=u2.squeeze(1) if u2.shape[1] == 1 else u2,
+                y=y2.squeeze(1) if y2.shape[1] == 1 else y2,
+                fs_high=float(fs_high),
+                ratio=int(ratio),
+            )
+
+        atomic_write(p, w, binary=True)
+    elif suffix == ".csv":
+        names = ["t"]
+        for s, a in (("r", r2), ("u", u2), ("y", y2)):
+            names += [s] if a.shape[1] == 1 else [f"{s}{i}" for i in range(a.shape[1])]
+        t = np.arange(r2.shape[0]) / fs_high
+        table = np.column_stack([t, r2, u2, y2])
+        atomic_write(
+            p,
+            lambda fh: np.savetxt(
+                fh, table, delimiter=",", header=",".join(names), comments="", fmt="%.17g"
+            ),
+            binary=False,
+        )
+    else:
+        raise DataError(f"unsupported output {str(p)!r}: expected a .csv or .npz suffix")
+
+
+def write_result(path: str | Path, ident: Identification) -> None:
+    """Write an identification result NPZ (see the module docstring)."""
+    p = Path(path)
+    if p.suffix.lower() != ".npz":
+        raise DataError(f"the result file must end in .npz, got {str(p)!r}")
+    arrays: dict[str, Any] = {
+        "frequency": ident.plant.frequency,
+        "P": ident.plant.response,
+        "P_std": ident.plant.std,
+        "method": np.array(ident.plant.method),
+        "fs_high": ident.fs_high,
+        "ratio": ident.ratio,
+    }
+    if ident.pfg is not None:
+        arrays["pfg"] = ident.pfg.gain
+        arrays["pfg_std"] = ident.pfg.std
+    atomic_write(p, lambda fh: np.savez(fh, **arrays), binary=True)

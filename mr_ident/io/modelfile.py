@@ -1,0 +1,332 @@
+"""Model files (YAML): read, validate and write a :class:`~mr_ident.numerics.model.Model`.
+
+The form is the one in :mod:`mr_ident.numerics.model`'s docstring and the README. Every
+problem is a :class:`~mr_ident.errors.ModelError` naming the file and the key
+(``plant.num[2]``), or the YAML line and column; an unstable loop is refused.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from ..errors import ModelError, yaml_problem
+from ..numerics.model import Model
+from ..numerics.simulate import loop_poles
+from ..numerics.systems import TransferMatrix
+
+_KEYS = {
+    "fs_high",
+    "ratio",
+    "plant",
+    "controller",
+    "noise_std",
+    "reference_std",
+    "sample_phase",
+    "control_delay",
+    "plant_gain",
+    "input_delay_s",
+    "extra_modes",
+    "disturbances",
+}
+_SYS_KEYS = {"num", "den", "domain"}
+
+
+def _coeffs(value: Any, where: str) -> tuple[float, ...]:
+    if not isinstance(value, (list, tuple)) or not value:
+        raise ModelError(f"{where} must be a non-empty list of numbers, got {value!r}")
+    out = []
+    for j, c in enumerate(value):
+        if isinstance(c, bool) or not isinstance(c, (int, float)) or not math.isfinite(c):
+            raise ModelError(f"{where}[{j}] must be a finite number, got {c!r}")
+        out.append(float(c))
+    return tuple(out)
+
+
+def _matrix(
+    value: Any, where: str, shape: tuple[int, int] | None
+) -> tuple[tuple[tuple[float, ...], ...], ...]:
+    """A coefficient list (SISO) or nested [out][in][coeff] list."""
+    if isinstance(value, (list, tuple)) and value and isinstance(value[0], (list, tuple)):
+        rows = []
+        for o, row in enumerate(value):
+            if (
+                not isinstance(row, (list, tuple))
+                or not row
+                or not isinstance(row[0], (list, tuple))
+            ):
+                raise ModelError(
+                    f"{where}[{o}] must be a list of coefficient lists (MIMO form "
+                    "[out][in][coeff])"
+                )
+            rows.append(tuple(_coeffs(e, f"{where}[{o}][{i}]") for i, e in enumerate(row)))
+        if len({len(r) for r in rows}) != 1:
+            raise ModelError(f"{where} rows have different lengths: {[len(r) for r in rows]}")
+        m = tuple(rows)
+    else:
+        m = ((_coeffs(value, where),),)
+    if shape is not None and (len(m), len(m[0])) != shape:
+        if (len(m), len(m[0])) == (1, 1):
+            return tuple(tuple(m[0][0] for _ in range(shape[1])) for _ in range(shape[0]))
+        raise ModelError(f"{where} has shape {(len(m), len(m[0]))}, expected {shape}")
+    return m
+
+
+def _system(d: Any, name: str, dt: float | None) -> TransferMatrix:
+    if not isinstance(d, dict):
+        raise ModelError(f"{name} must be a mapping with num and den, got {type(d).__name__}")
+    unknown = set(d) - _SYS_KEYS
+    if unknown:
+        raise ModelError(f"{name}: unknown key(s) {sorted(unknown)}; allowed: {sorted(_SYS_KEYS)}")
+    for key in ("num", "den"):
+        if key not in d:
+            raise ModelError(f"{name}.{key} is missing")
+    num = _matrix(d["num"], f"{name}.num", None)
+    den = _matrix(d["den"], f"{name}.den", (len(num), len(num[0])))
+    for o, row in enumerate(den):
+        for i, a in enumerate(row):
+            if a[0] == 0.0:
+                raise ModelError(f"{name}.den[{o}][{i}] has a zero leading coefficient")
+            b = num[o][i]
+            if len(np.trim_zeros(np.array(b), "f")) > len(a):
+                raise ModelError(
+                    f"{name} entry [{o}][{i}] is improper (numerator degree > denominator degree)"
+                )
+    return TransferMatrix(num, den, dt)
+
+
+def model_from_dict(d: Any, *, source: str = "model") -> Model:
+    """Validate a parsed model mapping (see the module docstring for the form).
+
+    Raises
+    ------
+    ModelError
+        Unknown or missing keys, non-numeric coefficients, inconsistent
+        dimensions, or a closed loop that is not stable.
+    """
+    if not isinstance(d, dict):
+        raise ModelError(f"{source}: the model must be a mapping, got {type(d).__name__}")
+    unknown = set(d) - _KEYS
+    if unknown:
+        raise ModelError(f"{source}: unknown key(s) {sorted(unknown)}; allowed: {sorted(_KEYS)}")
+    for key in ("fs_high", "ratio", "plant"):
+        if key not in d:
+            raise ModelError(f"{source}: required key {key!r} is missing")
+    fs = d["fs_high"]
+    if (
+        isinstance(fs, bool)
+        or not isinstance(fs, (int, float))
+        or not math.isfinite(fs)
+        or fs <= 0
+    ):
+        raise ModelError(f"{source}: fs_high must be a positive number (Hz), got {fs!r}")
+    F = d["ratio"]
+    if isinstance(F, bool) or not isinstance(F, int) or F < 1:
+        raise ModelError(f"{source}: ratio must be an integer >= 1, got {F!r}")
+    ints = {}
+    for key in ("sample_phase", "control_delay"):
+        v = d.get(key, 0)
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            raise ModelError(f"{source}: {key} must be an integer >= 0, got {v!r}")
+        ints[key] = v
+    if ints["sample_phase"] >= F:
+        raise ModelError(
+            f"{source}: sample_phase must be in 0..{F - 1}, got {ints['sample_phase']}"
+        )
+    floats = {}
+    for key, default in (("noise_std", 0.0), ("reference_std", 1.0)):
+        v = d.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+            raise ModelError(f"{source}: {key} must be a number >= 0, got {v!r}")
+        floats[key] = float(v)
+    pd = d["plant"]
+    domain = pd.get("domain", "continuous") if isinstance(pd, dict) else "continuous"
+    if domain not in ("continuous", "discrete"):
+        raise ModelError(
+            f'{source}: plant.domain must be "continuous" or "discrete", got {domain!r}'
+        )
+    try:  # _system's messages name the key; add the file
+        plant = _system(pd, "plant", None if domain == "continuous" else 1.0 / float(fs))
+        controller = None
+        if d.get("controller") is not None:
+            cd = d["controller"]
+            if isinstance(cd, dict) and cd.get("domain", "discrete") != "discrete":
+                raise ModelError(
+                    "controller must be discrete (at the low rate), got domain "
+                    f"{cd.get('domain')!r}"
+                )
+            controller = _system(cd, "controller", F / float(fs))
+    except ModelError as err:
+        raise ModelError(f"{source}: {err}") from None
+    if controller is not None and controller.shape != (plant.shape[1], plant.shape[0]):
+        raise ModelError(
+            f"{source}: controller is {controller.shape[0]}x{controller.shape[1]}, "
+            f"expected n_u x n_y = {plant.shape[1]}x{plant.shape[0]}"
+        )
+    ext = _extensions(d, source, float(fs), plant)
+    model = Model(
+        float(fs),
+        F,
+        plant,
+        controller,
+        floats["noise_std"],
+        floats["reference_std"],
+        ints["sample_phase"],
+        ints["control_delay"],
+        **ext,
+    )
+    rho = float(np.max(np.abs(loop_poles(model)), initial=0.0))
+    if rho >= 1.0:
+        what = "closed loop" if controller is not None else "open-loop plant"
+        raise ModelError(
+            f"{source}: the {what} is not stable (largest lifted pole magnitude "
+            f"{rho:.6g} >= 1); identification needs a stable loop"
+        )
+    return model
+
+
+def _number(
+    v: Any, where: str, low: float, high: float = math.inf, *, open_low: bool = False
+) -> float:
+    ok = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+    if ok:
+        ok = (v > low if open_low else v >= low) and v <= high
+    if not ok:
+        rng = f"{'(' if open_low else '['}{low:g}, {high:g}]"
+        raise ModelError(f"{where} must be a number in {rng}, got {v!r}")
+    return float(v)
+
+
+def _entries(d: Any, key: str, source: str, fields: dict[str, Any]) -> list[dict[str, Any]]:
+    """A list of mappings with exactly the allowed fields (required when the default is None)."""
+    items = d.get(key, [])
+    if items is None:
+        return []
+    if not isinstance(items, list):
+        raise ModelError(f"{source}: {key} must be a list of mappings, got {type(items).__name__}")
+    out = []
+    for j, e in enumerate(items):
+        where = f"{source}: {key}[{j}]"
+        if not isinstance(e, dict):
+            raise ModelError(f"{where} must be a mapping, got {e!r}")
+        unknown = set(e) - set(fields)
+        if unknown:
+            raise ModelError(
+                f"{where}: unknown key(s) {sorted(unknown)}; allowed: {sorted(fields)}"
+            )
+        missing = [k for k, v in fields.items() if v is None and k not in e]
+        if missing:
+            raise ModelError(f"{where}: missing {', '.join(missing)}")
+        out.append({k: e.get(k, v) for k, v in fields.items()})
+    return out
+
+
+def _extensions(
+    d: dict[str, Any], source: str, fs: float, plant: TransferMatrix
+) -> dict[str, Any]:
+    gain = _number(d.get("plant_gain", 1.0), f"{source}: plant_gain", 0.0, open_low=True)
+    delay = _number(d.get("input_delay_s", 0.0), f"{source}: input_delay_s", 0.0, 10.0)
+    modes = []
+    for j, e in enumerate(
+        _entries(d, "extra_modes", source, {"frequency_hz": None, "damping": None})
+    ):
+        f = _number(
+            e["frequency_hz"],
+            f"{source}: extra_modes[{j}].frequency_hz",
+            0.0,
+            100 * fs,
+            open_low=True,
+        )
+        z = _number(e["damping"], f"{source}: extra_modes[{j}].damping", 0.0, 10.0, open_low=True)
+        modes.append((f, z))
+    dist = []
+    fields = {"frequency_hz": None, "amplitude": None, "phase_rad": 0.0, "output": 0}
+    for j, e in enumerate(_entries(d, "disturbances", source, fields)):
+        where = f"{source}: disturbances[{j}]"
+        f = _number(e["frequency_hz"], f"{where}.frequency_hz", 0.0, fs / 2)
+        a = _number(e["amplitude"], f"{where}.amplitude", 0.0)
+        ph = _number(e["phase_rad"], f"{where}.phase_rad", -1e6, 1e6)
+        o = e["output"]
+        if isinstance(o, bool) or not isinstance(o, int) or not 0 <= o < plant.shape[0]:
+            raise ModelError(
+                f"{where}.output must be an output index in 0..{plant.shape[0] - 1}, got {o!r}"
+            )
+        dist.append((f, a, ph, o))
+    if plant.dt is not None:
+        if modes:
+            raise ModelError(
+                f"{source}: extra_modes need a continuous-time plant (plant.domain: continuous)"
+            )
+        if abs(delay * fs - round(delay * fs)) > 1e-9:
+            raise ModelError(
+                f"{source}: with a discrete plant, input_delay_s must be a whole number of "
+                f"sample times (1/fs_high = {1 / fs:g} s), got {delay!r}"
+            )
+    return dict(
+        plant_gain=gain, input_delay=delay, extra_modes=tuple(modes), disturbances=tuple(dist)
+    )
+
+
+def load_model(path: str | Path) -> Model:
+    """Read and validate a model YAML file."""
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except OSError as err:
+        raise ModelError(f"cannot read model file {str(p)!r}: {err.strerror}") from err
+    try:
+        d = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise ModelError(f"{p}: not valid YAML: {yaml_problem(err)}") from None
+    return model_from_dict(d, source=str(p))
+
+
+def model_to_dict(model: Model) -> dict[str, Any]:
+    """The YAML mapping of a model (inverse of :func:`model_from_dict`)."""
+
+    def sysd(t: TransferMatrix, domain: str | None) -> dict[str, Any]:
+        num = [[[float(c) for c in e] for e in row] for row in t.num]  # plain floats for YAML
+        den = [[[float(c) for c in e] for e in row] for row in t.den]
+        out: dict[str, Any] = (
+            {"num": num[0][0], "den": den[0][0]} if t.shape == (1, 1) else {"num": num, "den": den}
+        )
+        if domain:
+            out["domain"] = domain
+        return out
+
+    d: dict[str, Any] = {
+        "fs_high": float(model.fs_high),
+        "ratio": int(model.ratio),
+        "plant": sysd(model.plant, "continuous" if model.plant.dt is None else "discrete"),
+    }
+    if model.controller is not None:
+        d["controller"] = sysd(model.controller, None)
+    d.update(
+        noise_std=float(model.noise_std),
+        reference_std=float(model.reference_std),
+        sample_phase=int(model.sample_phase),
+        control_delay=int(model.control_delay),
+    )
+    if model.plant_gain != 1.0:
+        d["plant_gain"] = float(model.plant_gain)
+    if model.input_delay:
+        d["input_delay_s"] = float(model.input_delay)
+    if model.extra_modes:
+        d["extra_modes"] = [
+            {"frequency_hz": float(f), "damping": float(z)} for f, z in model.extra_modes
+        ]
+    if model.disturbances:
+        d["disturbances"] = [
+            {
+                "frequency_hz": float(f),
+                "amplitude": float(a),
+                "phase_rad": float(ph),
+                "output": int(o),
+            }
+            for f, a, ph, o in model.disturbances
+        ]
+    return d

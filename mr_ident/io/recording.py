@@ -1,0 +1,392 @@
+"""MCAP recordings in rosbag2 (Jazzy) form, and their offline replay. No ROS import.
+
+Writing (:class:`McapRecorder`) takes CDR bytes that rclpy produced (a raw
+subscription) and stores them the way rosbag2's MCAP storage plugin does:
+profile ``ros2``; one schema per type, encoding ``ros2msg``, holding the type's
+``.msg`` text followed by every nested type's, each after a line of 80 ``=``
+and ``MSG: pkg/Type``; message encoding ``cdr``; channel metadata
+``offered_qos_profiles`` (YAML list of the publishers' QoS) and
+``topic_type_hash`` (RIHS01). Log and publish times are in ns. Chunks are
+zstd-compressed and closed every ``chunk_size`` bytes, so a file cut short is
+readable up to its last finished chunk.
+
+Reading (:func:`read_blocks`) decodes with the independent ``mcap_ros2``
+decoder and tolerates a truncated file (it reports how much was recovered);
+:mod:`mr_ident.live.replay` runs what it reads through the node's own steps.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import sys
+import threading
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+from ..errors import DataError, MrIdentError
+from .blocks import BLOCK_TYPE, STREAMS, Block, BlockError, decode_block
+
+SEPARATOR = "=" * 80
+_BUILTIN = {
+    "bool",
+    "byte",
+    "char",
+    "float32",
+    "float64",
+    "int8",
+    "uint8",
+    "int16",
+    "uint16",
+    "int32",
+    "uint32",
+    "int64",
+    "uint64",
+    "string",
+    "wstring",
+}
+
+
+def _share_dirs() -> list[Path]:
+    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    prefixes.append(sys.prefix)
+    return [Path(p) / "share" for p in dict.fromkeys(prefixes)]
+
+
+def _interface_file(type_name: str, suffix: str) -> Path:
+    pkg, kind, name = _split(type_name)
+    for share in _share_dirs():
+        f = share / pkg / kind / f"{name}{suffix}"
+        if f.is_file():
+            return f
+    raise MrIdentError(
+        f"interface file {pkg}/{kind}/{name}{suffix} not found under AMENT_PREFIX_PATH "
+        f"or {sys.prefix}/share"
+    )
+
+
+def _split(type_name: str) -> tuple[str, str, str]:
+    parts = type_name.split("/")
+    if len(parts) == 2:
+        return parts[0], "msg", parts[1]
+    if len(parts) == 3:
+        return parts[0], parts[1], parts[2]
+    raise MrIdentError(f"type name must be pkg/msg/Type, got {type_name!r}")
+
+
+def message_definition(type_name: str) -> str:
+    """The full concatenated ``ros2msg`` definition of ``type_name`` (rosbag2's form)."""
+    pkg = _split(type_name)[0]
+
+    def deps(pkg: str, text: str) -> list[str]:
+        out = []
+        for line in text.splitlines():
+            line = line.split("#", 1)[0].strip()
+            if not line or re.match(r"^\S+\s+\w+\s*=", line):  # blank, comment or constant
+                continue
+            base = re.sub(r"(<=\d+)?(\[[^\]]*\])?$", "", line.split()[0])
+            if base not in _BUILTIN:
+                out.append(base if "/" in base else f"{pkg}/{base}")
+        return out
+
+    texts: dict[str, str] = {}  # "pkg/Type" -> its .msg text, in first-visit order
+
+    def visit(p: str, text: str) -> None:
+        for d in deps(p, text):
+            dp, _, dn = _split(d)
+            key = f"{dp}/{dn}"
+            if key not in texts:
+                texts[key] = _interface_file(f"{dp}/msg/{dn}", ".msg").read_text()
+                visit(dp, texts[key])
+
+    main = _interface_file(type_name, ".msg").read_text()
+    visit(pkg, main)
+    parts = [main.rstrip("\n")] + [
+        f"{SEPARATOR}\nMSG: {key}\n" + text.rstrip("\n") for key, text in texts.items()
+    ]
+    return "\n".join(parts) + "\n"
+
+
+def type_hash(type_name: str) -> str:
+    """The RIHS01 type hash of ``type_name`` from its installed ``.json`` description."""
+    doc = json.loads(_interface_file(type_name, ".json").read_text())
+    for entry in doc.get("type_hashes", []):
+        if entry.get("type_name") == "/".join(_split(type_name)):
+            return str(entry["hash_string"])
+    raise MrIdentError(f"no type hash for {type_name} in its .json description")
+
+
+def qos_yaml(profiles: Sequence[Mapping[str, Any]]) -> str:
+    """``offered_qos_profiles`` metadata: one YAML list entry per publisher.
+
+    Each profile maps history, depth, reliability, durability, deadline, lifespan,
+    liveliness, liveliness_lease_duration, avoid_ros_namespace_conventions; policy
+    values are lower-case names (``keep_last``, ``reliable``, ...) and durations
+    ``{sec, nsec}``, as rosbag2 Jazzy writes them.
+    """
+    lines = []
+    for p in profiles:
+        first = True
+        for key in (
+            "history",
+            "depth",
+            "reliability",
+            "durability",
+            "deadline",
+            "lifespan",
+            "liveliness",
+            "liveliness_lease_duration",
+            "avoid_ros_namespace_conventions",
+        ):
+            v = p[key]
+            lead = "- " if first else "  "
+            first = False
+            if isinstance(v, Mapping):
+                lines.append(f"{lead}{key}:")
+                lines.append(f"    sec: {int(v['sec'])}")
+                lines.append(f"    nsec: {int(v['nsec'])}")
+            elif isinstance(v, bool):
+                lines.append(f"{lead}{key}: {'true' if v else 'false'}")
+            else:
+                lines.append(f"{lead}{key}: {v}")
+    return "\n".join(lines) if lines else "[]"
+
+
+class McapRecorder:
+    """Thread-safe rosbag2-compatible MCAP writer (see the module docstring).
+
+    Use as a context manager, or call :meth:`close`; ``close`` is idempotent and
+    finalises the file (summary, footer), so call it from signal handlers' paths.
+    """
+
+    def __init__(self, path: str | Path, *, chunk_size: int = 1 << 20, library: str | None = None):
+        from mcap.writer import CompressionType, Writer
+
+        from ..version import __version__
+
+        self.path = Path(path)
+        self._fh: IO[bytes] | None = open(self.path, "wb")
+        self._writer = Writer(self._fh, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+        self._writer.start(profile="ros2", library=library or f"mr_ident {__version__}")
+        self._lock = threading.Lock()
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self._seq: dict[int, int] = {}
+        self.messages = 0
+        self.error: OSError | None = None
+
+    def add_topic(self, topic: str, type_name: str, qos: Sequence[Mapping[str, Any]]) -> int:
+        """Register ``topic`` of ``type_name`` (pkg/msg/Type); returns the channel id."""
+        with self._lock:
+            if topic in self._channels:
+                return self._channels[topic]
+            if self._fh is None:
+                raise MrIdentError(f"recording {self.path} is closed")
+            if type_name not in self._schemas:
+                self._schemas[type_name] = self._writer.register_schema(
+                    name=type_name, encoding="ros2msg", data=message_definition(type_name).encode()
+                )
+            cid = self._writer.register_channel(
+                topic=topic,
+                message_encoding="cdr",
+                schema_id=self._schemas[type_name],
+                metadata={
+                    "offered_qos_profiles": qos_yaml(qos),
+                    "topic_type_hash": type_hash(type_name),
+                },
+            )
+            self._channels[topic] = cid
+            self._seq[cid] = 0
+            return cid
+
+    def write(
+        self, channel: int, data: bytes, log_time_ns: int, publish_time_ns: int | None = None
+    ) -> bool:
+        """Append one serialized message; False once the file is closed or failed."""
+        with self._lock:
+            if self._fh is None or self.error is not None:
+                return False
+            try:
+                self._writer.add_message(
+                    channel,
+                    log_time=log_time_ns,
+                    data=data,
+                    publish_time=log_time_ns if publish_time_ns is None else publish_time_ns,
+                    sequence=self._seq[channel],
+                )
+            except OSError as err:  # e.g. disk full: keep what the finished chunks hold
+                self.error = err
+                return False
+            self._seq[channel] += 1
+            self.messages += 1
+            return True
+
+    @property
+    def failure(self) -> str:
+        """What stopped the recording ("" if nothing), for a log line or an error."""
+        if self.error is None:
+            return ""
+        return (
+            f"writing {self.path} failed after {self.messages} messages: "
+            f"{self.error.strerror or self.error}; the file is readable up to its last finished "
+            "chunk"
+        )
+
+    def close(self) -> None:
+        """Finalise the file (summary, footer); idempotent."""
+        with self._lock:
+            if self._fh is None:
+                return
+            fh, self._fh = self._fh, None
+            try:
+                if self.error is None:
+                    self._writer.finish()  # type: ignore[no-untyped-call]
+            except OSError as err:
+                self.error = err
+            finally:
+                try:
+                    fh.close()
+                except OSError as err:  # the buffered tail did not fit either
+                    self.error = self.error or err
+
+    def __enter__(self) -> McapRecorder:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# -- reading --------------------------------------------------------------------------
+@dataclass
+class RecordingInfo:
+    """What :func:`read_blocks` found: messages per topic, and whether the file was cut short."""
+
+    messages: dict[str, int] = field(default_factory=dict)
+    truncated: bool = False
+    bytes_read: int = 0
+    file_bytes: int = 0
+    reason: str = ""
+    span: tuple[int, int] = (0, 0)  # recorded_signals: the aligned index span returned
+    broken: str = ""  # recorded_signals: why earlier samples were left out ("" if none)
+
+
+def _stream_of_topic(topic: str, topics: Sequence[str] | None) -> int | None:
+    """Stream number (0 r, 1 u, 2 y) of a recorded topic, or None.
+
+    With ``topics`` given, names must match exactly (leading "/" ignored);
+    otherwise a topic matches by its last name component (``/loop/reference``).
+    """
+    for s, want in enumerate(topics or STREAMS):
+        if topics:
+            if topic.strip("/") == want.strip("/"):
+                return s
+        elif topic.strip("/").split("/")[-1] == want:
+            return s
+    return None
+
+
+def read_blocks(
+    path: str | Path, topics: Sequence[str] | None = None
+) -> tuple[list[tuple[int, int, Block | BlockError]], RecordingInfo, list[str]]:
+    """Decode the block messages of an MCAP recording, in file order.
+
+    Returns ``(items, info, topics_found)``; each item is ``(stream, log_time_ns,
+    Block or BlockError)``. ``topics`` names the r, u, y topics (default: the
+    topics whose last name component is reference, input, output).
+
+    Raises
+    ------
+    DataError
+        Not an MCAP file, no readable message, a stream topic missing, or a topic
+        whose schema is not std_msgs/msg/Float64MultiArray.
+    """
+    from mcap.records import Channel, Message, Schema
+    from mcap.stream_reader import StreamReader
+    from mcap_ros2.decoder import DecoderFactory
+
+    p = Path(path)
+    info = RecordingInfo()
+    try:
+        info.file_bytes = p.stat().st_size
+        fh = open(p, "rb")
+    except OSError as err:
+        raise DataError(f"cannot read recording {str(p)!r}: {err.strerror}") from err
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    decoders: dict[int, Any] = {}
+    stream_of: dict[int, int] = {}
+    items: list[tuple[int, int, Block | BlockError]] = []
+    factory = DecoderFactory()
+    with fh:
+        head = fh.read(8)
+        fh.seek(0)
+        if head != b"\x89MCAP0\r\n":
+            raise DataError(f"{p}: not an MCAP file (bad magic)")
+        info.bytes_read = len(head)
+        reader = StreamReader(fh, skip_magic=False)
+        try:
+            for rec in reader.records:
+                if isinstance(rec, Schema):
+                    schemas[rec.id] = rec
+                elif isinstance(rec, Channel):
+                    channels[rec.id] = rec
+                    s = _stream_of_topic(rec.topic, topics)
+                    if s is not None:
+                        schema = schemas.get(rec.schema_id)
+                        if schema is None or schema.name != BLOCK_TYPE:
+                            raise DataError(
+                                f"{p}: topic {rec.topic!r} has schema "
+                                f"{schema.name if schema else '(none)'!r}, expected "
+                                "std_msgs/msg/Float64MultiArray"
+                            )
+                        stream_of[rec.id] = s
+                        decoders[rec.id] = factory.decoder_for(rec.message_encoding, schema)
+                elif isinstance(rec, Message):
+                    ch = channels.get(rec.channel_id)
+                    if ch is None:
+                        continue
+                    info.messages[ch.topic] = info.messages.get(ch.topic, 0) + 1
+                    if rec.channel_id not in stream_of:
+                        continue
+                    try:
+                        msg = decoders[rec.channel_id](rec.data)
+                        dims = [(d.label, int(d.size), int(d.stride)) for d in msg.layout.dim]
+                        item: Block | BlockError = decode_block(
+                            dims, int(msg.layout.data_offset), np.asarray(msg.data, dtype=float)
+                        )
+                    except BlockError as err:
+                        item = err
+                    except Exception as err:  # undecodable CDR: count it as malformed
+                        item = BlockError("malformed", f"undecodable message: {err}")
+                    items.append((stream_of[rec.channel_id], rec.log_time, item))
+                info.bytes_read = fh.tell()
+        except DataError:
+            raise
+        except (
+            Exception
+        ) as err:  # cut short or corrupt: keep what was read (McapError, EOF, struct)
+            info.truncated = True
+            detail = str(err).strip()
+            info.reason = (
+                f"the file ends inside a record after byte {info.bytes_read}"
+                if type(err).__name__ == "EndOfFile"
+                else f"unreadable record after byte {info.bytes_read} "
+                f"({type(err).__name__}{': ' + detail if detail else ''})"
+            )
+    found = sorted({c.topic for c in channels.values()})
+    if not channels:
+        raise DataError(
+            f"{p}: no channel could be read ({info.reason or 'the file holds none'}; "
+            f"file of {info.file_bytes} bytes): nothing to recover"
+        )
+    missing = [
+        name for s, name in enumerate(topics or STREAMS) if s not in set(stream_of.values())
+    ]
+    if missing:
+        raise DataError(f"{p}: topic(s) {missing} not in the recording; it holds {found}")
+    return items, info, found

@@ -1,0 +1,328 @@
+"""Alignment of three sample streams (r, u, y) by sample index: :class:`Aligner`.
+
+Blocks (:class:`~mr_ident.io.blocks.Block`) are put together by sample index, never by
+arrival. Each stream is kept contiguous: a sample that never arrives (a gap, a block
+with NaN/inf) **restarts** that stream after the hole, so the aligned window - the
+indices all three streams hold - restarts too and never spans a gap. Pure
+Python/numpy; the node and the offline replay share it through
+:class:`~mr_ident.live.ingest.Ingest`.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from ..io.blocks import STREAMS, Block
+from ..numerics.arrays import FloatArray
+from ..numerics.signals import LoopData
+
+
+@dataclass
+class StreamStats:
+    """Counters of one stream (all monotone)."""
+
+    blocks: int = 0  # accepted blocks
+    samples: int = 0  # accepted samples
+    gaps: int = 0  # holes declared (samples never arrived)
+    gap_samples: int = 0  # samples in those holes
+    duplicates: int = 0  # blocks wholly received before
+    overlaps: int = 0  # blocks partly received before (the new tail is kept)
+    late: int = 0  # blocks from before the retained start, not contiguous with it (dropped)
+    reordered: int = (
+        0  # blocks that arrived ahead of a missing one (later filled or declared a gap)
+    )
+    malformed: int = 0  # blocks breaking the layout contract
+    nonfinite: int = 0  # blocks with NaN/inf (dropped: a hole)
+    restarts: int = 0  # index jumped back (publisher restarted)
+    end: int = -1  # next expected index (-1: nothing yet)
+
+    def as_dict(self) -> dict[str, int]:
+        """Every counter by name."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+@dataclass
+class _Stream:
+    stats: StreamStats = field(default_factory=StreamStats)
+    chunks: deque = field(default_factory=deque)  # (first, array) contiguous from start to end
+    start: int = -1
+    end: int = -1
+    channels: int = 0
+    pending: dict = field(default_factory=dict)  # first -> array, arrived ahead of end
+    pending_since: float | None = None  # caller's clock when pending became non-empty
+    origin: int = -1  # where the stream (re)started; start == origin until trimmed
+    before: dict = field(
+        default_factory=dict
+    )  # first -> array, arrived before origin (start-up reordering)
+
+    def reset(self, at: int) -> None:
+        self.chunks.clear()
+        self.start = self.end = self.origin = at
+        self.before = {}
+        self.pending = {k: v for k, v in self.pending.items() if k >= at}
+
+    def append(self, first: int, x: FloatArray) -> None:
+        self.chunks.append((first, x))
+        self.end = first + x.shape[0]
+        self.stats.end = self.end
+        self.stats.blocks += 1
+        self.stats.samples += x.shape[0]
+
+
+class Aligner:
+    """Align three block streams by sample index into a bounded, gap-free window.
+
+    Parameters
+    ----------
+    capacity : int
+        Window length in samples (the sliding window; older samples are dropped).
+    ratio : int
+        F; windows start at an index that is a multiple of F and hold whole periods.
+    reorder_blocks : int
+        Blocks that may wait ahead of a missing one; one more (or waiting longer
+        than the caller's limit, :meth:`expire`) and the missing samples are
+        declared a gap (the stream restarts after it).
+    channels : sequence of 3 ints, optional
+        Expected channel counts of r, u, y; otherwise fixed by each stream's first block.
+
+    Policy: a hole restarts the stream after it (so the window restarts). A block
+    that starts before the stream's end must repeat the samples held for the
+    indices they share: then it is a duplicate (wholly behind the end; ignored)
+    or an overlap (its new tail is kept). A block that ends where the held
+    samples start is prepended (the first blocks arrived out of order); one
+    otherwise before the retained start, within a window of the end, is late
+    (dropped). Anything else - an index that went back to other samples - means
+    the publisher restarted its index, or the block is wrong: the stream restarts
+    after that block (which is not used). So a window never holds two different
+    samples for one index, nor the block that disagreed.
+    """
+
+    def __init__(
+        self,
+        capacity: int,
+        ratio: int,
+        reorder_blocks: int = 8,
+        channels: Sequence[int] | None = None,
+    ):
+        self.capacity = int(capacity)
+        self.ratio = int(ratio)
+        self.reorder_blocks = int(reorder_blocks)
+        self._s = [_Stream() for _ in STREAMS]
+        if channels is not None:
+            for s, c in zip(self._s, channels, strict=True):
+                s.channels = int(c)
+        self.restarts = 0  # times the aligned window had to start again
+
+    @property
+    def stats(self) -> dict[str, StreamStats]:
+        """Counters per stream, by name (reference, input, output)."""
+        return {name: s.stats for name, s in zip(STREAMS, self._s, strict=True)}
+
+    def count(self, stream: int, kind: str) -> None:
+        """Count a rejected block (kind "malformed" or "nonfinite") of ``stream``."""
+        setattr(self._s[stream].stats, kind, getattr(self._s[stream].stats, kind) + 1)
+
+    def push(self, stream: int, block: Block, now: float = 0.0) -> str | None:
+        """Add one decoded block of stream 0 (r), 1 (u) or 2 (y).
+
+        ``now`` is the caller's clock (for :meth:`expire`).
+
+        Returns None, or a short description of an anomaly (for a log line).
+        """
+        s = self._s[stream]
+        x, first = block.samples, block.first
+        n = x.shape[0]
+        if s.channels and x.shape[1] != s.channels:
+            s.stats.malformed += 1
+            return (
+                f"{STREAMS[stream]}: block at {first} has {x.shape[1]} channels, "
+                f"expected {s.channels}"
+            )
+        s.channels = x.shape[1]
+        if s.end < 0:
+            s.reset(first)
+        if first == s.end:
+            s.append(first, x)
+            note = self._drain(stream)
+            if not s.pending:
+                s.pending_since = None
+        elif first > s.end:
+            if not s.pending:
+                s.pending_since = now
+            s.pending[first] = x
+            s.stats.reordered += 1
+            note = self._declare_gap(stream) if len(s.pending) > self.reorder_blocks else None
+        elif first + n > s.end and self._agrees(s, first, x):
+            s.stats.overlaps += 1
+            s.append(s.end, x[s.end - first :])
+            note = self._drain(stream)
+        elif first + n <= s.end and self._agrees(s, first, x):
+            s.stats.duplicates += 1
+            return f"{STREAMS[stream]}: block [{first}, {first + n}) received twice; ignored"
+        elif (
+            first < s.start and s.end - first <= self.capacity + self.ratio and s.start == s.origin
+        ):
+            # the stream's first blocks arrived out of order: put them in front
+            s.stats.reordered += 1
+            s.before[first] = x
+            while s.before:
+                k = next((k for k, v in s.before.items() if k + v.shape[0] == s.start), None)
+                if k is None:
+                    break
+                v = s.before.pop(k)
+                s.chunks.appendleft((k, v))
+                s.start = s.origin = k
+                s.stats.blocks += 1
+                s.stats.samples += v.shape[0]
+            return None
+        elif first < s.start and s.end - first <= self.capacity + self.ratio:
+            s.stats.late += 1  # before the retained start: too late to use
+            return (
+                f"{STREAMS[stream]}: block at {first} arrived too late "
+                f"(stream starts at {s.start}); dropped"
+            )
+        else:
+            note = self._restart(stream, first, x)
+        self._trim(s)
+        return note
+
+    def _agrees(self, s: _Stream, first: int, x: FloatArray) -> bool:
+        """Whether a block starting before the stream's end repeats the samples held there."""
+        hi = min(s.end, first + x.shape[0])
+        if hi <= first:
+            return True
+        if first < s.start:
+            return False
+        return bool(np.array_equal(self._extract(s, first, hi), x[: hi - first]))
+
+    def _restart(self, stream: int, first: int, x: FloatArray) -> str:
+        """Index went back to samples that differ from those held: restart after the block.
+
+        The publisher restarted, or the block is wrong: neither is trusted.
+        """
+        s = self._s[stream]
+        s.stats.restarts += 1
+        end = first + x.shape[0]
+        note = (
+            f"{STREAMS[stream]}: index went back from {s.end} to {first} with other samples; "
+            f"stream restarts at {end}"
+        )
+        s.pending.clear()
+        s.reset(end)
+        s.stats.end = end
+        self.restarts += 1
+        return note
+
+    def _drain(self, stream: int) -> str | None:
+        """Append the pending blocks that have become contiguous with the stream's end."""
+        s = self._s[stream]
+        note = None
+        while s.pending:
+            k = min(s.pending)
+            if k > s.end:
+                break
+            x = s.pending.pop(k)
+            if not self._agrees(s, k, x):
+                note = self._restart(stream, k, x)
+            elif k + x.shape[0] <= s.end:
+                s.stats.duplicates += 1
+            else:
+                s.stats.overlaps += 1
+                s.append(s.end, x[s.end - k :])
+        return note
+
+    def _declare_gap(self, stream: int) -> str:
+        """The samples before the first pending block will not come: restart after them."""
+        s = self._s[stream]
+        k = min(s.pending)
+        s.stats.gaps += 1
+        s.stats.gap_samples += k - s.end
+        note = (
+            f"{STREAMS[stream]}: gap of {k - s.end} samples at [{s.end}, {k}); "
+            f"window restarts at {k}"
+        )
+        s.reset(k)
+        self.restarts += 1
+        self._drain(stream)
+        s.pending_since = None
+        self._trim(s)
+        return note
+
+    def expire(self, now: float, max_wait: float) -> list[str]:
+        """Declare a gap where blocks waited ahead of a missing one longer than ``max_wait``.
+
+        ``now`` and ``max_wait`` on the clock of :meth:`push`'s ``now``; returns the notes.
+        """
+        notes = []
+        for i, s in enumerate(self._s):
+            while s.pending and s.pending_since is not None and now - s.pending_since > max_wait:
+                notes.append(self._declare_gap(i))
+                if s.pending:
+                    s.pending_since = now
+        return notes
+
+    def hole(self, stream: int, first: int, n: int) -> str:
+        """Samples [first, first+n) of ``stream`` are lost (e.g. a NaN block)."""
+        s = self._s[stream]
+        if s.end < 0 or first + n > s.end:
+            s.stats.gaps += 1
+            s.stats.gap_samples += n
+            s.reset(first + n)
+            s.stats.end = s.end
+            self.restarts += 1
+        return (
+            f"{STREAMS[stream]}: samples [{first}, {first + n}) lost; "
+            f"window restarts at {first + n}"
+        )
+
+    def _trim(self, s: _Stream) -> None:
+        # Keep what the aligned window (ending at the slowest stream's end) can still use,
+        # so a stream running ahead of the others never shortens it; a stream more than
+        # one window ahead keeps two windows (memory stays bounded if another stalls).
+        hi = min(x.end for x in self._s if x.end >= 0)
+        keep_from = max(hi, s.end - self.capacity) - self.capacity - self.ratio
+        while s.chunks and s.chunks[0][0] + s.chunks[0][1].shape[0] <= keep_from:
+            s.chunks.popleft()
+        s.start = s.chunks[0][0] if s.chunks else s.end
+
+    def span(self, stop: int | None = None) -> tuple[int, int]:
+        """Aligned [first, end) the next :meth:`window` would return (end <= first: none)."""
+        if any(s.end < 0 for s in self._s):
+            return 0, 0
+        F = self.ratio
+        hi = min(s.end for s in self._s)
+        if stop is not None:
+            hi = min(hi, stop)
+        hi = hi // F * F  # whole periods, on the F grid at both ends
+        lo = max(-(-max(s.start for s in self._s) // F) * F, hi - self.capacity)
+        return lo, max(lo, hi)
+
+    def window(self, min_samples: int = 1, stop: int | None = None) -> LoopData | None:
+        """The latest aligned window, or None when it holds fewer than ``min_samples``.
+
+        At most ``capacity`` samples, ending at or before ``stop``; ``first`` is its absolute
+        index, ``ratio`` F.
+        """
+        lo, hi = self.span(stop)
+        if hi - lo < max(min_samples, 1):
+            return None
+        r, u, y = (self._extract(s, lo, hi) for s in self._s)
+        return LoopData(r, u, y, ratio=self.ratio, first=lo)
+
+    @staticmethod
+    def _extract(s: _Stream, lo: int, hi: int) -> FloatArray:
+        parts = []
+        for first, x in s.chunks:
+            end = first + x.shape[0]
+            if end <= lo:
+                continue
+            if first >= hi:
+                break
+            parts.append(x[max(lo - first, 0) : min(hi, end) - first])
+        out = np.concatenate(parts, axis=0)
+        assert out.shape[0] == hi - lo
+        return out

@@ -1,0 +1,161 @@
+"""One estimate from one aligned window: the step the node repeats and replay runs once.
+
+:func:`estimate` takes a window (:class:`~mr_ident.numerics.signals.LoopData` with its
+``first`` index) and an :class:`~mr_ident.io.config.IdentConfig`, resolves the lifting
+phase (parameter or detected), runs :func:`~mr_ident.numerics.identify.identify` and returns an
+:class:`Estimate`. The node and ``mr-ident replay`` call exactly this, so the
+same window gives the same numbers in both.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..io.config import IdentConfig
+from ..numerics.identify import identify
+from ..numerics.results import Identification
+from ..numerics.signals import LoopData
+
+
+@dataclass(frozen=True)
+class PhaseDetection:
+    """Result of :func:`detect_phase`.
+
+    Attributes
+    ----------
+    phase : int
+        Sampling phase (0..F-1, absolute index mod F) = hold phase - control delay.
+    hold : int
+        Index (mod F) at which the held controller output changes.
+    contrast : float
+        Within-period variation of u - r at the best hold phase relative to the
+        next best (0: clear; near 1: undetermined, e.g. open loop or F = 1).
+    """
+
+    phase: int
+    hold: int
+    contrast: float
+
+    @property
+    def determined(self) -> bool:
+        """Whether the phase is clear (contrast below 0.1)."""
+        return self.contrast < 0.1
+
+
+def detect_phase(
+    first: int, r: NDArray, u: NDArray, ratio: int, control_delay: int = 0
+) -> PhaseDetection:
+    """Detect the controller's phase from u - r = -H_u K_l S_d y (held over F samples).
+
+    ``first`` is the absolute index of the first sample. For each candidate hold
+    phase h the variation of u - r between consecutive samples *inside* the hold
+    intervals starting at indices = h (mod F) is summed; the true h gives (nearly) 0.
+    """
+    F = int(ratio)
+    if F == 1:
+        return PhaseDetection(0, 0, 1.0)
+    d = np.asarray(u, dtype=float) - np.asarray(r, dtype=float)
+    step = np.abs(np.diff(d, axis=0)).sum(axis=1) if d.ndim == 2 else np.abs(np.diff(d))
+    idx = (first + 1 + np.arange(step.shape[0])) % F  # index of the later sample
+    per_class = np.bincount(idx, weights=step, minlength=F)  # variation entering index = c (mod F)
+    total = per_class.sum()
+    inside = total - per_class  # hold at h: changes only allowed at h
+    order = np.argsort(inside)
+    best, second = float(inside[order[0]]), float(inside[order[1]])
+    contrast = best / second if second > 0 else 1.0
+    hold = int(order[0])
+    return PhaseDetection((hold - control_delay) % F, hold, contrast)
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One identification of one window.
+
+    Attributes
+    ----------
+    first, n_samples : int
+        The window: absolute indices [first, first + n_samples).
+    identification : Identification
+        P_h (and the PFG when the controller is configured), full resolution.
+    phase : int
+        Lifting phase used (absolute index mod F at which the controller samples).
+    phase_source : str
+        "parameter", "auto", or "auto (undetermined: 0 assumed)".
+    compute_s : float
+        Wall time of the identification.
+    """
+
+    first: int
+    n_samples: int
+    identification: Identification
+    phase: int
+    phase_source: str
+    compute_s: float
+
+
+def estimate(window: LoopData, config: IdentConfig) -> Estimate:
+    """Identify P_h (and the PFG) from one aligned window; see the module docstring."""
+    t0 = time.perf_counter()
+    F = config.ratio
+    if config.phase is not None:
+        phase, source = config.phase, "parameter"
+    else:
+        det = detect_phase(window.first, window.r, window.u, F, config.control_delay)
+        if det.determined:
+            phase, source = det.phase, "auto"
+        else:
+            phase, source = 0, "auto (undetermined: 0 assumed)"
+    controller = config.controller
+    K_low = None if controller is None else controller.dft_response(window.n_samples // F)
+    ident = identify(
+        window.r,
+        window.u,
+        window.y,
+        fs_high=config.fs_high,
+        ratio=F,
+        method=config.method,
+        n=config.n,
+        degree=config.degree,
+        controller_low=K_low,
+        phase=phase,
+        delay=config.control_delay,
+        keep_lifted=False,
+        workers=config.workers,
+    )
+    # The result does not depend on the number of threads (bit-identical).
+    return Estimate(window.first, window.n_samples, ident, phase, source, time.perf_counter() - t0)
+
+
+def warm_up(config: IdentConfig, n_samples: int | None = None) -> float:
+    """Run one identification of a synthetic window and discard it; return its wall time.
+
+    The first identification in a process pays one-time costs: FFT plans for the
+    window length, the LPM's kernel tables, the first touch of its working memory
+    (measured on the 2-core development VM: 1.2-1.6 s instead of 0.7-0.9 s for a
+    1.44 M-sample window). The node calls this once at start-up, off the executor
+    thread, so that its first real estimate does not. The window is
+    ``n_samples`` (default ``config.window_samples``) of SISO white noise, with the
+    configured method, n, R, F, controller and threads.
+    """
+    N = (
+        config.window_samples
+        if n_samples is None
+        else config.ratio * (int(n_samples) // config.ratio)
+    )
+    rng = np.random.default_rng(0)
+    r, u, y = (rng.standard_normal((N, 1)) for _ in range(3))
+    return estimate(LoopData(r, u, y, ratio=config.ratio), config).compute_s
+
+
+def publish_grid(n_bins: int, points: int) -> NDArray[np.intp]:
+    """At most ``points`` bin indices out of ``n_bins``.
+
+    Log-spaced (duplicates at the dense low end merged), first and last kept.
+    """
+    if n_bins <= points:
+        return np.arange(n_bins)
+    return np.unique(np.round(np.geomspace(1, n_bins, points)).astype(np.intp) - 1)

@@ -1,0 +1,87 @@
+"""Excitation signals and an endless simulated loop, block by block (pure numpy).
+
+:class:`Excitation` is the reference r_h: white noise or a random-phase multisine
+repeated period after period; :class:`SimSource` runs the loop of a model on it with
+the state carried from block to block (:class:`~mr_ident.numerics.simulate.LoopStream`),
+so consecutive blocks equal one long simulation. ``mr-ident-sim`` publishes its blocks.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .arrays import FloatArray
+from .model import Model
+from .simulate import LoopStream
+
+
+def multisine(model: Model, period_s: float, rng: np.random.Generator) -> FloatArray:
+    """One period (P, n_u) of a random-phase multisine, flat on bins 1..P/2-1.
+
+    Its RMS is the model's ``reference_std``.
+    """
+    F = model.ratio
+    P = F * max(2, int(round(period_s * model.fs_high / F)))
+    spec = np.zeros((P // 2 + 1, model.n_u), dtype=complex)
+    spec[1 : P // 2] = np.exp(2j * np.pi * rng.random((P // 2 - 1, model.n_u)))
+    x = np.fft.irfft(spec, n=P, axis=0)
+    out: FloatArray = model.reference_std * x / np.sqrt(np.mean(x**2, axis=0))
+    return out
+
+
+class Excitation:
+    """Endless reference: white noise, or a multisine repeated period after period."""
+
+    def __init__(self, model: Model, kind: str, rng: np.random.Generator, period_s: float = 10.0):
+        self.model, self.kind, self.rng = model, kind, rng
+        self._period = multisine(model, period_s, rng) if kind == "multisine" else None
+
+    def take(self, first: int, n: int) -> FloatArray:
+        """Samples ``first .. first + n - 1`` of the reference, shape (n, n_u)."""
+        if self._period is None:
+            white: FloatArray = self.model.reference_std * self.rng.standard_normal(
+                (n, self.model.n_u)
+            )
+            return white
+        P = self._period.shape[0]
+        periodic: FloatArray = self._period[(first + np.arange(n)) % P]
+        return periodic
+
+
+class SimSource:
+    """Blocks of (first, r, u, y), exactly continuous, of ``block`` samples each."""
+
+    def __init__(
+        self,
+        model: Model,
+        *,
+        block: int,
+        excitation: str = "white",
+        seed: int = 0,
+        period_s: float = 10.0,
+        start_index: int = 0,
+    ):
+        self.model, self.block = model, int(block)
+        self.rng = np.random.default_rng(seed)
+        self.exc = Excitation(model, excitation, self.rng, period_s)
+        self.loop = LoopStream(model)
+        self.next_index = start_index
+        self._buf = np.zeros((0, model.n_u + model.n_u + model.n_y))
+
+    def next(self) -> tuple[int, FloatArray, FloatArray, FloatArray]:
+        """The next block: ``(first, r, u, y)``, each (block, channels)."""
+        m, F, b = self.model, self.model.ratio, self.block
+        if self._buf.shape[0] < b:
+            n = F * math.ceil((b - self._buf.shape[0]) / F)
+            start = self.next_index + self._buf.shape[0]
+            r = self.exc.take(start, n)
+            v = m.noise_std * self.rng.standard_normal((n, m.n_y)) if m.noise_std > 0 else None
+            u, y = self.loop.next(r, v)
+            self._buf = np.concatenate([self._buf, np.concatenate([r, u, y], axis=1)])
+        out, self._buf = self._buf[:b], self._buf[b:]
+        first = self.next_index
+        self.next_index += b
+        nu = m.n_u
+        return first, out[:, :nu], out[:, nu : 2 * nu], out[:, 2 * nu :]

@@ -1,0 +1,304 @@
+"""The identification methods as a table: one function per method, :data:`METHODS`.
+
+Every method takes checked signals (a :class:`FitRequest`) and returns the high-rate plant
+P_h with its variance on the DFT bins 0..N//2 (a :class:`PlantFit`); the lifted methods
+also return the lifted closed-loop maps. :func:`~mr_ident.numerics.identify.identify`
+does the checks, looks the method up here, and adds the PFG. A new method is one more
+function and one more row.
+
+``freq-lifted`` (default)
+    Frequency-lift R, U, Y (stack the F aliases), LPM on r -> [y; u] giving the
+    lifted J and S, indirect step ``P = J S^-1``, P_h from the diagonal blocks.
+``time-lifted``
+    Time-lift r, u, y (stack F samples), LPM on their M-point DFTs, indirect step,
+    P_h from the first block column (polyphase components).
+``lpm``
+    LTI LPM on the high-rate spectra r -> [y; u], indirect step: the frequency-lifted
+    method with F = 1, blind to the periodic time variation (the aliases act as noise).
+``etfe``
+    ``Y / U`` per bin, no window, no noise model (std NaN). SISO only.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import DimensionError
+from . import batched
+from .arrays import ComplexArray, FloatArray
+from .lifting import (
+    dft,
+    fold_half,
+    freq_lift_half,
+    half_spectrum,
+    half_to_full,
+    time_lift,
+    unlift_bins,
+    unlift_frf,
+    unlift_variance,
+)
+from .lpm import lpm_bins_last, warn_rank_deficient
+from .results import LiftedFRF
+from .threads import thread_map
+
+#: Low-rate bins per block of the frequency-lifted path: bounds the memory in flight; the
+#: blocks run on the worker threads.
+BLOCK_BINS = 8192
+
+
+@dataclass(frozen=True)
+class FitRequest:
+    """Checked input of a method: r, u, y (N, channels), F, LPM options and threads."""
+
+    r: FloatArray
+    u: FloatArray
+    y: FloatArray
+    ratio: int
+    n: int
+    degree: int
+    dof: int
+    keep_lifted: bool
+    workers: int
+
+    @property
+    def n_samples(self) -> int:
+        """N."""
+        return int(self.r.shape[0])
+
+
+@dataclass(frozen=True)
+class PlantFit:
+    """What a method returns.
+
+    P_h (N//2+1, n_y, n_u) and its variance ``E|dP|^2`` on bins 0..N//2 (NaN where it has no
+    noise model), and the lifted maps when kept.
+    """
+
+    P_half: ComplexArray
+    var_half: FloatArray
+    lifted_J: LiftedFRF | None = None
+    lifted_S: LiftedFRF | None = None
+
+
+@dataclass(frozen=True)
+class Method:
+    """One row of the table.
+
+    Attributes
+    ----------
+    name : str
+    fit : callable
+        ``fit(FitRequest) -> PlantFit``.
+    lifted : bool
+        The LPM runs on lifted spectra: F inputs and outputs per channel, M = N/F bins
+        per period (else 1 and N).
+    uses_lpm : bool
+        The LPM's degrees-of-freedom and record-length rules apply.
+    """
+
+    name: str
+    fit: Callable[[FitRequest], PlantFit]
+    lifted: bool
+    uses_lpm: bool = True
+
+    def lift(self, ratio: int) -> int:
+        """Channels per signal channel in the LPM: F for a lifted method, else 1."""
+        return ratio if self.lifted else 1
+
+    def min_samples(self, n: int, ratio: int) -> int:
+        """The record-length rule.
+
+        An LPM method needs 2 (2n+1) independent bins per period of its spectrum (M bins
+        lifted, N bins not), i.e. N >= 2 (2n+1) F resp. 2 (2n+1); the ETFE one low-rate
+        period.
+        """
+        return 2 * (2 * n + 1) * self.lift(ratio) if self.uses_lpm else ratio
+
+
+def _indirect_full(
+    G: ComplexArray, Cv: ComplexArray, Ainv: ComplexArray, n_y: int
+) -> tuple[ComplexArray, ComplexArray, ComplexArray]:
+    """Indirect step ``P = J S^-1`` on a joint LPM fit of [J; S] (bins-first arrays).
+
+    Returns P (K, n_y, n_u) and the Kronecker covariance factors of P:
+    ``row = E C_v E^H`` with ``E = [I, -P]`` and ``col = S^-T A^-1 conj(S^-1)``.
+    """
+    J, S = G[:, :n_y], G[:, n_y:]
+    Sinv = np.linalg.inv(S)
+    P: ComplexArray = J @ Sinv
+    E = np.concatenate([np.broadcast_to(np.eye(n_y), P.shape[:1] + (n_y, n_y)), -P], axis=2)
+    row: ComplexArray = E @ Cv @ np.conj(np.swapaxes(E, 1, 2))
+    col: ComplexArray = np.swapaxes(Sinv, 1, 2) @ Ainv @ np.conj(Sinv)
+    return P, row, col
+
+
+def _indirect_diag(
+    G: ComplexArray, Cv: ComplexArray, Ainv: ComplexArray, n_y: int
+) -> tuple[ComplexArray, FloatArray, FloatArray]:
+    """:func:`_indirect_full` bins-last, keeping only the diagonals of the covariance factors.
+
+    G (n_y + n_u, n_u, K), Cv (n_y + n_u, n_y + n_u, K), Ainv (n_u, n_u, K) as
+    :func:`~mr_ident.numerics.lpm.lpm_bins_last` returns them. Returns P (n_y, n_u, K),
+    ``diag(E C_v E^H)`` (n_y, K) and ``diag(S^-T A^-1 conj(S^-1))`` (n_u, K): enough for
+    the standard deviation of every entry of P.
+    """
+    J, S = G[:n_y], G[n_y:]
+    Sinv = batched.inv(S)
+    P = batched.matmul(J, Sinv)
+    # diag(E Cv E^H)_a = Cv_yy[a,a] - 2 Re(Cv_yu[a,:] P[a,:]^H) + P[a,:] Cv_uu P[a,:]^H
+    d = np.arange(n_y)
+    row = (
+        Cv[d, d].real
+        - 2.0 * batched.real_dot(Cv[:n_y, n_y:], P, axis=1)
+        + batched.real_dot(batched.matmul(P, Cv[n_y:, n_y:]), P, axis=1)
+    )
+    # diag(S^-T A^-1 conj(S^-1))_b = Re sum_j (S^-T A^-1)[b, j] conj(S^-1[j, b])
+    col = batched.real_dot(
+        batched.matmul(Sinv.transpose(1, 0, 2), Ainv), Sinv.transpose(1, 0, 2), axis=1
+    )
+    return P, np.maximum(row, 0.0), np.maximum(col, 0.0)
+
+
+def _store_half(
+    P_half: ComplexArray,
+    var_half: FloatArray,
+    bins: range,
+    P: ComplexArray,
+    var: FloatArray,
+    ratio: int,
+    n_samples: int,
+) -> None:
+    """Write unlifted estimates (K, F, n_y, n_u) of low-rate ``bins`` to the half spectrum.
+
+    Alias by alias, the bins at or below N/2 as they are, those above conjugated at N -
+    kappa.
+    """
+    kappa = unlift_bins(np.arange(bins.start, bins.stop), ratio, n_samples)
+    for l in range(ratio):
+        idx, upper = fold_half(kappa[:, l], n_samples)
+        for sel, value in ((~upper, P[:, l]), (upper, np.conj(P[:, l]))):
+            P_half[idx[sel]] = value[sel]
+            var_half[idx[sel]] = var[sel, l]
+
+
+def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
+    F = req.ratio if ratio is None else ratio
+    N, n = req.n_samples, req.n
+    ny, nu = req.y.shape[1], req.u.shape[1]
+    M, half = N // F, N // 2
+    Rh, Uh, Yh = (half_spectrum(x, workers=req.workers) for x in (req.r, req.u, req.y))
+    Kc = M // 2
+    P_half = np.full((half + 1, ny, nu), np.nan + 0j)
+    var_half = np.full((half + 1, ny, nu), np.nan)
+    keep = req.keep_lifted and ratio is None
+
+    def block(b0: int) -> tuple[int, tuple[ComplexArray, ...] | None]:
+        """Lift, fit, indirect step and unlift one block of bins.
+
+        Blocks bound the memory and run on threads; each writes only its own bins.
+        """
+        kb = range(b0, min(b0 + BLOCK_BINS, Kc + 1))
+        window = range(kb.start - n, kb.stop + n)
+        G, Cv, Ainv, nb = lpm_bins_last(
+            freq_lift_half(Rh, window, F, N),
+            np.concatenate(
+                [freq_lift_half(Yh, window, F, N), freq_lift_half(Uh, window, F, N)], axis=1
+            ),
+            n,
+            req.degree,
+            req.dof,
+        )  # bins-last
+        P, rdiag, cdiag = _indirect_diag(G, Cv, Ainv, F * ny)
+        _store_half(
+            P_half,
+            var_half,
+            kb,
+            unlift_frf(P.transpose(2, 0, 1), F),
+            unlift_variance(rdiag.T, cdiag.T, F),
+            F,
+            N,
+        )
+        return nb, (tuple(a.transpose(2, 0, 1) for a in (G, Cv, Ainv)) if keep else None)
+
+    done = thread_map(block, range(0, Kc + 1, BLOCK_BINS), req.workers)
+    warn_rank_deficient(sum(d[0] for d in done), Kc + 1, stacklevel=4)
+    if not keep:
+        return PlantFit(P_half, var_half)
+    G, Cv, Ainv = (np.concatenate([d[1][i] for d in done if d[1] is not None]) for i in range(3))
+    bins = np.arange(Kc + 1)
+    return PlantFit(
+        P_half,
+        var_half,
+        LiftedFRF(
+            bins, G[:, : F * ny], Cv[:, : F * ny, : F * ny], Ainv, "frequency", F, N, req.dof
+        ),
+        LiftedFRF(
+            bins, G[:, F * ny :], Cv[:, F * ny :, F * ny :], Ainv, "frequency", F, N, req.dof
+        ),
+    )
+
+
+def _time_lifted(req: FitRequest) -> PlantFit:
+    F, N, n = req.ratio, req.n_samples, req.n
+    ny, nu = req.y.shape[1], req.u.shape[1]
+    M, half, Kc = N // F, N // 2, N // F // 2
+    Rt, Ut, Yt = (dft(time_lift(x, F), workers=req.workers) for x in (req.r, req.u, req.y))
+    idx = np.arange(-n, Kc + n + 1) % M
+    G, Cv, Ainv, n_bad = lpm_bins_last(
+        Rt[idx], np.concatenate([Yt[idx], Ut[idx]], axis=1), n, req.degree, req.dof, req.workers
+    )
+    warn_rank_deficient(n_bad, Kc + 1, stacklevel=4)
+    G, Cv, Ainv = (a.transpose(2, 0, 1) for a in (G, Cv, Ainv))
+    P, row, col = _indirect_full(G, Cv, Ainv, F * ny)
+    # The lifted system is real: its FRF on bins 0..M//2 gives all M bins, and unlifting
+    # those gives every high-rate bin k + l M.
+    full = [half_to_full(a, M) for a in (P, row, col)]
+    P_half = (
+        unlift_frf(full[0], F, domain="time").transpose(1, 0, 2, 3).reshape(N, ny, nu)[: half + 1]
+    )
+    var_half = (
+        unlift_variance(full[1], full[2], F, domain="time")
+        .transpose(1, 0, 2, 3)
+        .reshape(N, ny, nu)
+    )
+    if not req.keep_lifted:
+        return PlantFit(P_half, var_half[: half + 1])
+    bins = np.arange(Kc + 1)
+    return PlantFit(
+        P_half,
+        var_half[: half + 1],
+        LiftedFRF(bins, G[:, : F * ny], Cv[:, : F * ny, : F * ny], Ainv, "time", F, N, req.dof),
+        LiftedFRF(bins, G[:, F * ny :], Cv[:, F * ny :, F * ny :], Ainv, "time", F, N, req.dof),
+    )
+
+
+def _lpm(req: FitRequest) -> PlantFit:
+    return _freq_lifted(req, ratio=1)
+
+
+def _etfe(req: FitRequest) -> PlantFit:
+    ny, nu = req.y.shape[1], req.u.shape[1]
+    if ny != 1 or nu != 1:
+        raise DimensionError(
+            f"etfe needs a SISO loop (one experiment cannot separate {nu} inputs); got "
+            f"n_y={ny}, n_u={nu}"
+        )
+    Uf, Yf = (half_spectrum(x, workers=req.workers)[0] for x in (req.u, req.y))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        P = (Yf / Uf)[:, None, None]
+    return PlantFit(P, np.full(P.shape, np.nan))
+
+
+#: The methods, by name (in the README's order).
+METHODS: dict[str, Method] = {
+    m.name: m
+    for m in (
+        Method("freq-lifted", _freq_lifted, lifted=True),
+        Method("time-lifted", _time_lifted, lifted=True),
+        Method("lpm", _lpm, lifted=False),
+        Method("etfe", _etfe, lifted=False, uses_lpm=False),
+    )
+}

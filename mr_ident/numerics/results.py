@@ -1,0 +1,214 @@
+"""Frozen result types of mr_ident.
+
+Shapes follow one convention throughout the package:
+
+* signals: ``(n_samples, n_channels)``
+* FRFs: ``(n_freq, n_out, n_in)`` complex128, so batched ``@`` and ``solve``
+  run over the leading frequency axis.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import DimensionError
+from .arrays import ComplexArray, FloatArray, IntArray, readonly
+
+
+@dataclass(frozen=True)
+class FRF:
+    """A frequency response function with its standard deviation.
+
+    Attributes
+    ----------
+    frequency : ndarray, shape (n_freq,)
+        Frequencies in Hz, strictly increasing.
+    response : ndarray, shape (n_freq, n_out, n_in), complex128
+        The estimate.
+    std : ndarray, shape (n_freq, n_out, n_in), float64
+        Standard deviation of the complex estimate, ``sqrt(E|G_hat - G|^2)``
+        (so real and imaginary parts each have ``std / sqrt(2)`` for circular
+        noise). NaN where the method gives no noise model (``etfe``).
+    method : str
+        The method that produced the estimate (``"freq-lifted"``, ``"model"``...).
+    """
+
+    frequency: FloatArray
+    response: ComplexArray
+    std: FloatArray
+    method: str
+
+    def __post_init__(self) -> None:
+        f = readonly(self.frequency, np.float64, copy=True)
+        g = readonly(self.response, np.complex128, copy=True)
+        s = readonly(self.std, np.float64, copy=True)
+        if f.ndim != 1:
+            raise DimensionError(f"frequency must be 1-D (n_freq,), got shape {f.shape}")
+        if g.ndim != 3 or g.shape[0] != f.shape[0]:
+            raise DimensionError(
+                f"response must have shape (n_freq={f.shape[0]}, n_out, n_in), got {g.shape}"
+            )
+        if s.shape != g.shape:
+            raise DimensionError(f"std must have the shape of response {g.shape}, got {s.shape}")
+        if f.size > 1 and not np.all(np.diff(f) > 0):
+            raise DimensionError("frequency must be strictly increasing")
+        object.__setattr__(self, "frequency", f)
+        object.__setattr__(self, "response", g)
+        object.__setattr__(self, "std", s)
+
+    @property
+    def n_out(self) -> int:
+        """Outputs (rows of each response matrix)."""
+        return int(self.response.shape[1])
+
+    @property
+    def n_in(self) -> int:
+        """Inputs (columns of each response matrix)."""
+        return int(self.response.shape[2])
+
+
+@dataclass(frozen=True)
+class LiftedFRF:
+    """An LPM estimate of a lifted (LTI MIMO) map with a Kronecker-factored covariance.
+
+    The covariance of the estimate is
+    ``E[dG[k,a,b] conj(dG[k,a2,b2])] = row_cov[k,a,a2] * col_cov[k,b,b2]``,
+    which is the exact form of the least-squares covariance of the LPM
+    (Pintelon & Schoukens 2012, ch. 7) and survives the indirect step. The arrays are
+    held read-only (views: not copied).
+
+    Attributes
+    ----------
+    bins : ndarray of int, shape (n_bins,)
+        Low-rate DFT bin indices k (frequency ``k * fs_low / M``).
+    response : ndarray, shape (n_bins, n_out, n_in), complex128
+    row_cov : ndarray, shape (n_bins, n_out, n_out), complex128 (Hermitian)
+    col_cov : ndarray, shape (n_bins, n_in, n_in), complex128 (Hermitian)
+    domain : str
+        ``"frequency"`` (aliases stacked) or ``"time"`` (samples stacked).
+    ratio : int
+        The lifting factor F.
+    n_samples : int
+        High-rate record length N (so the low-rate length is N / F).
+    dof : int
+        Degrees of freedom q of the noise covariance estimate (:func:`~mr_ident.numerics.lpm.dof`).
+    """
+
+    bins: IntArray
+    response: ComplexArray
+    row_cov: ComplexArray
+    col_cov: ComplexArray
+    domain: str
+    ratio: int
+    n_samples: int
+    dof: int
+
+    def __post_init__(self) -> None:
+        for name, dtype in (
+            ("bins", np.int64),
+            ("response", np.complex128),
+            ("row_cov", np.complex128),
+            ("col_cov", np.complex128),
+        ):
+            object.__setattr__(self, name, readonly(getattr(self, name), dtype))
+        g = self.response
+        if g.ndim != 3 or g.shape[0] != np.shape(self.bins)[0]:
+            raise DimensionError(f"response must be (n_bins, n_out, n_in), got {g.shape}")
+        if self.row_cov.shape != (g.shape[0], g.shape[1], g.shape[1]):
+            raise DimensionError(
+                f"row_cov must be {(g.shape[0], g.shape[1], g.shape[1])}, got {self.row_cov.shape}"
+            )
+        if self.col_cov.shape != (g.shape[0], g.shape[2], g.shape[2]):
+            raise DimensionError(
+                f"col_cov must be {(g.shape[0], g.shape[2], g.shape[2])}, got {self.col_cov.shape}"
+            )
+        if self.domain not in ("frequency", "time"):
+            raise DimensionError(f'domain must be "frequency" or "time", got {self.domain!r}')
+        if self.dof < 1:
+            raise DimensionError(f"dof must be >= 1, got {self.dof}")
+
+    @property
+    def std(self) -> FloatArray:
+        """Standard deviation of each entry, shape (n_bins, n_out, n_in)."""
+        r = np.real(np.diagonal(self.row_cov, axis1=1, axis2=2))
+        c = np.real(np.diagonal(self.col_cov, axis1=1, axis2=2))
+        out: FloatArray = np.sqrt(np.maximum(r[:, :, None] * c[:, None, :], 0.0))
+        return out
+
+
+@dataclass(frozen=True)
+class PFG:
+    """Performance Frequency Gain of a multirate loop r_h -> y_h.
+
+    Attributes
+    ----------
+    frequency : ndarray, shape (n_freq,)
+        Input frequency in Hz.
+    gain : ndarray, shape (n_freq,)
+        PFG: 2-norm (largest singular value) of the first block column of the
+        frequency-lifted closed-loop map at that input frequency.
+    std : ndarray, shape (n_freq,)
+        First-order standard deviation; NaN where no noise model exists.
+    source : str
+        What it was computed from (``"model"``, ``"plant:freq-lifted"``, ...).
+
+    The arrays are held read-only (views: not copied).
+    """
+
+    frequency: FloatArray
+    gain: FloatArray
+    std: FloatArray
+    source: str
+
+    def __post_init__(self) -> None:
+        for name in ("frequency", "gain", "std"):
+            object.__setattr__(self, name, readonly(getattr(self, name), np.float64))
+        f = self.frequency
+        if f.ndim != 1 or self.gain.shape != f.shape or self.std.shape != f.shape:
+            raise DimensionError(
+                f"frequency, gain and std must share one 1-D shape, got {f.shape}, "
+                f"{self.gain.shape}, {self.std.shape}"
+            )
+
+    def part(self, keep: slice | IntArray) -> PFG:
+        """The PFG on a subset of its frequencies (``keep`` indexes them)."""
+        return PFG(self.frequency[keep], self.gain[keep], self.std[keep], self.source)
+
+
+@dataclass(frozen=True)
+class Identification:
+    """Everything one identification run produced.
+
+    Attributes
+    ----------
+    plant : FRF
+        High-rate plant estimate on (0, fs_high/2], shape (N//2, n_y, n_u).
+    pfg : PFG or None
+        PFG from the plant estimate and the known controller, when one was given.
+    lifted_J, lifted_S : LiftedFRF or None
+        The lifted closed-loop maps r->y and r->u (lifted methods only).
+    fs_high : float
+    ratio : int
+    """
+
+    plant: FRF
+    pfg: PFG | None
+    lifted_J: LiftedFRF | None
+    lifted_S: LiftedFRF | None
+    fs_high: float
+    ratio: int
+
+    def __post_init__(self) -> None:
+        if self.pfg is not None and self.pfg.frequency.shape != self.plant.frequency.shape:
+            raise DimensionError(
+                f"pfg must be on the plant's {self.plant.frequency.size} frequencies, "
+                f"got {self.pfg.frequency.size}"
+            )
+        if (self.lifted_J is None) != (self.lifted_S is None):
+            raise DimensionError("lifted_J and lifted_S come together (both or neither)")
+        if not (self.fs_high > 0 and self.ratio >= 1):
+            raise DimensionError(
+                f"fs_high must be > 0 and ratio >= 1, got {self.fs_high}, {self.ratio}"
+            )

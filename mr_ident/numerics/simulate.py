@@ -1,0 +1,269 @@
+"""Fast simulation of the multirate loop by lifting.
+
+One low-rate period of the loop (plant at the high rate, controller at the low
+rate, sampling phase, hold and computation delay) is an LTI map from the lifted
+inputs ``[r_bar; v_bar]`` to the lifted outputs ``[y_bar; u_bar]``. It is built
+once, symbolically, as a state-space system at the low rate
+(:func:`lifted_loop`), then simulated over all M = N/F periods at once with
+compiled first-order recursions on its modes (``scipy.signal.lfilter``): no
+Python loop per sample.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import scipy.signal
+from numpy.typing import ArrayLike
+
+from ..errors import ConfigError, DimensionError
+from .arrays import ComplexArray, FloatArray
+from .model import Model
+from .signals import LoopData
+from .systems import StateSpace
+
+
+def lifted_loop(model: Model) -> StateSpace:
+    """The loop over one low-rate period as an LTI system at the low rate.
+
+    Inputs ``[r(mF..mF+F-1); v(mF..mF+F-1)]`` (F*n_u + F*n_y, sample-major),
+    outputs ``[y_meas(...); u(...)]`` (F*n_y + F*n_u), where ``y_meas = P_h u + v``
+    is what the controller and the logger see.
+    """
+    Pd = model.plant_discrete().to_ss()
+    F, ny, nu = model.ratio, model.n_y, model.n_u
+    A, B, C, D = Pd.A, Pd.B, Pd.C, Pd.D
+    nx = A.shape[0]
+    if model.controller is not None:
+        Kd = model.controller.to_ss()
+        Ak, Bk, Ck, Dk = Kd.A, Kd.B, Kd.C, Kd.D
+    else:
+        Ak = np.zeros((0, 0))
+        Bk = np.zeros((0, ny))
+        Ck = np.zeros((nu, 0))
+        Dk = np.zeros((nu, ny))
+    nk = Ak.shape[0]
+    phase, hold = model.sample_phase, model.sample_phase + model.control_delay
+    nh = -((0 - hold) // F) if model.controller is not None else 0  # ceil(hold / F)
+    ns = nx + nk + nh * nu
+    nz = ns + F * nu + F * ny
+    eye = np.eye(nz)
+    X = eye[:nx]
+    XK = eye[nx : nx + nk]
+    H = [eye[nx + nk + j * nu : nx + nk + (j + 1) * nu] for j in range(nh)]  # H[j] = u_c[m-1-j]
+    r = [eye[ns + i * nu : ns + (i + 1) * nu] for i in range(F)]
+    v = [eye[ns + F * nu + i * ny : ns + F * nu + (i + 1) * ny] for i in range(F)]
+    UC = None
+    XK_next = XK
+    Ys, Us = [], []
+    closed = model.controller is not None
+    for i in range(F):
+        j = -((i - hold) // F)  # u_c[m - j] is held at sample i
+        if closed and i == phase:
+            if j == 0:  # output applied at the sampling instant: algebraic loop
+                Q = np.linalg.inv(np.eye(nu) + Dk @ D)
+                UC = Q @ (Ck @ XK + Dk @ (C @ X + D @ r[i] + v[i]))
+            else:
+                yi = C @ X + D @ (r[i] - H[j - 1]) + v[i]
+                UC = Ck @ XK + Dk @ yi
+        if not closed:
+            ui = r[i]
+        elif j == 0:
+            assert UC is not None
+            ui = r[i] - UC
+        else:
+            ui = r[i] - H[j - 1]
+        yi = C @ X + D @ ui + v[i]
+        if closed and i == phase:
+            XK_next = Ak @ XK + Bk @ yi
+        Ys.append(yi)
+        Us.append(ui)
+        X = A @ X + B @ ui
+    Hn: list[FloatArray] = []
+    if nh:
+        assert UC is not None
+        Hn = [UC, *H[:-1]]
+    nxt = np.vstack([X, XK_next] + Hn) if ns else np.zeros((0, nz))
+    out = np.vstack(Ys + Us)
+    return StateSpace(
+        nxt[:, :ns], nxt[:, ns:], out[:, :ns], out[:, ns:], model.ratio / model.fs_high
+    )
+
+
+def loop_poles(model: Model) -> ComplexArray:
+    """Poles of the lifted loop (low-rate z-plane); stable iff all |p| < 1."""
+    A = lifted_loop(model).A
+    if not A.size:
+        return np.zeros(0, dtype=np.complex128)
+    return np.asarray(np.linalg.eigvals(A), dtype=np.complex128)
+
+
+class StateRecursion:
+    """``x[m+1] = A x[m] + B w[m]``, ``out[m] = C x[m] + D w[m]``.
+
+    Run piece by piece from x = 0, the state carried from one :meth:`run` to the next.
+
+    Uses the modal form and one compiled first-order recursion per mode; falls
+    back to a direct recursion (with a RuntimeWarning) when A is not safely
+    diagonalisable.
+    """
+
+    def __init__(self, ss: StateSpace):
+        self.ss = ss
+        self._modal = True
+        if ss.A.shape[0] == 0:
+            self._lam = np.zeros(0, dtype=complex)
+            self._Bm = np.zeros((0, ss.B.shape[1]), dtype=complex)
+            self._Cm = np.zeros((ss.C.shape[0], 0), dtype=complex)
+        else:
+            lam, V = np.linalg.eig(ss.A)
+            if np.linalg.cond(V) > 1e8:
+                warnings.warn(
+                    "simulate: state matrix is (nearly) defective; using the slow direct "
+                    "recursion",
+                    RuntimeWarning,
+                    stacklevel=3,
+                )
+                self._modal = False
+                self._x = np.zeros(ss.A.shape[0])
+            else:
+                self._lam = lam
+                self._Bm = np.linalg.solve(V, ss.B.astype(complex))  # (n, n_in)
+                self._Cm = ss.C @ V  # (n_out, n)
+        self._z = np.zeros(self._lam.shape[0] if self._modal else 0, dtype=complex)
+
+    def run(self, w: ArrayLike) -> FloatArray:
+        """Outputs (M, n_out) for inputs ``w`` (M, n_in), continuing from the last call."""
+        wa = np.asarray(w, dtype=float)
+        ss = self.ss
+        if not self._modal:
+            _, yout, xout = scipy.signal.dlsim((ss.A, ss.B, ss.C, ss.D, 1.0), wa, x0=self._x)
+            self._x = ss.A @ xout[-1] + ss.B @ wa[-1]
+            return np.asarray(yout).reshape(wa.shape[0], -1)
+        out = wa @ ss.D.T
+        drive = wa @ self._Bm.T  # (M, n)
+        for i, li in enumerate(self._lam):
+            # zeta[m] = li zeta[m-1] + drive[m-1]: the state before sample m.
+            z, zf = scipy.signal.lfilter([0.0, 1.0], [1.0, -li], drive[:, i], zi=[self._z[i]])
+            self._z[i] = zf[0]
+            out += np.real(np.outer(z, self._Cm[:, i]))
+        return out
+
+
+def simulate(
+    model: Model,
+    *,
+    n_samples: int | None = None,
+    duration: float | None = None,
+    rng: np.random.Generator | None = None,
+    reference: ArrayLike | None = None,
+    noise: ArrayLike | None = None,
+) -> LoopData:
+    """Simulate the loop of ``model`` at the high rate.
+
+    Parameters
+    ----------
+    model : Model
+    n_samples : int, optional
+        N, a multiple of F.
+    duration : float, optional
+        Seconds; rounded to a whole number of low-rate periods
+        (``N = F * round(duration * fs_low)``). Give exactly one of n_samples, duration,
+        or a ``reference``.
+    rng : numpy.random.Generator, optional
+        Source of the white-noise reference (std ``model.reference_std``) and of the
+        output noise (std ``model.noise_std``); required unless both are given.
+    reference : array_like, shape (N, n_u), optional
+    noise : array_like, shape (N, n_y), optional
+        Output noise added to y (also seen by the controller). The model's
+        ``disturbances`` are added on top.
+
+    Returns
+    -------
+    LoopData
+        r, u, y (N, channels) with ``fs_high`` and ``ratio`` of the model.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from mr_ident import simulate
+    >>> from mr_ident.io.modelfile import model_from_dict
+    >>> model = model_from_dict({"fs_high": 100.0, "ratio": 2,
+    ...                          "plant": {"num": [1.0], "den": [1.0, 1.0]},
+    ...                          "controller": {"num": [0.5], "den": [1.0]}})
+    >>> sim = simulate(model, duration=1.0, rng=np.random.default_rng(0))
+    >>> sim.r.shape, sim.u.shape, sim.y.shape, sim.fs_high, sim.ratio
+    ((100, 1), (100, 1), (100, 1), 100.0, 2)
+    """
+    F, ny, nu = model.ratio, model.n_y, model.n_u
+    if reference is not None:
+        ra = np.asarray(reference, dtype=float)
+        ra = ra[:, None] if ra.ndim == 1 else ra
+        if ra.ndim != 2 or ra.shape[1] != nu:
+            raise DimensionError(
+                f"reference must have shape (N, n_u={nu}), got {np.shape(reference)}"
+            )
+        N = ra.shape[0]
+    elif n_samples is not None:
+        N = int(n_samples)
+    elif duration is not None:
+        if not (np.isfinite(duration) and duration > 0):
+            raise ConfigError(f"duration must be a positive number of seconds, got {duration!r}")
+        N = F * int(round(duration * model.fs_low))
+    else:
+        raise ConfigError("give n_samples, duration or reference")
+    if N < F or N % F:
+        raise DimensionError(f"N = {N} samples must be a positive multiple of ratio F={F}")
+    needs_rng = reference is None or (noise is None and model.noise_std > 0)
+    if needs_rng and rng is None:
+        raise ConfigError(
+            "rng (numpy.random.Generator) is required to draw the reference or noise"
+        )
+    if reference is None:
+        assert rng is not None
+        ra = model.reference_std * rng.standard_normal((N, nu))
+    if noise is not None:
+        va = np.asarray(noise, dtype=float)
+        va = va[:, None] if va.ndim == 1 else va
+        if va.shape != (N, ny):
+            raise DimensionError(f"noise must have shape (N={N}, n_y={ny}), got {va.shape}")
+    elif model.noise_std > 0:
+        assert rng is not None
+        va = model.noise_std * rng.standard_normal((N, ny))
+    else:
+        va = np.zeros((N, ny))
+    u, y = LoopStream(model).next(ra, va)
+    return LoopData(ra, u, y, fs_high=model.fs_high, ratio=F)
+
+
+class LoopStream:
+    """The loop of ``model`` simulated piece by piece, state carried across calls.
+
+    ``next(reference, noise)`` continues exactly where the previous call stopped,
+    so concatenated pieces equal one :func:`simulate` over the whole record. Used by
+    ``mr-ident-sim`` to publish an endless stream.
+    """
+
+    def __init__(self, model: Model):
+        self.model = model
+        self._loop = StateRecursion(lifted_loop(model))
+        self._n = 0  # samples simulated so far (for the disturbance's time)
+
+    def next(
+        self, reference: ArrayLike, noise: ArrayLike | None = None
+    ) -> tuple[FloatArray, FloatArray]:
+        """Plant input and output (u, y) for ``reference`` (N, n_u), N a multiple of F."""
+        F, ny, nu = self.model.ratio, self.model.n_y, self.model.n_u
+        ra = np.asarray(reference, dtype=float).reshape(-1, nu)
+        N = ra.shape[0]
+        if N % F:
+            raise DimensionError(f"reference length {N} must be a multiple of ratio F={F}")
+        va = np.zeros((N, ny)) if noise is None else np.asarray(noise, dtype=float).reshape(N, ny)
+        if self.model.disturbances:
+            va = va + self.model.disturbance(self._n, N)
+        self._n += N
+        M = N // F
+        w = np.concatenate([ra.reshape(M, F * nu), va.reshape(M, F * ny)], axis=1)
+        out = self._loop.run(w)
+        return out[:, F * ny :].reshape(N, nu), out[:, : F * ny].reshape(N, ny)
