@@ -246,7 +246,7 @@ def _make_recording(path: Path) -> Path:
     """A small recording written with mcap_ros2's own writer (ROS-free)."""
     from mcap_ros2.writer import Writer
 
-    from mr_ident.io.recording import message_definition
+    from mr_ident.io.msgdef import message_definition
 
     schema_text = message_definition("std_msgs/msg/Float64MultiArray")
     rng = np.random.default_rng(0)

@@ -76,8 +76,23 @@ def _resolve_rates(
     return float(fs), int(F)
 
 
+def _specs(args: argparse.Namespace) -> dict[str, list[str]] | None:
+    """The --r/--u/--y sources, or None when none was given (all three needed otherwise)."""
+    specs = {sig: getattr(args, f"{sig}_source", None) or [] for sig in ("r", "u", "y")}
+    if not any(specs.values()):
+        return None
+    missing = [f"--{sig}" for sig, v in specs.items() if not v]
+    if missing:
+        raise ConfigError(f"give all of --r, --u, --y with a bag; missing {', '.join(missing)}")
+    return specs
+
+
+def _is_bag(path: Path) -> bool:
+    return path.is_dir() or path.suffix.lower() in (".mcap", ".db3")
+
+
 def cmd_identify(args: argparse.Namespace) -> int:
-    """``mr-ident identify``: identify P_h (and the PFG) from a data file."""
+    """``mr-ident identify``: identify P_h (and the PFG) from a data file or a bag."""
     from ..io.datafile import read_data, write_result
     from ..io.modelfile import load_model
     from ..numerics.identify import identify
@@ -85,7 +100,16 @@ def cmd_identify(args: argparse.Namespace) -> int:
     if args.out.suffix.lower() != ".npz":
         raise ConfigError(f"--out must be a .npz file, got {str(args.out)!r}")
     model = load_model(args.model) if args.model else None
-    data = read_data(args.data)
+    specs = _specs(args)
+    if specs is not None or _is_bag(args.data):
+        data = _read_bag(
+            args.data,
+            specs,
+            args.fs_high or (model.fs_high if model else None),
+            args.ratio or (model.ratio if model else None),
+        )
+    else:
+        data = read_data(args.data)
     fs, F = _resolve_rates(args, data.fs_high, data.ratio, model)
     N = data.n_samples
     loop: dict[str, Any] = {}
@@ -107,12 +131,50 @@ def cmd_identify(args: argparse.Namespace) -> int:
         degree=args.degree,
         keep_lifted=False,
         **loop,
-    )  # the result file holds P_h and the PFG
+    )  # the result holds P_h and the PFG
     write_result(args.out, ident)
     print(f"wrote {args.out} ({ident.plant.frequency.size} bins, method {args.method})")
     if args.plot:
         _write_plots(ident, args.plot, fs, F, N, model)
     return 0
+
+
+def _read_bag(
+    path: Path,
+    specs: dict[str, list[str]] | None,
+    fs_high: float | None,
+    ratio: int | None,
+    topics: list[str] | None = None,
+) -> LoopData:
+    """r, u, y of a bag: per-sample sources, or the block contract (``topics``)."""
+    if specs is None:
+        from ..live.replay import recorded_signals
+
+        if ratio is None:
+            raise ConfigError("ratio F unknown: pass --ratio or --model")
+        data, info = recorded_signals(path, ratio, topics=topics)
+        if fs_high is None:
+            raise ConfigError("fs_high unknown: pass --fs-high or --model")
+        from dataclasses import replace
+
+        data = replace(data, fs_high=fs_high, ratio=ratio)
+    else:
+        from ..live.replay import bag_signals
+
+        data, info = bag_signals(path, specs, fs_high=fs_high, ratio=ratio)
+    if info.truncated:
+        print(
+            f"warning: {path} is truncated ({info.reason}); using the {data.n_samples} samples "
+            "read",
+            file=sys.stderr,
+        )
+    if info.broken:
+        print(
+            f"warning: {path}: using the latest gap-free span [{info.span[0]}, {info.span[1]}) "
+            f"of {data.n_samples} samples ({info.broken})",
+            file=sys.stderr,
+        )
+    return data
 
 
 def _write_plots(
@@ -168,7 +230,18 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if args.out.suffix.lower() != ".npz":
         raise ConfigError(f"--out must be a .npz file, got {str(args.out)!r}")
     cfg = load_params(args.params) if args.params else IdentConfig()
-    res = replay(args.recording, cfg, topics=args.topics, stop=args.stop)
+    specs = _specs(args)
+    if specs is not None:
+        from ..live.replay import replay_bag
+
+        fs = args.fs_high or (cfg.fs_high if args.params else None)
+        F = args.ratio or (cfg.ratio if args.params else None)
+        res = replay_bag(args.recording, cfg, specs, fs_high=fs, ratio=F, stop=args.stop)
+        cfg = cfg.replace(
+            fs_high=res.estimate.identification.fs_high, ratio=res.estimate.identification.ratio
+        )
+    else:
+        res = replay(args.recording, cfg, topics=args.topics, stop=args.stop)
     info, est = res.info, res.estimate
     if info.truncated:
         print(
@@ -211,28 +284,17 @@ def cmd_record(args: argparse.Namespace) -> int:
 
 
 def _read_record(
-    path: Path, model: Model, period: int | None, topics: list[str] | None
+    path: Path,
+    model: Model,
+    period: int | None,
+    topics: list[str] | None,
+    specs: dict[str, list[str]] | None = None,
 ) -> LoopData:
-    """Data for diagnose from a file; rates from the file where it gives them, else the model."""
+    """Data for diagnose from a file or a bag; rates from the file where given, else the model."""
     from dataclasses import replace
 
-    if path.suffix.lower() == ".mcap":
-        from ..live.replay import recorded_signals
-
-        data, info = recorded_signals(path, model.ratio, topics=topics)
-        if info.truncated:
-            print(
-                f"warning: {path} is truncated ({info.reason}); using the {data.n_samples} "
-                "samples read",
-                file=sys.stderr,
-            )
-        if info.broken:
-            print(
-                f"warning: {path}: using the latest gap-free span [{info.span[0]}, "
-                f"{info.span[1]}) "
-                f"of {data.n_samples} samples ({info.broken})",
-                file=sys.stderr,
-            )
+    if specs is not None or _is_bag(path):
+        data = _read_bag(path, specs, model.fs_high, model.ratio, topics)
         fs, F = model.fs_high, model.ratio
     else:
         from ..io.datafile import read_data
@@ -264,8 +326,13 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     if not 0.0 < args.alpha < 1.0:
         raise ConfigError(f"--alpha must be in (0, 1), got {args.alpha}")
     model = load_model(args.model)
-    data = _read_record(args.data, model, args.period, args.topics)
-    val = _read_record(args.validate, model, args.period, args.topics) if args.validate else None
+    specs = _specs(args)
+    data = _read_record(args.data, model, args.period, args.topics, specs)
+    val = (
+        _read_record(args.validate, model, args.period, args.topics, specs)
+        if args.validate
+        else None
+    )
     d = diagnose(
         model,
         data,

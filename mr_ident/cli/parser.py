@@ -41,6 +41,19 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(EXIT_USAGE)
 
 
+def _sources(p: argparse.ArgumentParser) -> None:
+    """--r/--u/--y: per-sample sources in a bag (README, "Use it on your robot")."""
+    for sig, what in (("r", "excitation"), ("u", "plant input"), ("y", "plant output")):
+        p.add_argument(
+            f"--{sig}",
+            action="append",
+            metavar="SPEC",
+            dest=f"{sig}_source",
+            help=f"{what} in a bag: topic and field path, e.g. '/joint_states.position"
+            f'{{name=="j1"}}\' (repeat for MIMO)',
+        )
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``mr-ident`` and its subcommands."""
     from ..numerics.methods import METHODS
@@ -62,7 +75,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", type=Path, required=True, help="data file, .csv or .npz")
 
     i = sub.add_parser("identify", help="identify P_h (and the PFG) from r, u, y data")
-    i.add_argument("data", type=Path, help="data file, .csv or .npz")
+    i.add_argument(
+        "data", type=Path, help="data: .csv, .npz, or a bag (rosbag2 directory or .mcap)"
+    )
     i.add_argument(
         "--fs-high",
         type=_positive_float,
@@ -81,6 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument(
         "--degree", type=_int_at_least(0), default=2, help="LPM polynomial degree R (default 2)"
     )
+    _sources(i)
     i.add_argument("--out", type=Path, required=True, help="result .npz")
     i.add_argument(
         "--plot", type=Path, help="Bode plot PNG (the PFG goes next to it as *_pfg.png)"
@@ -106,7 +122,9 @@ def build_parser() -> argparse.ArgumentParser:
         "replay", help="identify from an MCAP recording as the node would (or re-publish it)"
     )
     rp.add_argument(
-        "recording", type=Path, help="MCAP file (recorded by mr-ident record or the node)"
+        "recording",
+        type=Path,
+        help="MCAP file or rosbag2 directory (block topics, or --r/--u/--y)",
     )
     rp.add_argument(
         "--params",
@@ -123,6 +141,18 @@ def build_parser() -> argparse.ArgumentParser:
         "--stop",
         type=_int_at_least(1),
         help="use the window ending at or before this sample index",
+    )
+    _sources(rp)
+    rp.add_argument(
+        "--fs-high",
+        type=_positive_float,
+        help="with --r/--u/--y: high rate in Hz (default: "
+        "from --params, else read off the stamps)",
+    )
+    rp.add_argument(
+        "--ratio",
+        type=_int_at_least(1),
+        help="with --r/--u/--y: F (default: from --params, else from a .@hold source's stamps)",
     )
     rp.add_argument("--out", type=Path, help="result .npz (same form as identify)")
     rp.add_argument("--plot", type=Path, help="Bode plot PNG (PFG next to it as *_pfg.png)")
@@ -146,12 +176,15 @@ def build_parser() -> argparse.ArgumentParser:
         "diagnose", help="where and why a model disagrees with measured data; extended model"
     )
     g.add_argument("model", type=Path, help="nominal model YAML")
-    g.add_argument("data", type=Path, help="measured data: .csv, .npz or .mcap (recording)")
+    g.add_argument(
+        "data", type=Path, help="measured data: .csv, .npz, an .mcap recording or a bag"
+    )
     g.add_argument(
         "--validate",
         type=Path,
         help="independent validation data (default: the last 30 %% of DATA)",
     )
+    _sources(g)
     g.add_argument("--json", type=Path, required=True, help="report .json")
     g.add_argument("--report", type=Path, help="report .html (self-contained, figures embedded)")
     g.add_argument("--out-model", type=Path, help="extended model YAML")

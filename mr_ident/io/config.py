@@ -30,6 +30,7 @@ from ..errors import ConfigError, yaml_problem
 from ..numerics.identify import METHODS, check_options
 from ..numerics.identify import min_samples as record_minimum
 from ..numerics.systems import TransferMatrix
+from .paths import parse_source
 
 
 @dataclass(frozen=True)
@@ -71,6 +72,17 @@ PARAMETERS: dict[str, Param] = {
         "blocks held per stream waiting for a missing one before it is a gap", 0, 10_000
     ),
     "stall_timeout_s": Param("a stream silent this long is reported as stalled", 1e-3, 1e5),
+    "r_source": Param(
+        "sources of r: topic + field path each (one channel each; README 'Use it on your "
+        "robot'); all three empty: the block topics reference, input, output"
+    ),
+    "u_source": Param("sources of u (plant input), as r_source"),
+    "y_source": Param("sources of y (plant output), as r_source"),
+    "stamp_tolerance": Param(
+        "a stamp further than this many sample times from its grid point is dropped (a gap)",
+        0.01,
+        0.5,
+    ),
     "identify_threads": Param(
         "threads each identification runs on (0: every CPU available to the "
         "process); ingestion has its own thread",
@@ -100,6 +112,10 @@ class IdentConfig:
     record_path: str = ""
     reorder_blocks: int = 8
     stall_timeout_s: float = 2.0
+    r_source: tuple[str, ...] = ()
+    u_source: tuple[str, ...] = ()
+    y_source: tuple[str, ...] = ()
+    stamp_tolerance: float = 0.25
     identify_threads: int = 0
 
     def __post_init__(self) -> None:
@@ -117,6 +133,14 @@ class IdentConfig:
             elif f.type in ("str", str):
                 if not isinstance(v, str):
                     raise ConfigError(f"{f.name} must be a string, got {v!r}")
+            elif f.name.endswith("_source"):
+                if isinstance(v, (str, bytes)) or not hasattr(v, "__iter__"):
+                    raise ConfigError(f"{f.name} must be a list of source strings, got {v!r}")
+                texts = tuple(v)
+                for t in texts:
+                    parse_source(t)  # raises, pointing at the mistake
+                object.__setattr__(self, f.name, texts)
+                continue
             else:  # coefficient tuples
                 if isinstance(v, (str, bytes)) or not hasattr(v, "__iter__"):
                     raise ConfigError(f"{f.name} must be a list of numbers, got {v!r}")
@@ -158,6 +182,17 @@ class IdentConfig:
                     "controller is improper: controller_num has a higher degree than "
                     "controller_den"
                 )
+        given = [bool(x) for x in (self.r_source, self.u_source, self.y_source)]
+        if any(given) and not all(given):
+            raise ConfigError(
+                "r_source, u_source and y_source are given together (or all empty: the "
+                f"block topics); got {sum(given)} of 3"
+            )
+        if len(self.r_source) != len(self.u_source):
+            raise ConfigError(
+                f"r_source and u_source need as many sources (r excites u): "
+                f"{len(self.r_source)} and {len(self.u_source)}"
+            )
         if self.min_window_s > self.window_s:
             raise ConfigError(
                 f"min_window_s ({self.min_window_s:g}) must not exceed window_s "
@@ -178,7 +213,7 @@ class IdentConfig:
     @property
     def window_samples(self) -> int:
         """Window length in high-rate samples: a multiple of F."""
-        return self.ratio * max(1, int(self.window_s * self.fs_high) // self.ratio)
+        return self.ratio * max(1, int(self.window_s * self.fs_high + 1e-6) // self.ratio)
 
     @property
     def min_samples(self) -> int:
@@ -196,6 +231,13 @@ class IdentConfig:
     def workers(self) -> int | None:
         """``identify(workers=...)``: None (every CPU) for ``identify_threads = 0``."""
         return self.identify_threads or None
+
+    @property
+    def sources(self) -> dict[str, tuple[str, ...]] | None:
+        """The r, u, y sources, or None for the block topics."""
+        if not self.r_source:
+            return None
+        return {"r": self.r_source, "u": self.u_source, "y": self.y_source}
 
     @property
     def controller(self) -> TransferMatrix | None:

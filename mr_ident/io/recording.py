@@ -17,10 +17,6 @@ decoder and tolerates a truncated file (it reports how much was recovered);
 
 from __future__ import annotations
 
-import json
-import os
-import re
-import sys
 import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -31,94 +27,7 @@ import numpy as np
 
 from ..errors import DataError, MrIdentError
 from .blocks import BLOCK_TYPE, STREAMS, Block, BlockError, decode_block
-
-SEPARATOR = "=" * 80
-_BUILTIN = {
-    "bool",
-    "byte",
-    "char",
-    "float32",
-    "float64",
-    "int8",
-    "uint8",
-    "int16",
-    "uint16",
-    "int32",
-    "uint32",
-    "int64",
-    "uint64",
-    "string",
-    "wstring",
-}
-
-
-def _share_dirs() -> list[Path]:
-    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
-    prefixes.append(sys.prefix)
-    return [Path(p) / "share" for p in dict.fromkeys(prefixes)]
-
-
-def _interface_file(type_name: str, suffix: str) -> Path:
-    pkg, kind, name = _split(type_name)
-    for share in _share_dirs():
-        f = share / pkg / kind / f"{name}{suffix}"
-        if f.is_file():
-            return f
-    raise MrIdentError(
-        f"interface file {pkg}/{kind}/{name}{suffix} not found under AMENT_PREFIX_PATH "
-        f"or {sys.prefix}/share"
-    )
-
-
-def _split(type_name: str) -> tuple[str, str, str]:
-    parts = type_name.split("/")
-    if len(parts) == 2:
-        return parts[0], "msg", parts[1]
-    if len(parts) == 3:
-        return parts[0], parts[1], parts[2]
-    raise MrIdentError(f"type name must be pkg/msg/Type, got {type_name!r}")
-
-
-def message_definition(type_name: str) -> str:
-    """The full concatenated ``ros2msg`` definition of ``type_name`` (rosbag2's form)."""
-    pkg = _split(type_name)[0]
-
-    def deps(pkg: str, text: str) -> list[str]:
-        out = []
-        for line in text.splitlines():
-            line = line.split("#", 1)[0].strip()
-            if not line or re.match(r"^\S+\s+\w+\s*=", line):  # blank, comment or constant
-                continue
-            base = re.sub(r"(<=\d+)?(\[[^\]]*\])?$", "", line.split()[0])
-            if base not in _BUILTIN:
-                out.append(base if "/" in base else f"{pkg}/{base}")
-        return out
-
-    texts: dict[str, str] = {}  # "pkg/Type" -> its .msg text, in first-visit order
-
-    def visit(p: str, text: str) -> None:
-        for d in deps(p, text):
-            dp, _, dn = _split(d)
-            key = f"{dp}/{dn}"
-            if key not in texts:
-                texts[key] = _interface_file(f"{dp}/msg/{dn}", ".msg").read_text()
-                visit(dp, texts[key])
-
-    main = _interface_file(type_name, ".msg").read_text()
-    visit(pkg, main)
-    parts = [main.rstrip("\n")] + [
-        f"{SEPARATOR}\nMSG: {key}\n" + text.rstrip("\n") for key, text in texts.items()
-    ]
-    return "\n".join(parts) + "\n"
-
-
-def type_hash(type_name: str) -> str:
-    """The RIHS01 type hash of ``type_name`` from its installed ``.json`` description."""
-    doc = json.loads(_interface_file(type_name, ".json").read_text())
-    for entry in doc.get("type_hashes", []):
-        if entry.get("type_name") == "/".join(_split(type_name)):
-            return str(entry["hash_string"])
-    raise MrIdentError(f"no type hash for {type_name} in its .json description")
+from .msgdef import message_definition, type_hash
 
 
 def qos_yaml(profiles: Sequence[Mapping[str, Any]]) -> str:
@@ -305,11 +214,27 @@ def read_blocks(
         Not an MCAP file, no readable message, a stream topic missing, or a topic
         whose schema is not std_msgs/msg/Float64MultiArray.
     """
+    p = Path(path)
+    if p.is_dir():  # a rosbag2 directory: its files in order
+        from .bags import Bag
+
+        files = Bag.open(p).files
+        parts = [read_blocks(f, topics) for f in files]
+        info = RecordingInfo(
+            file_bytes=sum(x[1].file_bytes for x in parts),
+            bytes_read=sum(x[1].bytes_read for x in parts),
+        )
+        for _, i, _ in parts:
+            for k, v in i.messages.items():
+                info.messages[k] = info.messages.get(k, 0) + v
+            if i.truncated:
+                info.truncated, info.reason = True, i.reason
+        found = sorted({t for x in parts for t in x[2]})
+        return [it for x in parts for it in x[0]], info, found
     from mcap.records import Channel, Message, Schema
     from mcap.stream_reader import StreamReader
     from mcap_ros2.decoder import DecoderFactory
 
-    p = Path(path)
     info = RecordingInfo()
     try:
         info.file_bytes = p.stat().st_size

@@ -10,18 +10,23 @@ clean stretch as data (for ``diagnose``).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import DataError
+from ..io.bags import Bag
 from ..io.blocks import Block, BlockError
 from ..io.config import IdentConfig
+from ..io.paths import parse_sources
 from ..io.recording import RecordingInfo, read_blocks
+from ..io.sources import Samples, bag_types, extract, resolve
 from ..numerics.signals import LoopData
 from .align import Aligner, StreamStats
 from .estimate import Estimate, estimate
+from .feed import SignalSources, SourceFeed, check_rate
 from .ingest import Ingest
+from .sampling import Sampler
 
 
 def _feed(
@@ -129,3 +134,135 @@ def recorded_signals(
     if al.restarts:
         info.broken = _what_broke(al, notes).removeprefix("; ")
     return w, info
+
+
+# -- bags with per-sample sources ---------------------------------------------------------
+def resolve_sources(
+    types: Mapping[str, tuple[str, str]], specs: Mapping[str, Sequence[str]]
+) -> SignalSources:
+    """Parse and resolve the ``r``, ``u``.
+
+    ``y`` source specs against ``types`` (topic -> (type, schema)).
+    """
+    groups = []
+    for signal in ("r", "u", "y"):
+        parsed = parse_sources(list(specs.get(signal, ())), signal)
+        groups.append(tuple(resolve(p, types) for p in parsed))
+    out = SignalSources(*groups)
+    out.check()
+    return out
+
+
+@dataclass(frozen=True)
+class BagRead:
+    """A bag's sources read and aligned: the aligner, notes and what was read."""
+
+    aligner: Aligner
+    notes: tuple[str, ...]
+    info: RecordingInfo
+    fs_high: float
+    ratio: int
+
+
+def read_bag(
+    path: str | Path,
+    specs: Mapping[str, Sequence[str]],
+    *,
+    fs_high: float | None,
+    ratio: int | None,
+    capacity: int | None = None,
+    reorder_blocks: int = 8,
+    stop: int | None = None,
+) -> BagRead:
+    """Every sample of the sources through the node's own steps into an aligner.
+
+    Through :class:`SourceFeed`, into an aligner of ``capacity`` samples (default: all of
+    them); rates read off the stamps where not given, and checked where given.
+    """
+    bag = Bag.open(path)
+    sources = resolve_sources(bag_types(bag), specs)
+    if sources.r[0].kind == "blocks":
+        raise DataError(
+            f"{path}: bare topics follow the block contract; give them as --topics, not "
+            "--r/--u/--y"
+        )
+    samples = extract(bag, [src for _, _, src in sources.all])
+    fs, F = check_rate(samples, sources, fs_high, ratio, what=str(path))
+    total = max((s.stamps.size for s in samples), default=0) * F
+    al = Aligner(capacity or max(total, F), F, reorder_blocks)
+    feed = SourceFeed(sources, Ingest(al), fs_high=fs, ratio=F)
+    if stop is not None:
+        feed.sampler.t0 = min(
+            int(s.stamps[s.stamps >= 0].min()) for s in samples if (s.stamps >= 0).any()
+        )
+        samples = [_before(s, feed.sampler, stop) for s in samples]
+    notes = feed.push(samples) + Ingest(al).expire(float("inf"), 0.0)
+    notes = feed.anomalies() + notes + bag.notes
+    counts = {t.name: t.messages for t in bag.topics.values() if t.name in sources.topics}
+    info = RecordingInfo(messages=counts, truncated=bool(bag.notes), reason="; ".join(bag.notes))
+    return BagRead(al, tuple(notes), info, fs, F)
+
+
+def _before(s: Samples, sampler: Sampler, stop: int) -> Samples:
+    idx, _ = sampler.indices(s.stamps)
+    keep = idx < stop
+    return Samples(s.stamps[keep], s.values[keep], s.valid[keep], s.log_time)
+
+
+def replay_bag(
+    path: str | Path,
+    config: IdentConfig,
+    specs: Mapping[str, Sequence[str]],
+    *,
+    fs_high: float | None = None,
+    ratio: int | None = None,
+    stop: int | None = None,
+) -> ReplayResult:
+    """:func:`replay` for per-sample sources.
+
+    The window the node would have identified last (``config.window_s``, ending at or before
+    ``stop``); ``fs_high``/``ratio`` None: read off the stamps (and the configuration's
+    replaced by them).
+    """
+    read = read_bag(path, specs, fs_high=fs_high, ratio=ratio, capacity=None, stop=stop)
+    cfg = config.replace(fs_high=read.fs_high, ratio=read.ratio)
+    al = Aligner(cfg.window_samples, cfg.ratio, cfg.reorder_blocks)
+    lo, hi = read.aligner.span(stop)
+    w = read.aligner.window(1, stop=stop)
+    if w is not None:
+        for s, x in enumerate((w.r, w.u, w.y)):
+            al.push(s, Block(w.first, x))
+    win = al.window(cfg.min_samples, stop=stop)
+    if win is None:
+        raise DataError(
+            f"{path}: the sources give no gap-free aligned window of at least {cfg.min_samples} "
+            f"samples (min_window_s = {cfg.min_window_s:g} s at {cfg.fs_high:g} Hz); aligned "
+            "span at "
+            f"the end: {max(0, hi - lo)} samples"
+            + _what_broke(read.aligner, read.notes, read.info)
+        )
+    return ReplayResult(estimate(win, cfg), read.aligner.stats, read.info, read.notes)
+
+
+def bag_signals(
+    path: str | Path,
+    specs: Mapping[str, Sequence[str]],
+    *,
+    fs_high: float | None = None,
+    ratio: int | None = None,
+) -> tuple[LoopData, RecordingInfo]:
+    """r, u, y of the latest gap-free aligned span of a bag's sources.
+
+    With the rates (``identify`` and ``diagnose`` on a bag).
+    """
+    read = read_bag(path, specs, fs_high=fs_high, ratio=ratio)
+    w = read.aligner.window(read.ratio)
+    if w is None:
+        raise DataError(
+            f"{path}: the sources give no aligned samples of r, u and y"
+            + _what_broke(read.aligner, read.notes, read.info)
+        )
+    read.info.span = (w.first, w.end)
+    if read.aligner.restarts:
+        read.info.broken = _what_broke(read.aligner, read.notes).removeprefix("; ")
+    return LoopData(w.r, w.u, w.y, read.fs_high, read.ratio, first=w.first), read.info

@@ -23,6 +23,7 @@ __all__ = [
     "decode_raw",
     "frf_msgs",
     "qos_dict",
+    "subscription_qos",
     "vector_msg",
 ]
 
@@ -113,6 +114,23 @@ def frf_msgs(frequency: NDArray, response: NDArray, std: NDArray) -> tuple[Float
 def vector_msg(values: NDArray, label: str = "frequency") -> Float64MultiArray:
     """A 1-D Float64MultiArray labelled ``label``."""
     return multiarray([(label, len(values), 1)], values)
+
+
+def subscription_qos(infos: Sequence[Any], depth: int = 1000) -> QoSProfile:
+    """A QoS that matches every publisher of a topic (their ``get_publishers_info_by_topic``).
+
+    Reliable only if all are, transient local only if all are; ``depth`` deep.
+    """
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE
+        if all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
+        else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL
+        if all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
+        else DurabilityPolicy.VOLATILE,
+    )
 
 
 def qos_dict(q: QoSProfile) -> dict[str, Any]:

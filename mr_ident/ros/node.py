@@ -39,10 +39,12 @@ from ..io.config import PARAMETERS, IdentConfig
 from ..io.recording import McapRecorder
 from ..live.align import Aligner
 from ..live.estimate import Estimate, estimate, publish_grid, warm_up
+from ..live.feed import SignalSources, SourceFeed
 from ..live.ingest import Ingest
 from ..numerics.signals import LoopData
 from .messages import BLOCK_QOS, BLOCK_TYPE, RESULT_QOS, decode_raw, frf_msgs, qos_dict, vector_msg
 from .program import handle_signals, ros_context, spin_until_stopped
+from .sources import BATCH_S, SourceSubscriber
 
 WARN_HOLD_S = 10.0  # an anomaly keeps the level at WARN this long
 REORDER_WAIT_S = 0.5  # blocks wait this long (wall clock) for a missing one before it is a gap
@@ -76,9 +78,12 @@ class IdentNode(Node):
         values = {}
         for key, default in defaults.items():
             if isinstance(default, list):
-                p = self.declare_parameter(
-                    key, Parameter.Type.DOUBLE_ARRAY, _descriptor(key, default)
+                kind = (
+                    Parameter.Type.STRING_ARRAY
+                    if key.endswith("_source")
+                    else Parameter.Type.DOUBLE_ARRAY
                 )
+                p = self.declare_parameter(key, kind, _descriptor(key, default))
                 values[key] = tuple(p.value) if p.value is not None else ()
             else:
                 values[key] = self.declare_parameter(key, default, _descriptor(key, default)).value
@@ -107,16 +112,30 @@ class IdentNode(Node):
         self._record_error = ""
 
         self._subs = []
-        for s, topic in enumerate(STREAMS):
-            self._subs.append(
-                self.create_subscription(
-                    Float64MultiArray,
-                    topic,
-                    functools.partial(self._on_block, s),
-                    BLOCK_QOS,
-                    raw=True,
+        self._sources: SourceSubscriber | None = None
+        self._rec_topics: dict[str, int] = {}
+        if self.config.sources is None:  # the block contract on reference, input, output
+            for s, topic in enumerate(STREAMS):
+                self._subs.append(
+                    self.create_subscription(
+                        Float64MultiArray,
+                        topic,
+                        functools.partial(self._on_block, s),
+                        BLOCK_QOS,
+                        raw=True,
+                    )
                 )
+        else:  # per-sample sources: subscribed once their topics are on the graph
+            self._sources = SourceSubscriber(
+                self,
+                dict(self.config.sources),
+                self._new_feed,
+                self._record_raw,
+                self.config.fs_high,
             )
+            self._sources.poll()
+            self.create_timer(0.5, self._sources.poll)
+            self.create_timer(BATCH_S, self._on_sources)
         self._pub_f = self.create_publisher(Float64MultiArray, "~/frequencies", RESULT_QOS)
         self._pub_p = self.create_publisher(Float64MultiArray, "~/plant_frf", RESULT_QOS)
         self._pub_ps = self.create_publisher(Float64MultiArray, "~/plant_frf_std", RESULT_QOS)
@@ -141,13 +160,22 @@ class IdentNode(Node):
         for p in params:
             if p.name in PARAMETERS:
                 v = p.value
-                if p.type_ == Parameter.Type.DOUBLE_ARRAY or isinstance(v, (list, tuple)):
+                if p.type_ in (
+                    Parameter.Type.DOUBLE_ARRAY,
+                    Parameter.Type.STRING_ARRAY,
+                ) or isinstance(v, (list, tuple)):
                     v = () if v is None else tuple(v)
                 changes[p.name] = v
         try:
             new = self.config.replace(**changes)
         except MrIdentError as err:
             return SetParametersResult(successful=False, reason=str(err))
+        if new.sources != self.config.sources:
+            return SetParametersResult(
+                successful=False,
+                reason="r_source, u_source and y_source are read at "
+                "start; restart the node to change them",
+            )
         old, self.config = self.config, new
         if (new.fs_high, new.ratio, new.window_samples, new.reorder_blocks) != (
             old.fs_high,
@@ -157,6 +185,10 @@ class IdentNode(Node):
         ):
             self._aligner = self._new_aligner(new)
             self._ingest = Ingest(self._aligner)
+            if self._sources is not None:
+                self._sources.fs_high = new.fs_high
+                if self._sources.sources is not None:
+                    self._sources.feed = self._new_feed(self._sources.sources)
             self._note("parameters changed (rate, F, window or reorder): window restarts")
         if new.update_period_s != old.update_period_s:
             self._update_timer.cancel()
@@ -192,17 +224,62 @@ class IdentNode(Node):
         if note:
             self._note(note)
 
+    def _new_feed(self, sources: SignalSources) -> SourceFeed:
+        c = self.config
+        return SourceFeed(
+            sources, self._ingest, fs_high=c.fs_high, ratio=c.ratio, tolerance=c.stamp_tolerance
+        )
+
+    def _on_sources(self) -> None:
+        """Decode the messages the sources received meanwhile (a timer, every BATCH_S)."""
+        assert self._sources is not None
+        now = time.monotonic()
+        before = [st.samples for st in self._sources.feed.stats] if self._sources.feed else []
+        for note in self._sources.flush(now):
+            self._note(note)
+        if self._sources.feed is not None and self._sources.sources is not None:
+            for (stream, _, _), st, b in zip(
+                self._sources.sources.all, self._sources.feed.stats, before, strict=True
+            ):
+                if st.samples > b:
+                    self._arrivals[stream] = now
+                    self._samples_in += st.samples - b
+
+    def _record_raw(self, topic: str, type_name: str, raw: bytes, info: dict[str, Any]) -> None:
+        """Record a raw message of a source topic (whatever its type) when recording."""
+        rec = self._recorder
+        if rec is None:
+            return
+        cid = self._rec_topics.get(topic)
+        if cid is None:
+            qos = [qos_dict(i.qos_profile) for i in self.get_publishers_info_by_topic(topic)]
+            try:
+                cid = self._rec_topics[topic] = rec.add_topic(topic, type_name, qos)
+            except MrIdentError as err:
+                self._record_error = f"cannot record {topic}: {err}"
+                return
+        self._write_record(rec, cid, raw, info.get("source_timestamp"))
+
+    def _write_record(
+        self, rec: McapRecorder, cid: int, raw: bytes, sent: int | None = None
+    ) -> None:
+        t = time.time_ns()
+        if (
+            not rec.write(cid, raw, t, sent or t)
+            and rec.error is not None
+            and rec is self._recorder
+        ):
+            self._close_recorder()
+            self._record_error = rec.failure  # ERROR on /diagnostics until record_path changes
+            self.get_logger().error(self._record_error)
+
     def _record(self, rec: McapRecorder, stream: int, raw: bytes) -> None:
         cid = self._rec_channels.get(stream)
         if cid is None:
             topic = self._subs[stream].topic_name
             qos = [qos_dict(i.qos_profile) for i in self.get_publishers_info_by_topic(topic)]
             cid = self._rec_channels[stream] = rec.add_topic(topic, BLOCK_TYPE, qos)
-        t = time.time_ns()
-        if not rec.write(cid, raw, t, t) and rec.error is not None and rec is self._recorder:
-            self._close_recorder()
-            self._record_error = rec.failure  # ERROR on /diagnostics until record_path changes
-            self.get_logger().error(self._record_error)
+        self._write_record(rec, cid, raw)
 
     def _open_recorder(self, path: str) -> None:
         self._record_error = ""
@@ -212,6 +289,7 @@ class IdentNode(Node):
             self._record_error = f"cannot record to {path}: {err.strerror or err}"
             self.get_logger().error(self._record_error)
         self._rec_channels = {}
+        self._rec_topics = {}
 
     def _close_recorder(self) -> None:
         rec, self._recorder = self._recorder, None
@@ -305,8 +383,14 @@ class IdentNode(Node):
         ]
         silent = [STREAMS[i] for i, t in enumerate(self._arrivals) if not t]
         level, reason = DiagnosticStatus.OK, "estimating"
+        src = self._sources
+        src_problem = (src.error or src.rate_problem()) if src is not None else ""
         if self._record_error:
             level, reason = DiagnosticStatus.ERROR, self._record_error
+        elif src_problem:
+            level, reason = DiagnosticStatus.ERROR, src_problem
+        elif src is not None and src.sources is None:
+            level, reason = DiagnosticStatus.WARN, src.status
         elif err and now - err_t < WARN_HOLD_S:
             level, reason = DiagnosticStatus.ERROR, err
         elif stalled:
@@ -337,6 +421,8 @@ class IdentNode(Node):
             "warm_up_s": self._warm_up or "running",
             "recent_anomalies": " | ".join(recent[-8:]),
         }
+        if src is not None:
+            values.update(src.values())
         if est is not None:
             values.update(
                 {

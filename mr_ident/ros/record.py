@@ -21,12 +21,11 @@ from typing import Any
 from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ..errors import DataError, RecordingError
 from ..io.blocks import STREAMS
 from ..io.recording import McapRecorder
-from .messages import qos_dict
+from .messages import qos_dict, subscription_qos
 from .program import Stop, handle_signals, ros_context, spin_until_stopped
 
 
@@ -66,26 +65,21 @@ class Recorder:
             if not infos:
                 continue
             type_name = infos[0].topic_type
-            qos = QoSProfile(
-                history=HistoryPolicy.KEEP_LAST,
-                depth=1000,
-                reliability=ReliabilityPolicy.RELIABLE
-                if all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
-                else ReliabilityPolicy.BEST_EFFORT,
-                durability=DurabilityPolicy.TRANSIENT_LOCAL
-                if all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
-                else DurabilityPolicy.VOLATILE,
-            )
+            qos = subscription_qos(infos)
             cid = self.rec.add_topic(topic, type_name, [qos_dict(i.qos_profile) for i in infos])
             self._subs[topic] = self.node.create_subscription(
-                message_class(type_name), topic, self._writer(topic, cid), qos, raw=True
+                message_class(type_name),
+                topic,
+                self._writer(topic, cid),  # type: ignore[arg-type]  # (raw, info): rclpy passes both
+                qos,
+                raw=True,
             )
             self.node.get_logger().info(f"recording {topic} ({type_name})")
 
-    def _writer(self, topic: str, cid: int) -> Callable[[bytes], None]:
-        def write(raw: bytes) -> None:
-            t = time.time_ns()
-            if self.rec.write(cid, raw, t, t):
+    def _writer(self, topic: str, cid: int) -> Callable[[bytes, dict[str, Any]], None]:
+        def write(raw: bytes, info: dict[str, Any]) -> None:
+            t = time.time_ns()  # log time: received; publish time: the DDS source timestamp
+            if self.rec.write(cid, raw, t, info.get("source_timestamp") or t):
                 self.counts[topic] += 1
             elif self.rec.error is not None and self._on_failure is not None:
                 self._on_failure()

@@ -1,0 +1,213 @@
+"""The node's per-sample sources: subscriptions with the types found on the graph.
+
+:class:`SourceSubscriber` waits until the sources' topics appear on the graph, resolves
+the sources against the installed definitions of their types (any type installed in the
+environment: ``sensor_msgs``, ``control_msgs``, ``pal_statistics_msgs`` ...), subscribes
+raw (the CDR bytes, never deserialised by rclpy) with the publishers' QoS, and every
+``BATCH_S`` hands the messages received meanwhile, as one batch per topic, to the same
+:class:`~mr_ident.live.feed.SourceFeed` that replay uses. Adapter only: decoding is
+:mod:`mr_ident.io.cdr`, the rules are :mod:`mr_ident.live.sampling`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from ..errors import DataError, MrIdentError
+from ..io.cdr import Batch
+from ..io.msgdef import installed_schema, parse_schema
+from ..io.sources import (
+    STATISTICS_NAMES,
+    Resolved,
+    Samples,
+    evaluate_batch,
+    names_by_version,
+    stamps_of,
+)
+from ..live.feed import SignalSources, SourceFeed
+from ..live.replay import resolve_sources
+from ..live.sampling import infer_rate
+
+#: Received messages are decoded in batches this often (s): latency for throughput.
+BATCH_S = 0.02
+#: Reader queue per source topic: a message per sample needs a deep one (10 s at 2 kHz).
+QUEUE_DEPTH = 20000
+#: Stamps kept per source for the rate check.
+RATE_WINDOW = 400
+
+
+class SourceSubscriber:
+    """Subscribe and decode per-sample sources for ``node`` (see the module docstring).
+
+    ``make_feed(sources)`` builds the :class:`SourceFeed` into the node's aligner;
+    ``record(topic, type, raw, info)`` records a raw message (or is None). A message without
+    header is placed by its DDS source timestamp (when the publisher wrote it).
+    """
+
+    def __init__(
+        self,
+        node: Any,
+        specs: dict[str, tuple[str, ...]],
+        make_feed: Callable[[SignalSources], SourceFeed],
+        record: Callable[[str, str, bytes, dict[str, Any]], None] | None = None,
+        fs_high: float = 0.0,
+    ):
+        self.node = node
+        self.specs = specs
+        self.make_feed = make_feed
+        self.record = record
+        self.fs_high = fs_high
+        self.sources: SignalSources | None = None
+        self.feed: SourceFeed | None = None
+        self.status = "waiting for the sources' topics on the graph"
+        self.error = ""
+        self._types: dict[str, str] = {}
+        self._pending: dict[str, list[tuple[bytes, int]]] = {}
+        self._names: dict[str, dict[int, list[str]]] = {}
+        self._stamps: list[list[np.ndarray]] = []
+        self._subs: list[Any] = []
+
+    # -- graph ------------------------------------------------------------------------------
+    def poll(self) -> None:
+        """Resolve and subscribe once every topic is on the graph (called by a timer)."""
+        if self.sources is not None:
+            return
+        graph = {name: types for name, types in self.node.get_topic_names_and_types()}
+        wanted = {
+            spec.split(".")[0].split("{")[0].split("[")[0]
+            for group in self.specs.values()
+            for spec in group
+        }
+        candidates = set(wanted) | {
+            f"{t}/{s}" for t in wanted for s in ("full", "values", "names")
+        }
+        types: dict[str, tuple[str, str]] = {}
+        for topic in candidates & set(graph):
+            type_name = graph[topic][0]
+            try:
+                types[topic] = (type_name, installed_schema(type_name))
+            except MrIdentError as err:
+                if topic in wanted:
+                    self.error = (
+                        f"topic {topic} has type {type_name}, which is not installed here: {err}"
+                    )
+                    return
+        try:
+            sources = resolve_sources(types, self.specs)
+        except DataError as err:
+            missing = [
+                t
+                for t in wanted
+                if t not in graph and not any(c.startswith(t + "/") for c in graph)
+            ]
+            if missing:
+                self.status = f"waiting for topic(s) {', '.join(sorted(missing))} on the graph"
+                self.error = ""
+            else:
+                self.error = str(err)
+            return
+        self.error = ""
+        self.sources = sources
+        self.feed = self.make_feed(sources)
+        self._stamps = [[] for _ in sources.all]
+        for topic in sorted(sources.topics):
+            self._subscribe(topic, types[topic][0])
+        self.status = "subscribed: " + "; ".join(
+            f"{s.spec.text} <- {s.topic} ({s.type})" for _, _, s in sources.all
+        )
+
+    def _subscribe(self, topic: str, type_name: str) -> None:
+        from .messages import subscription_qos
+        from .record import message_class
+
+        qos = subscription_qos(self.node.get_publishers_info_by_topic(topic), depth=QUEUE_DEPTH)
+        self._types[topic] = type_name
+        pending = self._pending.setdefault(topic, [])
+        record = self.record
+
+        def on_message(raw: bytes, info: dict[str, Any], topic: str = topic) -> None:
+            sent = info.get("source_timestamp") or info.get("received_timestamp") or time.time_ns()
+            pending.append((raw, int(sent)))
+            if record is not None:
+                record(topic, type_name, raw, info)
+
+        self._subs.append(
+            self.node.create_subscription(
+                message_class(type_name), topic, on_message, qos, raw=True
+            )
+        )
+
+    # -- data ------------------------------------------------------------------------------
+    def flush(self, now: float) -> list[str]:
+        """Decode what arrived since the last call, as one batch per topic; returns notes."""
+        if self.sources is None or self.feed is None:
+            return []
+        batches: dict[str, tuple[Batch, np.ndarray]] = {}
+        for topic, pending in self._pending.items():
+            if pending:
+                items = pending[:]
+                del pending[: len(items)]
+                batches[topic] = (
+                    Batch.of([raw for raw, _ in items]),
+                    np.array([t for _, t in items], np.int64),
+                )
+        for topic, (batch, _) in batches.items():
+            if self._types.get(topic) == STATISTICS_NAMES:
+                reg = parse_schema(STATISTICS_NAMES, installed_schema(STATISTICS_NAMES))
+                self._names.setdefault(topic, {}).update(names_by_version(reg, batch))
+        samples: list[Samples | None] = []
+        for i, (_, _, src) in enumerate(self.sources.all):
+            got = batches.get(src.topic)
+            if got is None:
+                samples.append(None)
+                continue
+            smp = self._samples(src, *got)
+            samples.append(smp)
+            kept = self._stamps[i]
+            kept.append(smp.stamps)
+            if sum(s.size for s in kept) > 2 * RATE_WINDOW:
+                self._stamps[i] = [np.concatenate(kept)[-RATE_WINDOW:]]
+        if all(s is None for s in samples):
+            return []
+        return self.feed.push(samples, now)
+
+    def _samples(self, src: Resolved, batch: Batch, received: np.ndarray) -> Samples:
+        try:
+            value, valid = evaluate_batch(src, batch, self._names.get(src.names_topic))
+            return Samples(stamps_of(src, batch, received), value, valid, not src.stamped)
+        except DataError as err:  # a message that does not decode: count it, carry on
+            self.error = f"source {src.spec.text}: {err}"
+            n = batch.size
+            return Samples(received, np.zeros(n), np.zeros(n, bool), True)
+
+    def rate_problem(self) -> str:
+        """Why the stamps disagree with fs_high (after enough messages), or ""."""
+        if self.sources is None or not self.fs_high:
+            return ""
+        for (_, _, src), kept in zip(self.sources.all, self._stamps, strict=True):
+            if src.spec.hold or sum(s.size for s in kept) < 50:
+                continue
+            fs = infer_rate(np.concatenate(kept))
+            if fs is not None and abs(fs / self.fs_high - 1.0) > 0.01:
+                return (
+                    f"source {src.spec.text}: the stamps say {fs:.6g} Hz, fs_high is "
+                    f"{self.fs_high:g} Hz; "
+                    "set fs_high to the rate the loop runs at"
+                )
+        return ""
+
+    def values(self) -> dict[str, str]:
+        """Per-source counters for /diagnostics."""
+        out: dict[str, str] = {"sources": self.status}
+        if self.feed is not None and self.sources is not None:
+            for (stream, channel, src), st in zip(self.sources.all, self.feed.stats, strict=True):
+                key = f"source.{'ruy'[stream]}{channel}"
+                out[key] = (
+                    f"{src.spec.text}: {st.messages} messages, {st.samples} samples, "
+                    f"{st.off_grid} off grid, {st.unmatched} without value"
+                )
+        return out

@@ -1,0 +1,130 @@
+"""Bags this project did not write: rosbag2 bags made with the independent ``rosbags`` library.
+
+The loop is simulated by mr_ident (the exact truth is known); serialisation, the bag
+layout (metadata.yaml + .mcap, split files) and the message types come from ``rosbags``:
+installed common_interfaces types from its Jazzy typestore, ``control_msgs`` and
+``pal_statistics_msgs`` registered from their ``.msg`` text (no package installed).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+rosbags = __import__("pytest").importorskip("rosbags")
+from rosbags.rosbag2 import StoragePlugin, Writer  # noqa: E402
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore  # noqa: E402
+
+T0 = 1_700_000_000_000_000_000  # ns: the first stamp
+
+SINGLE_DOF_STATE = """string name
+float64 reference
+float64 feedback
+float64 feedback_dot
+float64 error
+float64 error_dot
+float64 time_step
+float64 output
+"""
+MULTI_DOF_STATE_STAMPED = "std_msgs/Header header\nSingleDOFState[] dof_states\n"
+STATISTICS_NAMES = "Header header\nstring[] names\nuint32 names_version\n"
+STATISTICS_VALUES = "Header header\nfloat64[] values\nuint32 names_version\n"
+
+
+def typestore():
+    """Jazzy's types plus control_msgs' and pal_statistics_msgs' from their .msg text."""
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    types = {}
+    types.update(get_types_from_msg(SINGLE_DOF_STATE, "control_msgs/msg/SingleDOFState"))
+    types.update(
+        get_types_from_msg(MULTI_DOF_STATE_STAMPED, "control_msgs/msg/MultiDOFStateStamped")
+    )
+    types.update(get_types_from_msg(STATISTICS_NAMES, "pal_statistics_msgs/msg/StatisticsNames"))
+    types.update(get_types_from_msg(STATISTICS_VALUES, "pal_statistics_msgs/msg/StatisticsValues"))
+    ts.register(types)
+    return ts
+
+
+def stamps(
+    n: int, fs: float, rng: np.random.Generator | None = None, jitter: float = 0.0
+) -> np.ndarray:
+    """Stamps (ns) of n samples at fs, with uniform jitter of +-``jitter`` sample times."""
+    t = T0 + np.rint(np.arange(n) * 1e9 / fs).astype(np.int64)
+    if rng is not None and jitter:
+        t = t + np.rint(rng.uniform(-jitter, jitter, n) * 1e9 / fs).astype(np.int64)
+    return t
+
+
+class BagWriter:
+    """A rosbag2 bag (MCAP storage) written with rosbags; messages built from dicts."""
+
+    def __init__(self, path: Path, ts=None):
+        self.ts = ts or typestore()
+        self.w = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+        self.conns: dict[str, object] = {}
+
+    def __enter__(self):
+        self.w.open()
+        return self
+
+    def __exit__(self, *exc):
+        self.w.close()
+
+    def write(self, topic: str, msgtype: str, msg, log_ns: int) -> None:
+        if topic not in self.conns:
+            self.conns[topic] = self.w.add_connection(topic, msgtype, typestore=self.ts)
+        self.w.write(self.conns[topic], int(log_ns), self.ts.serialize_cdr(msg, msgtype))
+
+    # -- message builders -----------------------------------------------------------------
+    def header(self, t: int, frame: str = ""):
+        H = self.ts.types["std_msgs/msg/Header"]
+        T = self.ts.types["builtin_interfaces/msg/Time"]
+        return H(
+            stamp=T(sec=int(t // 1_000_000_000), nanosec=int(t % 1_000_000_000)), frame_id=frame
+        )
+
+    def joint_state(self, t: int, names, position=(), velocity=(), effort=()):
+        JS = self.ts.types["sensor_msgs/msg/JointState"]
+        f = np.asarray
+        return JS(
+            header=self.header(t),
+            name=list(names),
+            position=f(position, float),
+            velocity=f(velocity, float),
+            effort=f(effort, float),
+        )
+
+    def float64(self, value: float):
+        return self.ts.types["std_msgs/msg/Float64"](data=float(value))
+
+    def multi_dof(self, t: int, states: list[dict]):
+        S = self.ts.types["control_msgs/msg/SingleDOFState"]
+        M = self.ts.types["control_msgs/msg/MultiDOFStateStamped"]
+        full = [
+            S(
+                **(
+                    {
+                        "name": "",
+                        "reference": 0.0,
+                        "feedback": 0.0,
+                        "feedback_dot": 0.0,
+                        "error": 0.0,
+                        "error_dot": 0.0,
+                        "time_step": 0.0,
+                        "output": 0.0,
+                    }
+                    | s
+                )
+            )
+            for s in states
+        ]
+        return M(header=self.header(t), dof_states=full)
+
+    def stats_names(self, t: int, names, version: int):
+        N = self.ts.types["pal_statistics_msgs/msg/StatisticsNames"]
+        return N(header=self.header(t), names=list(names), names_version=version)
+
+    def stats_values(self, t: int, values, version: int):
+        V = self.ts.types["pal_statistics_msgs/msg/StatisticsValues"]
+        return V(header=self.header(t), values=np.asarray(values, float), names_version=version)
