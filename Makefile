@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 export ROS_LOG_DIR ?= $(CURDIR)/out/ros_log
 export MPLBACKEND := Agg
 
-.PHONY: demo paper test lint bench bench-live soak motor-bench venv clean
+.PHONY: demo paper test lint bench bench-bag bench-live soak motor-bench venv clean
 
 venv: $(STAMP)
 
@@ -36,6 +36,9 @@ bench: $(STAMP)
 
 clean:
 	rm -rf out .pytest_cache
+
+bench-bag: $(STAMP)
+	$(PY) benchmarks/bench_bag.py
 
 bench-live: $(STAMP)
 	$(PY) benchmarks/bench_live.py

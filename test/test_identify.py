@@ -153,3 +153,29 @@ def test_threads_do_not_change_a_single_bit(paper_model, method, monkeypatch):
     np.testing.assert_array_equal(one.plant.response, three.plant.response)
     np.testing.assert_array_equal(one.plant.std, three.plant.std)
     np.testing.assert_array_equal(one.pfg.gain, three.pfg.gain)
+
+
+def test_the_default_window_grows_with_F_and_the_channels():
+    """n defaults to 8, or the smallest n with 2 degrees of freedom to spare: F = 10 (lifted:
+    10 inputs, 10 outputs per channel) needs n = 22, where n = 8 is an error."""
+    from mr_ident.io.modelfile import model_from_dict
+    from mr_ident.numerics.identify import default_n
+
+    assert default_n("freq-lifted", 2, 3, 1, 1) == 8 and default_n("lpm", 2, 10, 1, 1) == 8
+    assert (
+        default_n("freq-lifted", 2, 10, 1, 1) == 22 and default_n("freq-lifted", 2, 3, 2, 2) == 14
+    )
+    model = model_from_dict(
+        {
+            "fs_high": 800.0,
+            "ratio": 10,
+            "plant": {"num": [50.0], "den": [1.0, 8.0, 400.0]},
+            "controller": {"num": [2.0], "den": [1.0]},
+        }
+    )
+    sim = simulate(model, duration=60.0, rng=np.random.default_rng(1))
+    with pytest.raises(ConfigError, match="LPM degrees of freedom"):
+        identify(sim.r, sim.u, sim.y, fs_high=800.0, ratio=10, n=8)
+    res = identify(sim.r, sim.u, sim.y, fs_high=800.0, ratio=10)
+    truth = model.plant_frf(sim.n_samples)[1:]
+    assert np.median(np.abs(res.plant.response - truth) / np.abs(truth)) < 1e-4

@@ -149,3 +149,64 @@ def test_node_on_float64_topics_places_samples_by_the_source_timestamp(graph):
         st.as_dict() for st in stats
     ]
     wait_for(lambda: node.last_estimate is not None, 20, "an estimate")
+
+
+def test_replay_of_the_nodes_recording_equals_its_estimate(graph, tmp_path):
+    """The node records the raw JointState topics it identifies from; replaying that recording
+    with the same sources, over the window the node reported, gives the same estimate."""
+    from mr_ident.io.config import IdentConfig
+    from mr_ident.live.replay import replay_bag
+
+    model = load_model(PAPER)
+    rec = tmp_path / "live.mcap"
+    node = graph.ident(source_params(10.0, record_path=str(rec)))
+    pub_node = graph.node("robot")
+    js = pub_node.create_publisher(sensor_msgs.JointState, "/joint_states", QOS)
+    ref = pub_node.create_publisher(sensor_msgs.JointState, "/ident/reference", QOS)
+    wait_for(lambda: node._sources.sources is not None, 15, "the node to subscribe")
+    wait_for(
+        lambda: js.get_subscription_count() > 0 and ref.get_subscription_count() > 0,
+        10,
+        "matching",
+    )
+    time.sleep(0.5)
+    src = SimSource(model, block=240, seed=9)
+    t0, n = 1_700_000_000_000_000_000, 0
+    for _ in range(14):
+        first, r, u, y = src.next()
+        for k in range(r.shape[0]):
+            t = t0 + round((first + k) * 1e9 / 240.0)
+            js.publish(joint_state(t, ["j1"], position=[y[k, 0]], effort=[u[k, 0]]))
+            ref.publish(joint_state(t, ["j1"], position=[r[k, 0]]))
+            n += 1
+        time.sleep(0.05)
+    wait_for(
+        lambda: (
+            node.last_estimate is not None
+            and node.last_estimate.first + node.last_estimate.n_samples == n
+        ),
+        30,
+        "the estimate of the final window",
+    )
+    live = node.last_estimate
+    cfg = node.config
+    node.shutdown()  # finalises the recording
+    specs = {"r": list(cfg.r_source), "u": list(cfg.u_source), "y": list(cfg.y_source)}
+    res = replay_bag(
+        rec,
+        IdentConfig(
+            **{
+                k: v
+                for k, v in cfg.as_dict().items()
+                if not k.endswith("_source") and k != "record_path"
+            }
+        ),
+        specs,
+        fs_high=cfg.fs_high,
+        ratio=cfg.ratio,
+        stop=live.first + live.n_samples,
+    )
+    assert (res.estimate.first, res.estimate.n_samples) == (live.first, live.n_samples)
+    a, b = res.estimate.identification, live.identification
+    np.testing.assert_allclose(a.plant.response, b.plant.response, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(a.pfg.gain, b.pfg.gain, rtol=1e-12, atol=0)

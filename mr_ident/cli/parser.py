@@ -91,7 +91,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     i.add_argument("--method", choices=METHODS, default="freq-lifted")
     i.add_argument(
-        "--n", type=_int_at_least(1), default=8, help="LPM window half-width (default 8)"
+        "--n",
+        type=_int_at_least(1),
+        default=None,
+        help="LPM window half-width (default: 8, more where F or the channels need it)",
     )
     i.add_argument(
         "--degree", type=_int_at_least(0), default=2, help="LPM polynomial degree R (default 2)"
@@ -198,7 +201,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--topics", nargs=3, metavar=("R", "U", "Y"), help="MCAP topic names of r, u, y"
     )
     g.add_argument(
-        "--n", type=_int_at_least(1), default=8, help="LPM window half-width (default 8)"
+        "--n",
+        type=_int_at_least(1),
+        default=None,
+        help="LPM window half-width (default: 8, more where F or the channels need it)",
     )
     g.add_argument(
         "--degree", type=_int_at_least(0), default=2, help="LPM polynomial degree R (default 2)"

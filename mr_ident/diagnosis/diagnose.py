@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..errors import ConfigError, DataError
-from ..numerics.identify import min_samples
+from ..numerics.identify import default_n, min_samples
 from ..numerics.model import Model
 from ..numerics.signals import LoopData
 from .causes import CAUSES, CauseFit, rank_causes
@@ -141,7 +141,7 @@ def diagnose(
     data: LoopData,
     validation: LoopData | None = None,
     *,
-    n: int = 8,
+    n: int | None = None,
     degree: int = 2,
     alpha: float = 0.01,
     max_causes: int = 3,
@@ -159,8 +159,11 @@ def diagnose(
         ``holdout`` fraction is held out for validation).
     validation : LoopData, optional
         Independent validation data.
-    n, degree : int
-        LPM window half-width and degree for the frequency-domain evidence.
+    n : int, optional
+        LPM window half-width for the frequency-domain evidence (default:
+        :func:`~mr_ident.numerics.identify.default_n`).
+    degree : int
+        LPM polynomial degree.
     alpha : float
         Family-wise false-alarm level of the per-bin test (default 0.01).
     max_causes : int
@@ -194,6 +197,8 @@ def diagnose(
     """
     if not 0.0 < alpha < 1.0:
         raise ConfigError(f"alpha must be in (0, 1), got {alpha!r}")
+    if n is None:
+        n = default_n("freq-lifted", degree, model.ratio, model.n_u, max(model.n_u, model.n_y))
     if not 0.05 <= holdout <= 0.5:
         raise ConfigError(f"holdout must be in [0.05, 0.5], got {holdout!r}")
     check_record(model, data, n=n, what=names[0])

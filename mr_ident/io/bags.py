@@ -235,7 +235,10 @@ class Bag:
         f: _File, cid: int, records: bytes, offsets: IntArray
     ) -> tuple[str, Batch, IntArray]:
         buf = np.frombuffer(records, dtype=np.uint8)
-        head = buf[offsets[:, None] + np.arange(_MESSAGE_HEAD)[None, :]]
+        windows = np.lib.stride_tricks.as_strided(
+            buf, (max(buf.size - _MESSAGE_HEAD + 1, 1), _MESSAGE_HEAD), (1, 1), writeable=False
+        )
+        head = windows[offsets]
         length = np.ascontiguousarray(head[:, 1:9]).view("<u8")[:, 0].astype(np.int64)
         log = np.ascontiguousarray(head[:, 15:23]).view("<u8")[:, 0].astype(np.int64)
         sent = np.ascontiguousarray(head[:, 23:31]).view("<u8")[:, 0].astype(np.int64)

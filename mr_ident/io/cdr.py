@@ -59,19 +59,34 @@ class Batch:
 class _Walk:
     """Positions of n messages moved together through their CDR fields."""
 
-    def __init__(self, batch: Batch):
+    def __init__(self, batch: Batch, record: bool = False):
         self.b = batch
+        #: With ``record``: every read of message 0 as (offset from its base, dtype, is_value).
+        self.log: list[tuple[int, str, bool]] | None = [] if record else None
         self.base = batch.offset + 4  # alignment origin
         self.end = batch.offset + batch.length
         self.bad = np.zeros(batch.size, dtype=bool)  # ran past the end: malformed
+        self._windows: dict[int, np.ndarray] = {}
         head = self._gather(batch.offset, 2)
         if batch.size and not (np.all(head[:, 0] == 0) and np.all(head[:, 1] == 1)):
             kinds = sorted({bytes(h).hex() for h in head})
             raise DataError(f"only little-endian CDR (encapsulation 0001) is read; found {kinds}")
 
     def _gather(self, pos: IntArray, width: int) -> np.ndarray:
-        idx = np.clip(pos[:, None] + np.arange(width)[None, :], 0, max(self.b.buf.size - 1, 0))
-        out: np.ndarray = self.b.buf[idx]
+        """The ``width`` bytes at each position, (n, width).
+
+        One row gather from a strided view of overlapping windows (no index matrix);
+        positions clipped into the buffer.
+        """
+        win = self._windows.get(width)
+        if win is None:
+            buf = self.b.buf
+            if buf.size < width:
+                buf = np.concatenate([buf, np.zeros(width - buf.size, np.uint8)])
+            win = self._windows[width] = np.lib.stride_tricks.as_strided(
+                buf, (buf.size - width + 1, width), (1, 1), writeable=False
+            )
+        out: np.ndarray = win[np.clip(pos, 0, win.shape[0] - 1)]
         return out
 
     def align(self, pos: IntArray, size: int) -> IntArray:
@@ -80,10 +95,12 @@ class _Walk:
         rel = pos - self.base
         return self.base + (rel + size - 1) // size * size
 
-    def read(self, pos: IntArray, dtype: str) -> np.ndarray:
+    def read(self, pos: IntArray, dtype: str, value: bool = False) -> np.ndarray:
         dt = np.dtype(dtype)
+        if self.log is not None and pos.size:
+            self.log.append((int(pos[0] - self.base[0]), dtype, value))
         self.bad |= pos + dt.itemsize > self.end
-        return np.ascontiguousarray(self._gather(pos, dt.itemsize)).view(dt)[:, 0]
+        return self._gather(pos, dt.itemsize).view(dt)[:, 0]
 
     def count(self, pos: IntArray) -> tuple[IntArray, IntArray]:
         """A uint32 length at ``pos`` (aligned); returns it and the position after it."""
@@ -96,6 +113,8 @@ class _Walk:
         """Whether the string at ``pos`` equals ``text``; and the position after it."""
         n, p = self.count(pos)
         target = np.frombuffer(text.encode() + b"\0", dtype=np.uint8)
+        if self.log is not None and p.size:
+            self.log.append((int(p[0] - self.base[0]), f"S{target.size}", False))
         same = (n == target.size) & np.all(self._gather(p, target.size) == target[None, :], axis=1)
         return same, p + n
 
@@ -166,8 +185,37 @@ class Values:
     valid: BoolArray
 
 
-def evaluate(batch: Batch, reg: Registry, root: str, spec: SourceSpec) -> Values:
+@dataclass
+class Layout:
+    """Where a source's value lies in messages of one layout (the fast path's template).
+
+    ``struct`` are the byte ranges the layout depends on (offsets from the first byte after
+    the encapsulation header) and ``expect`` the bytes they hold; ``value`` the offset and
+    dtype of the value; ``length`` the message length.
+    """
+
+    length: int
+    struct: list[tuple[int, int]]
+    expect: np.ndarray
+    value: tuple[int, str]
+    span: tuple[int, int]
+    cols: np.ndarray
+
+
+def evaluate(
+    batch: Batch,
+    reg: Registry,
+    root: str,
+    spec: SourceSpec,
+    cache: dict[str, Layout] | None = None,
+) -> Values:
     """Follow ``spec``'s path through every message of ``batch`` (of type ``root``).
+
+    Fast path: the path is walked on one message only, noting every byte its layout
+    depends on (lengths, counts, the strings a filter compares); the messages with the
+    same length and the same bytes there hold the value at the same offset, one read for
+    all. The others (a layout that changed) go through the walk over all of them. Give
+    ``cache`` (a dict kept per source) to reuse the layout from batch to batch.
 
     Raises
     ------
@@ -175,11 +223,72 @@ def evaluate(batch: Batch, reg: Registry, root: str, spec: SourceSpec) -> Values
         The path does not exist in the type (naming the fields that do), or does not end
         at a number.
     """
+    if batch.size >= FAST_MIN:
+        layout = cache.get(spec.text) if cache is not None else None
+        if layout is None:
+            layout = _layout(batch, 0, reg, root, spec)
+        if layout is not None:
+            fast = _fixed_layout(batch, layout, reg, root, spec)
+            if cache is not None:
+                cache[spec.text] = layout
+            if fast is not None:
+                return fast
+    return _walk_all(batch, reg, root, spec)
+
+
+#: Batches at least this large try the fixed-layout fast path first.
+FAST_MIN = 16
+
+
+def _walk_all(batch: Batch, reg: Registry, root: str, spec: SourceSpec) -> Values:
     w = _Walk(batch)
-    n = batch.size
-    active = np.ones(n, dtype=bool)
+    active = np.ones(batch.size, dtype=bool)
     value, valid = _eval(w, reg, root, w.base.copy(), active, list(spec.steps), spec)
     return Values(value, valid & ~w.bad)
+
+
+def _layout(batch: Batch, i: int, reg: Registry, root: str, spec: SourceSpec) -> Layout | None:
+    """The layout of message ``i`` (None when the path gives it no single value)."""
+    one = Batch(batch.buf, batch.offset[i : i + 1], batch.length[i : i + 1])
+    w = _Walk(one, record=True)
+    _, ok = _eval(w, reg, root, w.base.copy(), np.ones(1, dtype=bool), list(spec.steps), spec)
+    assert w.log is not None
+    reads = [e for e in w.log if e[2]]
+    if not ok[0] or w.bad[0] or len(reads) != 1:
+        return None
+    struct = [(rel, np.dtype(dt).itemsize) for rel, dt, is_value in w.log if not is_value]
+    lo = min((r for r, _ in struct), default=0)
+    hi = max((r + k for r, k in struct), default=0)
+    cols = np.zeros(hi - lo, dtype=bool)
+    for r, k in struct:
+        cols[r - lo : r - lo + k] = True
+    expect = w._gather(w.base + lo, hi - lo)[0, cols] if struct else np.zeros(0, np.uint8)
+    return Layout(int(one.length[0]), struct, expect, reads[0][:2], (lo, hi), cols)
+
+
+def _fixed_layout(
+    batch: Batch, layout: Layout, reg: Registry, root: str, spec: SourceSpec
+) -> Values | None:
+    """:func:`evaluate`'s fast path with ``layout``; None when no message has it."""
+    base = batch.offset + 4
+    same = batch.length == layout.length
+    whole = _Walk(batch)
+    lo, hi = layout.span
+    if layout.struct:
+        rows = whole._gather(base + lo, hi - lo)[:, layout.cols]
+        same &= np.all(rows == layout.expect[None, :], axis=1)
+    if not same.any():
+        return None
+    rel, dtype = layout.value
+    value = whole.read(base + rel, dtype).astype(np.float64)
+    valid = same & ~whole.bad
+    if not same.all():
+        rest = ~same
+        other = _walk_all(
+            Batch(batch.buf, batch.offset[rest], batch.length[rest]), reg, root, spec
+        )
+        value[rest], valid[rest] = other.value, other.valid
+    return Values(value, valid)
 
 
 def _eval(
@@ -241,11 +350,13 @@ def _eval(
     return _eval(w, reg, f.type, at, active, rest, spec)
 
 
-def _scalar(w: _Walk, type_: str, pos: IntArray, spec: SourceSpec) -> FloatArray:
+def _scalar(
+    w: _Walk, type_: str, pos: IntArray, spec: SourceSpec, value: bool = True
+) -> FloatArray:
     if type_ not in DTYPES:
         raise DataError(f"source {spec.text!r} ends at a {type_}, not at a number")
     size = PRIMITIVES[type_]
-    return w.read(w.align(pos, size), DTYPES[type_]).astype(np.float64)
+    return w.read(w.align(pos, size), DTYPES[type_], value).astype(np.float64)
 
 
 def _count(w: _Walk, f: Field, pos: IntArray) -> IntArray:
@@ -347,7 +458,7 @@ def _match(
                 raise DataError(
                     f"source {spec.text!r}: {sel.key} is a {key.type}; compare with a number"
                 )
-            hit = live & (_scalar(w, key.type, kp, spec) == sel.value)
+            hit = live & (_scalar(w, key.type, kp, spec, value=False) == sel.value)
         if hit.any():
             v, ok = _eval(w, reg, f.type, p, hit, rest, spec)
             out = np.where(hit, v, out)
@@ -387,9 +498,15 @@ def header_stamp(batch: Batch, reg: Registry, root: str) -> IntArray | None:
     if not any(f.name == "header" and f.type == "std_msgs/msg/Header" for f in reg[root]):
         return None
     w = _Walk(batch)
-    hp = w.fields(root, w.base.copy(), reg, np.ones(batch.size, bool), {"header"})["header"]
-    sec = w.read(w.align(hp, 4), "<i4").astype(np.int64)
-    nsec = w.read(w.align(hp, 4) + 4, "<u4").astype(np.int64)
+    if reg[root][0].name == "header":  # the usual case: the stamp is the first 8 bytes
+        hp = w.base
+    else:
+        hp = w.fields(root, w.base.copy(), reg, np.ones(batch.size, bool), {"header"})["header"]
+    hp = w.align(hp, 4)
+    w.bad |= hp + 8 > w.end
+    raw = w._gather(hp, 8)
+    sec = raw[:, :4].copy().view("<i4")[:, 0].astype(np.int64)
+    nsec = raw[:, 4:].copy().view("<u4")[:, 0].astype(np.int64)
     return np.where(w.bad, -1, sec * 1_000_000_000 + nsec)
 
 

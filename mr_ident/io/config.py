@@ -27,7 +27,7 @@ import numpy as np
 import yaml
 
 from ..errors import ConfigError, yaml_problem
-from ..numerics.identify import METHODS, check_options
+from ..numerics.identify import METHODS, check_options, default_n
 from ..numerics.identify import min_samples as record_minimum
 from ..numerics.systems import TransferMatrix
 from .paths import parse_source
@@ -47,7 +47,12 @@ PARAMETERS: dict[str, Param] = {
     "fs_high": Param("high sample rate of r, u, y in Hz", 1e-3, 1e9),
     "ratio": Param("F = h_l / h_h: high-rate samples per controller sample", 1, 1000),
     "method": Param(f"identification method: one of {', '.join(METHODS)}"),
-    "n": Param("LPM window half-width (bins each side)", 1, 1000),
+    "n": Param(
+        "LPM window half-width (bins each side); 0: the default rule (8, more where F "
+        "or the channels need it)",
+        0,
+        1000,
+    ),
     "degree": Param("LPM polynomial degree R of G and of the transient", 0, 10),
     "window_s": Param("length of the sliding window identified, in seconds", 1e-3, 1e7),
     "min_window_s": Param(
@@ -99,7 +104,7 @@ class IdentConfig:
     fs_high: float = 240.0
     ratio: int = 3
     method: str = "freq-lifted"
-    n: int = 8
+    n: int = 0
     degree: int = 2
     window_s: float = 60.0
     min_window_s: float = 10.0
@@ -199,8 +204,8 @@ class IdentConfig:
                 f"({self.window_s:g})"
             )
         if self.method != "etfe":
-            check_options(self.method, self.n, self.degree, self.ratio, 1, 1)
-            need = record_minimum(self.method, self.n, self.ratio)
+            check_options(self.method, self.lpm_n(1, 1), self.degree, self.ratio, 1, 1)
+            need = record_minimum(self.method, self.lpm_n(1, 1), self.ratio)
             if self.min_samples < need:
                 raise ConfigError(
                     f"min_window_s = {self.min_window_s:g} s gives {self.min_samples} samples at "
@@ -221,6 +226,14 @@ class IdentConfig:
         return self.ratio * max(
             1, int(math.ceil(self.min_window_s * self.fs_high - 1e-9)) // self.ratio
         )
+
+    def lpm_n(self, n_in: int, n_out: int) -> int:
+        """The window half-width for ``n_in`` excitation and ``n_out`` output channels.
+
+        ``n``, or the default rule (:func:`~mr_ident.numerics.identify.default_n`) for
+        0.
+        """
+        return self.n or default_n(self.method, self.degree, self.ratio, n_in, n_out)
 
     @property
     def phase(self) -> int | None:

@@ -31,7 +31,7 @@ from ..errors import DataError
 from ..numerics.arrays import BoolArray, FloatArray, IntArray
 from .bags import Bag
 from .blocks import BLOCK_TYPE
-from .cdr import Batch, check, element_at, evaluate, header_stamp, string_arrays
+from .cdr import Batch, Layout, check, element_at, evaluate, header_stamp, string_arrays
 from .msgdef import Registry, parse_schema
 from .paths import SourceSpec, Step
 
@@ -158,11 +158,17 @@ class Samples:
 
 
 def evaluate_batch(
-    src: Resolved, batch: Batch, names: Mapping[int, list[str]] | None = None
+    src: Resolved,
+    batch: Batch,
+    names: Mapping[int, list[str]] | None = None,
+    cache: dict[str, Layout] | None = None,
 ) -> tuple[FloatArray, BoolArray]:
-    """The source's value of every message of ``batch`` (a batch of ``src.topic``)."""
+    """The source's value of every message of ``batch`` (a batch of ``src.topic``).
+
+    ``cache``: a dict kept per source across batches (the fast path's layouts).
+    """
     if src.kind == "path":
-        v = evaluate(batch, src.registry, src.type, src.path)
+        v = evaluate(batch, src.registry, src.type, src.path, cache)
         return v.value, v.valid
     if src.kind == "introspection":
         target = src.spec.steps[0].value
@@ -171,6 +177,7 @@ def evaluate_batch(
             src.registry,
             src.type,
             replace(src.spec, steps=(Step("field", name="names_version"),)),
+            cache,
         ).value
         index = np.full(batch.size, -1, dtype=np.int64)
         for ver, lst in (names or {}).items():
@@ -220,10 +227,11 @@ def extract(bag: Bag, sources: Sequence[Resolved]) -> list[Samples]:
     by_topic: dict[str, list[int]] = {}
     for i, s in enumerate(sources):
         by_topic.setdefault(s.topic, []).append(i)
+    caches: list[dict[str, Layout]] = [{} for _ in sources]
     for topic, batch, log in bag.batches(set(by_topic)):
         for i in by_topic.get(topic, []):
             src = sources[i]
-            value, valid = evaluate_batch(src, batch, names.get(src.names_topic))
+            value, valid = evaluate_batch(src, batch, names.get(src.names_topic), caches[i])
             parts[i].append((stamps_of(src, batch, log), value, valid))
     out = []
     for src, pieces in zip(sources, parts, strict=True):

@@ -256,13 +256,15 @@ class Aligner:
         """Declare a gap where blocks waited ahead of a missing one longer than ``max_wait``.
 
         ``now`` and ``max_wait`` on the clock of :meth:`push`'s ``now``; returns the notes.
+        ``now = inf`` declares every gap still pending (the end of a recording: what has not
+        come never will).
         """
         notes = []
         for i, s in enumerate(self._s):
             while s.pending and s.pending_since is not None and now - s.pending_since > max_wait:
                 notes.append(self._declare_gap(i))
-                if s.pending:
-                    s.pending_since = now
+                if s.pending:  # the blocks after the next hole wait afresh; at the end, not at all
+                    s.pending_since = now if now != float("inf") else float("-inf")
         return notes
 
     def hole(self, stream: int, first: int, n: int) -> str:

@@ -138,6 +138,12 @@ class SourceFeed:
         """One line per source with dropped samples (off the grid, no match)."""
         out = []
         for (stream, _, src), st in zip(self.sources.all, self.stats, strict=True):
+            if st.backwards:
+                out.append(
+                    f"{STREAMS[stream]} source {src.spec.text} (topic {src.topic}): stamps go "
+                    "back "
+                    f"{st.backwards} times"
+                )
             if st.off_grid or st.unmatched:
                 out.append(
                     f"{STREAMS[stream]} source {src.spec.text}: {st.off_grid} stamps off the "

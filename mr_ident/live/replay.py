@@ -20,7 +20,7 @@ from ..io.blocks import Block, BlockError
 from ..io.config import IdentConfig
 from ..io.paths import parse_sources
 from ..io.recording import RecordingInfo, read_blocks
-from ..io.sources import Samples, bag_types, extract, resolve
+from ..io.sources import Samples, bag_types, describe, extract, resolve
 from ..numerics.signals import LoopData
 from .align import Aligner, StreamStats
 from .estimate import Estimate, estimate
@@ -88,9 +88,9 @@ def replay(
 
 
 def _what_broke(al: Aligner, notes: Sequence[str], info: RecordingInfo | None = None) -> str:
-    """Why a recording gives less aligned data than it should: "" or ".
+    """Why a recording gives less aligned data than it should, to append to a message.
 
-    <parts>" to append to a message (the truncation too when ``info`` is given).
+    "" or "; <parts>" (the truncation too when ``info`` is given).
     """
     parts = []
     if info is not None and info.truncated:
@@ -162,6 +162,7 @@ class BagRead:
     info: RecordingInfo
     fs_high: float
     ratio: int
+    sources: str = ""
 
 
 def read_bag(
@@ -200,7 +201,7 @@ def read_bag(
     notes = feed.anomalies() + notes + bag.notes
     counts = {t.name: t.messages for t in bag.topics.values() if t.name in sources.topics}
     info = RecordingInfo(messages=counts, truncated=bool(bag.notes), reason="; ".join(bag.notes))
-    return BagRead(al, tuple(notes), info, fs, F)
+    return BagRead(al, tuple(notes), info, fs, F, describe([s for _, _, s in sources.all]))
 
 
 def _before(s: Samples, sampler: Sampler, stop: int) -> Samples:
@@ -240,6 +241,7 @@ def replay_bag(
             "span at "
             f"the end: {max(0, hi - lo)} samples"
             + _what_broke(read.aligner, read.notes, read.info)
+            + f"; sources: {read.sources}"
         )
     return ReplayResult(estimate(win, cfg), read.aligner.stats, read.info, read.notes)
 

@@ -2,8 +2,11 @@
 
 Rules (README, "How stamps become samples"), the same for the node and for replay:
 
-* The stamp is ``header.stamp`` (else the bag's log time or the node's receive time).
-  One t0 serves r, u and y: the earliest stamp seen. A message at t is sample
+* The stamp is ``header.stamp``; for a type without header, the time the message was sent
+  (the DDS source timestamp live; in a bag its publish time, else its log time).
+  One grid serves r, u and y: its origin t0 is the earliest stamp of the first batch,
+  moved by the median sub-sample offset of that batch's stamps (so that jitter of the
+  first stamp does not shift the grid). A message at t is sample
   ``index = round((t - t0) fs_high)``.
 * A stamp more than ``tolerance`` sample times off its grid point (default 0.25 h_h) is
   an anomaly: the sample is dropped (a gap) and counted. A message where the path matched
@@ -41,6 +44,8 @@ class SourceStats:
     off_grid: int = 0  # stamps beyond the tolerance (dropped)
     unmatched: int = 0  # messages where the path gave no value (dropped)
     worst_offset: float = 0.0  # largest |stamp - grid| seen, in sample times
+    backwards: int = 0  # stamps earlier than the one before (in arrival order)
+    last_stamp: int = -1
 
     def as_dict(self) -> dict[str, float]:
         """Every counter by name."""
@@ -67,6 +72,10 @@ class Sampler:
         off = np.abs(x - idx)
         ok = (off <= self.tolerance) & (idx >= 0) & (stamps >= 0)
         if stats is not None:
+            seq = np.concatenate([[stats.last_stamp], stamps]) if stats.last_stamp >= 0 else stamps
+            stats.backwards += int((np.diff(seq) < 0).sum())
+            if stamps.size:
+                stats.last_stamp = int(stamps[-1])
             stats.off_grid += int((~ok).sum())
             if off.size:
                 stats.worst_offset = max(stats.worst_offset, float(off.max()))

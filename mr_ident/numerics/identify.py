@@ -15,13 +15,18 @@ from numpy.typing import ArrayLike
 from ..errors import ConfigError, DataError, DimensionError
 from .arrays import FloatArray
 from .lifting import check_ratio
-from .lpm import check_lpm_options
+from .lpm import check_lpm_options, smallest_n
 from .methods import METHODS, FitRequest, Method
 from .pfg import pfg_from_plant
 from .results import FRF, PFG, Identification
 from .threads import resolve_workers
 
-__all__ = ["METHODS", "check_options", "identify", "min_samples"]
+__all__ = ["METHODS", "check_options", "default_n", "identify", "min_samples"]
+
+#: The paper's window half-width: the least the default takes.
+N_FLOOR = 8
+#: The default n leaves at least this many degrees of freedom beyond the minimum.
+DOF_MARGIN = 2
 
 
 def method_of(name: str) -> Method:
@@ -44,6 +49,23 @@ def check_options(method: str, n: int, degree: int, ratio: int, n_in: int, n_out
         return 0
     lift = m.lift(ratio)
     return check_lpm_options(n, degree, n_in * lift, n_out * lift)
+
+
+def default_n(method: str, degree: int, ratio: int, n_in: int, n_out: int) -> int:
+    """The default window half-width: 8 (the paper's), or more where F or the channels need it.
+
+    The smallest n >= 8 whose residual degrees of freedom exceed the outputs of the fit by
+    :data:`DOF_MARGIN`: ``2n+1 - (R+1)(lift n_in + 1) >= lift n_out + 2``, lift = F for a
+    lifted method, else 1.
+
+    >>> default_n("freq-lifted", 2, 3, 1, 1), default_n("freq-lifted", 2, 10, 1, 1)
+    (8, 22)
+    """
+    m = method_of(method)
+    if not m.uses_lpm:
+        return N_FLOOR
+    lift = m.lift(ratio)
+    return max(N_FLOOR, smallest_n(degree, n_in * lift, n_out * lift, margin=DOF_MARGIN - 1))
 
 
 def min_samples(method: str, n: int, ratio: int) -> int:
@@ -98,7 +120,7 @@ def identify(
     fs_high: float,
     ratio: int,
     method: str = "freq-lifted",
-    n: int = 8,
+    n: int | None = None,
     degree: int = 2,
     controller_low: ArrayLike | None = None,
     phase: int = 0,
@@ -117,8 +139,10 @@ def identify(
     ratio : int
         F = h_l / h_h.
     method : {"freq-lifted", "time-lifted", "lpm", "etfe"}
-    n, degree : int
-        LPM window half-width and polynomial degree R (defaults 8 and 2).
+    n : int, optional
+        LPM window half-width; default :func:`default_n` (8 for a SISO loop up to F = 3).
+    degree : int
+        Polynomial degree R (default 2).
     controller_low : array_like, shape (M, n_u, n_y), optional
         Controller frequency response on all low-rate bins ``z = exp(2j pi k/M)``,
         k = 0..M-1; when given, the PFG is computed from P_h and it.
@@ -172,6 +196,8 @@ def identify(
     ra, ua, ya = _check_signals(r, u, y, F)
     N = ra.shape[0]
     ny, nu = ya.shape[1], ua.shape[1]
+    if n is None:
+        n = default_n(method, degree, F, ra.shape[1], max(ny, nu))
     q = check_options(method, n, degree, F, ra.shape[1], max(ny, nu))
     if m.uses_lpm and N < m.min_samples(n, F):
         raise DataError(

@@ -99,8 +99,12 @@ def dof(n: int, degree: int, n_in: int) -> int:
 
 
 def smallest_n(degree: int, n_in: int, n_out: int, margin: int = 0) -> int:
-    """The smallest window half-width n with ``dof(n, degree, n_in) > n_out + margin``."""
-    return (n_out + margin + (degree + 1) * (n_in + 1)) // 2 + 1
+    """The smallest window half-width n with ``dof(n, degree, n_in) > n_out + margin``.
+
+    >>> smallest_n(2, 3, 6)             # 2n + 1 - 3 * 4 > 6 first holds at n = 9
+    9
+    """
+    return (n_out + margin + (degree + 1) * (n_in + 1) - 1) // 2 + 1
 
 
 def check_lpm_options(n: int, degree: int, n_in: int, n_out: int) -> int:

@@ -70,6 +70,7 @@ class SourceSubscriber:
         self._names: dict[str, dict[int, list[str]]] = {}
         self._stamps: list[list[np.ndarray]] = []
         self._subs: list[Any] = []
+        self._layouts: dict[str, dict[str, Any]] = {}
 
     # -- graph ------------------------------------------------------------------------------
     def poll(self) -> None:
@@ -177,7 +178,12 @@ class SourceSubscriber:
 
     def _samples(self, src: Resolved, batch: Batch, received: np.ndarray) -> Samples:
         try:
-            value, valid = evaluate_batch(src, batch, self._names.get(src.names_topic))
+            value, valid = evaluate_batch(
+                src,
+                batch,
+                self._names.get(src.names_topic),
+                self._layouts.setdefault(src.spec.text, {}),
+            )
             return Samples(stamps_of(src, batch, received), value, valid, not src.stamped)
         except DataError as err:  # a message that does not decode: count it, carry on
             self.error = f"source {src.spec.text}: {err}"
