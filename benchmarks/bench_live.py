@@ -11,6 +11,11 @@
    window ending with it (update_period_s = 0.05 s). Three runs, each with a new
    node; the worst and the median are reported.
 
+3. Per-sample messages: a publisher process streams ``sensor_msgs/JointState`` on two
+   topics (``/joint_states`` with y and u, ``/ident/reference`` with r; stamps on a
+   1 kHz grid) to a node configured with sources, at rising message rates per topic.
+   A step passes when every message became a sample (no gap, none off the grid).
+
 Not a test: prints figures for the README.
 """
 
@@ -75,7 +80,56 @@ def publisher(rate: float, seconds: float) -> None:
     rclpy.shutdown()
 
 
-def _node(env: dict, update: float) -> subprocess.Popen:
+JS_FS = 1000.0  # the stamps' grid of the per-sample phase
+JS_SOURCES = (
+    'r_source:=["/ident/reference.position[0]"]',
+    'u_source:=["/joint_states.effort[0]"]',
+    'y_source:=["/joint_states.position[0]"]',
+)
+
+
+def js_publisher(rate: float, seconds: float) -> None:
+    """Child process: JointState at ``rate`` messages/s per topic (stamps on a 1 kHz grid)."""
+    import rclpy
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import JointState
+
+    rclpy.init()
+    node = rclpy.create_node("bench_js")
+    qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+    js = node.create_publisher(JointState, "/joint_states", qos)
+    ref = node.create_publisher(JointState, "/ident/reference", qos)
+    x = _signals(60_000)
+    t_end = time.monotonic() + 10
+    while (
+        js.get_subscription_count() == 0 or ref.get_subscription_count() == 0
+    ) and time.monotonic() < t_end:
+        time.sleep(0.01)
+    time.sleep(0.5)
+    n = int(rate * seconds)
+    t0_stamp = 1_700_000_000_000_000_000
+    a, b = JointState(), JointState()
+    a.name, b.name = ["j1"], ["j1"]
+    t0 = time.monotonic()
+    for k in range(n):
+        due = t0 + k / rate
+        while (d := due - time.monotonic()) > 0:
+            time.sleep(d)
+        sec, nsec = divmod(t0_stamp + round(k * 1e9 / JS_FS), 1_000_000_000)
+        for m in (a, b):
+            m.header.stamp.sec, m.header.stamp.nanosec = sec, nsec
+        i = k % x.shape[1]
+        a.position, a.effort = [float(x[2, i])], [float(x[1, i])]
+        b.position = [float(x[0, i])]
+        js.publish(a)
+        ref.publish(b)
+    print(f"{n} {time.time():.6f} {time.monotonic() - t0:.3f}", flush=True)
+    time.sleep(1.0)
+    node.destroy_node()
+    rclpy.shutdown()
+
+
+def _node(env: dict, update: float, *extra: str) -> subprocess.Popen:
     return subprocess.Popen(
         [
             str(Path(sys.executable).parent / "mr-ident-node"),
@@ -90,6 +144,7 @@ def _node(env: dict, update: float) -> subprocess.Popen:
             f"update_period_s:={update}",
             "-p",
             "reorder_blocks:=64",
+            *[a for e in extra for a in ("-p", e)],
         ],
         env=env,
         stdout=subprocess.DEVNULL,
@@ -131,12 +186,14 @@ class _Listen:
         self.rclpy.shutdown()
 
 
-def _run_publisher(env: dict, rate: float, seconds: float, lis: _Listen) -> tuple[int, float]:
+def _run_publisher(
+    env: dict, rate: float, seconds: float, lis: _Listen, kind: str = "--publisher"
+) -> tuple[int, float]:
     """Run the publisher process; the listener keeps spinning meanwhile, so that a result
     published before the publisher has exited is received (and timed) when it arrives."""
     with tempfile.TemporaryFile("w+") as errors:  # a file, not a pipe: it never fills up
         proc = subprocess.Popen(
-            [sys.executable, __file__, "--publisher", str(rate), str(seconds)],
+            [sys.executable, __file__, kind, str(rate), str(seconds)],
             env=env,
             stdout=subprocess.PIPE,
             stderr=errors,
@@ -155,9 +212,10 @@ def _run_publisher(env: dict, rate: float, seconds: float, lis: _Listen) -> tupl
     n, t_last, elapsed = out.split()
     print(
         f"  publisher: {int(n)} samples per topic in {float(elapsed):.2f} s "
-        f"({int(n) / float(elapsed) / 1e6:.2f} M samples/s)",
+        f"({int(n) / float(elapsed) / 1e3:.1f} k per second)",
         flush=True,
     )
+    _run_publisher.elapsed = float(elapsed)  # type: ignore[attr-defined]
     return int(n), float(t_last)
 
 
@@ -239,9 +297,65 @@ def main() -> None:
             f"median {float(np.median(latencies)):.2f} s"
         )
 
+        best_js = 0.0
+        for rate in (1e3, 2e3, 4e3, 8e3, 16e3):
+            node = subprocess.Popen(
+                [
+                    str(Path(sys.executable).parent / "mr-ident-node"),
+                    "--ros-args",
+                    "-p",
+                    f"fs_high:={JS_FS}",
+                    "-p",
+                    "window_s:=20.0",
+                    "-p",
+                    "min_window_s:=20.0",
+                    "-p",
+                    "update_period_s:=1.0",
+                    *[a for e in JS_SOURCES for a in ("-p", e)],
+                ],
+                env=env,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )
+            lis = _Listen()
+            try:
+                lis.spin(3.0)
+                sent, _ = _run_publisher(env, rate, 6.0, lis, kind="--js-publisher")
+                lis.spin(3.0)
+                d = lis.diag
+                got = [int(d.get(f"{s}.samples", 0)) for s in ("reference", "input", "output")]
+                gaps = sum(int(d.get(f"{s}.gaps", 0)) for s in ("reference", "input", "output"))
+                ok = all(g == sent for g in got) and gaps == 0
+                print(
+                    f"JointState {rate / 1e3:5.1f} k messages/s per topic: sent {sent}, samples "
+                    f"{got}, gaps "
+                    f"{gaps} -> {'OK' if ok else 'LOSS'} ({d.get('source.y0', '')})",
+                    flush=True,
+                )
+            finally:
+                lis.close()
+                node.terminate()
+                node.wait(30)
+            if not ok:
+                break
+            achieved = sent / _run_publisher.elapsed  # type: ignore[attr-defined]
+            best_js = max(best_js, achieved)
+            if achieved < 0.9 * rate:
+                print(
+                    f"  the publisher reached only {achieved / 1e3:.1f} k messages/s: it is the "
+                    "limit"
+                )
+                break
+        print(
+            f"highest per-sample message rate with every message a sample: {best_js / 1e3:.1f} "
+            "k messages/s per topic (JointState, two topics)"
+        )
+
 
 if __name__ == "__main__":
     if len(sys.argv) == 4 and sys.argv[1] == "--publisher":
         publisher(float(sys.argv[2]), float(sys.argv[3]))
+    elif len(sys.argv) == 4 and sys.argv[1] == "--js-publisher":
+        js_publisher(float(sys.argv[2]), float(sys.argv[3]))
     else:
         main()

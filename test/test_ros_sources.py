@@ -118,6 +118,7 @@ def test_node_on_float64_topics_places_samples_by_the_source_timestamp(graph):
                 window_s=2.0,
                 min_window_s=2.0,
                 update_period_s=0.2,
+                stamp_tolerance=0.4,
                 r_source=["/r.data"],
                 u_source=["/u.data"],
                 y_source=["/y.data"],

@@ -1,7 +1,7 @@
 """CDR (ROS 2's serialization) read for a batch of messages at once.
 
 A :class:`Batch` holds the serialized payloads of n messages of one type in one byte
-buffer. :func:`evaluate` follows a source path (:mod:`mr_ident.io.paths`) through all
+buffer. :func:`walk_all` follows a source path (:mod:`mr_ident.io.paths`) through all
 of them together: every field on the way is one NumPy operation over the n messages
 (align, read a length, skip), so the cost per batch grows with the number of fields
 visited, not with the number of messages. Messages whose layout differs (another
@@ -56,7 +56,7 @@ class Batch:
         return int(self.offset.size)
 
 
-class _Walk:
+class Walk:
     """Positions of n messages moved together through their CDR fields."""
 
     def __init__(self, batch: Batch, record: bool = False):
@@ -67,12 +67,12 @@ class _Walk:
         self.end = batch.offset + batch.length
         self.bad = np.zeros(batch.size, dtype=bool)  # ran past the end: malformed
         self._windows: dict[int, np.ndarray] = {}
-        head = self._gather(batch.offset, 2)
+        head = self.gather(batch.offset, 2)
         if batch.size and not (np.all(head[:, 0] == 0) and np.all(head[:, 1] == 1)):
             kinds = sorted({bytes(h).hex() for h in head})
             raise DataError(f"only little-endian CDR (encapsulation 0001) is read; found {kinds}")
 
-    def _gather(self, pos: IntArray, width: int) -> np.ndarray:
+    def gather(self, pos: IntArray, width: int) -> np.ndarray:
         """The ``width`` bytes at each position, (n, width).
 
         One row gather from a strided view of overlapping windows (no index matrix);
@@ -90,17 +90,19 @@ class _Walk:
         return out
 
     def align(self, pos: IntArray, size: int) -> IntArray:
+        """``pos`` moved up to a multiple of ``size`` from each message's alignment origin."""
         if size <= 1:
             return pos
         rel = pos - self.base
         return self.base + (rel + size - 1) // size * size
 
     def read(self, pos: IntArray, dtype: str, value: bool = False) -> np.ndarray:
+        """A ``dtype`` value at each position (``value``: the source's value, for the log)."""
         dt = np.dtype(dtype)
         if self.log is not None and pos.size:
             self.log.append((int(pos[0] - self.base[0]), dtype, value))
         self.bad |= pos + dt.itemsize > self.end
-        return self._gather(pos, dt.itemsize).view(dt)[:, 0]
+        return self.gather(pos, dt.itemsize).view(dt)[:, 0]
 
     def count(self, pos: IntArray) -> tuple[IntArray, IntArray]:
         """A uint32 length at ``pos`` (aligned); returns it and the position after it."""
@@ -115,13 +117,13 @@ class _Walk:
         target = np.frombuffer(text.encode() + b"\0", dtype=np.uint8)
         if self.log is not None and p.size:
             self.log.append((int(p[0] - self.base[0]), f"S{target.size}", False))
-        same = (n == target.size) & np.all(self._gather(p, target.size) == target[None, :], axis=1)
+        same = (n == target.size) & np.all(self.gather(p, target.size) == target[None, :], axis=1)
         return same, p + n
 
     def skip(self, f: Field, pos: IntArray, reg: Registry, active: BoolArray) -> IntArray:
         """The position after field ``f`` at ``pos`` (only where ``active``)."""
         if f.array is None:
-            return self._skip_one(f.type, pos, reg, active)
+            return self.skip_one(f.type, pos, reg, active)
         if f.array >= 0:
             n = np.full(pos.shape, f.array, dtype=np.int64)
             p = pos
@@ -133,10 +135,11 @@ class _Walk:
             p = np.where(n > 0, self.align(p, size), p)
             return np.where(active, p + n * size, pos)
         for k in range(int(n.max(initial=0))):
-            p = self._skip_one(f.type, p, reg, active & (k < n))
+            p = self.skip_one(f.type, p, reg, active & (k < n))
         return np.where(active, p, pos)
 
-    def _skip_one(self, type_: str, pos: IntArray, reg: Registry, active: BoolArray) -> IntArray:
+    def skip_one(self, type_: str, pos: IntArray, reg: Registry, active: BoolArray) -> IntArray:
+        """The position after one value of ``type_`` at ``pos`` (only where ``active``)."""
         if type_ in ("string", "wstring"):
             n, p = self.count(pos)
             width = 4 if type_ == "wstring" else 1
@@ -185,37 +188,8 @@ class Values:
     valid: BoolArray
 
 
-@dataclass
-class Layout:
-    """Where a source's value lies in messages of one layout (the fast path's template).
-
-    ``struct`` are the byte ranges the layout depends on (offsets from the first byte after
-    the encapsulation header) and ``expect`` the bytes they hold; ``value`` the offset and
-    dtype of the value; ``length`` the message length.
-    """
-
-    length: int
-    struct: list[tuple[int, int]]
-    expect: np.ndarray
-    value: tuple[int, str]
-    span: tuple[int, int]
-    cols: np.ndarray
-
-
-def evaluate(
-    batch: Batch,
-    reg: Registry,
-    root: str,
-    spec: SourceSpec,
-    cache: dict[str, Layout] | None = None,
-) -> Values:
-    """Follow ``spec``'s path through every message of ``batch`` (of type ``root``).
-
-    Fast path: the path is walked on one message only, noting every byte its layout
-    depends on (lengths, counts, the strings a filter compares); the messages with the
-    same length and the same bytes there hold the value at the same offset, one read for
-    all. The others (a layout that changed) go through the walk over all of them. Give
-    ``cache`` (a dict kept per source) to reuse the layout from batch to batch.
+def walk_all(batch: Batch, reg: Registry, root: str, spec: SourceSpec) -> Values:
+    """Follow ``spec``'s path through every message of ``batch`` at once (any layouts).
 
     Raises
     ------
@@ -223,76 +197,27 @@ def evaluate(
         The path does not exist in the type (naming the fields that do), or does not end
         at a number.
     """
-    if batch.size >= FAST_MIN:
-        layout = cache.get(spec.text) if cache is not None else None
-        if layout is None:
-            layout = _layout(batch, 0, reg, root, spec)
-        if layout is not None:
-            fast = _fixed_layout(batch, layout, reg, root, spec)
-            if cache is not None:
-                cache[spec.text] = layout
-            if fast is not None:
-                return fast
-    return _walk_all(batch, reg, root, spec)
-
-
-#: Batches at least this large try the fixed-layout fast path first.
-FAST_MIN = 16
-
-
-def _walk_all(batch: Batch, reg: Registry, root: str, spec: SourceSpec) -> Values:
-    w = _Walk(batch)
+    w = Walk(batch)
     active = np.ones(batch.size, dtype=bool)
-    value, valid = _eval(w, reg, root, w.base.copy(), active, list(spec.steps), spec)
+    value, valid = walk_path(w, reg, root, w.base.copy(), active, list(spec.steps), spec)
     return Values(value, valid & ~w.bad)
 
 
-def _layout(batch: Batch, i: int, reg: Registry, root: str, spec: SourceSpec) -> Layout | None:
-    """The layout of message ``i`` (None when the path gives it no single value)."""
-    one = Batch(batch.buf, batch.offset[i : i + 1], batch.length[i : i + 1])
-    w = _Walk(one, record=True)
-    _, ok = _eval(w, reg, root, w.base.copy(), np.ones(1, dtype=bool), list(spec.steps), spec)
-    assert w.log is not None
-    reads = [e for e in w.log if e[2]]
-    if not ok[0] or w.bad[0] or len(reads) != 1:
-        return None
-    struct = [(rel, np.dtype(dt).itemsize) for rel, dt, is_value in w.log if not is_value]
-    lo = min((r for r, _ in struct), default=0)
-    hi = max((r + k for r, k in struct), default=0)
-    cols = np.zeros(hi - lo, dtype=bool)
-    for r, k in struct:
-        cols[r - lo : r - lo + k] = True
-    expect = w._gather(w.base + lo, hi - lo)[0, cols] if struct else np.zeros(0, np.uint8)
-    return Layout(int(one.length[0]), struct, expect, reads[0][:2], (lo, hi), cols)
-
-
-def _fixed_layout(
-    batch: Batch, layout: Layout, reg: Registry, root: str, spec: SourceSpec
-) -> Values | None:
-    """:func:`evaluate`'s fast path with ``layout``; None when no message has it."""
-    base = batch.offset + 4
-    same = batch.length == layout.length
-    whole = _Walk(batch)
-    lo, hi = layout.span
-    if layout.struct:
-        rows = whole._gather(base + lo, hi - lo)[:, layout.cols]
-        same &= np.all(rows == layout.expect[None, :], axis=1)
-    if not same.any():
-        return None
-    rel, dtype = layout.value
-    value = whole.read(base + rel, dtype).astype(np.float64)
-    valid = same & ~whole.bad
-    if not same.all():
-        rest = ~same
-        other = _walk_all(
-            Batch(batch.buf, batch.offset[rest], batch.length[rest]), reg, root, spec
-        )
-        value[rest], valid[rest] = other.value, other.valid
-    return Values(value, valid)
+def walk_path(
+    w: Walk,
+    reg: Registry,
+    type_: str,
+    pos: IntArray,
+    active: BoolArray,
+    steps: list[Step],
+    spec: SourceSpec,
+) -> tuple[FloatArray, BoolArray]:
+    """The rest ``steps`` of a path from ``pos`` (messages of type ``type_``) on ``w``."""
+    return _eval(w, reg, type_, pos, active, steps, spec)
 
 
 def _eval(
-    w: _Walk,
+    w: Walk,
     reg: Registry,
     type_: str,
     pos: IntArray,
@@ -351,7 +276,7 @@ def _eval(
 
 
 def _scalar(
-    w: _Walk, type_: str, pos: IntArray, spec: SourceSpec, value: bool = True
+    w: Walk, type_: str, pos: IntArray, spec: SourceSpec, value: bool = True
 ) -> FloatArray:
     if type_ not in DTYPES:
         raise DataError(f"source {spec.text!r} ends at a {type_}, not at a number")
@@ -359,14 +284,14 @@ def _scalar(
     return w.read(w.align(pos, size), DTYPES[type_], value).astype(np.float64)
 
 
-def _count(w: _Walk, f: Field, pos: IntArray) -> IntArray:
+def _count(w: Walk, f: Field, pos: IntArray) -> IntArray:
     if f.array is not None and f.array >= 0:
         return np.full(pos.shape, f.array, dtype=np.int64)
     return w.count(pos)[0]
 
 
 def _element(
-    w: _Walk,
+    w: Walk,
     reg: Registry,
     f: Field,
     pos: IntArray,
@@ -390,14 +315,14 @@ def _element(
         p = np.where(count > 0, w.align(p, size), p)
         return _scalar(w, f.type, p + index * size, spec), active.copy()
     for k in range(int(np.max(np.where(active, index, 0), initial=0))):
-        p = w._skip_one(f.type, p, reg, active & (k < index))
+        p = w.skip_one(f.type, p, reg, active & (k < index))
     if f.primitive:
         raise DataError(f"source {spec.text!r}: {f.name} holds {f.type}, not numbers")
     return _eval(w, reg, f.type, p, active, rest, spec)
 
 
 def _find(
-    w: _Walk, key: Field, pos: IntArray, value: str | float, active: BoolArray, spec: SourceSpec
+    w: Walk, key: Field, pos: IntArray, value: str | float, active: BoolArray, spec: SourceSpec
 ) -> tuple[IntArray, BoolArray]:
     """Per message, the index in array ``key`` where it holds ``value`` (first match)."""
     count, p = (
@@ -428,7 +353,7 @@ def _find(
 
 
 def _match(
-    w: _Walk,
+    w: Walk,
     reg: Registry,
     f: Field,
     pos: IntArray,
@@ -463,7 +388,7 @@ def _match(
             v, ok = _eval(w, reg, f.type, p, hit, rest, spec)
             out = np.where(hit, v, out)
             found |= hit & ok
-        p = w._skip_one(f.type, p, reg, active & (k < count))
+        p = w.skip_one(f.type, p, reg, active & (k < count))
     if not found.any():  # the rest of the path is checked even with no match
         _eval(w, reg, f.type, p, np.zeros_like(active), rest, spec)
     return out, found
@@ -476,7 +401,7 @@ def element_at(
 
     For an index known per message, e.g. from a names list.
     """
-    w = _Walk(batch)
+    w = Walk(batch)
     f = _field(reg, root, name, spec)
     if f.array is None:
         raise DataError(f"source {spec.text!r}: {root}.{name} is not an array")
@@ -490,21 +415,21 @@ def element_at(
 def check(reg: Registry, root: str, spec: SourceSpec) -> None:
     """Raise the DataError :func:`evaluate` would: the path against the type, without data."""
     empty = Batch(np.zeros(0, dtype=np.uint8), np.zeros(0, np.int64), np.zeros(0, np.int64))
-    evaluate(empty, reg, root, spec)
+    walk_all(empty, reg, root, spec)
 
 
 def header_stamp(batch: Batch, reg: Registry, root: str) -> IntArray | None:
     """``header.stamp`` of every message in ns, or None when the type has no ``header``."""
     if not any(f.name == "header" and f.type == "std_msgs/msg/Header" for f in reg[root]):
         return None
-    w = _Walk(batch)
+    w = Walk(batch)
     if reg[root][0].name == "header":  # the usual case: the stamp is the first 8 bytes
         hp = w.base
     else:
         hp = w.fields(root, w.base.copy(), reg, np.ones(batch.size, bool), {"header"})["header"]
     hp = w.align(hp, 4)
     w.bad |= hp + 8 > w.end
-    raw = w._gather(hp, 8)
+    raw = w.gather(hp, 8)
     sec = raw[:, :4].copy().view("<i4")[:, 0].astype(np.int64)
     nsec = raw[:, 4:].copy().view("<u4")[:, 0].astype(np.int64)
     return np.where(w.bad, -1, sec * 1_000_000_000 + nsec)
@@ -515,7 +440,7 @@ def string_arrays(batch: Batch, reg: Registry, root: str, name: str) -> list[lis
 
     Decoded (for the few name lists of the introspection topics).
     """
-    w = _Walk(batch)
+    w = Walk(batch)
     pos = w.fields(root, w.base.copy(), reg, np.ones(batch.size, bool), {name})[name]
     out = []
     for i in range(batch.size):

@@ -6,7 +6,7 @@ checks the path against it (an error names the fields that exist) and decides ho
 read it:
 
 ``path``
-    Any message type: the path is evaluated on every message (:func:`mr_ident.io.cdr.evaluate`).
+    Any message type: the path is evaluated on every message (:func:`mr_ident.io.layout.evaluate`).
 ``blocks``
     A bare topic of ``std_msgs/msg/Float64MultiArray``: the block contract.
 ``introspection``
@@ -31,7 +31,8 @@ from ..errors import DataError
 from ..numerics.arrays import BoolArray, FloatArray, IntArray
 from .bags import Bag
 from .blocks import BLOCK_TYPE
-from .cdr import Batch, Layout, check, element_at, evaluate, header_stamp, string_arrays
+from .cdr import Batch, check, element_at, header_stamp, string_arrays
+from .layout import Layout, evaluate
 from .msgdef import Registry, parse_schema
 from .paths import SourceSpec, Step
 

@@ -455,6 +455,8 @@ class IdentNode(Node):
     def shutdown(self, timeout: float = 30.0) -> None:
         """Stop estimating, wait for a running identification, finalise the recording."""
         self._stopping = True
+        if self._sources is not None:
+            self._sources.close()
         t = self._worker_thread
         if t is not None:
             t.join(timeout)

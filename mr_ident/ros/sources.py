@@ -11,6 +11,7 @@ raw (the CDR bytes, never deserialised by rclpy) with the publishers' QoS, and e
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -70,6 +71,7 @@ class SourceSubscriber:
         self._names: dict[str, dict[int, list[str]]] = {}
         self._stamps: list[list[np.ndarray]] = []
         self._subs: list[Any] = []
+        self._drain: _Drain | None = None
         self._layouts: dict[str, dict[str, Any]] = {}
 
     # -- graph ------------------------------------------------------------------------------
@@ -136,11 +138,19 @@ class SourceSubscriber:
             if record is not None:
                 record(topic, type_name, raw, info)
 
-        self._subs.append(
-            self.node.create_subscription(
-                message_class(type_name), topic, on_message, qos, raw=True
-            )
+        if self._drain is None:
+            self._drain = _Drain(self.node.context)
+        # the callback is called by the drain thread, not by an executor
+        sub = self._drain.node.create_subscription(
+            message_class(type_name), topic, lambda _: None, qos, raw=True
         )
+        self._subs.append(sub)
+        self._drain.add(sub, on_message)
+
+    def close(self) -> None:
+        """Stop taking messages (the node's shutdown)."""
+        if self._drain is not None:
+            self._drain.stop()
 
     # -- data ------------------------------------------------------------------------------
     def flush(self, now: float) -> list[str]:
@@ -217,3 +227,69 @@ class SourceSubscriber:
                     f"{st.off_grid} off grid, {st.unmatched} without value"
                 )
         return out
+
+
+class _Drain:
+    """Takes the sources' messages in a thread of its own, every queued one at each wake-up.
+
+    rclpy's executor handles one message per turn and rebuilds its wait set each time, which
+    limits it to a few thousand messages per second; a message per sample needs more. The
+    subscriptions live on a helper node that no executor spins; this thread waits on them
+    (rclpy's wait set, as :func:`rclpy.wait_for_message.wait_for_message` does) and takes
+    every message queued on each ready one.
+    """
+
+    def __init__(self, context: Any):
+        import rclpy
+        from rclpy.guard_condition import GuardCondition
+
+        self.node = rclpy.create_node("mr_ident_sources", context=context)
+        self._context = context
+        self._subs: list[tuple[Any, Callable[[bytes, dict[str, Any]], None]]] = []
+        self._wake = GuardCondition(None, None, context=context)
+        self._stopping = False
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._run, name="mr_ident-sources", daemon=True)
+        self._thread.start()
+
+    def add(self, sub: Any, callback: Callable[[bytes, dict[str, Any]], None]) -> None:
+        with self._lock:
+            self._subs.append((sub, callback))
+        self._wake.trigger()
+
+    def _run(self) -> None:
+        from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+
+        while not self._stopping:
+            with self._lock:
+                subs = list(self._subs)
+            try:
+                ws = _rclpy.WaitSet(len(subs), 1, 0, 0, 0, 0, self._context.handle)
+                ws.clear_entities()
+                for sub, _ in subs:
+                    ws.add_subscription(sub.handle)
+                ws.add_guard_condition(self._wake.handle)
+                ws.wait(200_000_000)
+                ready = set(ws.get_ready_entities("subscription"))
+                for sub, callback in subs:
+                    if sub.handle.pointer not in ready:
+                        continue
+                    while not self._stopping:
+                        with sub.handle:
+                            taken = sub.handle.take_message(sub.msg_type, True)
+                        if taken is None:
+                            break
+                        callback(taken[0], taken[1])
+            except Exception:  # noqa: BLE001 - the context is going away: stop
+                if self._stopping or not self._context.ok():
+                    return
+                raise
+
+    def stop(self) -> None:
+        self._stopping = True
+        try:
+            self._wake.trigger()
+        except Exception:  # noqa: BLE001 - already destroyed
+            pass
+        self._thread.join(5)
+        self.node.destroy_node()
