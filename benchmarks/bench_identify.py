@@ -3,7 +3,10 @@
 6000 s at 240 Hz (N = 1.44 M samples), F = 3, n = 8, R = 2. Runs our LPM engine and
 a straightforward batched-QR numpy LPM (J and S fitted separately, as two LPMs; also
 with one QR for both) through the same pipeline, in the same run, interleaved, and
-prints wall time, peak traced memory and their ratio. Also times the simulator.
+prints wall time, peak traced memory and their ratio. Also times the simulator, and the
+same N at F = 5 and F = 10 (the low rate kept at 80 Hz, the high rate 80 F Hz; the default
+window n), where the lifted unknowns grow with F: time grows about as F^2 (Q^3 per bin,
+Q ~ F, over N/F bins) while the chunk sizes keep the memory flat.
 
     make bench            # or: .venv/bin/python benchmarks/bench_identify.py [--duration S]
 """
@@ -15,6 +18,7 @@ import functools
 import sys
 import time
 import tracemalloc
+from dataclasses import replace
 from pathlib import Path
 from unittest import mock
 
@@ -22,7 +26,7 @@ import numpy as np
 
 from mr_ident.allocator import keep_freed_memory
 from mr_ident.io.modelfile import load_model
-from mr_ident.numerics.identify import identify  # (also loads the module patched below)
+from mr_ident.numerics.identify import default_n, identify  # (also loads the module patched below)
 from mr_ident.numerics.simulate import simulate
 from mr_ident.numerics.threads import resolve_workers
 
@@ -96,6 +100,13 @@ def main() -> None:
     ap.add_argument(
         "--skip-reference", action="store_true", help="do not run the straightforward LPM"
     )
+    ap.add_argument(
+        "--ratios",
+        type=int,
+        nargs="*",
+        default=[5, 10],
+        help="larger F to run at the same N (default: 5 10; none: skip)",
+    )
     args = ap.parse_args()
     keep_freed_memory()  # as the mr-ident and mr-ident-node programs do
     model = load_model(ROOT / "config" / "paper_example.yaml")
@@ -160,6 +171,37 @@ def main() -> None:
             "x on one thread each; "
             f"{t['ref_joint'] / t['ours']:.1f} x against the joint QR)"
         )
+    for F in args.ratios:
+        larger_ratio(model, N, F)
+
+
+def larger_ratio(model, N: int, F: int) -> None:
+    """Identify N samples at ratio F (low rate 80 Hz, high rate 80 F Hz); one timed run."""
+    m = replace(model, fs_high=80.0 * F, ratio=F)
+    sim = simulate(m, n_samples=N - N % F, rng=np.random.default_rng(0))
+    K_low = m.controller_frf(sim.r.shape[0] // F)
+
+    def run():
+        return identify(
+            sim.r,
+            sim.u,
+            sim.y,
+            fs_high=m.fs_high,
+            ratio=F,
+            controller_low=K_low,
+            keep_lifted=False,
+        )
+
+    t, out = best_times({"F": run}, 1)
+    mem = peak_mb(run)
+    res = out["F"]
+    truth = m.plant_frf(sim.r.shape[0])[1:]
+    err = np.nanmedian(np.abs(res.plant.response - truth) / np.abs(truth))
+    n = default_n("freq-lifted", 2, F, 1, 1)
+    print(
+        f"F = {F:<2d} (n = {n:2d}, {m.fs_high:g} Hz) {t['F']:7.3f} s   peak "
+        f"{mem:7.1f} MB   (same N; median rel. error {err:.1e})"
+    )
 
 
 if __name__ == "__main__":

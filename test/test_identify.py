@@ -155,6 +155,20 @@ def test_threads_do_not_change_a_single_bit(paper_model, method, monkeypatch):
     np.testing.assert_array_equal(one.pfg.gain, three.pfg.gain)
 
 
+def test_chunks_shrink_as_the_unknowns_grow():
+    """Chunk and block sizes keep the memory per chunk about constant: full size up to four
+    times a SISO loop's unknowns at F = 3, then inversely with the per-bin cost."""
+    from mr_ident.numerics.lpm import CHUNK_BINS, chunk_bins
+    from mr_ident.numerics.methods import BLOCK_BINS, block_bins
+
+    assert chunk_bins(3, 6, 2) == CHUNK_BINS and block_bins(3, 1, 1) == BLOCK_BINS
+    sizes = [chunk_bins(F, 2 * F, 2) for F in (3, 5, 10, 20)]
+    assert sizes == sorted(sizes, reverse=True) and sizes[-1] < CHUNK_BINS // 8
+    blocks = [block_bins(F, 1, 1) for F in (3, 5, 10, 20)]
+    assert blocks == sorted(blocks, reverse=True) and blocks[-1] < BLOCK_BINS // 8
+    assert chunk_bins(200, 400, 4) == 64 and block_bins(200, 4, 4) == 256  # the floors
+
+
 def test_the_default_window_grows_with_F_and_the_channels():
     """n defaults to 8, or the smallest n with 2 degrees of freedom to spare: F = 10 (lifted:
     10 inputs, 10 outputs per channel) needs n = 22, where n = 8 is an error."""

@@ -44,9 +44,25 @@ from .lpm import lpm_bins_last, warn_rank_deficient
 from .results import LiftedFRF
 from .threads import thread_map
 
-#: Low-rate bins per block of the frequency-lifted path: bounds the memory in flight; the
-#: blocks run on the worker threads.
+#: Low-rate bins per block of the frequency-lifted path for a SISO loop at F = 3: bounds the
+#: memory in flight; the blocks run on the worker threads. Fewer for more unknowns
+#: (:func:`block_bins`), so that the memory does not grow with F.
 BLOCK_BINS = 8192
+
+
+def block_bins(ratio: int, n_in: int, n_out: int) -> int:
+    """Low-rate bins per block.
+
+    :data:`BLOCK_BINS` up to four times the lifted map's size of a SISO loop at F = 3, fewer
+    past that (a block holds [J; S], its noise covariance and the inverse Gram matrix per bin).
+    """
+
+    def cost(F: int, n_in: int, n_out: int) -> int:
+        a, b = F * n_in, F * (n_out + n_in)
+        return a * b + b * b + a * a
+
+    k = 4 * BLOCK_BINS * cost(3, 1, 1) // cost(ratio, n_in, n_out)
+    return BLOCK_BINS if k >= BLOCK_BINS else max(256, 1 << (max(k, 1).bit_length() - 1))
 
 
 @dataclass(frozen=True)
@@ -195,12 +211,14 @@ def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
     var_half = np.full((half + 1, ny, nu), np.nan)
     keep = req.keep_lifted and ratio is None
 
+    step = block_bins(F, req.r.shape[1], max(ny, nu))
+
     def block(b0: int) -> tuple[int, tuple[ComplexArray, ...] | None]:
         """Lift, fit, indirect step and unlift one block of bins.
 
         Blocks bound the memory and run on threads; each writes only its own bins.
         """
-        kb = range(b0, min(b0 + BLOCK_BINS, Kc + 1))
+        kb = range(b0, min(b0 + step, Kc + 1))
         window = range(kb.start - n, kb.stop + n)
         G, Cv, Ainv, nb = lpm_bins_last(
             freq_lift_half(Rh, window, F, N),
@@ -223,7 +241,7 @@ def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
         )
         return nb, (tuple(a.transpose(2, 0, 1) for a in (G, Cv, Ainv)) if keep else None)
 
-    done = thread_map(block, range(0, Kc + 1, BLOCK_BINS), req.workers)
+    done = thread_map(block, range(0, Kc + 1, step), req.workers)
     warn_rank_deficient(sum(d[0] for d in done), Kc + 1, stacklevel=4)
     if not keep:
         return PlantFit(P_half, var_half)
