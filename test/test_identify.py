@@ -128,10 +128,9 @@ def test_threads_do_not_change_a_single_bit(paper_model, method, monkeypatch):
     """Blocks of bins are independent: the result is the same on 1 or 3 threads."""
     import sys
 
-    monkeypatch.setattr(
-        sys.modules["mr_ident.numerics.methods"], "BLOCK_BINS", 1000
-    )  # several blocks
-    monkeypatch.setattr(sys.modules["mr_ident.numerics.lpm"], "CHUNK_BINS", 700)
+    budget = sys.modules["mr_ident.numerics.budget"]
+    monkeypatch.setattr(budget, "BLOCK_BINS", 1000)  # several blocks
+    monkeypatch.setattr(budget, "CHUNK_BINS", 700)
     monkeypatch.setattr(sys.modules["mr_ident.numerics.pfg"], "PFG_BLOCK", 900)
     sim = simulate(
         replace(paper_model, noise_std=1e-3), duration=60.0, rng=np.random.default_rng(5)
@@ -156,10 +155,9 @@ def test_threads_do_not_change_a_single_bit(paper_model, method, monkeypatch):
 
 
 def test_chunks_shrink_as_the_unknowns_grow():
-    """Chunk and block sizes keep the memory per chunk about constant: full size up to four
+    """Chunk and block sizes keep the memory per chunk about constant: full size up to twice
     times a SISO loop's unknowns at F = 3, then inversely with the per-bin cost."""
-    from mr_ident.numerics.lpm import CHUNK_BINS, chunk_bins
-    from mr_ident.numerics.methods import BLOCK_BINS, block_bins
+    from mr_ident.numerics.budget import BLOCK_BINS, CHUNK_BINS, block_bins, chunk_bins
 
     assert chunk_bins(3, 6, 2) == CHUNK_BINS and block_bins(3, 1, 1) == BLOCK_BINS
     sizes = [chunk_bins(F, 2 * F, 2) for F in (3, 5, 10, 20)]
@@ -193,3 +191,11 @@ def test_the_default_window_grows_with_F_and_the_channels():
     res = identify(sim.r, sim.u, sim.y, fs_high=800.0, ratio=10)
     truth = model.plant_frf(sim.n_samples)[1:]
     assert np.median(np.abs(res.plant.response - truth) / np.abs(truth)) < 1e-4
+
+
+def test_the_catalog_names_every_method():
+    """The parser's names (imported without numpy) are the methods' table, in its order."""
+    from mr_ident.numerics.catalog import METHOD_NAMES
+    from mr_ident.numerics.methods import METHODS
+
+    assert tuple(METHODS) == METHOD_NAMES

@@ -8,6 +8,8 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+from ..numerics.catalog import METHOD_NAMES
+
 EXIT_USAGE = 2
 
 
@@ -56,8 +58,6 @@ def _sources(p: argparse.ArgumentParser) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``mr-ident`` and its subcommands."""
-    from ..numerics.methods import METHODS
-
     p = _Parser(
         prog="mr-ident", description="Identify multirate control loops in the frequency domain."
     )
@@ -89,7 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         help="model YAML: gives the controller for the PFG and the reference curve",
     )
-    i.add_argument("--method", choices=METHODS, default="freq-lifted")
+    i.add_argument("--method", choices=METHOD_NAMES, default="freq-lifted")
     i.add_argument(
         "--n",
         type=_int_at_least(1),

@@ -43,40 +43,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import ConfigError, DataError, DimensionError
 from .arrays import ComplexArray, readonly
+from .budget import chunk_bins
 from .threads import resolve_workers, thread_map
-
-#: Bins processed per pass; bounds the working memory (the factor alone is
-#: 12 x 12 x 4096 complex = 9.4 MB for 3 inputs, R = 2). Of 1024..8192, 4096 was the
-#: fastest on the 2-core development machine.
-CHUNK_BINS = 4096
-
-
-def _bin_cost(n_in: int, n_out: int, degree: int) -> int:
-    """Complex numbers held per bin of a chunk.
-
-    The factor (Q x Q), the forward solve (Q x n_out), the window sums of the products and
-    the outputs' covariance.
-    """
-    q = (degree + 1) * (n_in + 1)
-    return (
-        q * q
-        + q * n_out
-        + (2 * degree + 1) * n_in * (n_in + 1) // 2
-        + (degree + 1) * n_in * n_out
-        + n_out**2
-    )
-
-
-def chunk_bins(n_in: int, n_out: int, degree: int) -> int:
-    """Bins per chunk: :data:`CHUNK_BINS` up to four times a SISO loop's unknowns at F = 3.
-
-    Fewer as the unknowns grow past that, so that a chunk's memory (about 90 MB) stays the
-    same whatever F and the channels (a power of two, at least 64). Measured at F = 10,
-    1.44 M samples: 410 MB peak and 9.7 s, against 1030 MB and 11 s with fixed chunks.
-    """
-    budget = 4 * CHUNK_BINS * _bin_cost(3, 6, 2)
-    k = budget // _bin_cost(n_in, n_out, degree)
-    return CHUNK_BINS if k >= CHUNK_BINS else max(64, 1 << (max(k, 1).bit_length() - 1))
 
 
 @dataclass(frozen=True)

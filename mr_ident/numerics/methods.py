@@ -29,6 +29,7 @@ import numpy as np
 from ..errors import DimensionError
 from . import batched
 from .arrays import ComplexArray, FloatArray
+from .budget import block_bins
 from .lifting import (
     dft,
     fold_half,
@@ -43,26 +44,6 @@ from .lifting import (
 from .lpm import lpm_bins_last, warn_rank_deficient
 from .results import LiftedFRF
 from .threads import thread_map
-
-#: Low-rate bins per block of the frequency-lifted path for a SISO loop at F = 3: bounds the
-#: memory in flight; the blocks run on the worker threads. Fewer for more unknowns
-#: (:func:`block_bins`), so that the memory does not grow with F.
-BLOCK_BINS = 8192
-
-
-def block_bins(ratio: int, n_in: int, n_out: int) -> int:
-    """Low-rate bins per block.
-
-    :data:`BLOCK_BINS` up to four times the lifted map's size of a SISO loop at F = 3, fewer
-    past that (a block holds [J; S], its noise covariance and the inverse Gram matrix per bin).
-    """
-
-    def cost(F: int, n_in: int, n_out: int) -> int:
-        a, b = F * n_in, F * (n_out + n_in)
-        return a * b + b * b + a * a
-
-    k = 4 * BLOCK_BINS * cost(3, 1, 1) // cost(ratio, n_in, n_out)
-    return BLOCK_BINS if k >= BLOCK_BINS else max(256, 1 << (max(k, 1).bit_length() - 1))
 
 
 @dataclass(frozen=True)

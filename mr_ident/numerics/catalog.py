@@ -1,0 +1,9 @@
+"""Names offered on the command line, importable without numpy or scipy.
+
+The parser needs the method names to build ``--method``; importing the methods themselves
+would load scipy first and cost a second of start-up. :data:`METHOD_NAMES` is checked
+against :data:`~mr_ident.numerics.methods.METHODS` by the tests.
+"""
+
+#: The identification methods, in the README's order.
+METHOD_NAMES: tuple[str, ...] = ("freq-lifted", "time-lifted", "lpm", "etfe")
