@@ -124,6 +124,40 @@ def test_the_console_script_prints_no_traceback(tmp_path):
     assert proc.stderr.startswith("error: ") and "Traceback" not in proc.stderr
 
 
+_LOADED = """
+import sys
+{setup}
+heavy = sorted(m for m in {heavy} if m in sys.modules)
+print(",".join(heavy))
+"""
+
+
+@pytest.mark.parametrize(
+    ("setup", "heavy"),
+    [
+        (  # mr-ident --help: the parser alone, no numpy at all
+            "from mr_ident.cli.parser import build_parser; build_parser()",
+            ("numpy", "scipy"),
+        ),
+        (  # mr-ident identify: numpy, never the slow scipy subpackages
+            "from mr_ident.cli import commands; from mr_ident.io import datafile, modelfile; "
+            "from mr_ident.numerics import identify",
+            ("scipy.signal", "scipy.fft", "scipy.linalg", "scipy.special", "scipy.stats"),
+        ),
+    ],
+    ids=["help", "identify"],
+)
+def test_start_up_imports_only_what_the_command_needs(setup, heavy):
+    """Start-up is kept fast by what is imported, checked here without timing anything
+    (figures: README, Start-up)."""
+    code = _LOADED.format(setup=setup, heavy=heavy)
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=ROOT
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "", f"imported at start-up: {proc.stdout.strip()}"
+
+
 def test_paper_writes_figures_and_a_table(tmp_path, capsys):
     code, out, err = run(capsys, "paper", "--duration", 30, "--out-dir", tmp_path)
     assert code == 0, err

@@ -37,43 +37,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _resolve_rates(
-    args: argparse.Namespace, file_fs: float | None, file_ratio: int | None, model: Model | None
+    args: argparse.Namespace, data: LoopData, model: Model | None
 ) -> tuple[float, int]:
-    fs_sources = [
-        (n, v)
-        for n, v in (
-            ("--fs-high", args.fs_high),
-            ("the data file", file_fs),
-            ("the model", model.fs_high if model else None),
-        )
-        if v is not None
-    ]
-    r_sources = [
-        (n, v)
-        for n, v in (
-            ("--ratio", args.ratio),
-            ("the data file", file_ratio),
-            ("the model", model.ratio if model else None),
-        )
-        if v is not None
-    ]
-    if not fs_sources:
-        raise ConfigError(
-            "fs_high unknown: pass --fs-high or --model, or use an NPZ/CSV that gives it"
-        )
-    if not r_sources:
-        raise ConfigError("ratio F unknown: pass --ratio or --model, or use an NPZ that gives it")
-    fs = fs_sources[0][1]
-    for name, v in fs_sources[1:]:
-        if abs(v - fs) > 1e-6 * fs:
-            raise ConfigError(
-                f"fs_high disagrees: {fs_sources[0][0]} says {fs:g} Hz, {name} says {v:g} Hz"
-            )
-    F = r_sources[0][1]
-    for name, v in r_sources[1:]:
-        if v != F:
-            raise ConfigError(f"ratio disagrees: {r_sources[0][0]} says {F}, {name} says {v}")
-    return float(fs), int(F)
+    from ..live.recordings import settle_rates
+
+    return settle_rates(data, fs_high=args.fs_high, ratio=args.ratio, model=model)
 
 
 def _specs(args: argparse.Namespace) -> dict[str, list[str]] | None:
@@ -88,7 +56,9 @@ def _specs(args: argparse.Namespace) -> dict[str, list[str]] | None:
 
 
 def _is_bag(path: Path) -> bool:
-    return path.is_dir() or path.suffix.lower() in (".mcap", ".db3")
+    from ..live.recordings import is_bag
+
+    return is_bag(path)
 
 
 def cmd_identify(args: argparse.Namespace) -> int:
@@ -110,7 +80,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
         )
     else:
         data = read_data(args.data)
-    fs, F = _resolve_rates(args, data.fs_high, data.ratio, model)
+    fs, F = _resolve_rates(args, data, model)
     N = data.n_samples
     loop: dict[str, Any] = {}
     if model is not None:
@@ -147,34 +117,12 @@ def _read_bag(
     topics: list[str] | None = None,
 ) -> LoopData:
     """r, u, y of a bag: per-sample sources, or the block contract (``topics``)."""
-    if specs is None:
-        from ..live.replay import recorded_signals
+    from ..live.recordings import load_recording
 
-        if ratio is None:
-            raise ConfigError("ratio F unknown: pass --ratio or --model")
-        data, info = recorded_signals(path, ratio, topics=topics)
-        if fs_high is None:
-            raise ConfigError("fs_high unknown: pass --fs-high or --model")
-        from dataclasses import replace
-
-        data = replace(data, fs_high=fs_high, ratio=ratio)
-    else:
-        from ..live.replay import bag_signals
-
-        data, info = bag_signals(path, specs, fs_high=fs_high, ratio=ratio)
-    if info.truncated:
-        print(
-            f"warning: {path} is truncated ({info.reason}); using the {data.n_samples} samples "
-            "read",
-            file=sys.stderr,
-        )
-    if info.broken:
-        print(
-            f"warning: {path}: using the latest gap-free span [{info.span[0]}, {info.span[1]}) "
-            f"of {data.n_samples} samples ({info.broken})",
-            file=sys.stderr,
-        )
-    return data
+    loaded = load_recording(path, specs=specs, topics=topics, fs_high=fs_high, ratio=ratio)
+    for note in loaded.notes:
+        print(f"warning: {note}", file=sys.stderr)
+    return loaded.data
 
 
 def _write_plots(

@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike
 
 from ..errors import DataError
 from ..numerics.arrays import FloatArray
-from ..numerics.results import Identification
+from ..numerics.results import FRF, Identification
 from ..numerics.signals import LoopData
 from .atomic import atomic_write
 
@@ -253,3 +253,21 @@ def write_result(path: str | Path, ident: Identification) -> None:
         arrays["pfg"] = ident.pfg.gain
         arrays["pfg_std"] = ident.pfg.std
     atomic_write(p, lambda fh: np.savez(fh, **arrays), binary=True)
+
+
+def read_result(path: str | Path) -> FRF:
+    """P_h of a result NPZ written by :func:`write_result`, as an FRF (with its std)."""
+    p = Path(path)
+    try:
+        z = np.load(p, allow_pickle=False)
+    except (OSError, ValueError) as err:
+        raise DataError(f"cannot read result {str(p)!r}: {err}") from None
+    with z:
+        missing = [k for k in ("frequency", "P", "P_std") if k not in z.files]
+        if missing:
+            raise DataError(
+                f"{p} is not an identification result (written by mr-ident identify): "
+                f"missing {', '.join(missing)}; it has {', '.join(sorted(z.files)) or 'nothing'}"
+            )
+        method = str(z["method"]) if "method" in z.files else "reference"
+        return FRF(z["frequency"], z["P"], z["P_std"], method)

@@ -14,7 +14,6 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
-import scipy.signal
 from numpy.typing import ArrayLike
 
 from ..errors import ConfigError, DimensionError
@@ -135,6 +134,8 @@ class StateRecursion:
 
     def run(self, w: ArrayLike) -> FloatArray:
         """Outputs (M, n_out) for inputs ``w`` (M, n_in), continuing from the last call."""
+        import scipy.signal  # here, not at the top: it costs half a second of start-up
+
         wa = np.asarray(w, dtype=float)
         ss = self.ss
         if not self._modal:

@@ -10,8 +10,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
-import scipy.signal
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import ModelError
@@ -143,7 +141,7 @@ class TransferMatrix:
             for i in range(ni):
                 if not np.any(self.num[o][i]):
                     continue  # a zero entry needs no states
-                A, B, C, D = scipy.signal.tf2ss(self.num[o][i], self.den[o][i])
+                A, B, C, D = tf2ss(self.num[o][i], self.den[o][i])
                 blocks.append((o, i, A, B, C, D))
         n = sum(b[2].shape[0] for b in blocks)
         A = np.zeros((n, n))
@@ -165,6 +163,118 @@ class TransferMatrix:
         return np.concatenate([np.roots(d) for row in self.den for d in row])
 
 
+# Small LTI kernels in numpy: what scipy.signal would do for these few low-order systems,
+# without the half second that importing scipy.signal (and scipy.linalg) adds to every
+# program that loads a model.
+
+#: Padé (13, 13) coefficients and the 1-norm below which it is accurate to double precision
+#: (Higham, "The scaling and squaring method for the matrix exponential revisited", 2005).
+_PADE13 = (
+    64764752532480000.0, 32382376266240000.0, 7771770303897600.0, 1187353796428800.0,
+    129060195264000.0, 10559470521600.0, 670442572800.0, 33522128640.0, 1323241920.0,
+    40840800.0, 960960.0, 16380.0, 182.0, 1.0,
+)  # fmt: skip
+_THETA13 = 5.371920351148152
+
+
+def _balance(M: FloatArray) -> FloatArray:
+    """Diagonal d (powers of two) balancing ``M[i, j] d[j] / d[i]``.
+
+    Parlett and Reinsch's balancing: companion forms of polynomials whose coefficients span
+    many decades are otherwise too badly scaled for an accurate expm.
+    """
+    n = M.shape[0]
+    d = np.ones(n)
+    B = M.copy()
+    for _ in range(100):
+        done = True
+        for i in range(n):
+            c = float(np.abs(B[:, i]).sum() - abs(B[i, i]))
+            r = float(np.abs(B[i, :]).sum() - abs(B[i, i]))
+            if c == 0.0 or r == 0.0:
+                continue
+            f = 2.0 ** np.round(np.log2(r / c) / 2.0)
+            if (c * f + r / f) < 0.95 * (c + r):
+                B[:, i] *= f
+                B[i, :] /= f
+                d[i] *= f
+                done = False
+        if done:
+            break
+    return d
+
+
+def expm(A: ArrayLike) -> FloatArray:
+    """Matrix exponential of a small real square matrix.
+
+    Balancing, then scaling and squaring with the Padé (13, 13) approximant.
+    """
+    M = np.asarray(A, dtype=float)
+    n = M.shape[0]
+    if n == 0:
+        return np.zeros((0, 0))
+    d = _balance(M)
+    M = M * d[None, :] / d[:, None]
+    norm = float(np.abs(M).sum(axis=0).max())
+    s = max(0, int(np.ceil(np.log2(norm / _THETA13)))) if norm > _THETA13 else 0
+    M = M / 2.0**s
+    b = _PADE13
+    eye = np.eye(n)
+    M2 = M @ M
+    M4 = M2 @ M2
+    M6 = M4 @ M2
+    U = M @ (
+        M6 @ (b[13] * M6 + b[11] * M4 + b[9] * M2) + b[7] * M6 + b[5] * M4 + b[3] * M2 + b[1] * eye
+    )
+    V = M6 @ (b[12] * M6 + b[10] * M4 + b[8] * M2) + b[6] * M6 + b[4] * M4 + b[2] * M2 + b[0] * eye
+    E: FloatArray = np.asarray(np.linalg.solve(V - U, V + U), dtype=float)
+    for _ in range(s):
+        E = E @ E
+    return E * d[:, None] / d[None, :]
+
+
+def tf2ss(num: ArrayLike, den: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Controllable canonical realisation (A, B, C, D) of a proper SISO ``num/den``.
+
+    Coefficients in descending powers; exact leading zeros are dropped. Unlike
+    ``scipy.signal.tf2ss`` it never warns about small leading numerator coefficients: they
+    are kept as they are (a tiny but non-zero leading term is part of the model).
+    """
+    b = np.trim_zeros(np.atleast_1d(np.asarray(num, dtype=float)), "f")
+    a = np.trim_zeros(np.atleast_1d(np.asarray(den, dtype=float)), "f")
+    if a.size == 0:
+        raise ModelError("denominator is zero")
+    if b.size > a.size:
+        raise ModelError(f"improper transfer function: numerator {tuple(b)} over {tuple(a)}")
+    b, a = b / a[0], a / a[0]
+    n = a.size - 1
+    b = np.concatenate([np.zeros(n + 1 - b.size), b])
+    d = b[0]
+    A = np.zeros((n, n))
+    if n:
+        A[0] = -a[1:]
+        A[1:, :-1] = np.eye(n - 1)
+    B = np.zeros((n, 1))
+    if n:
+        B[0, 0] = 1.0
+    C = (b[1:] - d * a[1:])[None, :]
+    return A, B, C, np.array([[d]])
+
+
+def ss2tf(A: ArrayLike, B: ArrayLike, C: ArrayLike, D: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """(num, den) of a SISO state space.
+
+    ``den = det(sI - A)`` and ``num = det(sI - A + BC) + (D - 1) den``.
+    """
+    A, B, C = (np.atleast_2d(np.asarray(x, dtype=float)) for x in (A, B, C))
+    d = float(np.asarray(D, dtype=float).reshape(-1)[0])
+    if A.size == 0:
+        return np.array([d]), np.array([1.0])
+    den = np.real(np.poly(A))
+    num = np.real(np.poly(A - B @ C)) + (d - 1.0) * den
+    return num, den
+
+
 def _zoh_delayed(num: Poly, den: Poly, dt: float, frac: float) -> tuple[FloatArray, FloatArray]:
     """ZOH discretisation of ``num/den`` with an input delay ``frac`` in [0, dt) seconds.
 
@@ -173,23 +283,17 @@ def _zoh_delayed(num: Poly, den: Poly, dt: float, frac: float) -> tuple[FloatArr
     ``G1 = e^(A(dt-frac)) int_0^frac e^(As) ds B``; ``y[k] = C x[k] + D u[k-1]`` when
     frac > 0. Returns discrete (num, den) in descending powers of z.
     """
-    if frac == 0.0:
-        b, a, _ = scipy.signal.cont2discrete((num, den), dt, method="zoh")
-        return np.atleast_1d(np.squeeze(b)).astype(float), np.asarray(a, float)
-    A, B, C, D = scipy.signal.tf2ss(num, den)
+    A, B, C, D = tf2ss(num, den)
     n = A.shape[0]
 
     def hold_integral(t: float) -> tuple[FloatArray, FloatArray]:
-        E = scipy.linalg.expm(np.block([[A, B], [np.zeros((1, n + 1))]]) * t)
+        E = expm(np.block([[A, B], [np.zeros((1, n + 1))]]) * t)
         return E[:n, :n], E[:n, n:]
 
+    if frac == 0.0:
+        return ss2tf(*hold_integral(dt), C, D)
     Phi_a, G0 = hold_integral(dt - frac)
     Phi_f, Gf = hold_integral(frac)
-    Phi = Phi_a @ Phi_f
-    G1 = Phi_a @ Gf
-    Ad = np.block([[Phi, G1], [np.zeros((1, n + 1))]])  # state [x; u[k-1]]
+    Ad = np.block([[Phi_a @ Phi_f, Phi_a @ Gf], [np.zeros((1, n + 1))]])  # state [x; u[k-1]]
     Bd = np.vstack([G0, np.ones((1, 1))])
-    Cd = np.hstack([C, D])
-    Dd = np.zeros((1, 1))
-    b, a = scipy.signal.ss2tf(Ad, Bd, Cd, Dd)
-    return np.atleast_1d(np.squeeze(b)).astype(float), np.asarray(a, float)
+    return ss2tf(Ad, Bd, np.hstack([C, D]), np.zeros((1, 1)))

@@ -1,0 +1,132 @@
+"""A recording of any kind as loop data.
+
+A CSV or NPZ file, or a bag (rosbag2 directory or ``.mcap``) read through sources or the
+block contract.
+
+The one place where the programs (``identify``, ``diagnose``, ``batch``) turn a path into
+:class:`~mr_ident.numerics.signals.LoopData` and settle the rates. What the user should
+know about the reading (a truncated file, samples left out before a gap) comes back as
+notes, for the caller to print or to put in a table.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from ..errors import ConfigError
+from ..numerics.signals import LoopData
+
+if TYPE_CHECKING:
+    from ..numerics.model import Model
+
+#: Suffixes of the files read as loop data (bags are directories or these suffixes).
+DATA_SUFFIXES = (".csv", ".npz")
+BAG_SUFFIXES = (".mcap", ".db3")
+
+
+@dataclass(frozen=True)
+class Loaded:
+    """A recording's loop data and what the reading noticed (empty if nothing)."""
+
+    data: LoopData
+    notes: tuple[str, ...] = ()
+
+
+def is_bag(path: Path) -> bool:
+    """A rosbag2 directory or a bag file (``.mcap``; ``.db3`` is refused when read)."""
+    return path.is_dir() or path.suffix.lower() in BAG_SUFFIXES
+
+
+def settle_rates(
+    data: LoopData, *, fs_high: float | None, ratio: int | None, model: Model | None
+) -> tuple[float, int]:
+    """fs_high and F from the command line, the data file and the model, which must agree.
+
+    ConfigError naming the sources when none gives a rate or two disagree.
+    """
+    fs_sources = [
+        (n, v)
+        for n, v in (
+            ("--fs-high", fs_high),
+            ("the data file", data.fs_high),
+            ("the model", model.fs_high if model else None),
+        )
+        if v is not None
+    ]
+    r_sources = [
+        (n, v)
+        for n, v in (
+            ("--ratio", ratio),
+            ("the data file", data.ratio),
+            ("the model", model.ratio if model else None),
+        )
+        if v is not None
+    ]
+    if not fs_sources:
+        raise ConfigError(
+            "fs_high unknown: pass --fs-high or --model, or use an NPZ/CSV that gives it"
+        )
+    if not r_sources:
+        raise ConfigError("ratio F unknown: pass --ratio or --model, or use an NPZ that gives it")
+    fs = fs_sources[0][1]
+    for name, v in fs_sources[1:]:
+        if abs(v - fs) > 1e-6 * fs:
+            raise ConfigError(
+                f"fs_high disagrees: {fs_sources[0][0]} says {fs:g} Hz, {name} says {v:g} Hz"
+            )
+    F = r_sources[0][1]
+    for name, v in r_sources[1:]:
+        if v != F:
+            raise ConfigError(f"ratio disagrees: {r_sources[0][0]} says {F}, {name} says {v}")
+    return float(fs), int(F)
+
+
+def load_recording(
+    path: str | Path,
+    *,
+    specs: Mapping[str, Sequence[str]] | None = None,
+    topics: Sequence[str] | None = None,
+    fs_high: float | None = None,
+    ratio: int | None = None,
+) -> Loaded:
+    """r, u, y of a recording.
+
+    Parameters
+    ----------
+    path : a CSV/NPZ data file, a rosbag2 directory or an ``.mcap`` file
+    specs : the r, u, y sources (``{"r": [...], "u": [...], "y": [...]}``) for a bag of
+        per-sample or foreign messages; None: a bag follows the block contract
+    topics : the block-contract topics of a bag (None: matched by name)
+    fs_high, ratio : the rates a bag needs (a data file may give its own, kept as given:
+        the caller settles them with :func:`settle_rates`)
+    """
+    p = Path(path)
+    if specs is None and not is_bag(p):
+        from ..io.datafile import read_data
+
+        return Loaded(read_data(p))
+    notes: list[str] = []
+    if specs is None:
+        from .replay import recorded_signals
+
+        if ratio is None:
+            raise ConfigError("ratio F unknown: pass --ratio or --model")
+        if fs_high is None:
+            raise ConfigError("fs_high unknown: pass --fs-high or --model")
+        data, info = recorded_signals(p, ratio, topics=topics)
+        data = replace(data, fs_high=fs_high, ratio=ratio)
+    else:
+        from .replay import bag_signals
+
+        data, info = bag_signals(p, specs, fs_high=fs_high, ratio=ratio)
+    if info.truncated:
+        notes.append(f"{p} is truncated ({info.reason}); using the {data.n_samples} samples read")
+    if info.broken:
+        notes.append(
+            f"{p}: using the latest gap-free span [{info.span[0]}, {info.span[1]}) of "
+            f"{data.n_samples} samples ({info.broken})"
+        )
+    return Loaded(data, tuple(notes))
