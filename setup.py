@@ -32,6 +32,7 @@ setup(
         "mcap",
         "mcap-ros2-support",
     ],
+    extras_require={"cluster": ["dask[distributed]>=2024.1"]},
     zip_safe=True,
     maintainer="mr_ident developers",
     maintainer_email="mr-ident@example.org",

@@ -128,3 +128,27 @@ class BagWriter:
     def stats_values(self, t: int, values, version: int):
         V = self.ts.types["pal_statistics_msgs/msg/StatisticsValues"]
         return V(header=self.header(t), values=np.asarray(values, float), names_version=version)
+
+
+def joint_state_bag(path, sim, t, *, skip=(), names=("j0", "j1")):
+    """A rosbag2 bag of a simulated SISO loop as ros2_control publishes it: y and u in
+    /joint_states (joint j1, beside a constant j0), r in /ident/reference; stamps ``t``
+    (ns), samples in ``skip`` dropped, received 0.3 ms after their stamp."""
+    with BagWriter(path) as bw:
+        for k in range(t.size):
+            if k in skip:
+                continue
+            tk = int(t[k])
+            bw.write(
+                "/joint_states",
+                "sensor_msgs/msg/JointState",
+                bw.joint_state(tk, names, position=[0.5, sim.y[k, 0]], effort=[0.0, sim.u[k, 0]]),
+                tk + 300_000,
+            )
+            bw.write(
+                "/ident/reference",
+                "sensor_msgs/msg/JointState",
+                bw.joint_state(tk, ["j1"], position=[sim.r[k, 0]]),
+                tk + 300_000,
+            )
+    return path

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from bagmaker import T0, BagWriter, stamps
+from bagmaker import T0, BagWriter, joint_state_bag, stamps
 
 from mr_ident.cli import main
 from mr_ident.io.modelfile import load_model
@@ -43,30 +43,9 @@ def _error(model, data) -> float:
     return float(np.median(np.abs(res.plant.response - P) / np.abs(P)))
 
 
-def _joint_state_bag(path, sim, t, *, skip=(), names=("j0", "j1")):
-    with BagWriter(path) as bw:
-        for k in range(t.size):
-            if k in skip:
-                continue
-            tk = int(t[k])
-            bw.write(
-                "/joint_states",
-                "sensor_msgs/msg/JointState",
-                bw.joint_state(tk, names, position=[0.5, sim.y[k, 0]], effort=[0.0, sim.u[k, 0]]),
-                tk + 300_000,
-            )
-            bw.write(
-                "/ident/reference",
-                "sensor_msgs/msg/JointState",
-                bw.joint_state(tk, ["j1"], position=[sim.r[k, 0]]),
-                tk + 300_000,
-            )
-    return path
-
-
 def test_joint_states_give_the_exact_plant_with_rates_read_off_the_stamps(loop, tmp_path):
     model, sim = loop
-    bag = _joint_state_bag(tmp_path / "js", sim, stamps(sim.n_samples, 240.0))
+    bag = joint_state_bag(tmp_path / "js", sim, stamps(sim.n_samples, 240.0))
     data, info = bag_signals(bag, {"r": [R], "u": [U], "y": [Y]}, ratio=3)
     assert data.n_samples == sim.n_samples and data.fs_high == pytest.approx(240.0, rel=1e-9)
     np.testing.assert_array_equal(data.y[:, 0], sim.y[:, 0])
@@ -163,8 +142,8 @@ def test_a_split_bag_is_read_in_the_order_of_its_metadata(loop, tmp_path):
     model, sim = loop
     t = stamps(sim.n_samples, 240.0)
     half = sim.n_samples // 2
-    a = _joint_state_bag(tmp_path / "a", sim, t, skip=range(half, sim.n_samples))
-    b = _joint_state_bag(tmp_path / "b", sim, t, skip=range(half))
+    a = joint_state_bag(tmp_path / "a", sim, t, skip=range(half, sim.n_samples))
+    b = joint_state_bag(tmp_path / "b", sim, t, skip=range(half))
     split = tmp_path / "split"
     split.mkdir()
     shutil.copy(a / "a.mcap", split / "split_0.mcap")
@@ -183,7 +162,7 @@ def test_dropped_cycles_are_gaps_and_jitter_within_the_tolerance_is_absorbed(loo
     rng = np.random.default_rng(7)
     t = stamps(sim.n_samples, 240.0, rng, jitter=0.2)
     dropped = {500, 501, 2000, 3001}
-    bag = _joint_state_bag(tmp_path / "drops", sim, t, skip=dropped)
+    bag = joint_state_bag(tmp_path / "drops", sim, t, skip=dropped)
     data, info = bag_signals(bag, {"r": [R], "u": [U], "y": [Y]}, fs_high=240.0, ratio=3)
     assert data.first >= 3002 and data.end == sim.n_samples and "gaps" in info.broken
     np.testing.assert_array_equal(data.y[:, 0], sim.y[data.first : data.end, 0])
@@ -246,7 +225,7 @@ def test_a_held_low_rate_source_spreads_over_F_samples_and_gives_F(tmp_path):
 
 def test_replay_and_identify_cli_on_a_bag_directory(loop, tmp_path, capsys):
     model, sim = loop
-    bag = _joint_state_bag(tmp_path / "js", sim, stamps(sim.n_samples, 240.0))
+    bag = joint_state_bag(tmp_path / "js", sim, stamps(sim.n_samples, 240.0))
     out = tmp_path / "r.npz"
     code = main(
         ["replay", str(bag), "--r", R, "--u", U, "--y", Y, "--ratio", "3", "--out", str(out)]
@@ -306,7 +285,7 @@ def test_bad_sources_are_an_error_naming_topic_path_and_what_exists(
     import re
 
     _, sim = loop
-    bag = _joint_state_bag(tmp_path / "js", sim, stamps(600, 240.0))
+    bag = joint_state_bag(tmp_path / "js", sim, stamps(600, 240.0))
     args = {"r": R, "u": U, "y": Y} | {k: v[0] for k, v in specs.items()}
     out = tmp_path / "r.npz"
     code = main(
@@ -333,7 +312,7 @@ def test_bad_sources_are_an_error_naming_topic_path_and_what_exists(
 
 def test_stamps_that_disagree_with_the_rate_or_go_back_are_errors(loop, tmp_path, capsys):
     _, sim = loop
-    bag = _joint_state_bag(tmp_path / "js", sim, stamps(sim.n_samples, 240.0))
+    bag = joint_state_bag(tmp_path / "js", sim, stamps(sim.n_samples, 240.0))
     code = main(
         [
             "replay",
@@ -356,7 +335,7 @@ def test_stamps_that_disagree_with_the_rate_or_go_back_are_errors(loop, tmp_path
     assert code == 2 and "the stamps say fs_high = 240 Hz" in err and "1000 Hz" in err
     t = stamps(sim.n_samples, 240.0)
     t[::50] -= 10_000_000_000  # every 50th message stamped 10 s back
-    back = _joint_state_bag(tmp_path / "back", sim, t)
+    back = joint_state_bag(tmp_path / "back", sim, t)
     code = main(
         [
             "replay",
@@ -385,7 +364,7 @@ def test_resolve_names_the_introspection_topics_it_reads(loop, tmp_path):
     from mr_ident.io.paths import parse_source
 
     _, sim = loop
-    bag = _joint_state_bag(tmp_path / "js", sim, stamps(300, 240.0))
+    bag = joint_state_bag(tmp_path / "js", sim, stamps(300, 240.0))
     src = resolve(parse_source(Y), bag_types(Bag.open(bag)))
     assert (src.topic, src.type, src.kind, src.stamped) == (
         "/joint_states",

@@ -43,6 +43,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "record": c.cmd_record,
         "demo": c.cmd_demo,
         "diagnose": c.cmd_diagnose,
+        "batch": c.cmd_batch,
     }
     try:
         with warnings.catch_warnings():

@@ -329,6 +329,59 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_batch(args: argparse.Namespace) -> int:
+    """``mr-ident batch``: many recordings, one summary table (``mr_ident.batch``)."""
+    import numpy as np
+
+    from .. import batch
+    from ..io.datafile import read_result
+    from ..io.modelfile import load_model
+
+    model = load_model(args.model) if args.model else None
+    reference = read_result(args.reference) if args.reference else None
+    recordings = batch.find_recordings(args.inputs)
+    freqs = args.at
+    if freqs is None:
+        fs = args.fs_high or (model.fs_high if model else None)
+        F = args.ratio or (model.ratio if model else None)
+        if fs is None or F is None:
+            raise ConfigError("pass --at HZ,HZ,... (or --model, or --fs-high and --ratio)")
+        freqs = tuple(float(f"{f:.3g}") for f in np.geomspace(fs / F / 100, 0.4 * fs, 6))
+    workers = args.workers or batch.default_workers(len(recordings))
+    opts = batch.BatchOptions(
+        task=args.task,
+        out_dir=str(args.out_dir),
+        frequencies=freqs,
+        model=model,
+        reference=reference,
+        specs=_specs(args),
+        topics=tuple(args.topics) if args.topics else None,
+        fs_high=args.fs_high,
+        ratio=args.ratio,
+        method=args.method,
+        n=args.n,
+        degree=args.degree,
+        period=args.period,
+        threads=1 if args.scheduler else max(1, batch.default_workers(10**6) // workers),
+    )
+    args.out_dir.mkdir(parents=True, exist_ok=True)
+    jobs = batch.plan(recordings, args.out_dir, args.task)
+    if args.scheduler:
+        client = batch.dask_client(args.scheduler)
+        try:
+            result = batch.run_batch(jobs, opts, client.get_executor(), batch.progress_bar())
+        finally:
+            client.close()
+    else:
+        with batch.local_pool(workers) as pool:
+            result = batch.run_batch(jobs, opts, pool, batch.progress_bar())
+    table = args.out_dir / "summary.csv"
+    batch.write_table(result, table)
+    print(batch.summary_text(result))
+    print(f"wrote {table} ({len(result.rows)} recordings, {result.failed} failed)")
+    return 1 if result.failed else 0
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     """``mr-ident demo``: the live pipeline end to end."""
     from ..ros.demo import run_demo

@@ -36,6 +36,21 @@ def _int_at_least(low: int) -> Callable[[str], int]:
     return parse
 
 
+def _frequencies(text: str) -> tuple[float, ...]:
+    out = []
+    for part in text.split(","):
+        try:
+            f = float(part)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"expected frequencies in Hz separated by commas, got {text!r}"
+            ) from None
+        if not math.isfinite(f) or f <= 0:
+            raise argparse.ArgumentTypeError(f"frequencies must be positive, got {part!r}")
+        out.append(f)
+    return tuple(out)
+
+
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # type: ignore[override]
         self.print_usage(sys.stderr)
@@ -220,6 +235,52 @@ def build_parser() -> argparse.ArgumentParser:
         type=_int_at_least(1),
         default=3,
         help="most causes applied in turn (default 3)",
+    )
+
+    b = sub.add_parser(
+        "batch",
+        help="identify or diagnose many recordings: one summary table and a result each",
+    )
+    b.add_argument(
+        "inputs",
+        nargs="+",
+        help="recordings: .csv/.npz/.mcap files, rosbag2 directories, directories holding "
+        "them, or glob patterns (quoted)",
+    )
+    b.add_argument("--out-dir", type=Path, required=True, help="results and summary.csv")
+    b.add_argument("--task", choices=("identify", "diagnose"), default="identify")
+    b.add_argument("--model", type=Path, help="model YAML (rates, PFG, drift; diagnose needs it)")
+    b.add_argument(
+        "--reference",
+        type=Path,
+        help="result .npz of mr-ident identify to measure the drift against (else the model)",
+    )
+    b.add_argument(
+        "--at",
+        type=_frequencies,
+        help="frequencies (Hz, comma-separated) of the table's P_h columns (default: six, "
+        "log-spaced from fs_low/100 to 0.4 fs_high)",
+    )
+    b.add_argument("--fs-high", type=_positive_float, help="high sample rate in Hz")
+    b.add_argument("--ratio", type=_int_at_least(1), help="F")
+    b.add_argument("--method", choices=METHOD_NAMES, default="freq-lifted")
+    b.add_argument("--n", type=_int_at_least(1), default=None, help="LPM window half-width")
+    b.add_argument("--degree", type=_int_at_least(0), default=2, help="LPM degree R (default 2)")
+    b.add_argument("--period", type=_int_at_least(2), help="diagnose: samples per period")
+    b.add_argument(
+        "--topics", nargs=3, metavar=("R", "U", "Y"), help="block-contract topics of r, u, y"
+    )
+    _sources(b)
+    b.add_argument(
+        "--workers",
+        type=_int_at_least(1),
+        help="worker processes of the local pool (default: one per CPU, at most one per file)",
+    )
+    b.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="run on an existing Dask distributed cluster (tcp://host:8786); needs the "
+        "optional extra: pip install 'mr_ident[cluster]'",
     )
 
     d = sub.add_parser(

@@ -104,7 +104,12 @@ def load_recording(
         the caller settles them with :func:`settle_rates`)
     """
     p = Path(path)
-    if specs is None and not is_bag(p):
+    if not is_bag(p):
+        if specs is not None:
+            raise ConfigError(
+                f"--r/--u/--y name sources in a bag; {str(p)!r} is a data file (give it "
+                "without them)"
+            )
         from ..io.datafile import read_data
 
         return Loaded(read_data(p))

@@ -1,0 +1,154 @@
+"""``mr-ident batch``: many recordings of different kinds, one table; a bad one is a row.
+
+The recordings: NPZ and CSV files of the paper's loop with the plant gain drawn at random
+(seeded), a rosbag2 JointState bag written by ``rosbags``, a file that is not loop data.
+Noise-free, so the identified P_h is g P_0 and the drift against the nominal model is
+|g - 1| at every frequency (tolerance 1e-3: the LPM's bias for a 60 s record is ~1e-6).
+"""
+
+from __future__ import annotations
+
+import csv
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from bagmaker import joint_state_bag, stamps
+
+from mr_ident import batch
+from mr_ident.cli import main
+from mr_ident.io.datafile import read_result, write_data
+from mr_ident.io.modelfile import load_model
+from mr_ident.numerics.simulate import simulate
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER = ROOT / "config" / "paper_example.yaml"
+R = '/ident/reference.position{name=="j1"}'
+U = '/joint_states.effort{name=="j1"}'
+Y = '/joint_states.position{name=="j1"}'
+AT = "2,10,30,80"
+
+
+@pytest.fixture(scope="module")
+def recordings(tmp_path_factory):
+    """A directory of recordings and the gain hidden in each (None: not loop data)."""
+    d = tmp_path_factory.mktemp("recs")
+    model = load_model(PAPER)
+    rng = np.random.default_rng(2026)
+    gains: dict[str, float | None] = {}
+    for k, suffix in enumerate(("npz", "csv", "npz")):
+        g = float(rng.uniform(0.7, 1.3))
+        num = tuple(tuple(tuple(g * c for c in e) for e in row) for row in model.plant.num)
+        m = replace(model, plant=replace(model.plant, num=num))
+        sim = simulate(m, duration=60.0, rng=np.random.default_rng(k))
+        write_data(d / f"run{k}.{suffix}", sim.r, sim.u, sim.y, fs_high=240.0, ratio=3)
+        gains[f"run{k}.{suffix}"] = g
+    sim = simulate(model, duration=60.0, rng=np.random.default_rng(9))
+    joint_state_bag(d / "robot_bag", sim, stamps(sim.n_samples, 240.0))
+    gains["robot_bag"] = 1.0
+    (d / "notes.csv").write_text("t,r,u,y\n0,1,2\n")
+    gains["notes.csv"] = None
+    return d, gains
+
+
+def _table(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _run_batch(recs: Path, out: Path, *extra: str) -> int:
+    argv = [str(recs), "--model", str(PAPER), "--out-dir", str(out), "--at", AT]
+    argv += ["--r", R, "--u", U, "--y", Y, *extra]
+    return main(["batch", *argv])
+
+
+def test_a_batch_gives_a_row_per_recording_with_the_drift_and_a_result_each(
+    recordings, tmp_path, capsys
+):
+    recs, gains = recordings
+    out = tmp_path / "out"
+    code = _run_batch(recs, out, "--workers", "2")
+    captured = capsys.readouterr()
+    assert code == 1  # one recording failed; the others are all there
+    rows = {Path(r["recording"]).name: r for r in _table(out / "summary.csv")}
+    assert sorted(rows) == sorted(gains)
+    bad = rows["notes.csv"]
+    assert bad["status"] == "error" and "header names 4 columns" in bad["error"]
+    assert "notes.csv: error" in captured.err  # the progress names the failure
+    for name, g in gains.items():
+        if g is None:
+            continue
+        row = rows[name]
+        assert row["status"] == "ok", row["error"]
+        assert float(row["drift_max"]) == pytest.approx(abs(g - 1), abs=1e-3)
+        for f in AT.split(","):
+            assert float(row[f"drift@{f}Hz"]) == pytest.approx(abs(g - 1), abs=1e-3)
+        res = read_result(row["result"])  # the table's values are the result file's
+        k = int(np.argmin(np.abs(res.frequency - 10.0)))
+        assert float(row["mag@10Hz"]) == pytest.approx(abs(res.response[k, 0, 0]), rel=1e-5)
+    assert rows["robot_bag"]["n_samples"] == "14400"
+
+
+def test_the_local_pool_and_a_dask_cluster_write_identical_tables(recordings, tmp_path):
+    distributed = pytest.importorskip(
+        "distributed", reason="Dask distributed (the optional 'cluster' extra) not installed"
+    )
+    recs, _ = recordings
+    out = tmp_path / "out"
+    _run_batch(recs, out)
+    pool_table = (out / "summary.csv").read_text()
+    shutil.rmtree(out)
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster:
+        _run_batch(recs, out, "--scheduler", cluster.scheduler_address)
+    assert (out / "summary.csv").read_text() == pool_table
+
+
+def test_diagnose_rows_carry_the_cause(tmp_path, capsys):
+    model = load_model(PAPER)
+    sim = simulate(replace(model, noise_std=1e-7), duration=60.0, rng=np.random.default_rng(3))
+    write_data(tmp_path / "a.npz", sim.r, sim.u, sim.y, fs_high=240.0, ratio=3)
+    out = tmp_path / "out"
+    code = main(
+        ["batch", str(tmp_path / "*.npz"), "--task", "diagnose", "--model", str(PAPER)]
+        + ["--out-dir", str(out), "--workers", "1"]
+    )
+    assert code == 0, capsys.readouterr().err
+    (row,) = _table(out / "summary.csv")
+    assert row["status"] == "ok" and row["cause"] == "none" and (out / "a.json").exists()
+    assert row["mag@0.8Hz"]  # the default frequencies: fs_low / 100 .. 0.4 fs_high
+
+
+@pytest.mark.parametrize(
+    ("argv", "match"),
+    [
+        (["nothing-here-*.npz"], "no recording found for 'nothing-here-"),
+        (["{d}", "--task", "diagnose", "--at", "1"], "diagnose needs a model"),
+        (["{d}"], "pass --at"),
+        (["{d}", "--at", "1", "--model", "{paper}", "--scheduler", "tcp://127.0.0.1:1"], ""),
+    ],
+    ids=["no-match", "diagnose-without-model", "no-frequencies", "no-scheduler"],
+)
+def test_a_batch_that_cannot_start_is_an_error_with_exit_2(
+    recordings, tmp_path, capsys, argv, match
+):
+    if "--scheduler" in argv:
+        pytest.importorskip("distributed", reason="Dask distributed not installed")
+    recs, _ = recordings
+    argv = [a.format(d=recs, paper=PAPER) for a in argv]
+    code = main(["batch", *argv, "--out-dir", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("error: ") and match in err
+
+
+def test_progress_is_one_line_per_recording_off_a_terminal():
+    import io
+
+    buf = io.StringIO()
+    show = batch.progress_bar(buf)
+    show(1, 2, {"recording": "/x/a.npz", "status": "ok", "error": ""})
+    show(2, 2, {"recording": "/x/b.npz", "status": "error", "error": "bad"})
+    assert buf.getvalue() == "[1/2] a.npz: ok\n[2/2] b.npz: error: bad\n"
