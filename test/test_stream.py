@@ -13,6 +13,7 @@ from mr_ident.io.blocks import Block, BlockError, decode_block, encode_fields
 from mr_ident.io.config import IdentConfig, load_params
 from mr_ident.live.align import Aligner
 from mr_ident.live.estimate import detect_phase, estimate, publish_grid, warm_up
+from mr_ident.numerics.signals import LoopData
 from mr_ident.numerics.simulate import LoopStream, simulate
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -296,3 +297,44 @@ def test_windows_are_full_length_on_the_period_grid(end):
             al.push(s, b)
     w = al.window()
     assert w.n_samples == 1500 and w.first % 3 == 0 and w.end == end // 3 * 3
+
+
+def test_a_mimo_controller_from_node_parameters_gives_the_models_pfg():
+    """K_l 2x2 given as the node's flat parameters (entries row-major, padded) is the model's
+    K_l; the estimate of a noise-free MIMO loop then has the model's PFG (1e-5 median
+    relative) and the warm-up runs with the configured channels."""
+    from mr_ident.io.modelfile import model_from_dict
+    from mr_ident.numerics.pfg import pfg_of_model
+
+    model = model_from_dict(
+        {
+            "fs_high": 100.0,
+            "ratio": 2,
+            "plant": {"num": [[[1.0], [0.2]], [[0.1], [2.0]]], "den": [1.0, 3.0, 10.0]},
+            "controller": {"num": [[[0.5, 0.0], [0.0]], [[0.0], [0.4, 0.0]]], "den": [1.0, -0.5]},
+        }
+    )
+    cfg = IdentConfig(
+        fs_high=100.0,
+        ratio=2,
+        window_s=200.0,
+        n=10,
+        controller_rows=2,
+        controller_cols=2,
+        controller_num=(0.5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.4, 0.0),  # [0,1], [1,0] padded zeros
+        controller_den=(1.0, -0.5) * 4,
+    )
+    M = 1000
+    np.testing.assert_allclose(
+        cfg.controller.dft_response(M), model.controller_frf(M), rtol=1e-12, atol=1e-15
+    )
+    sim = simulate(model, duration=200.0, rng=np.random.default_rng(3))
+    est = estimate(LoopData(sim.r, sim.u, sim.y, 100.0, 2), cfg)
+    truth = pfg_of_model(model, sim.r.shape[0])
+    rel = np.abs(est.identification.pfg.gain - truth.gain) / np.abs(truth.gain)
+    assert np.nanmedian(rel) < 1e-5
+    assert warm_up(cfg, n_samples=4000) > 0.0
+    with pytest.raises(ConfigError, match="not a multiple of the 4 entries"):
+        cfg.replace(controller_num=(1.0, 2.0, 3.0))
+    with pytest.raises(ConfigError, match=r"improper of entry \[1,1\]"):
+        cfg.replace(controller_den=(1.0, -0.5) * 3 + (0.0, 1.0))

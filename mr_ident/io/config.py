@@ -66,9 +66,16 @@ PARAMETERS: dict[str, Param] = {
         "high-rate samples between the controller sampling and its held output", 0, 1000
     ),
     "controller_num": Param(
-        "low-rate controller K_l numerator, descending powers of z (SISO); empty: no PFG"
+        "low-rate controller K_l numerator, descending powers of z; MIMO: the entries' "
+        "numerators one after another (row-major, each padded with leading zeros to one "
+        "length); empty: no PFG"
     ),
-    "controller_den": Param("low-rate controller K_l denominator, descending powers of z"),
+    "controller_den": Param(
+        "low-rate controller K_l denominator, descending powers of z; MIMO: per entry, as "
+        "controller_num"
+    ),
+    "controller_rows": Param("rows of K_l: plant inputs n_u (1: SISO)", 1, 64),
+    "controller_cols": Param("columns of K_l: plant outputs n_y (1: SISO)", 1, 64),
     "publish_points": Param(
         "at most this many log-spaced bins published per estimate", 2, 1_000_000
     ),
@@ -113,6 +120,8 @@ class IdentConfig:
     control_delay: int = 0
     controller_num: tuple[float, ...] = ()
     controller_den: tuple[float, ...] = ()
+    controller_rows: int = 1
+    controller_cols: int = 1
     publish_points: int = 1000
     record_path: str = ""
     reorder_blocks: int = 8
@@ -180,19 +189,20 @@ class IdentConfig:
                 f"{len(self.controller_num)} and {len(self.controller_den)} coefficients"
             )
         if self.controller_den:
-            if self.controller_den[0] == 0.0:
-                raise ConfigError("controller_den[0] must not be 0 (leading coefficient)")
-            if len(np.trim_zeros(np.array(self.controller_num), "f")) > len(self.controller_den):
-                raise ConfigError(
-                    "controller is improper: controller_num has a higher degree than "
-                    "controller_den"
-                )
+            self._controller_entries()  # raises naming the entry
         given = [bool(x) for x in (self.r_source, self.u_source, self.y_source)]
         if any(given) and not all(given):
             raise ConfigError(
                 "r_source, u_source and y_source are given together (or all empty: the "
                 f"block topics); got {sum(given)} of 3"
             )
+        if self.controller_num and self.r_source:
+            got = (len(self.u_source), len(self.y_source))
+            if got != (self.controller_rows, self.controller_cols):
+                raise ConfigError(
+                    f"K_l is {self.controller_rows}x{self.controller_cols} (controller_rows x "
+                    f"controller_cols) but the sources give n_u x n_y = {got[0]}x{got[1]}"
+                )
         if len(self.r_source) != len(self.u_source):
             raise ConfigError(
                 f"r_source and u_source need as many sources (r excites u): "
@@ -252,13 +262,52 @@ class IdentConfig:
             return None
         return {"r": self.r_source, "u": self.u_source, "y": self.y_source}
 
+    def _controller_entries(self) -> list[list[tuple[tuple[float, ...], tuple[float, ...]]]]:
+        """K_l's (num, den) per entry, rows x cols; ConfigError naming the entry at fault."""
+        rows, cols = self.controller_rows, self.controller_cols
+        k = rows * cols
+        for name in ("controller_num", "controller_den"):
+            n = len(getattr(self, name))
+            if n % k:
+                raise ConfigError(
+                    f"{name} has {n} coefficients, not a multiple of the {k} entries of a "
+                    f"{rows}x{cols} K_l (controller_rows x controller_cols)"
+                )
+        ln, ld = len(self.controller_num) // k, len(self.controller_den) // k
+        out = []
+        for o in range(rows):
+            row = []
+            for i in range(cols):
+                e = o * cols + i
+                at = "" if k == 1 else f" of entry [{o},{i}]"
+                num = np.trim_zeros(np.array(self.controller_num[e * ln : (e + 1) * ln]), "f")
+                den = np.trim_zeros(np.array(self.controller_den[e * ld : (e + 1) * ld]), "f")
+                if den.size == 0:
+                    raise ConfigError(f"controller_den{at} is all zeros")
+                if k == 1 and self.controller_den[0] == 0.0:
+                    raise ConfigError("controller_den[0] must not be 0 (leading coefficient)")
+                if num.size > den.size:
+                    raise ConfigError(
+                        f"controller is improper{at}: controller_num has a higher degree than "
+                        "controller_den"
+                    )
+                row.append((tuple(num) or (0.0,), tuple(den)))
+            out.append(row)
+        return out
+
     @property
     def controller(self) -> TransferMatrix | None:
-        """K_l from ``controller_num``/``controller_den`` (discrete at the low rate), or None."""
+        """K_l (n_u x n_y), discrete at the low rate, or None.
+
+        From ``controller_num``/``controller_den`` and ``controller_rows``/``controller_cols``.
+        """
         if not self.controller_num:
             return None
-        return TransferMatrix.siso(
-            self.controller_num, self.controller_den, self.ratio / self.fs_high
+        entries = self._controller_entries()
+        return TransferMatrix(
+            tuple(tuple(num for num, _ in row) for row in entries),
+            tuple(tuple(den for _, den in row) for row in entries),
+            self.ratio / self.fs_high,
         )
 
     def replace(self, **changes: Any) -> IdentConfig:

@@ -138,16 +138,19 @@ def warm_up(config: IdentConfig, n_samples: int | None = None) -> float:
     (measured on the 2-core development VM: 1.2-1.6 s instead of 0.7-0.9 s for a
     1.44 M-sample window). The node calls this once at start-up, off the executor
     thread, so that its first real estimate does not. The window is
-    ``n_samples`` (default ``config.window_samples``) of SISO white noise, with the
-    configured method, n, R, F, controller and threads.
+    ``n_samples`` (default ``config.window_samples``) of white noise with the configured
+    channels (the sources' or K_l's n_u and n_y; SISO for block topics without a
+    controller), method, n, R, F, controller and threads.
     """
     N = (
         config.window_samples
         if n_samples is None
         else config.ratio * (int(n_samples) // config.ratio)
     )
+    n_u = len(config.u_source) or config.controller_rows
+    n_y = len(config.y_source) or config.controller_cols
     rng = np.random.default_rng(0)
-    r, u, y = (rng.standard_normal((N, 1)) for _ in range(3))
+    r, u, y = (rng.standard_normal((N, c)) for c in (n_u, n_u, n_y))
     return estimate(LoopData(r, u, y, ratio=config.ratio), config).compute_s
 
 
