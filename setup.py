@@ -15,11 +15,11 @@ setup(
         (Path(__file__).resolve().parent / "mr_ident" / "version.py").read_text(),
     ).group(1),
     packages=find_packages(exclude=["test", "test.*", "benchmarks"]),
-    package_data={package_name: ["py.typed"]},
+    package_data={package_name: ["py.typed", "view/page/*.html", "view/page/*.js"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
-        ("share/" + package_name + "/config", glob("config/*.yaml")),
+        ("share/" + package_name + "/config", glob("config/*.yaml") + glob("config/*.json")),
         ("share/" + package_name + "/launch", glob("launch/*.launch.py")),
     ],
     install_requires=[
@@ -31,6 +31,7 @@ setup(
         "matplotlib",
         "mcap",
         "mcap-ros2-support",
+        "plotly",
     ],
     extras_require={"cluster": ["dask[distributed]>=2024.1"]},
     zip_safe=True,

@@ -110,7 +110,10 @@ class Listener:
         self.node = g.node("listener")
         self.msgs: dict[str, Float64MultiArray] = {}
         self.diag = []
-        for name in ("frequencies", "plant_frf", "plant_frf_std", "pfg", "pfg_std"):
+        for name in (
+            "frequencies", "plant_frf", "plant_frf_std", "pfg", "pfg_std",
+            "log10_frequency", "bode_mag_db", "bode_phase_deg",
+        ):  # fmt: skip
             self.node.create_subscription(
                 Float64MultiArray,
                 f"/mr_ident/{name}",
@@ -226,12 +229,18 @@ def test_sim_to_node_estimate_matches_the_exact_plant(graph):
         30,
         "an estimate",
     )
+    wait_for(lambda: "bode_phase_deg" in lis.msgs, 10, "the plot topics")
     f, P = lis.plant()
     est = node.last_estimate
     assert est.n_samples == IdentConfig(window_s=20.0).window_samples
     Ptrue = model.plant_discrete().freqresp(f)
     rel = np.abs(P - Ptrue) / np.abs(Ptrue)
     assert np.median(rel) < 1e-4 and rel.max() < 1e-2
+    bode = {k: np.frombuffer(lis.msgs[k].data) for k in ("log10_frequency", "bode_mag_db")}
+    np.testing.assert_allclose(bode["log10_frequency"], np.log10(f), rtol=1e-12)
+    np.testing.assert_allclose(bode["bode_mag_db"], 20 * np.log10(np.abs(P[:, 0, 0])), rtol=1e-9)
+    phase = np.frombuffer(lis.msgs["bode_phase_deg"].data)
+    np.testing.assert_allclose(np.radians(phase), np.unwrap(np.angle(P[:, 0, 0])), atol=1e-9)
     assert f.size <= 1000 and [d.label for d in lis.msgs["plant_frf"].layout.dim] == [
         "output",
         "input",

@@ -44,6 +44,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "demo": c.cmd_demo,
         "diagnose": c.cmd_diagnose,
         "batch": c.cmd_batch,
+        "view": c.cmd_view,
     }
     try:
         with warnings.catch_warnings():

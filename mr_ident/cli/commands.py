@@ -382,6 +382,76 @@ def cmd_batch(args: argparse.Namespace) -> int:
     return 1 if result.failed else 0
 
 
+def cmd_view(args: argparse.Namespace) -> int:
+    """``mr-ident view``: serve the live page; listen to the node, or replay a bag."""
+    import time
+
+    from ..io.modelfile import load_model
+    from ..ros.program import handle_signals
+    from ..view.server import ViewServer
+    from ..view.state import ViewState
+
+    stop = handle_signals()
+    model = load_model(args.model) if args.model else None
+    if args.speed < 0:
+        raise ConfigError(f"--speed must be >= 0, got {args.speed:g}")
+    source = f"bag {args.bag}" if args.bag else f"node /{args.node.strip('/')}"
+    server = ViewServer(ViewState(model, source), args.host, args.port).start()
+    print(f"view: {server.url}  (Ctrl-C to stop)", flush=True)
+    try:
+        if args.bag is None:
+            from ..ros.view import run_live_view
+
+            return run_live_view(server, args.node, args.wait, stop)
+        from ..io.config import IdentConfig, load_params
+        from ..live.estimate import publish_grid
+        from ..live.replay import bag_estimates
+
+        specs = _specs(args)
+        cfg = load_params(args.params) if args.params else IdentConfig()
+        if model is not None:
+            cfg = cfg.replace(fs_high=model.fs_high, ratio=model.ratio)
+            if model.controller is not None and not cfg.controller_num:
+                cfg = cfg.with_controller(model.controller)  # the PFG from the model's K_l
+        t_wall = time.monotonic()
+        n = 0
+        fs_high = args.fs_high or (model.fs_high if model else None)
+        ratio = args.ratio or (model.ratio if model else None)
+        for t_loop, est in bag_estimates(
+            args.bag, cfg, specs, topics=args.topics, fs_high=fs_high, ratio=ratio
+        ):
+            if args.speed > 0 and stop.wait(
+                max(0.0, t_wall + t_loop / args.speed - time.monotonic())
+            ):
+                return 0
+            if stop.requested:
+                return 0
+            ident = est.identification
+            pfg = ident.pfg
+            k = publish_grid(ident.plant.frequency.size, cfg.publish_points)  # as the node
+            server.state.set_estimate(
+                ident.plant.frequency[k],
+                ident.plant.response[k],
+                ident.plant.std[k],
+                None if pfg is None else pfg.gain[k],
+                None if pfg is None else pfg.std[k],
+                {
+                    "estimate_first": est.first,
+                    "estimate_samples": est.n_samples,
+                    "loop_time_s": t_loop,
+                },
+            )
+            n += 1
+        print(
+            f"view: the bag's {n} estimates shown; serving the last one until Ctrl-C", flush=True
+        )
+        while not stop.wait(1.0):
+            pass
+        return 0
+    finally:
+        server.stop()
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     """``mr-ident demo``: the live pipeline end to end."""
     from ..ros.demo import run_demo

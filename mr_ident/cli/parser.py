@@ -283,6 +283,39 @@ def build_parser() -> argparse.ArgumentParser:
         "optional extra: pip install 'mr_ident[cluster]'",
     )
 
+    v = sub.add_parser(
+        "view", help="a live page of the estimate (Bode, PFG, stream health) on localhost"
+    )
+    v.add_argument(
+        "bag",
+        type=Path,
+        nargs="?",
+        help="replay this bag's estimates instead of listening to a running node",
+    )
+    v.add_argument("--port", type=_int_at_least(0), default=8765, help="HTTP port (default 8765)")
+    v.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
+    v.add_argument("--model", type=Path, help="model YAML: its P_h and the sigma-error are shown")
+    v.add_argument("--node", default="mr_ident", help="the node's name (default mr_ident)")
+    v.add_argument(
+        "--wait",
+        type=_positive_float,
+        default=10.0,
+        help="seconds to wait for the node to appear (default 10)",
+    )
+    v.add_argument("--params", type=Path, help="bag: node parameters file (window, method, ...)")
+    v.add_argument(
+        "--topics", nargs=3, metavar=("R", "U", "Y"), help="bag: block-contract topics of r, u, y"
+    )
+    _sources(v)
+    v.add_argument("--fs-high", type=_positive_float, help="bag: high sample rate in Hz")
+    v.add_argument("--ratio", type=_int_at_least(1), help="bag: F")
+    v.add_argument(
+        "--speed",
+        type=float,
+        default=1.0,
+        help="bag: loop time per wall time (default 1: as live; 0: as fast as possible)",
+    )
+
     d = sub.add_parser(
         "demo", help="live demo: simulated loop + node over DDS, recording, replay, plots"
     )

@@ -310,6 +310,20 @@ class IdentConfig:
             self.ratio / self.fs_high,
         )
 
+    def with_controller(self, K: TransferMatrix) -> IdentConfig:
+        """A copy whose K_l is ``K`` (discrete at the low rate; entries padded to one length)."""
+        rows, cols = K.shape
+        ln = max(len(e) for row in K.num for e in row)
+        ld = max(len(e) for row in K.den for e in row)
+        num = [c for row in K.num for e in row for c in (0.0,) * (ln - len(e)) + tuple(e)]
+        den = [c for row in K.den for e in row for c in (0.0,) * (ld - len(e)) + tuple(e)]
+        return self.replace(
+            controller_rows=rows,
+            controller_cols=cols,
+            controller_num=tuple(num),
+            controller_den=tuple(den),
+        )
+
     def replace(self, **changes: Any) -> IdentConfig:
         """A validated copy with ``changes``; unknown names are an error."""
         unknown = set(changes) - set(PARAMETERS)

@@ -10,7 +10,7 @@ clean stretch as data (for ``diagnose``).
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -268,3 +268,43 @@ def bag_signals(
     if read.aligner.restarts:
         read.info.broken = _what_broke(read.aligner, read.notes).removeprefix("; ")
     return LoopData(w.r, w.u, w.y, read.fs_high, read.ratio, first=w.first), read.info
+
+
+def bag_estimates(
+    path: str | Path,
+    config: IdentConfig,
+    specs: Mapping[str, Sequence[str]] | None = None,
+    *,
+    topics: Sequence[str] | None = None,
+    fs_high: float | None = None,
+    ratio: int | None = None,
+) -> Iterator[tuple[float, Estimate]]:
+    """The estimates the node would have published while the bag was recorded.
+
+    Yields (loop time in s since the first aligned sample, estimate) every
+    ``update_period_s`` of loop time, once ``min_window_s`` is aligned; each estimate is of
+    the latest ``window_s`` ending there. ``specs`` None: the block contract (``topics``),
+    rates from the arguments or ``config``; with sources, rates as :func:`bag_signals`.
+    The latest gap-free span of the bag is replayed.
+    """
+    if specs is None:
+        F = ratio or config.ratio
+        data, _ = recorded_signals(path, F, topics=topics)
+        cfg = config.replace(fs_high=fs_high or config.fs_high, ratio=F)
+    else:
+        data, _ = bag_signals(path, specs, fs_high=fs_high, ratio=ratio)
+        cfg = config.replace(fs_high=data.fs_high, ratio=data.ratio)
+    F, N = cfg.ratio, data.n_samples
+    step = max(F, F * int(round(cfg.update_period_s * cfg.fs_high / F)))
+    if N < cfg.min_samples:
+        raise DataError(
+            f"{path}: {N} aligned samples, fewer than min_window_s = {cfg.min_window_s:g} s "
+            f"({cfg.min_samples} samples at {cfg.fs_high:g} Hz)"
+        )
+    for end in range(cfg.min_samples, N + 1, step):
+        start = max(0, end - cfg.window_samples)
+        w = LoopData(
+            data.r[start:end], data.u[start:end], data.y[start:end], ratio=F,
+            first=data.first + start,
+        )  # fmt: skip
+        yield end / cfg.fs_high, estimate(w, cfg)

@@ -151,31 +151,24 @@ def _listener(rclpy, live: _Live):
     from diagnostic_msgs.msg import DiagnosticArray
     from std_msgs.msg import Float64MultiArray
 
-    from .messages import RESULT_QOS
+    from .messages import RESULT_QOS, frf_of, status_values, std_of
 
     n = rclpy.create_node("mr_ident_demo")
 
     def frf(m: Float64MultiArray) -> None:
-        d = [x.size for x in m.layout.dim]
-        P = np.frombuffer(m.data, dtype=float).reshape(d)  # out x in x part x freq
-        live.P = np.transpose(P[:, :, 0] + 1j * P[:, :, 1], (2, 0, 1))
+        live.P = frf_of(m)
         live.history.append(live.P)
 
     def setter(name: str):
         return lambda m: setattr(live, name, np.frombuffer(m.data, dtype=float).copy())
 
     def std(m: Float64MultiArray) -> None:
-        d = [x.size for x in m.layout.dim]
-        live.P_std = np.transpose(np.frombuffer(m.data, dtype=float).reshape(d), (2, 0, 1))
+        live.P_std = std_of(m)
 
     def diag(m: DiagnosticArray) -> None:
         for s in m.status:
             if s.name.startswith("mr_ident"):
-                live.diag = {kv.key: kv.value for kv in s.values}
-                live.diag["level"] = str(
-                    int.from_bytes(s.level, "little") if isinstance(s.level, bytes) else s.level
-                )
-                live.diag["message"] = s.message
+                live.diag = status_values(s)
 
     n.create_subscription(Float64MultiArray, "/mr_ident/plant_frf", frf, RESULT_QOS)
     n.create_subscription(Float64MultiArray, "/mr_ident/plant_frf_std", std, RESULT_QOS)
@@ -293,5 +286,11 @@ def _report(out_dir: Path, cfg, model, recording: Path, live: _Live, node_rc: in
         f"{live.P.shape[0]} published bins): median |P-P_true|/|P_true| = {np.median(rel):.2e}, "
         f"{100 * within:.0f} % of bins within 2 sigma; replay equals live to {replay_diff:.1e}; "
         f"node exit {node_rc}"
+    )
+    print(
+        "see it live: with mr-ident-node and mr-ident-sim running (README, Live view), start\n"
+        "  mr-ident view --model config/paper_example.yaml    and open http://127.0.0.1:8765/\n"
+        f"or replay this demo's recording there:\n  mr-ident view {recording} "
+        "--model config/paper_example.yaml --speed 20"
     )
     return 0

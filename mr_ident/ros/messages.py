@@ -151,3 +151,48 @@ def qos_dict(q: QoSProfile) -> dict[str, Any]:
         "liveliness_lease_duration": dur(q.liveliness_lease_duration),
         "avoid_ros_namespace_conventions": bool(q.avoid_ros_namespace_conventions),
     }
+
+
+def frf_of(msg: Float64MultiArray) -> NDArray[np.complex128]:
+    """The (K, n_out, n_in) FRF of a ``plant_frf`` message (inverse of :func:`frf_msgs`)."""
+    d = [x.size for x in msg.layout.dim]
+    P = np.frombuffer(msg.data, dtype=float).reshape(d)  # out x in x part x freq
+    return np.transpose(P[:, :, 0] + 1j * P[:, :, 1], (2, 0, 1))
+
+
+def std_of(msg: Float64MultiArray) -> NDArray[np.float64]:
+    """The (K, n_out, n_in) std of a ``plant_frf_std`` message."""
+    d = [x.size for x in msg.layout.dim]
+    return np.transpose(np.frombuffer(msg.data, dtype=float).reshape(d), (2, 0, 1))
+
+
+def status_values(status: Any) -> dict[str, str]:
+    """A DiagnosticStatus as key -> value, with its ``level`` and ``message``."""
+    values = {kv.key: kv.value for kv in status.values}
+    level = status.level
+    values["level"] = str(int.from_bytes(level, "little") if isinstance(level, bytes) else level)
+    values["message"] = status.message
+    return values
+
+
+#: The plotting topics (under the node's name), for Foxglove and PlotJuggler: their plot
+#: panels have no log axis and no complex numbers.
+BODE_TOPICS = ("log10_frequency", "bode_mag_db", "bode_phase_deg")
+
+
+def bode_msgs(frequency: NDArray, response: NDArray) -> tuple[Float64MultiArray, ...]:
+    """(log10 f, |P| in dB, phase in degrees) of a (K, n_out, n_in) FRF.
+
+    Magnitude and phase: output x input x frequency (frequency innermost), as
+    ``plant_frf_std``; the phase is unwrapped along frequency.
+    """
+    K, ny, nu = response.shape
+    dims = [("output", ny, ny * nu * K), ("input", nu, nu * K), ("frequency", K, K)]
+    with np.errstate(divide="ignore"):
+        mag = 20.0 * np.log10(np.abs(response))
+    phase = np.degrees(np.unwrap(np.angle(response), axis=0))
+    return (
+        multiarray([("frequency", K, 1)], np.log10(frequency)),
+        multiarray(dims, np.transpose(mag, (1, 2, 0))),
+        multiarray(dims, np.transpose(phase, (1, 2, 0))),
+    )

@@ -1,0 +1,128 @@
+"""What the view shows: the latest estimate, the model beside it, the streams' health.
+
+Thread-safe: the ROS listener or the bag replay writes, the HTTP handlers read and wait
+for the next version. Arrays in, JSON-ready dicts out (lists of floats; NaN as null).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from ..numerics.model import Model
+
+
+def _list(a: ArrayLike) -> list[float | None]:
+    return [None if not math.isfinite(v) else float(v) for v in np.asarray(a, float).ravel()]
+
+
+class ViewState:
+    """The latest estimate and health; ``version`` grows with every change.
+
+    The last :attr:`HISTORY` estimates stay readable by the version they came with (a page
+    or a script compares what it drew with the estimate it drew).
+    """
+
+    HISTORY = 32
+
+    def __init__(self, model: Model | None = None, source: str = "") -> None:
+        self.model = model
+        self.source = source
+        self._cond = threading.Condition()
+        self._estimate: dict[str, Any] | None = None
+        self._health: dict[str, str] = {}
+        self._version = 0
+        self._received = 0.0
+        self._history: dict[int, dict[str, Any]] = {}  # the last HISTORY estimates by version
+
+    def set_estimate(
+        self,
+        frequency: ArrayLike,
+        P: ArrayLike,
+        P_std: ArrayLike,
+        pfg: ArrayLike | None = None,
+        pfg_std: ArrayLike | None = None,
+        window: dict[str, Any] | None = None,
+    ) -> None:
+        """A new estimate: frequency (K,), P and P_std (K, n_y, n_u), the PFG (K,)."""
+        f = np.asarray(frequency, float)
+        Pa = np.asarray(P, complex)
+        Sa = np.asarray(P_std, float)
+        if Pa.ndim == 1:
+            Pa, Sa = Pa[:, None, None], Sa[:, None, None]
+        if Pa.shape[0] != f.size or Sa.shape != Pa.shape:
+            raise ValueError(f"P {Pa.shape} and P_std {Sa.shape} must be (K={f.size}, n_y, n_u)")
+        est: dict[str, Any] = {
+            "frequency": _list(f),
+            "shape": list(Pa.shape[1:]),
+            "P_re": _list(np.transpose(Pa.real, (1, 2, 0))),  # n_y x n_u x K, K innermost
+            "P_im": _list(np.transpose(Pa.imag, (1, 2, 0))),
+            "P_std": _list(np.transpose(Sa, (1, 2, 0))),
+            "pfg": None if pfg is None else _list(pfg),
+            "pfg_std": None if pfg_std is None else _list(pfg_std),
+            "window": window or {},
+        }
+        if (
+            self.model is not None
+            and self.model.n_y == Pa.shape[1]
+            and self.model.n_u == Pa.shape[2]
+        ):
+            Pm = self.model.plant_discrete().freqresp(f)
+            est["model_re"] = _list(np.transpose(Pm.real, (1, 2, 0)))
+            est["model_im"] = _list(np.transpose(Pm.imag, (1, 2, 0)))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                sig = np.abs(Pa - Pm) / Sa
+            finite = sig[np.isfinite(sig)]
+            est["sigma_error_median"] = float(np.median(finite)) if finite.size else None
+            est["sigma_error"] = _list(np.transpose(sig, (1, 2, 0)))
+        with self._cond:
+            self._version += 1
+            est["version"] = self._version
+            self._estimate = est
+            self._received = time.time()
+            self._history[self._version] = est
+            self._history.pop(self._version - self.HISTORY, None)
+            self._cond.notify_all()
+
+    def set_health(self, values: dict[str, str]) -> None:
+        """The node's /diagnostics key-values (level and message included)."""
+        with self._cond:
+            self._health = dict(values)
+            self._version += 1
+            self._cond.notify_all()
+
+    def snapshot(self) -> dict[str, Any]:
+        """The state as JSON-ready dict.
+
+        Keys: version, source, estimate (None before the first), health, estimate_age_s.
+        """
+        with self._cond:
+            age = time.time() - self._received if self._estimate is not None else None
+            return {
+                "version": self._version,
+                "source": self.source,
+                "estimate": self._estimate,
+                "health": dict(self._health),
+                "estimate_age_s": age,
+            }
+
+    def estimate(self, version: int | None = None) -> dict[str, Any] | None:
+        """The latest estimate, or the one of ``version`` while it is kept (else None)."""
+        with self._cond:
+            return self._estimate if version is None else self._history.get(version)
+
+    def wait(self, version: int, timeout: float) -> int:
+        """Block until the version passes ``version`` (or ``timeout`` s); the version."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._version > version, timeout=timeout)
+            return self._version
+
+    def wake(self) -> None:
+        """Wake every waiter (at shutdown) without a change."""
+        with self._cond:
+            self._cond.notify_all()
