@@ -52,8 +52,8 @@ class Objective:
             warnings.simplefilter("error")  # unstable or defective candidates are rejected
             try:
                 pred = predict(model, self.rec)
-            except (ArithmeticError, ValueError, RuntimeWarning, np.linalg.LinAlgError):
-                return None
+            except (ArithmeticError, ValueError, Warning, np.linalg.LinAlgError):
+                return None  # any warning, a library's own (scipy's BadCoefficients) included
         s = self.skip
         parts = [self.y[s:] - pred.y[s:], self.u[s:] - pred.u[s:]]
         if not all(np.all(np.isfinite(p_)) for p_ in parts):

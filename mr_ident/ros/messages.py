@@ -196,3 +196,27 @@ def bode_msgs(frequency: NDArray, response: NDArray) -> tuple[Float64MultiArray,
         multiarray(dims, np.transpose(mag, (1, 2, 0))),
         multiarray(dims, np.transpose(phase, (1, 2, 0))),
     )
+
+
+class ResultPublishers:
+    """The node's result topics (under its name) and how an estimate goes out on them."""
+
+    def __init__(self, node: Any) -> None:
+        def pub(name: str) -> Any:
+            return node.create_publisher(Float64MultiArray, f"~/{name}", RESULT_QOS)
+
+        self._frf = [pub(t) for t in ("frequencies", "plant_frf", "plant_frf_std")]
+        self._bode = [pub(t) for t in BODE_TOPICS]
+        self._pfg = [pub(t) for t in ("pfg", "pfg_std")]
+
+    def publish(self, ident: Any, picks: NDArray[np.intp]) -> None:
+        """An identification on the bins ``picks``: FRF, plot topics, then the PFG if any."""
+        plant = ident.plant
+        f, P = plant.frequency[picks], plant.response[picks]
+        for p, m in zip(self._frf, frf_msgs(f, P, plant.std[picks]), strict=True):
+            p.publish(m)
+        for p, m in zip(self._bode, bode_msgs(f, P), strict=True):
+            p.publish(m)
+        if ident.pfg is not None:
+            self._pfg[0].publish(vector_msg(ident.pfg.gain[picks]))
+            self._pfg[1].publish(vector_msg(ident.pfg.std[picks]))

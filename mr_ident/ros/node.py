@@ -42,17 +42,7 @@ from ..live.estimate import Estimate, estimate, publish_grid, warm_up
 from ..live.feed import SignalSources, SourceFeed
 from ..live.ingest import Ingest
 from ..numerics.signals import LoopData
-from .messages import (
-    BLOCK_QOS,
-    BLOCK_TYPE,
-    BODE_TOPICS,
-    RESULT_QOS,
-    bode_msgs,
-    decode_raw,
-    frf_msgs,
-    qos_dict,
-    vector_msg,
-)
+from .messages import BLOCK_QOS, BLOCK_TYPE, ResultPublishers, decode_raw, qos_dict
 from .program import handle_signals, ros_context, spin_until_stopped
 from .sources import BATCH_S, SourceSubscriber
 
@@ -146,14 +136,7 @@ class IdentNode(Node):
             self._sources.poll()
             self.create_timer(0.5, self._sources.poll)
             self.create_timer(BATCH_S, self._on_sources)
-        self._pub_f = self.create_publisher(Float64MultiArray, "~/frequencies", RESULT_QOS)
-        self._pub_p = self.create_publisher(Float64MultiArray, "~/plant_frf", RESULT_QOS)
-        self._pub_ps = self.create_publisher(Float64MultiArray, "~/plant_frf_std", RESULT_QOS)
-        self._pub_g = self.create_publisher(Float64MultiArray, "~/pfg", RESULT_QOS)
-        self._pub_gs = self.create_publisher(Float64MultiArray, "~/pfg_std", RESULT_QOS)
-        self._pub_bode = [
-            self.create_publisher(Float64MultiArray, f"~/{t}", RESULT_QOS) for t in BODE_TOPICS
-        ]
+        self._results = ResultPublishers(self)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._update_timer = self.create_timer(self.config.update_period_s, self._on_update)
         self.create_timer(1.0, self._publish_diagnostics)
@@ -362,19 +345,8 @@ class IdentNode(Node):
             self._busy = False
 
     def _publish(self, est: Estimate, cfg: IdentConfig) -> None:
-        plant = est.identification.plant
-        picks = publish_grid(plant.frequency.size, cfg.publish_points)
-        f_pub = plant.frequency[picks]
-        f, p, s = frf_msgs(f_pub, plant.response[picks], plant.std[picks])
-        self._pub_f.publish(f)
-        self._pub_p.publish(p)
-        self._pub_ps.publish(s)
-        for pub, msg in zip(self._pub_bode, bode_msgs(f_pub, plant.response[picks]), strict=True):
-            pub.publish(msg)
-        pfg = est.identification.pfg
-        if pfg is not None:
-            self._pub_g.publish(vector_msg(pfg.gain[picks]))
-            self._pub_gs.publish(vector_msg(pfg.std[picks]))
+        ident = est.identification
+        self._results.publish(ident, publish_grid(ident.plant.frequency.size, cfg.publish_points))
 
     @property
     def last_estimate(self) -> Estimate | None:
