@@ -86,7 +86,7 @@ CHROME_FLAGS = [
     "--disable-background-networking",
     "--disable-component-update",
     "--disable-sync",
-    "--window-size=1400,1000",
+    "--window-size=1400,1400",
 ]
 PLOTTED = "return document.getElementById('plotted').textContent"
 

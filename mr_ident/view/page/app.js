@@ -122,6 +122,19 @@ function draw(state) {
   Plotly.react("phase", phase, LAYOUT("phase", "∠P (deg)"));
   const pfg = pfgTraces(est);
   if (pfg) Plotly.react("pfg", pfg, LAYOUT("Performance Frequency Gain", "PFG"));
+  if (est.sigma_error) {  // |P̂ − P_model| / σ per bin: above 2-3 the model is contradicted
+    const K = est.frequency.length, [ny, nu] = est.shape, traces = [];
+    for (let o = 0; o < ny; o++) for (let i = 0; i < nu; i++) {
+      traces.push({
+        x: est.frequency, y: entry(est.sigma_error, est.shape, o, i, K), mode: "lines",
+        name: ny * nu > 1 ? `[${o},${i}]` : "|P̂ − P| / σ", line: { width: 1, color: COLORS[(o * nu + i) % COLORS.length] },
+      });
+    }
+    traces.push({ x: [est.frequency[0], est.frequency[K - 1]], y: [2, 2], mode: "lines", name: "2", line: { color: "#888", dash: "dot", width: 1 } });
+    const layout = LAYOUT("σ-error against the model", "|P̂ − P| / σ");
+    layout.yaxis.type = "log";
+    Plotly.react("sigma", traces, layout);
+  }
   plotted.frequency = est.frequency; plotted.pfg = est.pfg; plotted.version = state.version;
   document.getElementById("plotted").textContent = JSON.stringify(plotted);
 }
