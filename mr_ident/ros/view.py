@@ -27,6 +27,8 @@ class _Collector:
 
     def put(self, name: str, value: Any) -> None:
         self.parts[name] = value
+        if name not in ("P_std", "pfg_std"):
+            return  # the node publishes f, P, std, then pfg, pfg_std: show at std and pfg_std
         f, P, S = (self.parts.get(k) for k in ("freq", "P", "P_std"))
         if f is None or P is None or S is None or not (f.size == P.shape[0] == S.shape[0]):
             return

@@ -86,7 +86,8 @@ class ViewState:
             self._estimate = est
             self._received = time.time()
             self._history[self._version] = est
-            self._history.pop(self._version - self.HISTORY, None)
+            if len(self._history) > self.HISTORY:
+                self._history.pop(next(iter(self._history)))  # the oldest estimate
             self._cond.notify_all()
 
     def set_health(self, values: dict[str, str]) -> None:
