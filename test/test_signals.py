@@ -40,3 +40,30 @@ def test_program_signalled_exits_0_with_its_outputs_finalised(tmp_path, program,
     with domain_id() as dom:
         outcome = stress.signal_run(program, delay, sig, tmp_path, dom)
     assert outcome.ok, outcome.problem
+
+
+def test_a_signal_while_the_interpreter_finalises_does_not_kill_a_finished_program():
+    """The program's work is done, its interpreter is tearing down (here a destructor that
+    takes 2 s, as DDS teardown can): a SIGINT then leaves the exit status 0 (it was -2: the
+    interpreter resets Python-level handlers to the default before clearing modules)."""
+    import subprocess
+    import time
+
+    code = (
+        "import time\n"
+        "from mr_ident.ros.program import handle_signals\n"
+        "class Slow:\n"
+        "    def __del__(self):\n"
+        "        time.sleep(2.0)\n"  # a destructor at module teardown, after the handlers
+        "keep = Slow()\n"  # were reset (as rclpy's and DDS's objects)
+        "handle_signals()\n"
+        "print('done', flush=True)\n"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    assert proc.stdout.readline().strip() == "done"
+    time.sleep(0.7)  # inside the destructor
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err

@@ -22,6 +22,7 @@ executor waits on.
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import os
 import signal
@@ -114,8 +115,17 @@ def handle_signals() -> Stop:
                         stop.request(signum)
 
         threading.Thread(target=watch, name="mr_ident-signals", daemon=True).start()
+        # At exit the interpreter resets Python-level handlers to SIG_DFL (but leaves
+        # SIG_IGN alone), so a signal during finalisation (DDS teardown can take a second)
+        # killed a finished program with -2. Its work is done then: ignore the signals.
+        atexit.register(_ignore_stop_signals)
         _PROCESS_STOP = stop
         return stop
+
+
+def _ignore_stop_signals() -> None:
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, signal.SIG_IGN)
 
 
 @contextlib.contextmanager
