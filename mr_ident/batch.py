@@ -19,7 +19,6 @@ import csv
 import glob
 import io
 import math
-import os
 import sys
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
@@ -102,9 +101,9 @@ def find_recordings(inputs: Sequence[str]) -> list[Path]:
     """
     found: list[Path] = []
     for text in inputs:
-        matches = [Path(m) for m in sorted(glob.glob(text))] if glob.has_magic(text) else []
-        if not glob.has_magic(text):
-            matches = [Path(text)]
+        matches = (
+            [Path(m) for m in sorted(glob.glob(text))] if glob.has_magic(text) else [Path(text)]
+        )
         hits: list[Path] = []
         for p in matches:
             if p.is_dir() and not (p / "metadata.yaml").exists():
@@ -145,6 +144,11 @@ def _fmt(v: float) -> str:
     return "" if v is None or not math.isfinite(v) else f"{v:.6g}"
 
 
+def _entry(o: int, i: int, n_y: int, n_u: int) -> str:
+    """The entry part of a column name: empty for SISO, ``[o,i]`` for MIMO."""
+    return "" if n_y * n_u == 1 else f"[{o},{i}]"
+
+
 def columns(opts: BatchOptions, n_y: int = 1, n_u: int = 1) -> list[str]:
     """The table's columns (entries ``[o,i]`` appear for MIMO data only)."""
     cols = ["recording", "status", "error", "notes", "first", "n_samples", "duration_s"]
@@ -152,7 +156,7 @@ def columns(opts: BatchOptions, n_y: int = 1, n_u: int = 1) -> list[str]:
     for f in opts.frequencies:
         for o in range(n_y):
             for i in range(n_u):
-                e = "" if n_y * n_u == 1 else f"[{o},{i}]"
+                e = _entry(o, i, n_y, n_u)
                 cols += [f"mag{e}@{f:g}Hz", f"phase_deg{e}@{f:g}Hz", f"std{e}@{f:g}Hz"]
                 if opts.reference is not None or opts.model is not None:
                     cols.append(f"drift{e}@{f:g}Hz")
@@ -181,21 +185,21 @@ def _frf_columns(
     elif opts.model is not None:
         bins = np.array([_at(frequency, frequency, f) for f in opts.frequencies])
         ref = opts.model.plant_discrete().freqresp(bins)
+    if ref is not None and ref.shape[1:] != P.shape[1:]:
+        raise ConfigError(
+            f"the reference is {ref.shape[1]}x{ref.shape[2]} (n_y x n_u) but the recording "
+            f"gives {n_y}x{n_u}"
+        )
     drifts = []
     for k, f in enumerate(opts.frequencies):
         p, s = _at(frequency, P, f), _at(frequency, P_std, f)
         for o in range(n_y):
             for i in range(n_u):
-                e = "" if n_y * n_u == 1 else f"[{o},{i}]"
+                e = _entry(o, i, n_y, n_u)
                 row[f"mag{e}@{f:g}Hz"] = _fmt(abs(p[o, i]))
                 row[f"phase_deg{e}@{f:g}Hz"] = _fmt(float(np.degrees(np.angle(p[o, i]))))
                 row[f"std{e}@{f:g}Hz"] = _fmt(float(s[o, i]))
                 if ref is not None:
-                    if ref.shape[1:] != P.shape[1:]:
-                        raise ConfigError(
-                            f"the reference is {ref.shape[1]}x{ref.shape[2]} (n_y x n_u) but "
-                            f"the recording gives {n_y}x{n_u}"
-                        )
                     d = float(abs(p[o, i] - ref[k, o, i]) / abs(ref[k, o, i]))
                     drifts.append(d)
                     row[f"drift{e}@{f:g}Hz"] = _fmt(d)
@@ -380,11 +384,16 @@ def progress_bar(stream: Any = None) -> Callable[[int, int, dict[str, str]], Non
 
 def default_workers(n_jobs: int) -> int:
     """Worker processes by default: one per CPU this process may use, at most one per job."""
-    try:
-        cpus = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        cpus = os.cpu_count() or 1
-    return max(1, min(cpus, n_jobs))
+    from .numerics.threads import resolve_workers
+
+    return max(1, min(resolve_workers(None), n_jobs))
+
+
+def threads_per_job(workers: int) -> int:
+    """Identification threads of each of ``workers`` processes: the CPUs shared out."""
+    from .numerics.threads import resolve_workers
+
+    return max(1, resolve_workers(None) // workers)
 
 
 def dask_client(address: str) -> Any:

@@ -32,7 +32,7 @@ from mr_ident.io.modelfile import load_model  # noqa: E402
 from mr_ident.live.estimate import estimate  # noqa: E402
 from mr_ident.live.replay import replay  # noqa: E402
 from mr_ident.numerics.excitation import SimSource  # noqa: E402
-from mr_ident.ros.messages import BLOCK_QOS, RESULT_QOS, block_msg  # noqa: E402
+from mr_ident.ros.messages import BLOCK_QOS, BODE_TOPICS, RESULT_QOS, block_msg  # noqa: E402
 from mr_ident.ros.node import IdentNode  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -110,10 +110,7 @@ class Listener:
         self.node = g.node("listener")
         self.msgs: dict[str, Float64MultiArray] = {}
         self.diag = []
-        for name in (
-            "frequencies", "plant_frf", "plant_frf_std", "pfg", "pfg_std",
-            "log10_frequency", "bode_mag_db", "bode_phase_deg",
-        ):  # fmt: skip
+        for name in ("frequencies", "plant_frf", "plant_frf_std", "pfg", "pfg_std", *BODE_TOPICS):
             self.node.create_subscription(
                 Float64MultiArray,
                 f"/mr_ident/{name}",
@@ -236,11 +233,23 @@ def test_sim_to_node_estimate_matches_the_exact_plant(graph):
     Ptrue = model.plant_discrete().freqresp(f)
     rel = np.abs(P - Ptrue) / np.abs(Ptrue)
     assert np.median(rel) < 1e-4 and rel.max() < 1e-2
-    bode = {k: np.frombuffer(lis.msgs[k].data) for k in ("log10_frequency", "bode_mag_db")}
-    np.testing.assert_allclose(bode["log10_frequency"], np.log10(f), rtol=1e-12)
-    np.testing.assert_allclose(bode["bode_mag_db"], 20 * np.log10(np.abs(P[:, 0, 0])), rtol=1e-9)
-    phase = np.frombuffer(lis.msgs["bode_phase_deg"].data)
-    np.testing.assert_allclose(np.radians(phase), np.unwrap(np.angle(P[:, 0, 0])), atol=1e-9)
+
+    def plot_topics_match_plant_frf() -> bool:
+        """The plot topics equal the plant_frf they came with: log10 f (1e-12), dB (1e-9
+        relative), unwrapped phase (1e-9 rad). Waited for, because the executor thread
+        delivers the next estimate's messages one topic at a time while more data arrives."""
+        f, P = lis.plant()
+        b = {k: np.frombuffer(lis.msgs[k].data) for k in BODE_TOPICS}
+        return (
+            b["bode_mag_db"].size == f.size
+            and np.allclose(b["log10_frequency"], np.log10(f), rtol=1e-12, atol=0)
+            and np.allclose(b["bode_mag_db"], 20 * np.log10(np.abs(P[:, 0, 0])), rtol=1e-9, atol=0)
+            and np.allclose(
+                np.radians(b["bode_phase_deg"]), np.unwrap(np.angle(P[:, 0, 0])), rtol=0, atol=1e-9
+            )
+        )
+
+    wait_for(plot_topics_match_plant_frf, 10, "plot topics equal to their plant_frf")
     assert f.size <= 1000 and [d.label for d in lis.msgs["plant_frf"].layout.dim] == [
         "output",
         "input",

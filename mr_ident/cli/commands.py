@@ -55,31 +55,21 @@ def _specs(args: argparse.Namespace) -> dict[str, list[str]] | None:
     return specs
 
 
-def _is_bag(path: Path) -> bool:
-    from ..live.recordings import is_bag
-
-    return is_bag(path)
-
-
 def cmd_identify(args: argparse.Namespace) -> int:
     """``mr-ident identify``: identify P_h (and the PFG) from a data file or a bag."""
-    from ..io.datafile import read_data, write_result
+    from ..io.datafile import write_result
     from ..io.modelfile import load_model
     from ..numerics.identify import identify
 
     if args.out.suffix.lower() != ".npz":
         raise ConfigError(f"--out must be a .npz file, got {str(args.out)!r}")
     model = load_model(args.model) if args.model else None
-    specs = _specs(args)
-    if specs is not None or _is_bag(args.data):
-        data = _read_bag(
-            args.data,
-            specs,
-            args.fs_high or (model.fs_high if model else None),
-            args.ratio or (model.ratio if model else None),
-        )
-    else:
-        data = read_data(args.data)
+    data = _read(
+        args.data,
+        _specs(args),
+        args.fs_high or (model.fs_high if model else None),
+        args.ratio or (model.ratio if model else None),
+    )
     fs, F = _resolve_rates(args, data, model)
     N = data.n_samples
     loop: dict[str, Any] = {}
@@ -109,14 +99,17 @@ def cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
-def _read_bag(
+def _read(
     path: Path,
     specs: dict[str, list[str]] | None,
     fs_high: float | None,
     ratio: int | None,
     topics: list[str] | None = None,
 ) -> LoopData:
-    """r, u, y of a bag: per-sample sources, or the block contract (``topics``)."""
+    """r, u, y of a data file or a bag (per-sample sources, or the block contract: ``topics``).
+
+    What the reading noticed goes to stderr as warnings.
+    """
     from ..live.recordings import load_recording
 
     loaded = load_recording(path, specs=specs, topics=topics, fs_high=fs_high, ratio=ratio)
@@ -241,13 +234,12 @@ def _read_record(
     """Data for diagnose from a file or a bag; rates from the file where given, else the model."""
     from dataclasses import replace
 
-    if specs is not None or _is_bag(path):
-        data = _read_bag(path, specs, model.fs_high, model.ratio, topics)
+    from ..live.recordings import is_bag
+
+    data = _read(path, specs, model.fs_high, model.ratio, topics)
+    if is_bag(path):  # a bag's rates are the model's
         fs, F = model.fs_high, model.ratio
     else:
-        from ..io.datafile import read_data
-
-        data = read_data(path)
         fs = data.fs_high if data.fs_high is not None else model.fs_high
         F = data.ratio if data.ratio is not None else model.ratio
     if data.n_samples % F:
@@ -362,7 +354,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         n=args.n,
         degree=args.degree,
         period=args.period,
-        threads=1 if args.scheduler else max(1, batch.default_workers(10**6) // workers),
+        threads=1 if args.scheduler else batch.threads_per_job(workers),
     )
     args.out_dir.mkdir(parents=True, exist_ok=True)
     jobs = batch.plan(recordings, args.out_dir, args.task)
@@ -420,10 +412,8 @@ def cmd_view(args: argparse.Namespace) -> int:
         for t_loop, est in bag_estimates(
             args.bag, cfg, specs, topics=args.topics, fs_high=fs_high, ratio=ratio
         ):
-            if args.speed > 0 and stop.wait(
-                max(0.0, t_wall + t_loop / args.speed - time.monotonic())
-            ):
-                return 0
+            if args.speed > 0:
+                stop.wait(t_wall + t_loop / args.speed - time.monotonic())
             if stop.requested:
                 return 0
             ident = est.identification

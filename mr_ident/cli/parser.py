@@ -71,6 +71,19 @@ def _sources(p: argparse.ArgumentParser) -> None:
         )
 
 
+def _lpm_options(p: argparse.ArgumentParser) -> None:
+    """--n and --degree: the LPM's window half-width and polynomial degree."""
+    p.add_argument(
+        "--n",
+        type=_int_at_least(1),
+        default=None,
+        help="LPM window half-width (default: 8, more where F or the channels need it)",
+    )
+    p.add_argument(
+        "--degree", type=_int_at_least(0), default=2, help="LPM polynomial degree R (default 2)"
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``mr-ident`` and its subcommands."""
     p = _Parser(
@@ -105,15 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="model YAML: gives the controller for the PFG and the reference curve",
     )
     i.add_argument("--method", choices=METHOD_NAMES, default="freq-lifted")
-    i.add_argument(
-        "--n",
-        type=_int_at_least(1),
-        default=None,
-        help="LPM window half-width (default: 8, more where F or the channels need it)",
-    )
-    i.add_argument(
-        "--degree", type=_int_at_least(0), default=2, help="LPM polynomial degree R (default 2)"
-    )
+    _lpm_options(i)
     _sources(i)
     i.add_argument("--out", type=Path, required=True, help="result .npz")
     i.add_argument(
@@ -215,15 +220,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument(
         "--topics", nargs=3, metavar=("R", "U", "Y"), help="MCAP topic names of r, u, y"
     )
-    g.add_argument(
-        "--n",
-        type=_int_at_least(1),
-        default=None,
-        help="LPM window half-width (default: 8, more where F or the channels need it)",
-    )
-    g.add_argument(
-        "--degree", type=_int_at_least(0), default=2, help="LPM polynomial degree R (default 2)"
-    )
+    _lpm_options(g)
     g.add_argument(
         "--alpha",
         type=float,
@@ -264,8 +261,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--fs-high", type=_positive_float, help="high sample rate in Hz")
     b.add_argument("--ratio", type=_int_at_least(1), help="F")
     b.add_argument("--method", choices=METHOD_NAMES, default="freq-lifted")
-    b.add_argument("--n", type=_int_at_least(1), default=None, help="LPM window half-width")
-    b.add_argument("--degree", type=_int_at_least(0), default=2, help="LPM degree R (default 2)")
+    _lpm_options(b)
     b.add_argument("--period", type=_int_at_least(2), help="diagnose: samples per period")
     b.add_argument(
         "--topics", nargs=3, metavar=("R", "U", "Y"), help="block-contract topics of r, u, y"

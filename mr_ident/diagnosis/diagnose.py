@@ -22,9 +22,11 @@ rates) and a nominal :class:`~mr_ident.numerics.model.Model`, :func:`diagnose`:
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ParamSpec
 
 import numpy as np
 
@@ -138,6 +140,30 @@ class Diagnosis:
     traces: dict[str, Any] = field(default_factory=dict)
 
 
+_P = ParamSpec("_P")
+
+
+def _numeric_trouble_reported(fn: Callable[_P, Diagnosis]) -> Callable[_P, Diagnosis]:
+    """Numeric trouble in the simulation or the fits becomes a DataError.
+
+    A reported ``error:``, never a traceback.
+    """
+
+    @functools.wraps(fn)
+    def wrapper(*args: _P.args, **kwargs: _P.kwargs) -> Diagnosis:
+        try:
+            return fn(*args, **kwargs)
+        except (ArithmeticError, np.linalg.LinAlgError, Warning) as err:
+            raise DataError(
+                f"diagnose failed on a numeric problem ({type(err).__name__}: {err}); the "
+                "model may be badly conditioned (very high order, poles far apart) or the "
+                "data too short"
+            ) from None
+
+    return wrapper
+
+
+@_numeric_trouble_reported
 def diagnose(
     model: Model,
     data: LoopData,
@@ -197,39 +223,6 @@ def diagnose(
     >>> d.cause, round(d.parameters["gain"], 2), d.extended.plant_gain == d.parameters["gain"]
     ('gain_error', 1.3, True)
     """
-    try:
-        return _diagnose(
-            model,
-            data,
-            validation,
-            n=n,
-            degree=degree,
-            alpha=alpha,
-            max_causes=max_causes,
-            holdout=holdout,
-            names=names,
-        )
-    except (ArithmeticError, np.linalg.LinAlgError, Warning) as err:
-        # numeric trouble in the simulation or the fits: a reported error, never a traceback
-        raise DataError(
-            f"diagnose failed on a numeric problem ({type(err).__name__}: {err}); the model "
-            "may be badly conditioned (very high order, poles far apart) or the data too short"
-        ) from None
-
-
-def _diagnose(
-    model: Model,
-    data: LoopData,
-    validation: LoopData | None = None,
-    *,
-    n: int | None = None,
-    degree: int = 2,
-    alpha: float = 0.01,
-    max_causes: int = 3,
-    holdout: float = 0.3,
-    names: tuple[str, str] = ("data", "validation data"),
-) -> Diagnosis:
-    """:func:`diagnose` without the conversion of numeric trouble."""
     if not 0.0 < alpha < 1.0:
         raise ConfigError(f"alpha must be in (0, 1), got {alpha!r}")
     if n is None:

@@ -213,18 +213,6 @@ def walk_path(
     spec: SourceSpec,
 ) -> tuple[FloatArray, BoolArray]:
     """The rest ``steps`` of a path from ``pos`` (messages of type ``type_``) on ``w``."""
-    return _eval(w, reg, type_, pos, active, steps, spec)
-
-
-def _eval(
-    w: Walk,
-    reg: Registry,
-    type_: str,
-    pos: IntArray,
-    active: BoolArray,
-    steps: list[Step],
-    spec: SourceSpec,
-) -> tuple[FloatArray, BoolArray]:
     if not steps:
         raise DataError(
             f"source {spec.text!r} ends at a message of type {type_}, not at a number; "
@@ -272,7 +260,7 @@ def _eval(
         if rest:
             raise DataError(f"source {spec.text!r}: {f.name} is a {f.type}; nothing follows it")
         return _scalar(w, f.type, at, spec), active.copy()
-    return _eval(w, reg, f.type, at, active, rest, spec)
+    return walk_path(w, reg, f.type, at, active, rest, spec)
 
 
 def _scalar(
@@ -318,7 +306,7 @@ def _element(
         p = w.skip_one(f.type, p, reg, active & (k < index))
     if f.primitive:
         raise DataError(f"source {spec.text!r}: {f.name} holds {f.type}, not numbers")
-    return _eval(w, reg, f.type, p, active, rest, spec)
+    return walk_path(w, reg, f.type, p, active, rest, spec)
 
 
 def _find(
@@ -385,12 +373,12 @@ def _match(
                 )
             hit = live & (_scalar(w, key.type, kp, spec, value=False) == sel.value)
         if hit.any():
-            v, ok = _eval(w, reg, f.type, p, hit, rest, spec)
+            v, ok = walk_path(w, reg, f.type, p, hit, rest, spec)
             out = np.where(hit, v, out)
             found |= hit & ok
         p = w.skip_one(f.type, p, reg, active & (k < count))
     if not found.any():  # the rest of the path is checked even with no match
-        _eval(w, reg, f.type, p, np.zeros_like(active), rest, spec)
+        walk_path(w, reg, f.type, p, np.zeros_like(active), rest, spec)
     return out, found
 
 

@@ -65,7 +65,7 @@ class _Handler(BaseHTTPRequestHandler):
         elif path == "/app.js":
             self._send(200, (PAGE / "app.js").read_bytes(), "text/javascript; charset=utf-8")
         elif path == "/plotly.min.js":
-            self._send(200, self.server.plotly.read_bytes(), "text/javascript; charset=utf-8")
+            self._send(200, self.server.plotly, "text/javascript; charset=utf-8")
         elif path == "/estimate.json":
             query = parse_qs(self.path.partition("?")[2])
             try:
@@ -113,7 +113,7 @@ class ViewServer(ThreadingHTTPServer):
 
     def __init__(self, state: ViewState, host: str = "127.0.0.1", port: int = DEFAULT_PORT):
         self.state = state
-        self.plotly = plotly_js()
+        self.plotly = plotly_js().read_bytes()  # 4.8 MB, read once rather than per page
         self.closing = threading.Event()
         try:
             super().__init__((host, port), _Handler)
