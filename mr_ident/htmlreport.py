@@ -185,6 +185,7 @@ def report_html(
         f"<h1>{e(title)}</h1>",
         f"<p><b>Cause:</b> {e(summary['cause'])} {e(params(summary['parameters']))}<br>",
         f"<b>Applied to the extended model:</b> {e(applied)}<br>",
+        "".join(f"<b>Found:</b> {e(x)}<br>" for x in summary.get("findings", [])),
         f"<b>Fit of y</b> (validation): {pct(summary['fit_before'])} → "
         f"{pct(summary['fit_after'])}; ",
         f"<b>fit of u</b>: {pct(summary['fit_u_before'])} → {pct(summary['fit_u_after'])}<br>",

@@ -26,12 +26,12 @@ def brute_force_loop(
     u_h[n] = r_h[n] - u_c[m] held from sample mF + phase + delay; the controller
     samples y_h + v at mF + phase. Only for plants without feedthrough (D = 0).
     """
-    P = model.plant_discrete().to_ss()
+    P = model.plant_discrete()
     assert np.allclose(P.D, 0)
     F, ny, nu = model.ratio, model.n_y, model.n_u
     N = r.shape[0]
     v = np.zeros((N, ny)) if v is None else v
-    Kc = model.controller.to_ss() if model.controller is not None else None
+    Kc = model.controller_ss() if model.controller is not None else None
     x = np.zeros(P.A.shape[0])
     xk = np.zeros(Kc.A.shape[0]) if Kc is not None else None
     pending: dict[int, np.ndarray] = {}

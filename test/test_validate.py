@@ -8,8 +8,8 @@ nominal output's std (34 dB SNR), a realistic encoder-plus-vibration level.
 
 The effect's parameters are drawn inside each test from a seeded generator
 (redrawn until the true loop is stable). Tolerances on the recovered parameters:
-gain 1 %, delay 0.05 samples, mode frequency 1 %, damping 15 %, disturbance
-frequency 0.2 %, amplitude 10 %; integer offsets and delays exactly. The validation
+gain 1 %, delay 0.05 samples, mode frequency 1 %, damping 15 %, residue scale 5 %,
+disturbance frequency 0.2 %, amplitude 10 %; integer offsets and delays exactly. The validation
 fit of y must rise by at least MARGIN percentage points (stated per cause: what the
 effect at its smallest drawn size costs the nominal model, with room for the noise).
 """
@@ -21,7 +21,7 @@ import pytest
 
 from mr_ident.cli import main
 from mr_ident.diagnosis import diagnose
-from mr_ident.diagnosis.causes import modes, shift_mode
+from mr_ident.diagnosis.plant_causes import plant_modes
 from mr_ident.errors import ModelError
 from mr_ident.io.modelfile import load_model, model_from_dict, model_to_dict
 from mr_ident.numerics.model import Model
@@ -34,8 +34,8 @@ NOISE_FRACTION = 0.02
 MARGIN = {
     "gain_error": 3.0,
     "input_delay": 3.0,
-    "extra_resonance": 3.0,
-    "resonance_shift": 3.0,
+    "series_resonance": 3.0,
+    "mode_shift": 3.0,
     "sampling_offset": 3.0,
     "control_delay": 3.0,
     "periodic_disturbance": 0.5,
@@ -67,16 +67,18 @@ def _draw(
         elif cause == "input_delay":
             p = {"delay_s": rng.uniform(0.3, 1.5) / FS}
             m = replace(nominal, input_delay=p["delay_s"])
-        elif cause == "extra_resonance":
+        elif cause == "series_resonance":
             p = {"frequency_hz": rng.uniform(70.0, 110.0), "damping": rng.uniform(0.03, 0.1)}
-            m = replace(nominal, extra_modes=((p["frequency_hz"], p["damping"]),))
-        elif cause == "resonance_shift":
-            f0, z0 = modes(nominal.plant)[-1]
+            m = replace(nominal, series_dynamics=((p["frequency_hz"], p["damping"], "input", 0),))
+        elif cause == "mode_shift":
+            f0, z0 = plant_modes(nominal)[-1]
+            f = f0 * rng.choice([rng.uniform(0.85, 0.95), rng.uniform(1.05, 1.2)])
             p = {
-                "frequency_hz": f0 * rng.choice([rng.uniform(0.85, 0.95), rng.uniform(1.05, 1.2)]),
+                "frequency_hz": f,
                 "damping": rng.uniform(0.03, 0.08),
+                "residue_scale": float(rng.choice([1.0, (f / f0) ** 2])),
             }
-            m = shift_mode(nominal, f0, z0, p["frequency_hz"], p["damping"])
+            m = replace(nominal, mode_changes=((f0, f, p["damping"], p["residue_scale"]),))
         elif cause == "sampling_offset":
             p = {"offset_samples": float(rng.integers(1, F))}
             m = replace(nominal, sample_phase=int(p["offset_samples"]))
@@ -114,7 +116,13 @@ def _y_std(nominal: Model) -> float:
     return float(simulate(nominal, duration=DURATION, rng=np.random.default_rng(0)).y.std())
 
 
-TOL = {"gain": 0.01, "frequency_hz": 0.01, "damping": 0.15, "amplitude": 0.10}
+TOL = {
+    "gain": 0.01,
+    "frequency_hz": 0.01,
+    "damping": 0.15,
+    "amplitude": 0.10,
+    "residue_scale": 0.05,
+}
 
 
 @pytest.mark.parametrize(
@@ -122,8 +130,8 @@ TOL = {"gain": 0.01, "frequency_hz": 0.01, "damping": 0.15, "amplitude": 0.10}
     [
         ("gain_error", 11),
         ("input_delay", 12),
-        ("extra_resonance", 13),
-        ("resonance_shift", 14),
+        ("series_resonance", 13),
+        ("mode_shift", 14),
         ("sampling_offset", 15),
         ("control_delay", 16),
         ("periodic_disturbance", 17),
@@ -173,10 +181,10 @@ def test_noise_alone_gives_none_and_no_significant_bin(nominal):
 
 def test_the_extended_model_diagnosed_again_gives_none(nominal):
     rng = np.random.default_rng(41)
-    true, _ = _draw("extra_resonance", nominal, rng, _y_std(nominal))
+    true, _ = _draw("series_resonance", nominal, rng, _y_std(nominal))
     rec = _data(true, nominal, 41)
     first = diagnose(nominal, rec)
-    assert first.cause == "extra_resonance"
+    assert first.cause == "series_resonance"
     again = diagnose(model_from_dict(model_to_dict(first.extended)), rec)
     assert again.cause == "none"
 
@@ -204,11 +212,11 @@ PAPER_TEXT = open("config/paper_example.yaml").read()
         (PAPER_TEXT, 0.5, 240.0, 3, "too short for the LPM window"),
         (PAPER_TEXT + "plant_gian: 1.1\n", 40.0, 240.0, 3, "unknown key.*plant_gian"),
         (
-            PAPER_TEXT + "extra_modes: [{frequency_hz: 80.0, damping: 0.05, q: 1}]\n",
+            PAPER_TEXT + "additive_modes: [{frequency_hz: 80.0, damping: 0.05, q: 1}]\n",
             40.0,
             240.0,
             3,
-            r"extra_modes\[0\]: unknown key",
+            r"additive_modes\[0\]: unknown key",
         ),
     ],
     ids=["fs-disagrees", "ratio-disagrees", "too-short", "unknown-key", "unknown-mode-key"],

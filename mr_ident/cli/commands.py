@@ -315,6 +315,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         f"{', '.join(a.cause for a in d.applied) or 'none'}; fit y {d.fit_before.y:.1f} % -> "
         f"{d.fit_after.y:.1f} %{fu}"
     )
+    for a in d.applied:
+        print(f"  found: {a.description}")
     for path in (args.json, args.report, args.out_model):
         if path:
             print(f"wrote {path}")

@@ -34,10 +34,12 @@ from ..errors import ConfigError, DataError
 from ..numerics.identify import default_n, min_samples
 from ..numerics.model import Model
 from ..numerics.signals import LoopData
-from .causes import CAUSES, CauseFit, rank_causes
+from .causes import CauseFit, PlantData
 from .evidence import Evidence, frf_evidence, identify_record
 from .noise import noise_spectrum
+from .objective import Objective, settle_samples
 from .prediction import TimeFit, centred, predict, time_fit
+from .selection import SCREEN_SAMPLES, select
 
 
 def min_record(n: int, ratio: int) -> int:
@@ -254,31 +256,17 @@ def diagnose(
     ident = identify_record(est, model, n=n, degree=degree)
     ev_before = frf_evidence(model, est, n=n, degree=degree, alpha=alpha, ident=ident)
     noise = noise_spectrum(est, model, n=n, degree=degree, ident=ident)
-    ranking = rank_causes(est, model, noise, ident=ident)
-    none_score = next(c.score for c in ranking if c.cause == "none")
-    applied: list[CauseFit] = []
-    current, current_score = model, none_score
-    step = ranking
-    for _ in range(max_causes):
-        done = {c.cause for c in applied}
-        best = next(
-            (
-                c
-                for c in step
-                if c.applicable
-                and c.cause != "none"
-                and (c.cause not in done or CAUSES[c.cause].repeatable)
-            ),
-            None,
-        )
-        if best is None or not best.score < current_score:
-            break
-        applied.append(best)
-        current = best.model
-        step = rank_causes(est, current, noise, ident=ident)
-        current_score = next(c.score for c in step if c.cause == "none")
+    full = Objective(est, model, noise)
+    unit = est.period or model.ratio
+    n_screen = est.n_samples if est.period else min(est.n_samples, SCREEN_SAMPLES // unit * unit)
+    screen = full if n_screen == est.n_samples else Objective(est.part(0, n_screen), model, noise)
+    plant = PlantData(ev_before.frequency, ev_before.P_hat, ev_before.P_std)
+    sel = select(full, screen, model, plant, max_causes=max_causes)
+    ranking, applied, current = sel.ranking, sel.chosen, sel.model
     val_part = val.part(val_start, val.n_samples) if val_start else val
     pred_b, pred_a = predict(model, val), predict(current, val)
+    if not val_start and model.controller is not None and val.period is None:
+        val_start = settle_samples(model, val.n_samples)  # separate data: skip the transient
     fit_before = time_fit(model, val, val_start, pred_b)
     fit_after = time_fit(current, val, val_start, pred_a)
     ident_val = identify_record(val_part, model, n=n, degree=degree)

@@ -16,6 +16,24 @@ from ..numerics.signals import LoopData
 from .prediction import centred, predict
 
 
+def settle_samples(model: Model, n_samples: int) -> int:
+    """High-rate samples after which the zero-state simulation has forgotten its start.
+
+    The measured loop was running before the record began; a simulation from rest differs
+    from it by a transient that decays with the lifted loop's slowest pole ρ. Skipped until
+    ``ρ^m < 1e-5``, at most a quarter of the record; a whole number of low-rate periods.
+    """
+    from ..numerics.simulate import loop_poles
+
+    poles = loop_poles(model)
+    rho = float(np.max(np.abs(poles), initial=0.0))
+    F = model.ratio
+    if rho <= 0.0:
+        return 0
+    m = math.ceil(math.log(1e-5) / math.log(min(rho, 1.0 - 1e-9)))
+    return min(m * F, (n_samples // 4) // F * F)
+
+
 class Objective:
     """Whitened residuals of a model family on the estimation record.
 
@@ -40,11 +58,16 @@ class Objective:
         self.plant = plant  # (frequency, P̂) of the record, for starting guesses
         _, u, y = centred(rec, base)
         self.u, self.y = u, y
-        self.skip = rec.period or 0
         self.closed = base.controller is not None
+        self.skip = rec.period or (settle_samples(base, rec.n_samples) if self.closed else 0)
         if self._raw(base) is None:
             raise DataError("the model cannot be simulated on this data (the loop is not stable)")
-        self.weight = 1.0 / np.sqrt(noise)
+        # the noise spectrum is given on the bins of the whole record: onto this one's
+        n_eff = rec.n_samples - self.skip
+        src = np.linspace(0.0, 0.5, noise.shape[0])
+        dst = np.arange(n_eff // 2 + 1) / n_eff
+        S = np.column_stack([np.interp(dst, src, noise[:, j]) for j in range(noise.shape[1])])
+        self.weight = 1.0 / np.sqrt(S)
         self.n_bins = int(self.weight.size)
 
     def _raw(self, model: Model) -> list[FloatArray] | None:
@@ -78,6 +101,10 @@ class Objective:
         ok = np.all(np.isfinite(res)) and float(np.max(np.abs(res), initial=0.0)) < 1e100
         return res if ok else np.full(2 * self.n_bins, 1e3)
 
+    def bic(self, cost: float, p: int) -> float:
+        """``2 cost + p ln(n_bins)`` (see the class docstring)."""
+        return 2.0 * cost + p * math.log(self.n_bins)
+
     def evaluate(self, model: Model, p: int) -> tuple[float, dict[str, float]]:
         """BIC and residual sums of squares of ``model``, from one simulation.
 
@@ -96,42 +123,30 @@ class Objective:
 def least_squares(
     obj: Objective,
     build: Callable[[FloatArray], Model],
-    starts: list[list[float]],
-    lower: list[float],
-    upper: list[float],
-    scale: list[float],
-) -> tuple[FloatArray, Model]:
-    """Bounded least squares from several starts; the best end point and its model."""
-    best: tuple[float, FloatArray, Model] | None = None
-    for start in starts:
-        x0 = np.clip(np.asarray(start, float), lower, upper)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            try:
-                res = scipy.optimize.least_squares(
-                    lambda x: obj.residuals(build(x)),
-                    x0,
-                    bounds=(lower, upper),
-                    x_scale=np.asarray(scale, float),
-                    max_nfev=100,
-                    ftol=1e-10,
-                    xtol=1e-10,
-                    diff_step=1e-5,
-                )
-            except (ValueError, np.linalg.LinAlgError):  # a start where the loop is unstable
-                continue
-        cost = float(res.cost)
-        if best is None or cost < best[0]:
-            best = (cost, res.x, build(res.x))
-    if best is None:
-        first: FloatArray = np.clip(np.asarray(starts[0], float), lower, upper)
-        return first, build(first)
-    return best[1], best[2]
+    x0: FloatArray,
+    lower: FloatArray,
+    upper: FloatArray,
+    scale: FloatArray,
+    *,
+    max_nfev: int = 40,
+) -> tuple[FloatArray, float]:
+    """Bounded least squares of ``obj``'s whitened residual from ``x0``.
 
-
-def best_starts(
-    obj: Objective, build: Callable[[FloatArray], Model], starts: list[list[float]], keep: int
-) -> list[list[float]]:
-    """The ``keep`` starts with the smallest residual (a cheap grid before least squares)."""
-    costs = [(obj.cost(build(np.asarray(x, float))), x) for x in starts]
-    return [x for _, x in sorted(costs, key=lambda t: t[0])[:keep]] or starts[:1]
+    Returns the end point and its cost (:meth:`Objective.cost`).
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            res = scipy.optimize.least_squares(
+                lambda x: obj.residuals(build(x)),
+                x0,
+                bounds=(lower, upper),
+                x_scale=scale,
+                max_nfev=max_nfev,
+                ftol=1e-8,
+                xtol=1e-8,
+                diff_step=1e-6,
+            )
+        except (ValueError, np.linalg.LinAlgError):  # a start where the loop is unstable
+            return x0, obj.cost(build(x0))
+    return np.asarray(res.x, float), 2.0 * float(res.cost)

@@ -10,6 +10,7 @@ import math
 from typing import Any
 
 from .diagnose import Diagnosis
+from .selection import ACCEPT_MARGIN
 
 
 def _finite(x: float | None) -> float | None:
@@ -26,6 +27,7 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
             "score": _finite(c.score),
             "delta_bic": _finite(c.score - none),
             "applicable": c.applicable,
+            "description": c.description,
         }
         for c in d.ranking
     ]
@@ -33,9 +35,14 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
         "cause": d.cause,
         "parameters": d.parameters,
         "causes": causes,
-        "applied": [{"cause": c.cause, "parameters": c.parameters} for c in d.applied],
+        "applied": [
+            {"cause": c.cause, "parameters": c.parameters, "description": c.description}
+            for c in d.applied
+        ],
+        "findings": [c.description for c in d.applied],
         "criterion": "BIC = 2 sum_k |E(k)|^2/S_noise(k) + p ln(n_bins) of the residual y - y_sim; "
-        "lower is better; a cause is accepted when it lowers the BIC of the model it extends",
+        "lower is better; forward selection with joint re-fits: a cause (set) is accepted when "
+        f"it lowers the BIC by more than {ACCEPT_MARGIN:g}",
         "fit_before": _finite(d.fit_before.y),
         "fit_after": _finite(d.fit_after.y),
         "fit_u_before": _finite(d.fit_before.u),

@@ -30,7 +30,10 @@ _KEYS = {
     "control_delay",
     "plant_gain",
     "input_delay_s",
-    "extra_modes",
+    "additive_modes",
+    "mode_changes",
+    "series_dynamics",
+    "controller_notches",
     "disturbances",
 }
 _SYS_KEYS = {"num", "den", "domain"}
@@ -167,7 +170,7 @@ def model_from_dict(d: Any, *, source: str = "model") -> Model:
             f"{source}: controller is {controller.shape[0]}x{controller.shape[1]}, "
             f"expected n_u x n_y = {plant.shape[1]}x{plant.shape[0]}"
         )
-    ext = _extensions(d, source, float(fs), plant)
+    ext = _extensions(d, source, float(fs), plant, F, controller is not None)
     model = Model(
         float(fs),
         F,
@@ -226,23 +229,68 @@ def _entries(d: Any, key: str, source: str, fields: dict[str, Any]) -> list[dict
 
 
 def _extensions(
-    d: dict[str, Any], source: str, fs: float, plant: TransferMatrix
+    d: dict[str, Any],
+    source: str,
+    fs: float,
+    plant: TransferMatrix,
+    ratio: int,
+    has_controller: bool,
 ) -> dict[str, Any]:
     gain = _number(d.get("plant_gain", 1.0), f"{source}: plant_gain", 0.0, open_low=True)
     delay = _number(d.get("input_delay_s", 0.0), f"{source}: input_delay_s", 0.0, 10.0)
-    modes = []
-    for j, e in enumerate(
-        _entries(d, "extra_modes", source, {"frequency_hz": None, "damping": None})
-    ):
-        f = _number(
-            e["frequency_hz"],
-            f"{source}: extra_modes[{j}].frequency_hz",
-            0.0,
-            100 * fs,
-            open_low=True,
+    if "extra_modes" in d:
+        raise ModelError(
+            f"{source}: extra_modes is now series_dynamics (each {{frequency_hz, damping, "
+            "side: input|output, channel}); an extra mode adding to the plant is additive_modes"
         )
-        z = _number(e["damping"], f"{source}: extra_modes[{j}].damping", 0.0, 10.0, open_low=True)
-        modes.append((f, z))
+    no, ni = plant.shape
+    nyq = fs / 2
+    adds = []
+    fields_a = {"frequency_hz": None, "damping": None, "gain": None, "output": 0, "input": 0}
+    for j, e in enumerate(_entries(d, "additive_modes", source, fields_a)):
+        where = f"{source}: additive_modes[{j}]"
+        f = _number(e["frequency_hz"], f"{where}.frequency_hz", 0.0, 100 * fs, open_low=True)
+        z = _number(e["damping"], f"{where}.damping", 0.0, 10.0, open_low=True)
+        g = _number(e["gain"], f"{where}.gain", -math.inf)
+        adds.append(
+            (
+                f,
+                z,
+                g,
+                _index(e["output"], f"{where}.output", no),
+                _index(e["input"], f"{where}.input", ni),
+            )
+        )
+    changes = []
+    fields_c = {"from_hz": None, "frequency_hz": None, "damping": None, "residue_scale": 1.0}
+    for j, e in enumerate(_entries(d, "mode_changes", source, fields_c)):
+        where = f"{source}: mode_changes[{j}]"
+        f0 = _number(e["from_hz"], f"{where}.from_hz", 0.0, 100 * fs, open_low=True)
+        f = _number(e["frequency_hz"], f"{where}.frequency_hz", 0.0, 100 * fs, open_low=True)
+        z = _number(e["damping"], f"{where}.damping", 0.0, 0.999, open_low=True)
+        sc = _number(e["residue_scale"], f"{where}.residue_scale", 0.0, 1e6, open_low=True)
+        changes.append((f0, f, z, sc))
+    series = []
+    fields_s = {"frequency_hz": None, "damping": 0.0, "side": "output", "channel": 0}
+    for j, e in enumerate(_entries(d, "series_dynamics", source, fields_s)):
+        where = f"{source}: series_dynamics[{j}]"
+        f = _number(e["frequency_hz"], f"{where}.frequency_hz", 0.0, 100 * fs, open_low=True)
+        z = _number(e["damping"], f"{where}.damping", 0.0, 10.0)
+        side = e["side"]
+        if side not in ("input", "output"):
+            raise ModelError(f'{where}.side must be "input" or "output", got {side!r}')
+        ch = _index(e["channel"], f"{where}.channel", ni if side == "input" else no)
+        series.append((f, z, side, ch))
+    notches = []
+    fields_n = {"frequency_hz": None, "damping": None, "depth": None}
+    for j, e in enumerate(_entries(d, "controller_notches", source, fields_n)):
+        where = f"{source}: controller_notches[{j}]"
+        f = _number(e["frequency_hz"], f"{where}.frequency_hz", 0.0, nyq / ratio, open_low=True)
+        z = _number(e["damping"], f"{where}.damping", 0.0, 10.0, open_low=True)
+        dp = _number(e["depth"], f"{where}.depth", 0.0, 10.0)
+        notches.append((f, z, dp))
+    if notches and not has_controller:
+        raise ModelError(f"{source}: controller_notches need a controller")
     dist = []
     fields = {"frequency_hz": None, "amplitude": None, "phase_rad": 0.0, "output": 0}
     for j, e in enumerate(_entries(d, "disturbances", source, fields)):
@@ -257,18 +305,35 @@ def _extensions(
             )
         dist.append((f, a, ph, o))
     if plant.dt is not None:
-        if modes:
-            raise ModelError(
-                f"{source}: extra_modes need a continuous-time plant (plant.domain: continuous)"
-            )
+        for key, items in (
+            ("additive_modes", adds),
+            ("mode_changes", changes),
+            ("series_dynamics", series),
+        ):
+            if items:
+                raise ModelError(
+                    f"{source}: {key} need a continuous-time plant (plant.domain: continuous)"
+                )
         if abs(delay * fs - round(delay * fs)) > 1e-9:
             raise ModelError(
                 f"{source}: with a discrete plant, input_delay_s must be a whole number of "
                 f"sample times (1/fs_high = {1 / fs:g} s), got {delay!r}"
             )
     return dict(
-        plant_gain=gain, input_delay=delay, extra_modes=tuple(modes), disturbances=tuple(dist)
+        plant_gain=gain,
+        input_delay=delay,
+        additive_modes=tuple(adds),
+        mode_changes=tuple(changes),
+        series_dynamics=tuple(series),
+        controller_notches=tuple(notches),
+        disturbances=tuple(dist),
     )
+
+
+def _index(v: Any, where: str, n: int) -> int:
+    if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v < n:
+        raise ModelError(f"{where} must be an index in 0..{n - 1}, got {v!r}")
+    return v
 
 
 def load_model(path: str | Path) -> Model:
@@ -315,9 +380,36 @@ def model_to_dict(model: Model) -> dict[str, Any]:
         d["plant_gain"] = float(model.plant_gain)
     if model.input_delay:
         d["input_delay_s"] = float(model.input_delay)
-    if model.extra_modes:
-        d["extra_modes"] = [
-            {"frequency_hz": float(f), "damping": float(z)} for f, z in model.extra_modes
+    if model.additive_modes:
+        d["additive_modes"] = [
+            {
+                "frequency_hz": float(f),
+                "damping": float(z),
+                "gain": float(g),
+                "output": int(o),
+                "input": int(i),
+            }
+            for f, z, g, o, i in model.additive_modes
+        ]
+    if model.mode_changes:
+        d["mode_changes"] = [
+            {
+                "from_hz": float(f0),
+                "frequency_hz": float(f),
+                "damping": float(z),
+                "residue_scale": float(sc),
+            }
+            for f0, f, z, sc in model.mode_changes
+        ]
+    if model.series_dynamics:
+        d["series_dynamics"] = [
+            {"frequency_hz": float(f), "damping": float(z), "side": str(side), "channel": int(c)}
+            for f, z, side, c in model.series_dynamics
+        ]
+    if model.controller_notches:
+        d["controller_notches"] = [
+            {"frequency_hz": float(f), "damping": float(z), "depth": float(dp)}
+            for f, z, dp in model.controller_notches
         ]
     if model.disturbances:
         d["disturbances"] = [

@@ -30,12 +30,12 @@ def lifted_loop(model: Model) -> StateSpace:
     outputs ``[y_meas(...); u(...)]`` (F*n_y + F*n_u), where ``y_meas = P_h u + v``
     is what the controller and the logger see.
     """
-    Pd = model.plant_discrete().to_ss()
+    Pd = model.plant_discrete()
     F, ny, nu = model.ratio, model.n_y, model.n_u
     A, B, C, D = Pd.A, Pd.B, Pd.C, Pd.D
     nx = A.shape[0]
     if model.controller is not None:
-        Kd = model.controller.to_ss()
+        Kd = model.controller_ss()
         Ak, Bk, Ck, Dk = Kd.A, Kd.B, Kd.C, Kd.D
     else:
         Ak = np.zeros((0, 0))

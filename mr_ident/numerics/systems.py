@@ -33,6 +33,46 @@ class StateSpace:
         """Order of the realisation."""
         return int(self.A.shape[0])
 
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(n_out, n_in)."""
+        return int(self.D.shape[0]), int(self.D.shape[1])
+
+    def poles(self) -> NDArray[np.complex128]:
+        """Eigenvalues of A."""
+        if not self.A.size:
+            return np.zeros(0, dtype=np.complex128)
+        return np.asarray(np.linalg.eigvals(self.A), dtype=np.complex128)
+
+    def freqresp(self, frequency: ArrayLike) -> NDArray[np.complex128]:
+        """``C (xI - A)^-1 B + D`` at ``frequency`` Hz, shape (K, n_out, n_in).
+
+        ``x = exp(2j pi f dt)`` (discrete) or ``2j pi f`` (continuous); through the
+        eigendecomposition of A when its eigenvectors are well conditioned, else a batched
+        solve.
+        """
+        f = np.atleast_1d(np.asarray(frequency, dtype=float))
+        x = 2j * np.pi * f if self.dt is None else np.exp(2j * np.pi * f * self.dt)
+        n = self.A.shape[0]
+        out = np.array(np.broadcast_to(self.D.astype(complex), (f.size, *self.D.shape)))
+        if n == 0:
+            return out
+        lam, V = np.linalg.eig(self.A)
+        if np.linalg.cond(V) < 1e8:
+            Bm = np.linalg.solve(V, self.B.astype(complex))  # (n, n_in)
+            Cm = self.C @ V  # (n_out, n)
+            for lo in range(0, f.size, 4096):
+                g = 1.0 / (x[lo : lo + 4096, None] - lam[None, :])  # (k, n)
+                out[lo : lo + 4096] += np.einsum("on,kn,ni->koi", Cm, g, Bm)
+            return out
+        eye = np.eye(n)
+        for lo in range(0, f.size, 1024):
+            xs = x[lo : lo + 1024]
+            M = xs[:, None, None] * eye - self.A
+            rhs = np.broadcast_to(self.B.astype(complex), (xs.size, *self.B.shape))
+            out[lo : lo + 1024] += self.C @ np.linalg.solve(M, rhs)
+        return out
+
 
 @dataclass(frozen=True)
 class TransferMatrix:
@@ -95,34 +135,6 @@ class TransferMatrix:
             raise ModelError("dft_response needs a discrete-time system (dt set)")
         return self(np.exp(2j * np.pi * np.arange(n) / n))
 
-    def discretize(self, dt: float, *, delay: float = 0.0) -> TransferMatrix:
-        """Zero-order-hold discretisation of every entry (exact for ZOH inputs).
-
-        ``delay`` (s, >= 0) is an input delay, fractional sample times included: the
-        held input reaches the plant ``delay`` seconds late. Exact for ZOH inputs too
-        (the modified z-transform: a fractional part adds one state).
-        """
-        if self.dt is not None:
-            raise ModelError(f"system is already discrete (dt={self.dt}); cannot discretise again")
-        if not (np.isfinite(delay) and delay >= 0):
-            raise ModelError(f"delay must be a finite number of seconds >= 0, got {delay!r}")
-        whole = int(np.floor(delay / dt + 1e-9))
-        frac = max(delay / dt - whole, 0.0) * dt
-        if frac < 1e-9 * dt:
-            frac = 0.0
-        no, ni = self.shape
-        num, den = [], []
-        for o in range(no):
-            rn, rd = [], []
-            for i in range(ni):
-                b, a = _zoh_delayed(self.num[o][i], self.den[o][i], dt, frac)
-                b = np.trim_zeros(b, "f")
-                rn.append(tuple(b) if b.size else (0.0,))
-                rd.append(tuple(np.concatenate([a, np.zeros(whole)])))  # z^-whole
-            num.append(tuple(rn))
-            den.append(tuple(rd))
-        return TransferMatrix(tuple(num), tuple(den), dt)
-
     def times(self, num: ArrayLike, den: ArrayLike) -> TransferMatrix:
         """Every entry multiplied by the scalar transfer function ``num/den`` (same domain)."""
         b = np.atleast_1d(np.asarray(num, float))
@@ -132,31 +144,6 @@ class TransferMatrix:
             tuple(tuple(tuple(np.polymul(e, a)) for e in row) for row in self.den),
             self.dt,
         )
-
-    def to_ss(self) -> StateSpace:
-        """A (non-minimal, block-diagonal) state-space realisation of all entries."""
-        no, ni = self.shape
-        blocks = []
-        for o in range(no):
-            for i in range(ni):
-                if not np.any(self.num[o][i]):
-                    continue  # a zero entry needs no states
-                A, B, C, D = tf2ss(self.num[o][i], self.den[o][i])
-                blocks.append((o, i, A, B, C, D))
-        n = sum(b[2].shape[0] for b in blocks)
-        A = np.zeros((n, n))
-        B = np.zeros((n, ni))
-        C = np.zeros((no, n))
-        D = np.zeros((no, ni))
-        k = 0
-        for o, i, a, b, c, d in blocks:
-            m = a.shape[0]
-            A[k : k + m, k : k + m] = a
-            B[k : k + m, i] = b[:, 0]
-            C[o, k : k + m] = c[0]
-            D[o, i] += d[0, 0]
-            k += m
-        return StateSpace(A, B, C, D, self.dt)
 
     def poles(self) -> NDArray[np.complex128]:
         """Roots of every entry's denominator (duplicates kept)."""
@@ -259,41 +246,3 @@ def tf2ss(num: ArrayLike, den: ArrayLike) -> tuple[FloatArray, FloatArray, Float
         B[0, 0] = 1.0
     C = (b[1:] - d * a[1:])[None, :]
     return A, B, C, np.array([[d]])
-
-
-def ss2tf(A: ArrayLike, B: ArrayLike, C: ArrayLike, D: ArrayLike) -> tuple[FloatArray, FloatArray]:
-    """(num, den) of a SISO state space.
-
-    ``den = det(sI - A)`` and ``num = det(sI - A + BC) + (D - 1) den``.
-    """
-    A, B, C = (np.atleast_2d(np.asarray(x, dtype=float)) for x in (A, B, C))
-    d = float(np.asarray(D, dtype=float).reshape(-1)[0])
-    if A.size == 0:
-        return np.array([d]), np.array([1.0])
-    den = np.real(np.poly(A))
-    num = np.real(np.poly(A - B @ C)) + (d - 1.0) * den
-    return num, den
-
-
-def _zoh_delayed(num: Poly, den: Poly, dt: float, frac: float) -> tuple[FloatArray, FloatArray]:
-    """ZOH discretisation of ``num/den`` with an input delay ``frac`` in [0, dt) seconds.
-
-    With ``x' = A x + B u(t - frac)`` and u held over each sample time:
-    ``x[k+1] = Phi x[k] + G0 u[k] + G1 u[k-1]``, ``G0 = int_0^(dt-frac) e^(As) ds B``,
-    ``G1 = e^(A(dt-frac)) int_0^frac e^(As) ds B``; ``y[k] = C x[k] + D u[k-1]`` when
-    frac > 0. Returns discrete (num, den) in descending powers of z.
-    """
-    A, B, C, D = tf2ss(num, den)
-    n = A.shape[0]
-
-    def hold_integral(t: float) -> tuple[FloatArray, FloatArray]:
-        E = expm(np.block([[A, B], [np.zeros((1, n + 1))]]) * t)
-        return E[:n, :n], E[:n, n:]
-
-    if frac == 0.0:
-        return ss2tf(*hold_integral(dt), C, D)
-    Phi_a, G0 = hold_integral(dt - frac)
-    Phi_f, Gf = hold_integral(frac)
-    Ad = np.block([[Phi_a @ Phi_f, Phi_a @ Gf], [np.zeros((1, n + 1))]])  # state [x; u[k-1]]
-    Bd = np.vstack([G0, np.ones((1, 1))])
-    return ss2tf(Ad, Bd, np.hstack([C, D]), np.zeros((1, 1)))

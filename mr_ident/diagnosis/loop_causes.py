@@ -1,0 +1,221 @@
+"""Causes outside the plant: in the controller's path (timing, filters) and on the output.
+
+They leave P_h as it is (the lifted identification does not use the controller), so the
+identified plant says nothing of them; the time-domain criterion does
+(:mod:`~mr_ident.diagnosis.selection`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from ..numerics.arrays import FloatArray
+from ..numerics.model import Model
+from .causes import Cause, Choice, Context, Params, hz
+from .prediction import predict
+
+
+class _LoopCause(Cause):
+    plant_side = False
+
+
+class ControlDelay(_LoopCause):
+    """The controller's held output is applied later than the model says."""
+
+    name = "control_delay"
+    parameters = ("delay_samples",)
+    meaning = (
+        "the controller's output is applied later than modelled: computation time, a bus "
+        "cycle (whole high-rate samples)"
+    )
+    extends = "control_delay"
+    discrete = True
+
+    def applies(self, nominal: Model) -> bool:
+        """With a controller."""
+        return nominal.controller is not None
+
+    def proposals(self, ctx: Context) -> list[Choice]:
+        """One to 2F samples later."""
+        return [Choice(self.name, (float(d),)) for d in range(1, 2 * ctx.nominal.ratio + 1)]
+
+    def bounds(self, nominal: Model, choice: Choice) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Not optimised (discrete)."""
+        return np.array([1.0]), np.array([2.0 * nominal.ratio]), np.array([1.0])
+
+    def apply(self, model: Model, choice: Choice) -> Model:
+        """The control delay lengthened."""
+        return replace(model, control_delay=model.control_delay + int(choice.x[0]))
+
+    def describe(self, params: Params) -> str:
+        """In words."""
+        k = int(params["delay_samples"])
+        return f"the control output is applied {k} high-rate sample{'s' * (k != 1)} later"
+
+
+class SamplingOffset(_LoopCause):
+    """The controller samples y at another high-rate phase than the model's."""
+
+    name = "sampling_offset"
+    parameters = ("offset_samples",)
+    meaning = "the controller samples y at another high-rate instant within its period"
+    extends = "sample_phase"
+    discrete = True
+
+    def applies(self, nominal: Model) -> bool:
+        """With a controller and F > 1."""
+        return nominal.controller is not None and nominal.ratio > 1
+
+    def proposals(self, ctx: Context) -> list[Choice]:
+        """Every other phase."""
+        base, F = ctx.current.sample_phase, ctx.nominal.ratio
+        return [Choice(self.name, (float(o),)) for o in range(-base, F - base) if o != 0]
+
+    def bounds(self, nominal: Model, choice: Choice) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Not optimised (discrete)."""
+        return np.array([-float(nominal.ratio)]), np.array([float(nominal.ratio)]), np.ones(1)
+
+    def apply(self, model: Model, choice: Choice) -> Model:
+        """The sampling phase moved."""
+        return replace(model, sample_phase=model.sample_phase + int(choice.x[0]))
+
+    def describe(self, params: Params) -> str:
+        """In words."""
+        return f"the controller samples y {int(params['offset_samples']):+d} high-rate samples off"
+
+
+class ControllerNotch(_LoopCause):
+    """A notch filter in the controller that the model lacks."""
+
+    name = "controller_notch"
+    parameters = ("frequency_hz", "damping", "depth")
+    meaning = (
+        "a notch in the controller that the model lacks (a filter added on the machine): "
+        "(s²+2·depth·ζws+w²)/(s²+2ζws+w²) at fs_low"
+    )
+    extends = "controller_notches"
+
+    def applies(self, nominal: Model) -> bool:
+        """With a controller."""
+        return nominal.controller is not None
+
+    def proposals(self, ctx: Context) -> list[Choice]:
+        """Notch frequencies across the controller's band."""
+        fl = ctx.nominal.fs_low
+        return [
+            Choice(self.name, (float(f), 0.3, 0.1)) for f in np.geomspace(fl / 60, 0.46 * fl, 12)
+        ]
+
+    def bounds(self, nominal: Model, choice: Choice) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Frequency below fs_low/2, damping 0.02..2, depth 0..1."""
+        fl = nominal.fs_low
+        return (
+            np.array([fl / 200, 0.02, 0.0]),
+            np.array([0.49 * fl, 2.0, 1.0]),
+            np.array([0.01 * choice.x[0], 0.05, 0.05]),
+        )
+
+    def apply(self, model: Model, choice: Choice) -> Model:
+        """A controller notch appended."""
+        f, z, d = choice.x
+        return replace(model, controller_notches=model.controller_notches + ((f, z, d),))
+
+    def describe(self, params: Params) -> str:
+        """In words."""
+        depth_db = 20 * math.log10(max(params["depth"], 1e-6))
+        width = 2 * params["damping"] * params["frequency_hz"]
+        return (
+            f"a notch at {hz(params['frequency_hz'])} in the controller that the model lacks "
+            f"(depth {depth_db:.0f} dB, width about {hz(width)})"
+        )
+
+
+def residual_peaks(ctx: Context, k: int = 2) -> list[tuple[float, int, float]]:
+    """Candidate disturbance frequencies: the largest peaks of the whitened y residual.
+
+    (frequency_hz, output, amplitude), per output the ``k`` largest peaks of
+    ``|E(k)| / σ_noise(k)`` (a sinusoid stands out against the noise as the loop shapes it,
+    not against the largest noise).
+    """
+    obj, base = ctx.objective, ctx.current
+    pred = predict(base, obj.rec)
+    s = obj.skip
+    e = obj.y[s:] - pred.y[s:]
+    n = e.shape[0]
+    E = np.fft.rfft(e, axis=0, norm="ortho")
+    Z = np.abs(E) * obj.weight
+    f = np.fft.rfftfreq(n, 1.0 / base.fs_high)
+    out = []
+    for o in range(E.shape[1]):
+        mag = Z[:, o].copy()
+        mag[0] = 0.0
+        for _ in range(k):
+            j = int(np.argmax(mag))
+            out.append((float(f[j]), o, float(2.0 * np.abs(E[j, o]) / np.sqrt(n))))
+            mag[max(j - 8, 0) : j + 9] = 0.0
+    return out
+
+
+class PeriodicDisturbance(_LoopCause):
+    """A sinusoid added to the output (the controller sees it too)."""
+
+    name = "periodic_disturbance"
+    parameters = ("frequency_hz", "in_phase", "quadrature")
+    meaning = (
+        "a sinusoid added to y that the controller also sees: an unbalance, a cogging or "
+        "mains-frequency pick-up"
+    )
+    extends = "disturbances"
+    repeatable = True
+
+    def proposals(self, ctx: Context) -> list[Choice]:
+        """At the residual's spectral peaks."""
+        obj = ctx.objective
+        df = 2.0 * ctx.nominal.fs_high / max(obj.rec.n_samples - obj.skip, 1)
+        out = []
+        for f, o, a in residual_peaks(ctx):
+            out += [Choice(self.name, (f, a, 0.0), (float(o), df))]
+            out += [Choice(self.name, (f, 0.0, a), (float(o), df))]
+        return out
+
+    def bounds(self, nominal: Model, choice: Choice) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Frequency within two bins of the start."""
+        f, a, b = choice.x
+        fs = nominal.fs_high
+        df = choice.fixed[1] if len(choice.fixed) > 1 else 0.002 * f
+        amp = max(math.hypot(a, b), 1e-12)
+        return (
+            np.array([max(f - df, 1e-6), -20 * amp, -20 * amp]),
+            np.array([min(f + df, fs / 2), 20 * amp, 20 * amp]),
+            np.array([0.05 * df, amp, amp]),
+        )
+
+    def apply(self, model: Model, choice: Choice) -> Model:
+        """A sinusoid appended to the output disturbances."""
+        f, a, b = choice.x
+        o = int(choice.fixed[0]) if choice.fixed else 0
+        dist = (f, float(math.hypot(a, b)), float(math.atan2(b, a)), o)
+        return replace(model, disturbances=model.disturbances + (dist,))
+
+    def named(self, choice: Choice, nominal: Model) -> Params:
+        """Frequency, amplitude and phase."""
+        f, a, b = choice.x
+        return {"frequency_hz": f, "amplitude": math.hypot(a, b), "phase_rad": math.atan2(b, a)}
+
+    def describe(self, params: Params) -> str:
+        """In words."""
+        return (
+            f"a periodic disturbance at {hz(params['frequency_hz'])} on y, amplitude "
+            f"{params['amplitude']:.3g}"
+        )
+
+
+LOOP_CAUSES: tuple[Cause, ...] = (
+    ControllerNotch(),
+    ControlDelay(),
+    SamplingOffset(),
+    PeriodicDisturbance(),
+)

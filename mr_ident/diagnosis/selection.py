@@ -1,0 +1,261 @@
+"""Which causes, together: forward selection with joint re-fits and an information criterion.
+
+The criterion is the BIC of the time-domain residual (:class:`~mr_ident.diagnosis.objective.
+Objective`): ``BIC = 2 sum_k |E(k)|² / S(k) + p ln(n_bins)``, p the free parameters of every
+chosen cause. Each step:
+
+1. **Screen.** Every applicable cause is fitted on top of the causes chosen so far (their
+   values fixed), on the screening part of the record (at most :data:`SCREEN_SAMPLES`
+   samples): proposals from the identified plant or a grid, each scored, the best two
+   refined by least squares; discrete causes (delays, offsets) are enumerated.
+2. **Re-fit jointly.** The best :data:`JOINT_CANDIDATES` of the screen are each added to
+   the chosen set and *all* continuous parameters re-fitted together on the whole
+   estimation record. At the second step the second cause is also sought on top of each
+   of the first step's best :data:`PAIR_SINGLES` singles (a beam): two simple effects at
+   once (a gain and a delay) can look like one flexible cause (a damped second-order
+   lag), which the forward path alone would keep.
+3. **Stop or keep.** The best joint model is accepted when its BIC is lower than the
+   current one's by more than :data:`ACCEPT_MARGIN` (among trials within that margin of
+   the best, the one with the fewest parameters); otherwise the selection stops. After
+   an acceptance every earlier cause is tried out of the set (the rest re-fitted): one
+   whose removal does not raise the BIC by the margin explains nothing the others do not,
+   and is dropped.
+
+So two or three effects at once are found and applied together, and two causes that
+explain the same thing are not both kept.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..numerics.arrays import FloatArray
+from ..numerics.model import Model
+from .causes import Cause, CauseFit, Choice, Context, PlantData, clip
+from .objective import Objective, least_squares
+from .registry import CAUSES, build
+
+#: Longest screening part of the record, in samples.
+SCREEN_SAMPLES = 30_000
+#: BIC decrease a further cause must bring: "very strong" evidence (Kass and Raftery, 1995).
+#: The search tries many shapes, so a bare decrease would let noise through.
+ACCEPT_MARGIN = 10.0
+#: Screened causes re-fitted jointly on the whole estimation record at each step.
+JOINT_CANDIDATES = 3
+#: At the second step, the second cause is also sought on top of this many best singles.
+PAIR_SINGLES = 3
+
+
+@dataclass(frozen=True)
+class Selection:
+    """What the selection found.
+
+    Attributes
+    ----------
+    chosen : list of CauseFit
+        The causes kept, in the order found, with their jointly fitted values.
+    ranking : list of CauseFit
+        Every cause fitted alone on the nominal model, scored on the whole estimation
+        record (lowest BIC first; inapplicable ones last).
+    model : Model
+        The nominal model with every kept cause.
+    steps : list of (str, float)
+        The accepted causes and the BIC after each step (the nominal's first).
+    """
+
+    chosen: list[CauseFit]
+    ranking: list[CauseFit]
+    model: Model
+    steps: list[tuple[str, float]]
+
+
+def _cost(obj: Objective, model: Model) -> float:
+    return obj.cost(model)
+
+
+def fit_single(cause: Cause, ctx: Context) -> tuple[Choice, float] | None:
+    """``cause`` fitted on top of ``ctx.current`` on ``ctx.objective``: choice and cost."""
+    obj = ctx.objective
+    props = cause.proposals(ctx)[:24]
+    if not props:
+        return None
+    scored = sorted(
+        ((_cost(obj, cause.apply(ctx.current, p)), i, p) for i, p in enumerate(props)),
+        key=lambda t: (t[0], t[1]),
+    )
+    if cause.discrete:
+        return scored[0][2], scored[0][0]
+    best: tuple[Choice, float] | None = None
+    for cost0, _, p in scored[:1]:
+        lo, hi, sc = cause.bounds(ctx.nominal, p)
+
+        def make(x: FloatArray, p: Choice = p) -> Model:
+            return cause.apply(ctx.current, replace(p, x=tuple(float(v) for v in x)))
+
+        x, cost = least_squares(obj, make, clip(p.x, lo, hi), lo, hi, sc, max_nfev=25)
+        cand = (replace(p, x=tuple(float(v) for v in x)), cost)
+        if cost0 < cost:
+            cand = (p, cost0)
+        if best is None or cand[1] < best[1]:
+            best = cand
+    return best
+
+
+def joint_refit(
+    obj: Objective, nominal: Model, choices: list[Choice], *, max_nfev: int = 30
+) -> tuple[list[Choice], float]:
+    """Every continuous parameter of ``choices`` re-fitted together (discrete ones fixed)."""
+    cont = [j for j, c in enumerate(choices) if not CAUSES[c.cause].discrete]
+    if not cont:
+        return choices, _cost(obj, build(nominal, choices))
+    sizes = [len(choices[j].x) for j in cont]
+    parts = [CAUSES[choices[j].cause].bounds(nominal, choices[j]) for j in cont]
+    lo = np.concatenate([b[0] for b in parts])
+    hi = np.concatenate([b[1] for b in parts])
+    sc = np.concatenate([b[2] for b in parts])
+
+    def unpack(x: FloatArray) -> list[Choice]:
+        out = list(choices)
+        k = 0
+        for j, n in zip(cont, sizes, strict=True):
+            out[j] = replace(choices[j], x=tuple(float(v) for v in x[k : k + n]))
+            k += n
+        return out
+
+    x0 = clip(np.concatenate([np.asarray(choices[j].x, float) for j in cont]), lo, hi)
+    start = _cost(obj, build(nominal, choices))
+    x, cost = least_squares(
+        obj, lambda x: build(nominal, unpack(x)), x0, lo, hi, sc, max_nfev=max_nfev
+    )
+    if cost > start:
+        return choices, start
+    return unpack(x), cost
+
+
+def _n_free(choices: list[Choice]) -> int:
+    return sum(CAUSES[c.cause].n_free for c in choices)
+
+
+def _fit(obj: Objective, nominal: Model, choices: list[Choice], score: float) -> CauseFit:
+    """The CauseFit of the last of ``choices`` (with all of them in its model)."""
+    c = choices[-1]
+    cause = CAUSES[c.cause]
+    params = cause.named(c, nominal)
+    model = build(nominal, choices)
+    _, rss = obj.evaluate(model, 0)
+    return CauseFit(c.cause, params, score, rss, model, True, cause.describe(params), c)
+
+
+def select(
+    est_full: Objective,
+    est_screen: Objective,
+    nominal: Model,
+    plant: PlantData | None,
+    *,
+    max_causes: int = 3,
+) -> Selection:
+    """Forward selection of causes (see the module docstring)."""
+    applicable = [c for c in CAUSES.values() if c.applies(nominal)]
+
+    def screen(chosen: list[Choice]) -> list[Choice]:
+        ctx = Context(build(nominal, chosen), nominal, plant, est_screen)
+        out: list[tuple[float, Choice]] = []
+        for cause in applicable:
+            if not cause.repeatable and any(ch.cause == cause.name for ch in chosen):
+                continue
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                got = fit_single(cause, ctx)
+            if got is not None:
+                out.append((est_screen.bic(got[1], cause.n_free), got[0]))
+        return [ch for _, ch in sorted(out, key=lambda t: t[0])]
+
+    def best_of(trials: list[list[Choice]]) -> tuple[float, list[Choice], float]:
+        """The best trial; within ACCEPT_MARGIN of it, the one with fewest parameters."""
+        fitted = []
+        for trial0 in trials:
+            trial, cost = joint_refit(est_full, nominal, trial0)
+            fitted.append((est_full.bic(cost, _n_free(trial)), trial, cost))
+        if not fitted:
+            return math.inf, [], math.inf
+        low = min(f[0] for f in fitted)
+        near = [f for f in fitted if f[0] < low + ACCEPT_MARGIN]
+        return min(near, key=lambda f: (_n_free(f[1]), f[0]))
+
+    cur_cost = _cost(est_full, nominal)
+    cur_bic = est_full.bic(cur_cost, 0)
+    steps = [("none", cur_bic)]
+    chosen: list[Choice] = []
+    singles = screen([])
+    ranking = _ranking(est_full, nominal, singles)
+    while len(chosen) < max_causes:
+        if not chosen:
+            trials = [[ch] for ch in singles[:JOINT_CANDIDATES]]
+        elif len(steps) == 2:
+            # two effects at once can look like one flexible cause (a gain and a delay like
+            # a damped lag), which the forward path alone would keep: the second cause is
+            # sought on top of each of the best singles (a beam)
+            trials = [
+                [a, b]
+                for a in [chosen[0]] + [c for c in singles[:PAIR_SINGLES] if c != chosen[0]]
+                for b in screen([a])[:2]
+            ]
+        else:
+            trials = [chosen + [ch] for ch in screen(chosen)[:JOINT_CANDIDATES]]
+        bic, trial, cost = best_of(trials)
+        if not bic < cur_bic - ACCEPT_MARGIN:
+            break
+        chosen, cur_cost, cur_bic = _prune(est_full, nominal, trial, cost, bic)
+        steps.append((chosen[-1].cause, cur_bic))
+    fits = [_fit(est_full, nominal, chosen[: j + 1], cur_bic) for j in range(len(chosen))]
+    inapplicable = [
+        CauseFit(c.name, {}, math.inf, {}, nominal, applicable=False)
+        for c in CAUSES.values()
+        if not c.applies(nominal)
+    ]
+    return Selection(
+        fits,
+        ranking + inapplicable,
+        build(nominal, chosen),
+        steps,
+    )
+
+
+def _ranking(obj: Objective, nominal: Model, screened: list[Choice]) -> list[CauseFit]:
+    """Each cause alone on the nominal, scored on the whole estimation record."""
+    cost0 = _cost(obj, nominal)
+    out = [
+        CauseFit(
+            "none",
+            {},
+            obj.bic(cost0, 0),
+            obj.evaluate(nominal, 0)[1],
+            nominal,
+            True,
+            "the model explains the data within noise",
+        )
+    ]
+    for ch in screened:
+        cost = _cost(obj, build(nominal, [ch]))
+        out.append(_fit(obj, nominal, [ch], obj.bic(cost, CAUSES[ch.cause].n_free)))
+    return sorted(out, key=lambda c: c.score)
+
+
+def _prune(
+    obj: Objective, nominal: Model, chosen: list[Choice], cost: float, bic: float
+) -> tuple[list[Choice], float, float]:
+    """Drop every earlier cause whose removal (the rest re-fitted) does not raise the BIC."""
+    j = 0
+    while len(chosen) > 1 and j < len(chosen) - 1:
+        rest = chosen[:j] + chosen[j + 1 :]
+        trial, c = joint_refit(obj, nominal, rest, max_nfev=15)
+        b = obj.bic(c, _n_free(trial))
+        if b <= bic + ACCEPT_MARGIN:  # it did not bring its margin: dropped
+            chosen, cost, bic = trial, c, b
+            continue
+        j += 1
+    return chosen, cost, bic
