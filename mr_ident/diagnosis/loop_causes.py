@@ -133,12 +133,20 @@ class ControllerNotch(_LoopCause):
         )
 
 
+#: Family-wise false-alarm level of a residual peak: below it no disturbance is proposed.
+PEAK_ALPHA = 1e-3
+
+
 def residual_peaks(ctx: Context, k: int = 2) -> list[tuple[float, int, float]]:
     """Candidate disturbance frequencies: the largest peaks of the whitened y residual.
 
     (frequency_hz, output, amplitude), per output the ``k`` largest peaks of
-    ``|E(k)| / σ_noise(k)`` (a sinusoid stands out against the noise as the loop shapes it,
-    not against the largest noise).
+    ``|E(k)|² / S(k)`` (a sinusoid stands out against the noise as the loop shapes it, not
+    against the largest noise) that exceed ``ln(n_bins / PEAK_ALPHA)``: under noise alone
+    each bin is Exp(1), so the largest of n passes with probability about PEAK_ALPHA. The
+    gate matters because a sinusoid on y passes the controller's sampler and comes back at
+    its aliases, so one fitted disturbance can take up noise at F frequencies at once: the
+    BIC's three parameters under-count that search.
     """
     obj, base = ctx.objective, ctx.current
     pred = predict(base, obj.rec)
@@ -149,11 +157,14 @@ def residual_peaks(ctx: Context, k: int = 2) -> list[tuple[float, int, float]]:
     Z = np.abs(E) * obj.weight
     f = np.fft.rfftfreq(n, 1.0 / base.fs_high)
     out = []
+    level = math.log(Z.shape[0] / PEAK_ALPHA)  # |E|²/S is Exp(1) per bin under noise alone
     for o in range(E.shape[1]):
-        mag = Z[:, o].copy()
+        mag = Z[:, o] ** 2
         mag[0] = 0.0
         for _ in range(k):
             j = int(np.argmax(mag))
+            if mag[j] < level:
+                break
             out.append((float(f[j]), o, float(2.0 * np.abs(E[j, o]) / np.sqrt(n))))
             mag[max(j - 8, 0) : j + 9] = 0.0
     return out

@@ -38,7 +38,7 @@ def plant_modes(model: Model) -> list[tuple[float, float]]:
     return sorted(out)
 
 
-def _subsample(plant: PlantData, most: int = 3000) -> PlantData:
+def _subsample(plant: PlantData, most: int = 1500) -> PlantData:
     ok = np.all(np.isfinite(plant.std) & (plant.std > 0), axis=(1, 2)) & (plant.frequency > 0)
     idx = np.nonzero(ok)[0]
     idx = idx[:: max(1, math.ceil(idx.size / most))]
@@ -81,7 +81,7 @@ class PlantCause(Cause):
         costs = [float(np.sum(self.frf_residual(ctx, plant, c) ** 2)) for c in raw]
         order = np.argsort(costs)
         out = []
-        for j in order[:3]:
+        for j in order[:2]:
             c = raw[int(j)]
             lo, hi, sc = self.bounds(ctx.nominal, c)
             with warnings.catch_warnings():
@@ -91,7 +91,7 @@ class PlantCause(Cause):
                     clip(c.x, lo, hi),
                     bounds=(lo, hi),
                     x_scale=sc,
-                    max_nfev=60,
+                    max_nfev=40,
                     diff_step=1e-6,
                 )
             out.append((float(res.cost), replace(c, x=tuple(float(v) for v in res.x))))

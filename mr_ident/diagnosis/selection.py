@@ -40,7 +40,7 @@ from .objective import Objective, least_squares
 from .registry import CAUSES, build
 
 #: Longest screening part of the record, in samples.
-SCREEN_SAMPLES = 30_000
+SCREEN_SAMPLES = 20_000
 #: BIC decrease a further cause must bring: "very strong" evidence (Kass and Raftery, 1995).
 #: The search tries many shapes, so a bare decrease would let noise through.
 ACCEPT_MARGIN = 10.0
@@ -96,7 +96,7 @@ def fit_single(cause: Cause, ctx: Context) -> tuple[Choice, float] | None:
         def make(x: FloatArray, p: Choice = p) -> Model:
             return cause.apply(ctx.current, replace(p, x=tuple(float(v) for v in x)))
 
-        x, cost = least_squares(obj, make, clip(p.x, lo, hi), lo, hi, sc, max_nfev=25)
+        x, cost = least_squares(obj, make, clip(p.x, lo, hi), lo, hi, sc, max_nfev=20)
         cand = (replace(p, x=tuple(float(v) for v in x)), cost)
         if cost0 < cost:
             cand = (p, cost0)
@@ -161,10 +161,12 @@ def select(
     """Forward selection of causes (see the module docstring)."""
     applicable = [c for c in CAUSES.values() if c.applies(nominal)]
 
-    def screen(chosen: list[Choice]) -> list[Choice]:
+    def screen(chosen: list[Choice], among: list[str] | None = None) -> list[Choice]:
         ctx = Context(build(nominal, chosen), nominal, plant, est_screen)
         out: list[tuple[float, Choice]] = []
         for cause in applicable:
+            if among is not None and cause.name not in among:
+                continue
             if not cause.repeatable and any(ch.cause == cause.name for ch in chosen):
                 continue
             with warnings.catch_warnings():
@@ -178,7 +180,8 @@ def select(
         """The best trial; within ACCEPT_MARGIN of it, the one with fewest parameters."""
         fitted = []
         for trial0 in trials:
-            trial, cost = joint_refit(est_full, nominal, trial0)
+            trial, _ = joint_refit(est_screen, nominal, trial0)  # fitted on the screen part,
+            cost = _cost(est_full, build(nominal, trial))  # judged on the whole record
             fitted.append((est_full.bic(cost, _n_free(trial)), trial, cost))
         if not fitted:
             return math.inf, [], math.inf
@@ -199,9 +202,11 @@ def select(
             # two effects at once can look like one flexible cause (a gain and a delay like
             # a damped lag), which the forward path alone would keep: the second cause is
             # sought on top of each of the best singles (a beam)
-            trials = [
+            trials = [[chosen[0], b] for b in screen(chosen)[:JOINT_CANDIDATES]]
+            trials += [
                 [a, b]
-                for a in [chosen[0]] + [c for c in singles[:PAIR_SINGLES] if c != chosen[0]]
+                for a in singles[:PAIR_SINGLES]
+                if a.cause != chosen[0].cause
                 for b in screen([a])[:2]
             ]
         else:
@@ -209,8 +214,11 @@ def select(
         bic, trial, cost = best_of(trials)
         if not bic < cur_bic - ACCEPT_MARGIN:
             break
-        chosen, cur_cost, cur_bic = _prune(est_full, nominal, trial, cost, bic)
+        chosen, cur_cost, cur_bic = _prune(est_full, est_screen, nominal, trial, cost, bic)
         steps.append((chosen[-1].cause, cur_bic))
+    if chosen and est_screen is not est_full:  # the values from all of the estimation data
+        chosen, cur_cost = joint_refit(est_full, nominal, chosen)
+        cur_bic = est_full.bic(cur_cost, _n_free(chosen))
     fits = [_fit(est_full, nominal, chosen[: j + 1], cur_bic) for j in range(len(chosen))]
     inapplicable = [
         CauseFit(c.name, {}, math.inf, {}, nominal, applicable=False)
@@ -246,13 +254,19 @@ def _ranking(obj: Objective, nominal: Model, screened: list[Choice]) -> list[Cau
 
 
 def _prune(
-    obj: Objective, nominal: Model, chosen: list[Choice], cost: float, bic: float
+    obj: Objective,
+    screen: Objective,
+    nominal: Model,
+    chosen: list[Choice],
+    cost: float,
+    bic: float,
 ) -> tuple[list[Choice], float, float]:
     """Drop every earlier cause whose removal (the rest re-fitted) does not raise the BIC."""
     j = 0
     while len(chosen) > 1 and j < len(chosen) - 1:
         rest = chosen[:j] + chosen[j + 1 :]
-        trial, c = joint_refit(obj, nominal, rest, max_nfev=15)
+        trial, _ = joint_refit(screen, nominal, rest, max_nfev=15)
+        c = _cost(obj, build(nominal, trial))
         b = obj.bic(c, _n_free(trial))
         if b <= bic + ACCEPT_MARGIN:  # it did not bring its margin: dropped
             chosen, cost, bic = trial, c, b
