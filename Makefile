@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 export ROS_LOG_DIR ?= $(CURDIR)/out/ros_log
 export MPLBACKEND := Agg
 
-.PHONY: demo paper test lint bench bench-bag bench-live soak motor-bench venv clean
+.PHONY: demo paper test lint bench bench-bag bench-live bench-diagnose soak motor-bench venv clean
 
 venv: $(STAMP)
 
@@ -42,6 +42,11 @@ bench-bag: $(STAMP)
 
 bench-live: $(STAMP)
 	$(PY) benchmarks/bench_live.py
+
+# diagnose on seeded random loops (100 per cause, 100 pairs, 100 with nothing hidden);
+# 1200 cases, sized for ~45 min on 2 cores at <= 4.5 s per diagnosis; not part of `make test`
+bench-diagnose: $(STAMP)
+	$(PY) benchmarks/bench_diagnose.py
 
 # 30 min of sim + node + recorder (SOAK_MINUTES=5 make soak for a shorter run); ~4 GB in out/soak
 soak: $(STAMP)

@@ -142,6 +142,10 @@ class Cause:
         """Starting points for the fit on top of ``ctx.current`` (best guesses first)."""
         raise NotImplementedError
 
+    def values(self, nominal: Model) -> list[float]:
+        """Every value of a :attr:`discrete` cause on top of ``nominal``."""
+        return []
+
     def bounds(self, nominal: Model, choice: Choice) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Lower and upper bounds of ``choice.x`` and its typical scale."""
         raise NotImplementedError

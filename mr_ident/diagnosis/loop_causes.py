@@ -38,9 +38,13 @@ class ControlDelay(_LoopCause):
         """With a controller."""
         return nominal.controller is not None
 
-    def proposals(self, ctx: Context) -> list[Choice]:
+    def values(self, nominal: Model) -> list[float]:
         """One to 2F samples later."""
-        return [Choice(self.name, (float(d),)) for d in range(1, 2 * ctx.nominal.ratio + 1)]
+        return [float(d) for d in range(1, 2 * nominal.ratio + 1)]
+
+    def proposals(self, ctx: Context) -> list[Choice]:
+        """Every value."""
+        return [Choice(self.name, (v,)) for v in self.values(ctx.nominal)]
 
     def bounds(self, nominal: Model, choice: Choice) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Not optimised (discrete)."""
@@ -69,10 +73,14 @@ class SamplingOffset(_LoopCause):
         """With a controller and F > 1."""
         return nominal.controller is not None and nominal.ratio > 1
 
-    def proposals(self, ctx: Context) -> list[Choice]:
+    def values(self, nominal: Model) -> list[float]:
         """Every other phase."""
-        base, F = ctx.current.sample_phase, ctx.nominal.ratio
-        return [Choice(self.name, (float(o),)) for o in range(-base, F - base) if o != 0]
+        base, F = nominal.sample_phase, nominal.ratio
+        return [float(o) for o in range(-base, F - base) if o != 0]
+
+    def proposals(self, ctx: Context) -> list[Choice]:
+        """Every value."""
+        return [Choice(self.name, (v,)) for v in self.values(ctx.nominal)]
 
     def bounds(self, nominal: Model, choice: Choice) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Not optimised (discrete)."""
@@ -135,31 +143,41 @@ class ControllerNotch(_LoopCause):
 
 #: Family-wise false-alarm level of a residual peak: below it no disturbance is proposed.
 PEAK_ALPHA = 1e-3
+#: Bins of the running median a residual peak is held against.
+PEAK_WINDOW = 257
 
 
 def residual_peaks(ctx: Context, k: int = 2) -> list[tuple[float, int, float]]:
-    """Candidate disturbance frequencies: the largest peaks of the whitened y residual.
+    """Candidate disturbance frequencies: narrow peaks of the y residual's periodogram.
 
     (frequency_hz, output, amplitude), per output the ``k`` largest peaks of
-    ``|E(k)|² / S(k)`` (a sinusoid stands out against the noise as the loop shapes it, not
-    against the largest noise) that exceed ``ln(n_bins / PEAK_ALPHA)``: under noise alone
-    each bin is Exp(1), so the largest of n passes with probability about PEAK_ALPHA. The
-    gate matters because a sinusoid on y passes the controller's sampler and comes back at
-    its aliases, so one fitted disturbance can take up noise at F frequencies at once: the
-    BIC's three parameters under-count that search.
+    ``|E(k)|² / m(k)``, m a running median of ``|E|²`` over :data:`PEAK_WINDOW` bins
+    divided by ln 2 (the median of an exponential), that exceed ``ln(n_bins / PEAK_ALPHA)``:
+    under noise alone each ratio is about Exp(1), so the largest of n passes with
+    probability about PEAK_ALPHA (a detector with a constant false-alarm rate). The local
+    median follows whatever is broad in the residual (the noise as the loop shapes it, a
+    model error elsewhere) and ignores a sinusoid's few bins; the noise spectrum of the
+    criterion cannot serve here, since the LPM counts a disturbance r does not explain as
+    noise over its whole window. The gate matters because a sinusoid on y passes the
+    controller's sampler and comes back at its aliases, so one fitted disturbance can take
+    up noise at F frequencies at once: the BIC's three parameters under-count that search.
     """
+    import scipy.ndimage
+
     obj, base = ctx.objective, ctx.current
     pred = predict(base, obj.rec)
     s = obj.skip
     e = obj.y[s:] - pred.y[s:]
     n = e.shape[0]
     E = np.fft.rfft(e, axis=0, norm="ortho")
-    Z = np.abs(E) * obj.weight
+    P = np.abs(E) ** 2
+    local = scipy.ndimage.median_filter(P, size=(PEAK_WINDOW, 1), mode="nearest") / math.log(2)
+    Z = P / np.maximum(local, 1e-300)
     f = np.fft.rfftfreq(n, 1.0 / base.fs_high)
+    level = math.log(Z.shape[0] / PEAK_ALPHA)
     out = []
-    level = math.log(Z.shape[0] / PEAK_ALPHA)  # |E|²/S is Exp(1) per bin under noise alone
     for o in range(E.shape[1]):
-        mag = Z[:, o] ** 2
+        mag = Z[:, o].copy()
         mag[0] = 0.0
         for _ in range(k):
             j = int(np.argmax(mag))

@@ -179,7 +179,7 @@ def select(
     def best_of(trials: list[list[Choice]]) -> tuple[float, list[Choice], float]:
         """The best trial; within ACCEPT_MARGIN of it, the one with fewest parameters."""
         fitted = []
-        for trial0 in trials:
+        for trial0 in _with_neighbours(trials, nominal):
             trial, _ = joint_refit(est_screen, nominal, trial0)  # fitted on the screen part,
             cost = _cost(est_full, build(nominal, trial))  # judged on the whole record
             fitted.append((est_full.bic(cost, _n_free(trial)), trial, cost))
@@ -273,3 +273,24 @@ def _prune(
             continue
         j += 1
     return chosen, cost, bic
+
+
+def _with_neighbours(trials: list[list[Choice]], nominal: Model) -> list[list[Choice]]:
+    """``trials`` and, where the last cause is discrete, its neighbouring values too.
+
+    A discrete value is chosen with the other causes' values fixed; a continuous cause
+    fitted alone first may have taken up part of its effect (a low-pass some of a control
+    delay's lag), so the values next to it are re-fitted jointly as well.
+    """
+    out = []
+    for t in trials:
+        out.append(t)
+        last = t[-1]
+        cause = CAUSES[last.cause]
+        if cause.discrete:
+            out += [
+                t[:-1] + [replace(last, x=(v,))]
+                for v in cause.values(nominal)
+                if v != last.x[0] and abs(v - last.x[0]) <= 2
+            ]
+    return out

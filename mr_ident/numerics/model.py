@@ -53,6 +53,7 @@ import numpy as np
 from ..errors import ModelError
 from .arrays import ComplexArray, FloatArray
 from .realize import (
+    balanced,
     block_diag,
     diagonal,
     lowpass,
@@ -269,4 +270,4 @@ def plant_ss(model: Model) -> StateSpace:
             S = series(diagonal(lowpass(f, zeta), ni, channel=channel), S)
         else:
             S = series(S, diagonal(lowpass(f, zeta), no, channel=channel))
-    return StateSpace(S.A, S.B, S.C, S.D, P.dt)
+    return balanced(StateSpace(S.A, S.B, S.C, S.D, P.dt))

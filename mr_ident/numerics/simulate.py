@@ -19,6 +19,7 @@ from numpy.typing import ArrayLike
 from ..errors import ConfigError, DimensionError
 from .arrays import ComplexArray, FloatArray
 from .model import Model
+from .realize import balanced
 from .signals import LoopData
 from .systems import StateSpace
 
@@ -109,6 +110,7 @@ class StateRecursion:
     """
 
     def __init__(self, ss: StateSpace):
+        ss = balanced(ss)  # the eigenvectors of a badly scaled loop look defective
         self.ss = ss
         self._modal = True
         if ss.A.shape[0] == 0:

@@ -164,7 +164,7 @@ _PADE13 = (
 _THETA13 = 5.371920351148152
 
 
-def _balance(M: FloatArray) -> FloatArray:
+def balance(M: FloatArray) -> FloatArray:
     """Diagonal d (powers of two) balancing ``M[i, j] d[j] / d[i]``.
 
     Parlett and Reinsch's balancing: companion forms of polynomials whose coefficients span
@@ -200,7 +200,7 @@ def expm(A: ArrayLike) -> FloatArray:
     n = M.shape[0]
     if n == 0:
         return np.zeros((0, 0))
-    d = _balance(M)
+    d = balance(M)
     M = M * d[None, :] / d[:, None]
     norm = float(np.abs(M).sum(axis=0).max())
     s = max(0, int(np.ceil(np.log2(norm / _THETA13)))) if norm > _THETA13 else 0
