@@ -151,12 +151,15 @@ def residual_peaks(ctx: Context, k: int = 2) -> list[tuple[float, int, float]]:
     """Candidate disturbance frequencies: narrow peaks of the y residual's periodogram.
 
     (frequency_hz, output, amplitude), per output the ``k`` largest peaks of
-    ``|E(k)|² / m(k)``, m a running median of ``|E|²`` over :data:`PEAK_WINDOW` bins
-    divided by ln 2 (the median of an exponential), that exceed ``ln(n_bins / PEAK_ALPHA)``:
+    ``|E(k)|² / m(k)``, m the larger of two running medians of ``|E|²`` (over
+    :data:`PEAK_WINDOW` bins, and over the neighbours 3 to 12 bins away) divided by ln 2
+    (the median of an exponential), that exceed ``ln(n_bins / PEAK_ALPHA)``:
     under noise alone each ratio is about Exp(1), so the largest of n passes with
     probability about PEAK_ALPHA (a detector with a constant false-alarm rate). The local
     median follows whatever is broad in the residual (the noise as the loop shapes it, a
-    model error elsewhere) and ignores a sinusoid's few bins; the noise spectrum of the
+    model error elsewhere) and ignores a sinusoid's few bins; the near one tells a sinusoid
+    (one or two bins) from noise through a lightly damped closed-loop pole (a hump a few bins
+    wide, which a wide median would flatten); the noise spectrum of the
     criterion cannot serve here, since the LPM counts a disturbance r does not explain as
     noise over its whole window. The gate matters because a sinusoid on y passes the
     controller's sampler and comes back at its aliases, so one fitted disturbance can take
@@ -171,7 +174,11 @@ def residual_peaks(ctx: Context, k: int = 2) -> list[tuple[float, int, float]]:
     n = e.shape[0]
     E = np.fft.rfft(e, axis=0, norm="ortho")
     P = np.abs(E) ** 2
-    local = scipy.ndimage.median_filter(P, size=(PEAK_WINDOW, 1), mode="nearest") / math.log(2)
+    wide = scipy.ndimage.median_filter(P, size=(PEAK_WINDOW, 1), mode="nearest")
+    ring = np.ones((25, 1), bool)
+    ring[10:15] = False  # the neighbours 3..12 bins away, not the peak's own leakage
+    near = scipy.ndimage.median_filter(P, footprint=ring, mode="nearest")
+    local = np.maximum(wide, near) / math.log(2)
     Z = P / np.maximum(local, 1e-300)
     f = np.fft.rfftfreq(n, 1.0 / base.fs_high)
     level = math.log(Z.shape[0] / PEAK_ALPHA)

@@ -34,8 +34,30 @@ def settle_samples(model: Model, n_samples: int) -> int:
     return min(m * F, (n_samples // 4) // F * F)
 
 
+def smooth_below(n: int) -> int:
+    """The largest 5-smooth number (only factors 2, 3 and 5) not above n (n >= 1)."""
+    best = 1
+    p2 = 1
+    while p2 <= n:
+        p3 = p2
+        while p3 <= n:
+            p5 = p3
+            while p5 * 5 <= n:
+                p5 *= 5
+            best = max(best, p5)
+            p3 *= 3
+        p2 *= 2
+    return best
+
+
 class Objective:
     """Whitened residuals of a model family on the estimation record.
+
+    In closed loop the simulation starts at rest while the measured loop was running: the
+    first samples are skipped (:func:`settle_samples`) and what the loop's slow modes
+    still carry of the unknown initial state is eliminated by least squares (variable
+    projection onto their free responses, whitened like the residual), so that neither
+    the start-up transient nor a slow mode's tail counts as a model error.
 
     The spectrum ``E(k)`` of y - ŷ (``rfft``, orthonormal) is divided by the noise std
     of :func:`~mr_ident.diagnosis.noise.noise_spectrum`, so that the bins are independent
@@ -60,6 +82,9 @@ class Objective:
         self.u, self.y = u, y
         self.closed = base.controller is not None
         self.skip = rec.period or (settle_samples(base, rec.n_samples) if self.closed else 0)
+        if not rec.period:  # FFTs of the rest fast: its length a multiple of F, 5-smooth
+            unit = rec.ratio or 1
+            self.skip = rec.n_samples - unit * smooth_below((rec.n_samples - self.skip) // unit)
         if self._raw(base) is None:
             raise DataError("the model cannot be simulated on this data (the loop is not stable)")
         # the noise spectrum is given on the bins of the whole record: onto this one's
@@ -74,13 +99,17 @@ class Objective:
         with warnings.catch_warnings():
             warnings.simplefilter("error")  # unstable or defective candidates are rejected
             try:
-                pred = predict(model, self.rec)
+                pred = predict(model, self.rec, free_from=self.skip if self.closed else None)
             except (ArithmeticError, ValueError, Warning, np.linalg.LinAlgError):
                 return None  # any warning, a library's own (scipy's BadCoefficients) included
         s = self.skip
         parts = [self.y[s:] - pred.y[s:], self.u[s:] - pred.u[s:]]
         if not all(np.all(np.isfinite(p_)) for p_ in parts):
             return None
+        if pred.free is not None and pred.free.shape[-1]:
+            if not np.all(np.isfinite(pred.free)):
+                return None
+            parts.append(pred.free)
         return parts
 
     def residuals(self, model: Model) -> FloatArray:
@@ -97,7 +126,14 @@ class Objective:
             return np.full(2 * self.n_bins, 1e3)
         with np.errstate(all="ignore"):
             E = np.fft.rfft(raw[0], axis=0, norm="ortho") * self.weight
-        res = np.concatenate([E.real.ravel(), E.imag.ravel()])
+            res = np.concatenate([E.real.ravel(), E.imag.ravel()])
+            if len(raw) > 2:  # the unknown state at the start, eliminated by least squares
+                T = np.fft.rfft(raw[2], axis=0, norm="ortho") * self.weight[:, :, None]
+                T = T.reshape(-1, T.shape[-1])
+                A = np.concatenate([T.real, T.imag])
+                if np.all(np.isfinite(A)):
+                    beta = np.linalg.lstsq(A, res, rcond=1e-10)[0]
+                    res = res - A @ beta
         ok = np.all(np.isfinite(res)) and float(np.max(np.abs(res), initial=0.0)) < 1e100
         return res if ok else np.full(2 * self.n_bins, 1e3)
 

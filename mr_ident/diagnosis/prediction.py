@@ -20,11 +20,16 @@ from ..numerics.simulate import LoopStream
 
 @dataclass(frozen=True)
 class Prediction:
-    """Simulated (u, y) for a record, and the samples compared (from ``skip`` on)."""
+    """Simulated (u, y) for a record, and the samples compared (from ``skip`` on).
+
+    ``free``: in closed loop when asked for, the free responses of y from sample ``start``
+    on, shape (N - start, n_y, k) (:meth:`~mr_ident.numerics.simulate.LoopStream.free_y`).
+    """
 
     u: FloatArray
     y: FloatArray
     skip: int
+    free: FloatArray | None = None
 
 
 def centred(rec: LoopData, model: Model) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -34,15 +39,22 @@ def centred(rec: LoopData, model: Model) -> tuple[FloatArray, FloatArray, FloatA
     return rec.r, rec.u, rec.y
 
 
-def predict(model: Model, rec: LoopData) -> Prediction:
-    """Simulate ``model`` on the measured excitation of ``rec`` (see the module docstring)."""
+def predict(model: Model, rec: LoopData, *, free_from: int | None = None) -> Prediction:
+    """Simulate ``model`` on the measured excitation of ``rec`` (see the module docstring).
+
+    ``free_from``: also the closed loop's free responses of y from that sample on.
+    """
     r, u, _ = centred(rec, model)
+    stream = LoopStream(model)
+    free = None
     if model.controller is None:
-        _, y_hat = LoopStream(model).next(u)
+        _, y_hat = stream.next(u)
         u_hat = u
     else:
-        u_hat, y_hat = LoopStream(model).next(r)
-    return Prediction(u_hat, y_hat, rec.period or 0)
+        u_hat, y_hat = stream.next(r)
+        if free_from is not None:
+            free = stream.free_y(rec.n_samples, free_from)
+    return Prediction(u_hat, y_hat, rec.period or 0, free)
 
 
 def fit_percent(measured: FloatArray, simulated: FloatArray) -> float:

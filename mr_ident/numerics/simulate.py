@@ -134,6 +134,29 @@ class StateRecursion:
                 self._Cm = ss.C @ V  # (n_out, n)
         self._z = np.zeros(self._lam.shape[0] if self._modal else 0, dtype=complex)
 
+    def free(self, n_steps: int, rows: slice, start: int, floor: float = 1e-8) -> FloatArray:
+        """Free responses of the slow modes: a real basis, shape (n_steps - start, rows, k).
+
+        The outputs ``rows`` from step ``start`` on of the response to an initial state
+        (zero input), one column per real mode and two per complex pair (real and
+        imaginary part), for the modes with ``|λ|^start > floor`` only: the others have
+        died out by ``start``. Empty (k = 0) when nothing is that slow.
+        """
+        if not self._modal or not self._lam.size:
+            return np.zeros((n_steps - start, len(range(*rows.indices(self.ss.C.shape[0]))), 0))
+        lam = self._lam
+        keep = np.nonzero((np.abs(lam) ** start > floor) & (lam.imag >= 0))[0]
+        m = np.arange(start, n_steps)
+        cols = []
+        for i in keep:
+            g = np.outer(lam[i] ** m, self._Cm[rows, i])  # (M, rows)
+            cols.append(g.real)
+            if lam[i].imag > 0:
+                cols.append(g.imag)
+        if not cols:
+            return np.zeros((m.size, len(range(*rows.indices(self.ss.C.shape[0]))), 0))
+        return np.stack(cols, axis=-1)
+
     def run(self, w: ArrayLike) -> FloatArray:
         """Outputs (M, n_out) for inputs ``w`` (M, n_in), continuing from the last call."""
         import scipy.signal  # here, not at the top: it costs half a second of start-up
@@ -257,6 +280,18 @@ class LoopStream:
         self.model = model
         self._loop = StateRecursion(lifted_loop(model))
         self._n = 0  # samples simulated so far (for the disturbance's time)
+
+    def free_y(self, n_samples: int, start: int) -> FloatArray:
+        """Free responses of y from sample ``start`` on, shape (n_samples - start, n_y, k).
+
+        Where the loop, started at rest, differs from one that was already running: the
+        response to the state at sample 0 (see :meth:`StateRecursion.free`). ``start`` and
+        ``n_samples`` multiples of F.
+        """
+        F, ny = self.model.ratio, self.model.n_y
+        B = self._loop.free(n_samples // F, slice(0, F * ny), start // F)
+        k = B.shape[-1]
+        return B.reshape(B.shape[0] * F, ny, k)
 
     def next(
         self, reference: ArrayLike, noise: ArrayLike | None = None
