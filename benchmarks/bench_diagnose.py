@@ -271,7 +271,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--none", type=int, default=100, help="cases with nothing hidden (100)")
     ap.add_argument("--causes", default="", help="comma-separated subset (default: all known)")
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--duration", type=float, default=60.0, help="record seconds (60)")
+    ap.add_argument("--duration", type=float, default=30.0, help="record seconds (30)")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (2)")
     ap.add_argument("--json", type=Path, help="write every case to this JSON file")
     ap.add_argument("--case", help="re-run one case, cause[+cause]:seed (none:seed)")

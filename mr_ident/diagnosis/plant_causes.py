@@ -164,20 +164,28 @@ class InputDelay(PlantCause):
         return f"an extra input delay of {1e3 * d:.3g} ms between u and the plant"
 
 
-def _peaks(plant: PlantData, current: Model, k: int = 3) -> list[tuple[float, complex]]:
-    """Frequencies where P̂ - P stands out most (σ units, smoothed), with P̂ - P there."""
+def _peaks(
+    plant: PlantData, current: Model, k: int = 3
+) -> list[tuple[float, complex, tuple[int, int]]]:
+    """Where P̂ - P stands out most (σ units, smoothed, in its worst entry).
+
+    (frequency_hz, P̂ - P there, (output, input) of that entry), the ``k`` largest peaks
+    at least 10 % apart.
+    """
     P = current.plant_discrete().freqresp(plant.frequency)
     d = plant.response - P
-    z = (np.abs(d) / plant.std).reshape(d.shape[0], -1)
-    j = np.argmax(z.max(axis=0))
+    K, ny, nu = d.shape
+    z = (np.abs(d) / plant.std).reshape(K, -1)
+    j = int(np.argmax(z.max(axis=0)))
+    entry = (j // nu, j % nu)
     zs = np.convolve(z[:, j], np.ones(5) / 5, mode="same")
-    out: list[tuple[float, complex]] = []
+    out: list[tuple[float, complex, tuple[int, int]]] = []
     f = plant.frequency
     for _ in range(k):
         i = int(np.argmax(zs))
         if not np.isfinite(zs[i]) or zs[i] <= 0:
             break
-        out.append((float(f[i]), complex(d.reshape(d.shape[0], -1)[i, j])))
+        out.append((float(f[i]), complex(d.reshape(K, -1)[i, j]), entry))
         zs[np.abs(f - f[i]) < 0.1 * f[i] + 2 * (f[1] - f[0] if f.size > 1 else 0.0)] = -np.inf
     return out
 
@@ -199,10 +207,10 @@ class AdditiveMode(PlantCause):
         if ctx.plant is None:
             return []
         out = []
-        for f, d in _peaks(_subsample(ctx.plant), ctx.current):
+        for f, d, (o, i) in _peaks(_subsample(ctx.plant), ctx.current):
             for z in (0.005, 0.02, 0.06, 0.2):
                 # at resonance the mode adds -j g / (2 ζ)
-                out.append(Choice(self.name, (f, z, float(-2.0 * z * d.imag)), (0.0, 0.0)))
+                out.append(Choice(self.name, (f, z, float(-2.0 * z * d.imag)), (o, i)))
         return out
 
     def bounds(self, nominal: Model, choice: Choice) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -220,6 +228,13 @@ class AdditiveMode(PlantCause):
         f, z, g = choice.x
         o, i = (int(v) for v in choice.fixed) if choice.fixed else (0, 0)
         return replace(model, additive_modes=model.additive_modes + ((f, z, g, o, i),))
+
+    def named(self, choice: Choice, nominal: Model) -> Params:
+        """Frequency, damping, modal gain, and the entry (MIMO)."""
+        out = super().named(choice, nominal)
+        if nominal.n_y * nominal.n_u > 1 and choice.fixed:
+            out |= {"output": float(choice.fixed[0]), "input": float(choice.fixed[1])}
+        return out
 
     def describe(self, params: Params) -> str:
         """In words."""
@@ -356,7 +371,7 @@ class SeriesResonance(PlantCause):
             for z in (0.05, 0.3, 0.8)
         ]
         if ctx.plant is not None:
-            for f, _ in _peaks(_subsample(ctx.plant), ctx.current, 2):
+            for f, _, _ in _peaks(_subsample(ctx.plant), ctx.current, 2):
                 out += [Choice(self.name, (f, z)) for z in (0.02, 0.08)]
         return out
 

@@ -78,7 +78,11 @@ def _cost(obj: Objective, model: Model) -> float:
 
 
 def fit_single(cause: Cause, ctx: Context) -> tuple[Choice, float] | None:
-    """``cause`` fitted on top of ``ctx.current`` on ``ctx.objective``: choice and cost."""
+    """``cause`` fitted on top of ``ctx.current`` on ``ctx.objective``: choice and cost.
+
+    Every proposal (at most 24) is scored; a discrete cause keeps the best, a continuous
+    one refines the best by least squares.
+    """
     obj = ctx.objective
     props = cause.proposals(ctx)[:24]
     if not props:
@@ -87,22 +91,18 @@ def fit_single(cause: Cause, ctx: Context) -> tuple[Choice, float] | None:
         ((_cost(obj, cause.apply(ctx.current, p)), i, p) for i, p in enumerate(props)),
         key=lambda t: (t[0], t[1]),
     )
+    cost0, _, p = scored[0]
     if cause.discrete:
-        return scored[0][2], scored[0][0]
-    best: tuple[Choice, float] | None = None
-    for cost0, _, p in scored[:1]:
-        lo, hi, sc = cause.bounds(ctx.nominal, p)
+        return p, cost0
+    lo, hi, sc = cause.bounds(ctx.nominal, p)
 
-        def make(x: FloatArray, p: Choice = p) -> Model:
-            return cause.apply(ctx.current, replace(p, x=tuple(float(v) for v in x)))
+    def make(x: FloatArray) -> Model:
+        return cause.apply(ctx.current, replace(p, x=tuple(float(v) for v in x)))
 
-        x, cost = least_squares(obj, make, clip(p.x, lo, hi), lo, hi, sc, max_nfev=20)
-        cand = (replace(p, x=tuple(float(v) for v in x)), cost)
-        if cost0 < cost:
-            cand = (p, cost0)
-        if best is None or cand[1] < best[1]:
-            best = cand
-    return best
+    x, cost = least_squares(obj, make, clip(p.x, lo, hi), lo, hi, sc, max_nfev=20)
+    if cost0 < cost:
+        return p, cost0
+    return replace(p, x=tuple(float(v) for v in x)), cost
 
 
 def joint_refit(
