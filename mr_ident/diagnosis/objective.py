@@ -13,6 +13,7 @@ from ..errors import DataError
 from ..numerics.arrays import ComplexArray, FloatArray
 from ..numerics.model import Model
 from ..numerics.signals import LoopData
+from ..numerics.simulate import loop_poles
 from .prediction import centred, predict
 
 
@@ -23,8 +24,6 @@ def settle_samples(model: Model, n_samples: int) -> int:
     from it by a transient that decays with the lifted loop's slowest pole ρ. Skipped until
     ``ρ^m < 1e-5``, at most a quarter of the record; a whole number of low-rate periods.
     """
-    from ..numerics.simulate import loop_poles
-
     poles = loop_poles(model)
     rho = float(np.max(np.abs(poles), initial=0.0))
     F = model.ratio

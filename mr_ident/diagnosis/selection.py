@@ -63,18 +63,11 @@ class Selection:
         record (lowest BIC first; inapplicable ones last).
     model : Model
         The nominal model with every kept cause.
-    steps : list of (str, float)
-        The accepted causes and the BIC after each step (the nominal's first).
     """
 
     chosen: list[CauseFit]
     ranking: list[CauseFit]
     model: Model
-    steps: list[tuple[str, float]]
-
-
-def _cost(obj: Objective, model: Model) -> float:
-    return obj.cost(model)
 
 
 def fit_single(cause: Cause, ctx: Context) -> tuple[Choice, float] | None:
@@ -88,7 +81,7 @@ def fit_single(cause: Cause, ctx: Context) -> tuple[Choice, float] | None:
     if not props:
         return None
     scored = sorted(
-        ((_cost(obj, cause.apply(ctx.current, p)), i, p) for i, p in enumerate(props)),
+        ((obj.cost(cause.apply(ctx.current, p)), i, p) for i, p in enumerate(props)),
         key=lambda t: (t[0], t[1]),
     )
     cost0, _, p = scored[0]
@@ -111,7 +104,7 @@ def joint_refit(
     """Every continuous parameter of ``choices`` re-fitted together (discrete ones fixed)."""
     cont = [j for j, c in enumerate(choices) if not CAUSES[c.cause].discrete]
     if not cont:
-        return choices, _cost(obj, build(nominal, choices))
+        return choices, obj.cost(build(nominal, choices))
     sizes = [len(choices[j].x) for j in cont]
     parts = [CAUSES[choices[j].cause].bounds(nominal, choices[j]) for j in cont]
     lo = np.concatenate([b[0] for b in parts])
@@ -127,7 +120,7 @@ def joint_refit(
         return out
 
     x0 = clip(np.concatenate([np.asarray(choices[j].x, float) for j in cont]), lo, hi)
-    start = _cost(obj, build(nominal, choices))
+    start = obj.cost(build(nominal, choices))
     x, cost = least_squares(
         obj, lambda x: build(nominal, unpack(x)), x0, lo, hi, sc, max_nfev=max_nfev
     )
@@ -181,7 +174,7 @@ def select(
         fitted = []
         for trial0 in _with_neighbours(trials, nominal):
             trial, _ = joint_refit(est_screen, nominal, trial0)  # fitted on the screen part,
-            cost = _cost(est_full, build(nominal, trial))  # judged on the whole record
+            cost = est_full.cost(build(nominal, trial))  # judged on the whole record
             fitted.append((est_full.bic(cost, _n_free(trial)), trial, cost))
         if not fitted:
             return math.inf, [], math.inf
@@ -189,16 +182,16 @@ def select(
         near = [f for f in fitted if f[0] < low + ACCEPT_MARGIN]
         return min(near, key=lambda f: (_n_free(f[1]), f[0]))
 
-    cur_cost = _cost(est_full, nominal)
+    cur_cost = est_full.cost(nominal)
     cur_bic = est_full.bic(cur_cost, 0)
-    steps = [("none", cur_bic)]
+    accepted = 0  # steps taken
     chosen: list[Choice] = []
     singles = screen([])
     ranking = _ranking(est_full, nominal, singles)
     while len(chosen) < max_causes:
         if not chosen:
             trials = [[ch] for ch in singles[:JOINT_CANDIDATES]]
-        elif len(steps) == 2:
+        elif accepted == 1:
             # two effects at once can look like one flexible cause (a gain and a delay like
             # a damped lag), which the forward path alone would keep: the second cause is
             # sought on top of each of the best singles (a beam)
@@ -215,7 +208,7 @@ def select(
         if not bic < cur_bic - ACCEPT_MARGIN:
             break
         chosen, cur_cost, cur_bic = _prune(est_full, est_screen, nominal, trial, cost, bic)
-        steps.append((chosen[-1].cause, cur_bic))
+        accepted += 1
     if chosen and est_screen is not est_full:  # the values from all of the estimation data
         chosen, cur_cost = joint_refit(est_full, nominal, chosen)
         cur_bic = est_full.bic(cur_cost, _n_free(chosen))
@@ -225,17 +218,12 @@ def select(
         for c in CAUSES.values()
         if not c.applies(nominal)
     ]
-    return Selection(
-        fits,
-        ranking + inapplicable,
-        build(nominal, chosen),
-        steps,
-    )
+    return Selection(fits, ranking + inapplicable, build(nominal, chosen))
 
 
 def _ranking(obj: Objective, nominal: Model, screened: list[Choice]) -> list[CauseFit]:
     """Each cause alone on the nominal, scored on the whole estimation record."""
-    cost0 = _cost(obj, nominal)
+    cost0 = obj.cost(nominal)
     out = [
         CauseFit(
             "none",
@@ -248,7 +236,7 @@ def _ranking(obj: Objective, nominal: Model, screened: list[Choice]) -> list[Cau
         )
     ]
     for ch in screened:
-        cost = _cost(obj, build(nominal, [ch]))
+        cost = obj.cost(build(nominal, [ch]))
         out.append(_fit(obj, nominal, [ch], obj.bic(cost, CAUSES[ch.cause].n_free)))
     return sorted(out, key=lambda c: c.score)
 
@@ -266,7 +254,7 @@ def _prune(
     while len(chosen) > 1 and j < len(chosen) - 1:
         rest = chosen[:j] + chosen[j + 1 :]
         trial, _ = joint_refit(screen, nominal, rest, max_nfev=15)
-        c = _cost(obj, build(nominal, trial))
+        c = obj.cost(build(nominal, trial))
         b = obj.bic(c, _n_free(trial))
         if b <= bic + ACCEPT_MARGIN:  # it did not bring its margin: dropped
             chosen, cost, bic = trial, c, b

@@ -350,6 +350,26 @@ def load_model(path: str | Path) -> Model:
     return model_from_dict(d, source=str(p))
 
 
+#: The model-file fields of each list extension (a Model attribute of the same name), in
+#: the order of its tuples.
+_EXTENSION_FIELDS: dict[str, tuple[str, ...]] = {
+    "additive_modes": ("frequency_hz", "damping", "gain", "output", "input"),
+    "mode_changes": ("from_hz", "frequency_hz", "damping", "residue_scale"),
+    "series_dynamics": ("frequency_hz", "damping", "side", "channel"),
+    "controller_notches": ("frequency_hz", "damping", "depth"),
+    "disturbances": ("frequency_hz", "amplitude", "phase_rad", "output"),
+}
+
+
+def _plain(v: Any) -> Any:
+    """A value as plain YAML: str stays, integers int, the rest float."""
+    if isinstance(v, str):
+        return v
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    return float(v)
+
+
 def model_to_dict(model: Model) -> dict[str, Any]:
     """The YAML mapping of a model (inverse of :func:`model_from_dict`)."""
 
@@ -380,45 +400,8 @@ def model_to_dict(model: Model) -> dict[str, Any]:
         d["plant_gain"] = float(model.plant_gain)
     if model.input_delay:
         d["input_delay_s"] = float(model.input_delay)
-    if model.additive_modes:
-        d["additive_modes"] = [
-            {
-                "frequency_hz": float(f),
-                "damping": float(z),
-                "gain": float(g),
-                "output": int(o),
-                "input": int(i),
-            }
-            for f, z, g, o, i in model.additive_modes
-        ]
-    if model.mode_changes:
-        d["mode_changes"] = [
-            {
-                "from_hz": float(f0),
-                "frequency_hz": float(f),
-                "damping": float(z),
-                "residue_scale": float(sc),
-            }
-            for f0, f, z, sc in model.mode_changes
-        ]
-    if model.series_dynamics:
-        d["series_dynamics"] = [
-            {"frequency_hz": float(f), "damping": float(z), "side": str(side), "channel": int(c)}
-            for f, z, side, c in model.series_dynamics
-        ]
-    if model.controller_notches:
-        d["controller_notches"] = [
-            {"frequency_hz": float(f), "damping": float(z), "depth": float(dp)}
-            for f, z, dp in model.controller_notches
-        ]
-    if model.disturbances:
-        d["disturbances"] = [
-            {
-                "frequency_hz": float(f),
-                "amplitude": float(a),
-                "phase_rad": float(ph),
-                "output": int(o),
-            }
-            for f, a, ph, o in model.disturbances
-        ]
+    for key, names in _EXTENSION_FIELDS.items():
+        items = getattr(model, key)  # the Model attribute has the key's name
+        if items:
+            d[key] = [{n: _plain(v) for n, v in zip(names, t, strict=True)} for t in items]
     return d

@@ -24,7 +24,7 @@ from numpy.typing import ArrayLike
 
 from ..errors import ModelError
 from .arrays import FloatArray
-from .systems import StateSpace, TransferMatrix, balance, expm, tf2ss
+from .systems import StateSpace, TransferMatrix, balance, expm, proper, tf2ss
 
 
 def _pairs(roots: ArrayLike) -> tuple[list[complex], list[float]]:
@@ -84,12 +84,7 @@ def sections(num: ArrayLike, den: ArrayLike, dt: float | None = None) -> StateSp
     ModelError
         The denominator is zero or the system is improper.
     """
-    b = np.trim_zeros(np.atleast_1d(np.asarray(num, dtype=float)), "f")
-    a = np.trim_zeros(np.atleast_1d(np.asarray(den, dtype=float)), "f")
-    if a.size == 0:
-        raise ModelError("denominator is zero")
-    if b.size > a.size:
-        raise ModelError(f"improper transfer function: numerator {tuple(b)} over {tuple(a)}")
+    b, a = proper(num, den)
     if b.size == 0:
         return StateSpace(
             np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.zeros((1, 1)), dt

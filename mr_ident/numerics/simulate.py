@@ -142,19 +142,18 @@ class StateRecursion:
         imaginary part), for the modes with ``|λ|^start > floor`` only: the others have
         died out by ``start``. Empty (k = 0) when nothing is that slow.
         """
-        if not self._modal or not self._lam.size:
-            return np.zeros((n_steps - start, len(range(*rows.indices(self.ss.C.shape[0]))), 0))
-        lam = self._lam
-        keep = np.nonzero((np.abs(lam) ** start > floor) & (lam.imag >= 0))[0]
+        n_rows = len(range(*rows.indices(self.ss.C.shape[0])))
         m = np.arange(start, n_steps)
         cols = []
-        for i in keep:
-            g = np.outer(lam[i] ** m, self._Cm[rows, i])  # (M, rows)
-            cols.append(g.real)
-            if lam[i].imag > 0:
-                cols.append(g.imag)
+        if self._modal:
+            lam = self._lam
+            for i in np.nonzero((np.abs(lam) ** start > floor) & (lam.imag >= 0))[0]:
+                g = np.outer(lam[i] ** m, self._Cm[rows, i])  # (M, rows)
+                cols.append(g.real)
+                if lam[i].imag > 0:
+                    cols.append(g.imag)
         if not cols:
-            return np.zeros((m.size, len(range(*rows.indices(self.ss.C.shape[0]))), 0))
+            return np.zeros((m.size, n_rows, 0))
         return np.stack(cols, axis=-1)
 
     def run(self, w: ArrayLike) -> FloatArray:

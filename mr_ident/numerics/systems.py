@@ -220,12 +220,13 @@ def expm(A: ArrayLike) -> FloatArray:
     return E * d[:, None] / d[None, :]
 
 
-def tf2ss(num: ArrayLike, den: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Controllable canonical realisation (A, B, C, D) of a proper SISO ``num/den``.
+def proper(num: ArrayLike, den: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """``num`` and ``den`` (descending powers) without exact leading zeros, checked proper.
 
-    Coefficients in descending powers; exact leading zeros are dropped. Unlike
-    ``scipy.signal.tf2ss`` it never warns about small leading numerator coefficients: they
-    are kept as they are (a tiny but non-zero leading term is part of the model).
+    Raises
+    ------
+    ModelError
+        The denominator is zero or the numerator's degree exceeds the denominator's.
     """
     b = np.trim_zeros(np.atleast_1d(np.asarray(num, dtype=float)), "f")
     a = np.trim_zeros(np.atleast_1d(np.asarray(den, dtype=float)), "f")
@@ -233,6 +234,17 @@ def tf2ss(num: ArrayLike, den: ArrayLike) -> tuple[FloatArray, FloatArray, Float
         raise ModelError("denominator is zero")
     if b.size > a.size:
         raise ModelError(f"improper transfer function: numerator {tuple(b)} over {tuple(a)}")
+    return b, a
+
+
+def tf2ss(num: ArrayLike, den: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Controllable canonical realisation (A, B, C, D) of a proper SISO ``num/den``.
+
+    Coefficients in descending powers; exact leading zeros are dropped. Unlike
+    ``scipy.signal.tf2ss`` it never warns about small leading numerator coefficients: they
+    are kept as they are (a tiny but non-zero leading term is part of the model).
+    """
+    b, a = proper(num, den)
     b, a = b / a[0], a / a[0]
     n = a.size - 1
     b = np.concatenate([np.zeros(n + 1 - b.size), b])
