@@ -140,7 +140,7 @@ print(",".join(heavy))
             ("numpy", "scipy"),
         ),
         (  # mr-ident identify: numpy, never the slow scipy subpackages
-            "from mr_ident.cli import commands; from mr_ident.io import datafile, modelfile; "
+            "from mr_ident.cli import offline; from mr_ident.io import datafile, modelfile; "
             "from mr_ident.numerics import identify",
             ("scipy.signal", "scipy.fft", "scipy.linalg", "scipy.special", "scipy.stats"),
         ),

@@ -33,18 +33,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         handle_signals()  # before anything slow: a signal from now on stops cleanly
     args = build_parser().parse_args(argv)
     keep_freed_memory()
-    from . import commands as c
+    from . import diagnose_cmd, live, offline
 
     commands = {
-        "simulate": c.cmd_simulate,
-        "identify": c.cmd_identify,
-        "paper": c.cmd_paper,
-        "replay": c.cmd_replay,
-        "record": c.cmd_record,
-        "demo": c.cmd_demo,
-        "diagnose": c.cmd_diagnose,
-        "batch": c.cmd_batch,
-        "view": c.cmd_view,
+        "simulate": offline.cmd_simulate,
+        "identify": offline.cmd_identify,
+        "paper": offline.cmd_paper,
+        "batch": offline.cmd_batch,
+        "replay": live.cmd_replay,
+        "record": live.cmd_record,
+        "view": live.cmd_view,
+        "demo": live.cmd_demo,
+        "diagnose": diagnose_cmd.cmd_diagnose,
     }
     try:
         with warnings.catch_warnings():

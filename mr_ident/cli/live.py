@@ -1,0 +1,161 @@
+"""Commands around ROS and recordings: ``replay``, ``record``, ``view``, ``demo``.
+
+Imports are lazy (inside each command); rclpy is imported only by the ROS ones.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import TYPE_CHECKING
+
+from ..errors import ConfigError
+from .common import source_specs, write_plots
+
+if TYPE_CHECKING:
+    pass
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    """``mr-ident replay``: a recording through the node's steps, or re-published."""
+    from ..io.config import IdentConfig, load_params
+    from ..io.datafile import write_result
+    from ..live.replay import replay
+
+    if args.publish:
+        from ..ros.record import publish_recording
+
+        n = publish_recording(args.recording, rate=args.rate)
+        print(f"published {n} messages from {args.recording}")
+        return 0
+    if args.out is None:
+        raise ConfigError("replay needs --out RESULT.npz (or --publish)")
+    if args.out.suffix.lower() != ".npz":
+        raise ConfigError(f"--out must be a .npz file, got {str(args.out)!r}")
+    cfg = load_params(args.params) if args.params else IdentConfig()
+    specs = source_specs(args)
+    if specs is not None:
+        from ..live.replay import replay_bag
+
+        fs = args.fs_high or (cfg.fs_high if args.params else None)
+        F = args.ratio or (cfg.ratio if args.params else None)
+        res = replay_bag(args.recording, cfg, specs, fs_high=fs, ratio=F, stop=args.stop)
+        cfg = cfg.replace(
+            fs_high=res.estimate.identification.fs_high, ratio=res.estimate.identification.ratio
+        )
+    else:
+        res = replay(args.recording, cfg, topics=args.topics, stop=args.stop)
+    info, est = res.info, res.estimate
+    if info.truncated:
+        print(
+            f"warning: {args.recording} is cut short; recovered {sum(info.messages.values())} "
+            "messages "
+            f"({info.bytes_read} of {info.file_bytes} bytes) ({info.reason})",
+            file=sys.stderr,
+        )
+    for note in res.anomalies[:20]:
+        print(f"note: {note}", file=sys.stderr)
+    write_result(args.out, est.identification)
+    counts = ", ".join(f"{k} {v}" for k, v in info.messages.items())
+    print(
+        f"read {counts} messages; window [{est.first}, {est.first + est.n_samples}) "
+        f"({est.n_samples / cfg.fs_high:g} s), lifting phase {est.phase} ({est.phase_source}), "
+        f"{est.compute_s:.3f} s"
+    )
+    print(
+        f"wrote {args.out} ({est.identification.plant.frequency.size} bins, method {cfg.method})"
+    )
+    if args.plot:
+        from ..io.modelfile import load_model
+
+        model = load_model(args.model) if args.model else None
+        write_plots(est.identification, args.plot, cfg.fs_high, cfg.ratio, est.n_samples, model)
+    return 0
+
+
+def cmd_record(args: argparse.Namespace) -> int:
+    """``mr-ident record``: record topics to MCAP until stopped."""
+    from ..ros.record import record
+
+    counts = record(args.out, args.topics, duration=args.duration)
+    print(
+        f"wrote {args.out}: "
+        + (", ".join(f"{t} {n}" for t, n in counts.items()) or "nothing")
+        + " messages"
+    )
+    return 0
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    """``mr-ident view``: serve the live page; listen to the node, or replay a bag."""
+    import time
+
+    from ..io.modelfile import load_model
+    from ..ros.program import handle_signals
+    from ..view.server import ViewServer
+    from ..view.state import ViewState
+
+    stop = handle_signals()
+    model = load_model(args.model) if args.model else None
+    if args.speed < 0:
+        raise ConfigError(f"--speed must be >= 0, got {args.speed:g}")
+    source = f"bag {args.bag}" if args.bag else f"node /{args.node.strip('/')}"
+    server = ViewServer(ViewState(model, source), args.host, args.port).start()
+    print(f"view: {server.url}  (Ctrl-C to stop)", flush=True)
+    try:
+        if args.bag is None:
+            from ..ros.view import run_live_view
+
+            return run_live_view(server, args.node, args.wait, stop)
+        from ..io.config import IdentConfig, load_params
+        from ..live.estimate import publish_grid
+        from ..live.replay import bag_estimates
+
+        specs = source_specs(args)
+        cfg = load_params(args.params) if args.params else IdentConfig()
+        if model is not None:
+            cfg = cfg.replace(fs_high=model.fs_high, ratio=model.ratio)
+            if model.controller is not None and not cfg.controller_num:
+                cfg = cfg.with_controller(model.controller)  # the PFG from the model's K_l
+        t_wall = time.monotonic()
+        n = 0
+        fs_high = args.fs_high or (model.fs_high if model else None)
+        ratio = args.ratio or (model.ratio if model else None)
+        for t_loop, est in bag_estimates(
+            args.bag, cfg, specs, topics=args.topics, fs_high=fs_high, ratio=ratio
+        ):
+            if args.speed > 0:
+                stop.wait(t_wall + t_loop / args.speed - time.monotonic())
+            if stop.requested:
+                return 0
+            ident = est.identification
+            pfg = ident.pfg
+            k = publish_grid(ident.plant.frequency.size, cfg.publish_points)  # as the node
+            server.state.set_estimate(
+                ident.plant.frequency[k],
+                ident.plant.response[k],
+                ident.plant.std[k],
+                None if pfg is None else pfg.gain[k],
+                None if pfg is None else pfg.std[k],
+                {
+                    "estimate_first": est.first,
+                    "estimate_samples": est.n_samples,
+                    "loop_time_s": t_loop,
+                },
+            )
+            n += 1
+        print(
+            f"view: the bag's {n} estimates shown; serving the last one until Ctrl-C", flush=True
+        )
+        while not stop.wait(1.0):
+            pass
+        return 0
+    finally:
+        server.stop()
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """``mr-ident demo``: the live pipeline end to end."""
+    from ..ros.demo import run_demo
+
+    return run_demo(args.out_dir, rate=args.rate, timeout=args.timeout)

@@ -1,0 +1,148 @@
+"""Offline commands: ``simulate``, ``identify``, ``paper``, ``batch``.
+
+Imports are lazy (inside each command), so that ``mr-ident --help`` starts at once.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from typing import TYPE_CHECKING, Any
+
+from ..errors import ConfigError, DataError
+from .common import read_loop, resolve_rates, source_specs, write_plots
+
+if TYPE_CHECKING:
+    pass
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    """``mr-ident simulate``: simulate a model's loop and write CSV/NPZ."""
+    import numpy as np
+
+    from ..io.datafile import write_data
+    from ..io.modelfile import load_model
+    from ..numerics.simulate import simulate
+
+    model = load_model(args.model)
+    sim = simulate(model, duration=args.duration, rng=np.random.default_rng(args.seed))
+    write_data(args.out, sim.r, sim.u, sim.y, fs_high=model.fs_high, ratio=model.ratio)
+    print(
+        f"wrote {args.out} ({sim.r.shape[0]} samples at {model.fs_high:g} Hz, F = {model.ratio})"
+    )
+    return 0
+
+
+def cmd_identify(args: argparse.Namespace) -> int:
+    """``mr-ident identify``: identify P_h (and the PFG) from a data file or a bag."""
+    from ..io.datafile import write_result
+    from ..io.modelfile import load_model
+    from ..numerics.identify import identify
+
+    if args.out.suffix.lower() != ".npz":
+        raise ConfigError(f"--out must be a .npz file, got {str(args.out)!r}")
+    model = load_model(args.model) if args.model else None
+    data = read_loop(
+        args.data,
+        source_specs(args),
+        args.fs_high or (model.fs_high if model else None),
+        args.ratio or (model.ratio if model else None),
+    )
+    fs, F = resolve_rates(args, data, model)
+    N = data.n_samples
+    loop: dict[str, Any] = {}
+    if model is not None:
+        if model.n_y != data.y.shape[1] or model.n_u != data.u.shape[1]:
+            raise DataError(
+                f"model is {model.n_y}x{model.n_u} (n_y x n_u) but the data has "
+                f"{data.y.shape[1]} output and {data.u.shape[1]} input channel(s)"
+            )
+        loop = model.identify_arguments(N)
+    ident = identify(
+        data.r,
+        data.u,
+        data.y,
+        fs_high=fs,
+        ratio=F,
+        method=args.method,
+        n=args.n,
+        degree=args.degree,
+        keep_lifted=False,
+        **loop,
+    )  # the result holds P_h and the PFG
+    write_result(args.out, ident)
+    print(f"wrote {args.out} ({ident.plant.frequency.size} bins, method {args.method})")
+    if args.plot:
+        write_plots(ident, args.plot, fs, F, N, model)
+    return 0
+
+
+def cmd_paper(args: argparse.Namespace) -> int:
+    """``mr-ident paper``: the paper's example end to end."""
+    from ..io.config import share_file
+    from ..io.modelfile import load_model
+    from ..paper import run_paper
+
+    model = load_model(args.model or share_file("config/paper_example.yaml", "; pass --model"))
+    if args.noise_std is not None and not (math.isfinite(args.noise_std) and args.noise_std >= 0):
+        raise ConfigError(f"--noise-std must be >= 0, got {args.noise_std}")
+    run = run_paper(
+        model, args.out_dir, duration=args.duration, seed=args.seed, noise_std=args.noise_std
+    )
+    print(run.table)
+    for name, path in run.files.items():
+        print(f"{name:12s} {path}")
+    return 0
+
+
+def cmd_batch(args: argparse.Namespace) -> int:
+    """``mr-ident batch``: many recordings, one summary table (``mr_ident.batch``)."""
+    import numpy as np
+
+    from .. import batch
+    from ..io.datafile import read_result
+    from ..io.modelfile import load_model
+
+    model = load_model(args.model) if args.model else None
+    reference = read_result(args.reference) if args.reference else None
+    recordings = batch.find_recordings(args.inputs)
+    freqs = args.at
+    if freqs is None:
+        fs = args.fs_high or (model.fs_high if model else None)
+        F = args.ratio or (model.ratio if model else None)
+        if fs is None or F is None:
+            raise ConfigError("pass --at HZ,HZ,... (or --model, or --fs-high and --ratio)")
+        freqs = tuple(float(f"{f:.3g}") for f in np.geomspace(fs / F / 100, 0.4 * fs, 6))
+    workers = args.workers or batch.default_workers(len(recordings))
+    opts = batch.BatchOptions(
+        task=args.task,
+        out_dir=str(args.out_dir),
+        frequencies=freqs,
+        model=model,
+        reference=reference,
+        specs=source_specs(args),
+        topics=tuple(args.topics) if args.topics else None,
+        fs_high=args.fs_high,
+        ratio=args.ratio,
+        method=args.method,
+        n=args.n,
+        degree=args.degree,
+        period=args.period,
+        threads=1 if args.scheduler else batch.threads_per_job(workers),
+    )
+    args.out_dir.mkdir(parents=True, exist_ok=True)
+    jobs = batch.plan(recordings, args.out_dir, args.task)
+    if args.scheduler:
+        client = batch.dask_client(args.scheduler)
+        try:
+            result = batch.run_batch(jobs, opts, client.get_executor(), batch.progress_bar())
+        finally:
+            client.close()
+    else:
+        with batch.local_pool(workers) as pool:
+            result = batch.run_batch(jobs, opts, pool, batch.progress_bar())
+    table = args.out_dir / "summary.csv"
+    batch.write_table(result, table)
+    print(batch.summary_text(result))
+    print(f"wrote {table} ({len(result.rows)} recordings, {result.failed} failed)")
+    return 1 if result.failed else 0
