@@ -165,10 +165,15 @@ def report_html(
         f"<td>{'' if c['applicable'] else 'not applicable'}</td></tr>"
         for c in summary["causes"]
     )
-    applied = (
-        ", ".join(f"{a['cause']} ({params(a['parameters'])})" for a in summary["applied"])
-        or "none"
-    )
+
+    def with_std(a: dict[str, Any]) -> str:
+        std = a.get("std", {})
+        return ", ".join(
+            f"{k} = {v:.6g}" + (f" ± {std[k]:.2g}" if std.get(k) else "")
+            for k, v in a["parameters"].items()
+        )
+
+    applied = ", ".join(f"{a['cause']} ({with_std(a)})" for a in summary["applied"]) or "none"
     bands = ", ".join(f"{lo:.3g}–{hi:.3g} Hz" for lo, hi in summary["significant_bands"]) or "none"
     bands_after = (
         ", ".join(f"{lo:.3g}–{hi:.3g} Hz" for lo, hi in summary["significant_bands_after"])

@@ -216,6 +216,13 @@ def test_judge_applies_the_stated_tolerances_and_rules():
     assert not judge(pair, [*both, ("periodic_disturbance", {})], 0.0).named
     nothing = replace(sc, hidden=())
     assert judge(nothing, [], 5.0).success and not judge(nothing, both[:1], 0.0).success
+    # out of tolerance but within COVERAGE of the reported std: consistent, not a success
+    off = [("gain_error", {"gain": 1.05 * g})]
+    v = judge(sc, off, 0.0, [{"gain": 0.02 * g}])
+    assert not v.success and v.consistent and "± " in v.misses[0]
+    assert not judge(sc, off, 0.0, [{"gain": 0.01 * g}]).consistent
+    assert not judge(sc, off, 0.0, [{"gain": math.inf}]).consistent
+    assert not judge(sc, off, 0.0).consistent  # no std given
 
 
 def test_tolerance_kinds():
@@ -257,3 +264,11 @@ def test_diagnose_finds_what_a_random_loop_hides(causes, seed):
     v = judge(sc, applied, time_fit(sc.true, sc.data, d.traces["start"]).y - d.fit_after.y)
     hidden = [(h.cause, h.parameters) for h in sc.hidden]
     assert v.success, f"hid {hidden}; named {applied}; fit gap {v.fit_gap:.2f}; {v.misses}"
+    # every found parameter has a std, and the truth lies within 4 of them (a loose check
+    # of its honesty on one draw; 0 for integers found exactly)
+    for h in sc.hidden:
+        got = next(c for c in d.applied if c.cause == h.cause)
+        for key, true in h.parameters.items():
+            sd = got.std[key]
+            assert math.isfinite(sd) and sd >= 0, (h.cause, key, sd)
+            assert abs(got.parameters[key] - true) <= 4 * sd + 1e-9 * abs(true), (key, sd)

@@ -145,3 +145,18 @@ def test_the_zoh_with_delay_matches_a_fine_simulation(delay):
     t = np.arange(u.size * up) * h / up
     _, yf, _ = scipy.signal.lsim((S.A, S.B, S.C, S.D), uf, t, interp=False)
     np.testing.assert_allclose(y[:, 0], yf[::up], atol=1e-6 * np.abs(yf).max())
+
+
+def test_freqresp_on_a_pole_is_infinite_there_and_exact_elsewhere():
+    """A double integrator's response at DC (z = 1): inf, not a LinAlgError; others exact."""
+    from mr_ident.numerics.systems import StateSpace
+
+    dt = 1e-3
+    A = np.array([[1.0, dt], [0.0, 1.0]])  # defective: the eigenvector path is refused
+    ss = StateSpace(A, np.array([[dt**2 / 2], [dt]]), np.array([[1.0, 0.0]]), np.zeros((1, 1)), dt)
+    f = np.array([0.0, 1.0, 10.0])
+    G = ss.freqresp(f)[:, 0, 0]
+    z = np.exp(2j * np.pi * f[1:] * dt)
+    exact = dt**2 / 2 * (z + 1) / (z - 1) ** 2
+    assert np.isinf(G[0])
+    np.testing.assert_allclose(G[1:], exact, rtol=1e-9)

@@ -81,7 +81,10 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         f"{d.fit_after.y:.1f} %{fu}"
     )
     for a in d.applied:
-        print(f"  found: {a.description}")
+        spread = ", ".join(
+            f"{k} ± {v:.2g}" for k, v in a.std.items() if v > 0 and k in a.parameters
+        )
+        print(f"  found: {a.description}" + (f" (std: {spread})" if spread else ""))
     for path in (args.json, args.report, args.out_model):
         if path:
             print(f"wrote {path}")

@@ -61,6 +61,10 @@ class CauseFit:
         plant").
     choice : Choice or None
         The fitted values as the engine holds them.
+    std : dict
+        Standard deviation of each of :attr:`parameters` (the Gauss-Newton covariance of
+        the joint fit, by the delta method for derived quantities); empty where not
+        computed (the ranking) and 0 for a discrete value.
     """
 
     cause: str
@@ -71,6 +75,7 @@ class CauseFit:
     applicable: bool = True
     description: str = ""
     choice: Choice | None = field(default=None, compare=False)
+    std: Params = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -128,6 +133,10 @@ class Cause:
     discrete: ClassVar[bool] = False
     #: Also changes P_h (a plant-side cause); else only the loop or the output.
     plant_side: ClassVar[bool] = True
+    #: Indices of ``Choice.x`` in which the simulated output is affine (a disturbance's
+    #: in-phase and quadrature amplitudes): solved by least squares at every proposal
+    #: before it is scored, so a start with the wrong phase is not ranked out.
+    linear: ClassVar[tuple[int, ...]] = ()
 
     @property
     def n_free(self) -> int:

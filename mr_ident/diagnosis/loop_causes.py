@@ -206,16 +206,13 @@ class PeriodicDisturbance(_LoopCause):
     )
     extends = "disturbances"
     repeatable = True
+    linear = (1, 2)
 
     def proposals(self, ctx: Context) -> list[Choice]:
-        """At the residual's spectral peaks."""
+        """At the residual's spectral peaks (amplitude and phase are then solved for)."""
         obj = ctx.objective
         df = 2.0 * ctx.nominal.fs_high / max(obj.rec.n_samples - obj.skip, 1)
-        out = []
-        for f, o, a in residual_peaks(ctx):
-            out += [Choice(self.name, (f, a, 0.0), (float(o), df))]
-            out += [Choice(self.name, (f, 0.0, a), (float(o), df))]
-        return out
+        return [Choice(self.name, (f, a, a), (float(o), df)) for f, o, a in residual_peaks(ctx)]
 
     def bounds(self, nominal: Model, choice: Choice) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Frequency within two bins of the start."""

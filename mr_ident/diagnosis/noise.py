@@ -13,6 +13,17 @@ from ..numerics.signals import LoopData
 from .evidence import identify_record
 from .prediction import centred
 
+#: A bin of the LPM noise above this many times its far neighbours' median is a plateau
+#: (a sinusoid that r does not explain), not noise.
+PLATEAU_CAP = 3.0
+
+
+def _ring_median(S: FloatArray, inner: int, width: int) -> FloatArray:
+    """Per column, the median of the bins ``inner`` to ``inner + width - 1`` away, both sides."""
+    ring = np.zeros((2 * (inner + width) - 1, 1), bool)
+    ring[:width] = ring[-width:] = True
+    return np.asarray(scipy.ndimage.median_filter(S, footprint=ring, mode="nearest"))
+
 
 def noise_spectrum(
     rec: LoopData,
@@ -27,9 +38,12 @@ def noise_spectrum(
     Independent of any model: from the LPM noise covariance of the r -> y fit (the part of
     y that r does not explain: in closed loop the noise as the loop shapes it), or, for
     periodic data, from the spread of y over periods (interpolated to the record's bins).
-    Smoothed by a running median over 33 bins, corrected to a mean, so that a single
-    sinusoid does not mask itself. ``ident``: :func:`identify_record` of ``rec``, computed
-    when not given.
+    Smoothed by a running median over 33 bins, corrected to a mean. A sinusoid that r does
+    not explain enters the LPM noise of every window that holds it, a plateau of 2n + 1
+    bins at each of its aliases, which a 33-bin median keeps; so each bin is first capped
+    at :data:`PLATEAU_CAP` times the median of its ring of neighbours 2n + 2 to 2n + 33
+    bins away (outside any plateau it lies in). A closed-loop pole's hump, smooth over more
+    bins, stays. ``ident``: :func:`identify_record` of ``rec``, computed when not given.
     """
     _, u, y = centred(rec, model)
     if rec.period is not None:
@@ -57,6 +71,8 @@ def noise_spectrum(
     S = np.where(np.isfinite(S) & (S > 0), S, np.nan)
     fill = np.nanmedian(S, axis=0) if np.any(np.isfinite(S)) else np.ones(S.shape[1])
     S = np.where(np.isnan(S), fill, S)
+    if rec.period is None:
+        S = np.minimum(S, PLATEAU_CAP * _ring_median(S, 2 * n + 2, 32))
     med = scipy.ndimage.median_filter(S, size=(33, 1), mode="nearest")
     S = med * dof / scipy.stats.chi2.median(dof)
     return np.maximum(S, 1e-30 * max(float(S.max()), 1e-300))

@@ -376,11 +376,16 @@ class SeriesResonance(PlantCause):
         return out
 
     def bounds(self, nominal: Model, choice: Choice) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Frequency in [fs/1000, 2 fs], damping in [0.005, 3]."""
+        """Frequency in [fs/1000, fs/2], damping in [0.005, 1].
+
+        A resonance: at most critically damped (an over-damped pair is two real poles,
+        the far one a mere lag: the series low-pass and a delay say that with fewer
+        values) and below the Nyquist frequency, where sampled data can show its peak.
+        """
         fs = nominal.fs_high
         return (
             np.array([fs / 1000, 0.005]),
-            np.array([2.0 * fs, 3.0]),
+            np.array([0.5 * fs, 1.0]),
             np.array([0.01 * choice.x[0], 0.02]),
         )
 

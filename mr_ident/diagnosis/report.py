@@ -36,7 +36,12 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
         "parameters": d.parameters,
         "causes": causes,
         "applied": [
-            {"cause": c.cause, "parameters": c.parameters, "description": c.description}
+            {
+                "cause": c.cause,
+                "parameters": c.parameters,
+                "std": {k: _finite(v) for k, v in c.std.items()},
+                "description": c.description,
+            }
             for c in d.applied
         ],
         "findings": [c.description for c in d.applied],

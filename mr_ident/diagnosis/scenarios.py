@@ -38,6 +38,8 @@ RATIOS: tuple[int, ...] = (1, 2, 3, 5)
 MIN_CHANGE = 0.03
 #: Largest fit gap (the true model's validation fit % minus the extended model's).
 MAX_FIT_GAP = 1.0
+#: Standard deviations within which a loosely determined parameter counts as consistent.
+COVERAGE = 3.0
 
 
 @dataclass(frozen=True)
@@ -143,6 +145,9 @@ class Verdict:
     hidden parameter within :data:`TOLERANCES` (``misses`` lists the others as text).
     ``fit_gap``: the true model's validation fit % of y minus the extended model's.
     ``success``: ``parameters_ok`` and ``fit_gap < MAX_FIT_GAP`` (nothing hidden: named).
+    ``consistent``: as ``success``, but a parameter outside its tolerance counts as found
+    when it lies within :data:`COVERAGE` of the diagnosis's own standard deviations of the
+    truth (a value the data determine only loosely, reported honestly).
     """
 
     named: bool
@@ -150,6 +155,7 @@ class Verdict:
     fit_gap: float
     success: bool
     misses: tuple[str, ...]
+    consistent: bool = False
 
 
 def _logu(rng: np.random.Generator, lo: float, hi: float) -> float:
@@ -428,22 +434,31 @@ def draw_scenario(
 
 
 def judge(
-    scenario: Scenario, applied: Sequence[tuple[str, Mapping[str, float]]], fit_gap: float
+    scenario: Scenario,
+    applied: Sequence[tuple[str, Mapping[str, float]]],
+    fit_gap: float,
+    stds: Sequence[Mapping[str, float]] | None = None,
 ) -> Verdict:
     """Whether a diagnosis found what ``scenario`` hides (the rules: :class:`Verdict`).
 
     ``applied``: the causes the diagnosis applied, in order, with their parameters;
-    ``fit_gap``: the true model's validation fit % of y minus the extended model's.
+    ``fit_gap``: the true model's validation fit % of y minus the extended model's;
+    ``stds``: per applied cause, its parameters' standard deviations (for ``consistent``).
     """
     names, hidden = [c for c, _ in applied], [h.cause for h in scenario.hidden]
     one = len(hidden) == 1
     named = names[:1] == hidden if one else sorted(names) == sorted(hidden)
-    misses = []
+    misses, loose = [], []
     for h in scenario.hidden if named else ():
-        got = next(p for c, p in applied if c == h.cause)
+        j = names.index(h.cause)
+        got, spread = applied[j][1], (stds[j] if stds is not None else {})
         for key, true in h.parameters.items():
             tol, est = TOLERANCES[h.cause][key], float(got.get(key, math.nan))
             if not tol.within(est, true, scenario.nominal.fs_high):
-                misses.append(f"{h.cause}.{key} {est:.4g} (true {true:.4g}, tol {tol})")
+                sd = float(spread.get(key, 0.0) or 0.0)
+                pm = f" ± {sd:.2g}" if sd else ""
+                misses.append(f"{h.cause}.{key} {est:.4g}{pm} (true {true:.4g}, tol {tol})")
+                loose.append(abs(est - true) <= COVERAGE * sd if math.isfinite(sd) else False)
     ok, gap = named and not misses, float(fit_gap)
-    return Verdict(named, ok, gap, ok and (not hidden or gap < MAX_FIT_GAP), tuple(misses))
+    fits = not hidden or gap < MAX_FIT_GAP
+    return Verdict(named, ok, gap, ok and fits, tuple(misses), named and all(loose) and fits)

@@ -6,11 +6,11 @@ chosen cause. Each step:
 
 1. **Screen.** Every applicable cause is fitted on top of the causes chosen so far (their
    values fixed), on the screening part of the record (at most :data:`SCREEN_SAMPLES`
-   samples): proposals from the identified plant or a grid, each scored, the best two
+   samples): proposals from the identified plant or a grid, each scored, the best one
    refined by least squares; discrete causes (delays, offsets) are enumerated.
 2. **Re-fit jointly.** The best :data:`JOINT_CANDIDATES` of the screen are each added to
-   the chosen set and *all* continuous parameters re-fitted together on the whole
-   estimation record. At the second step the second cause is also sought on top of each
+   the chosen set and *all* continuous parameters re-fitted together (on the screening
+   part), each trial then scored on the whole estimation record. At the second step the second cause is also sought on top of each
    of the first step's best :data:`PAIR_SINGLES` singles (a beam): two simple effects at
    once (a gain and a delay) can look like one flexible cause (a damped second-order
    lag), which the forward path alone would keep.
@@ -35,7 +35,7 @@ import numpy as np
 
 from ..numerics.arrays import FloatArray
 from ..numerics.model import Model
-from .causes import Cause, CauseFit, Choice, Context, PlantData, clip
+from .causes import Cause, CauseFit, Choice, Context, Params, PlantData, clip
 from .objective import Objective, least_squares
 from .registry import CAUSES, build
 
@@ -80,6 +80,8 @@ def fit_single(cause: Cause, ctx: Context) -> tuple[Choice, float] | None:
     props = cause.proposals(ctx)[:24]
     if not props:
         return None
+    if cause.linear:
+        props = [solve_linear(obj, cause, ctx.current, p) for p in props]
     scored = sorted(
         ((obj.cost(cause.apply(ctx.current, p)), i, p) for i, p in enumerate(props)),
         key=lambda t: (t[0], t[1]),
@@ -96,6 +98,35 @@ def fit_single(cause: Cause, ctx: Context) -> tuple[Choice, float] | None:
     if cost0 < cost:
         return p, cost0
     return replace(p, x=tuple(float(v) for v in x)), cost
+
+
+def solve_linear(obj: Objective, cause: Cause, current: Model, choice: Choice) -> Choice:
+    """``choice`` with its :attr:`Cause.linear` values solved by least squares.
+
+    The whitened residual is affine in them (the initial-state projection is linear too):
+    ``res(x) = res(0) + sum_i x_i d_i``, so one simulation per value gives the solution.
+    Each value is probed at the size of its start, so that the numbers stay in range.
+    """
+    x = np.asarray(choice.x, float)
+    idx = list(cause.linear)
+    probe = np.where(np.abs(x[idx]) > 0, np.abs(x[idx]), 1.0)
+    x0 = x.copy()
+    x0[idx] = 0.0
+
+    def res(v: FloatArray) -> FloatArray:
+        return obj.residuals(cause.apply(current, replace(choice, x=tuple(float(t) for t in v))))
+
+    r0 = res(x0)
+    cols = []
+    for i, s in zip(idx, probe, strict=True):
+        xi = x0.copy()
+        xi[i] = s
+        cols.append((res(xi) - r0) / s)
+    A = np.column_stack(cols)
+    if not (np.all(np.isfinite(A)) and np.all(np.isfinite(r0))):
+        return choice
+    x0[idx] = np.linalg.lstsq(A, -r0, rcond=None)[0]
+    return replace(choice, x=tuple(float(t) for t in x0))
 
 
 def joint_refit(
@@ -127,6 +158,65 @@ def joint_refit(
     if cost > start:
         return choices, start
     return unpack(x), cost
+
+
+def parameter_std(obj: Objective, nominal: Model, choices: list[Choice]) -> list[Params]:
+    """Standard deviation of every named parameter of ``choices``, fitted jointly on ``obj``.
+
+    The whitened residual's components have variance 1/2 under a right model
+    (:class:`~mr_ident.diagnosis.objective.Objective`), so the continuous values have the
+    Gauss-Newton covariance ``C = (JᵀJ)⁻¹ / 2``, J the residual's Jacobian by forward
+    differences at the fit (one simulation per value); a named quantity ``g(x)`` (an
+    amplitude from its two quadratures, a stiffness ratio) has ``∇g C ∇gᵀ`` (delta method).
+    Discrete values are given std 0; a singular direction (a value the data do not
+    determine) gets inf.
+    """
+    cont = [j for j, c in enumerate(choices) if not CAUSES[c.cause].discrete]
+    out: list[Params] = [{k: 0.0 for k in CAUSES[c.cause].named(c, nominal)} for c in choices]
+    if not cont:
+        return out
+    x0 = np.concatenate([np.asarray(choices[j].x, float) for j in cont])
+    sizes = [len(choices[j].x) for j in cont]
+    scale = np.concatenate([CAUSES[choices[j].cause].bounds(nominal, choices[j])[2] for j in cont])
+
+    def with_x(x: FloatArray) -> list[Choice]:
+        new, k = list(choices), 0
+        for j, n in zip(cont, sizes, strict=True):
+            new[j] = replace(choices[j], x=tuple(float(v) for v in x[k : k + n]))
+            k += n
+        return new
+
+    r0 = obj.residuals(build(nominal, choices))
+    steps = 1e-4 * np.maximum(np.abs(scale), 1e-12)
+    cols = []
+    for i, h in enumerate(steps):
+        x = x0.copy()
+        x[i] += h
+        cols.append((obj.residuals(build(nominal, with_x(x))) - r0) / h)
+    J = np.column_stack(cols)
+    with np.errstate(all="ignore"):
+        cov = 0.5 * np.linalg.pinv(J.T @ J, rcond=1e-12, hermitian=True)
+        weak = np.diag(cov) * np.sum(J * J, axis=0) > 1e8  # no information on that value
+    k = 0
+    for j, n in zip(cont, sizes, strict=True):
+        cause, c = CAUSES[choices[j].cause], choices[j]
+        C = cov[k : k + n, k : k + n]
+        base = cause.named(c, nominal)
+        grads = []
+        for i in range(n):
+            x = np.asarray(c.x, float).copy()
+            x[i] += steps[k + i]
+            moved = cause.named(replace(c, x=tuple(float(v) for v in x)), nominal)
+            grads.append([(moved[key] - base[key]) / steps[k + i] for key in base])
+        G = np.array(grads).T  # (n_named, n)
+        var = np.einsum("ai,ij,aj->a", G, C, G)
+        bad = np.any(np.abs(G[:, weak[k : k + n]]) > 0, axis=1)
+        out[j] = {
+            key: (math.inf if b or not np.isfinite(v) else float(math.sqrt(max(v, 0.0))))
+            for key, v, b in zip(base, var, bad, strict=True)
+        }
+        k += n
+    return out
 
 
 def _n_free(choices: list[Choice]) -> int:
@@ -212,7 +302,11 @@ def select(
     if chosen and est_screen is not est_full:  # the values from all of the estimation data
         chosen, cur_cost = joint_refit(est_full, nominal, chosen)
         cur_bic = est_full.bic(cur_cost, _n_free(chosen))
-    fits = [_fit(est_full, nominal, chosen[: j + 1], cur_bic) for j in range(len(chosen))]
+    stds = parameter_std(est_full, nominal, chosen)
+    fits = [
+        replace(_fit(est_full, nominal, chosen[: j + 1], cur_bic), std=stds[j])
+        for j in range(len(chosen))
+    ]
     inapplicable = [
         CauseFit(c.name, {}, math.inf, {}, nominal, applicable=False)
         for c in CAUSES.values()
@@ -264,21 +358,28 @@ def _prune(
 
 
 def _with_neighbours(trials: list[list[Choice]], nominal: Model) -> list[list[Choice]]:
-    """``trials`` and, where the last cause is discrete, its neighbouring values too.
+    """``trials`` and, for every discrete cause in one, its neighbouring values too.
 
-    A discrete value is chosen with the other causes' values fixed; a continuous cause
-    fitted alone first may have taken up part of its effect (a low-pass some of a control
-    delay's lag), so the values next to it are re-fitted jointly as well.
+    A discrete value is chosen with the other causes' values fixed: a continuous cause
+    fitted first may have taken up part of its effect (a low-pass some of a control
+    delay's lag), and a discrete one chosen first may be one off because of what was
+    still missing (a control delay one short with a notch unmodelled); so the values
+    within two of it are re-fitted jointly with the rest as well.
     """
-    out = []
+    out, seen = [], set()
     for t in trials:
-        out.append(t)
-        last = t[-1]
-        cause = CAUSES[last.cause]
-        if cause.discrete:
-            out += [
-                t[:-1] + [replace(last, x=(v,))]
-                for v in cause.values(nominal)
-                if v != last.x[0] and abs(v - last.x[0]) <= 2
-            ]
+        variants = [t]
+        for j, c in enumerate(t):
+            cause = CAUSES[c.cause]
+            if cause.discrete:
+                variants += [
+                    t[:j] + [replace(c, x=(v,))] + t[j + 1 :]
+                    for v in cause.values(nominal)
+                    if v != c.x[0] and abs(v - c.x[0]) <= 2
+                ]
+        for v in variants:
+            key = tuple((c.cause, c.x) for c in v)
+            if key not in seen:
+                seen.add(key)
+                out.append(v)
     return out

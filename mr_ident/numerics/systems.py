@@ -58,6 +58,12 @@ class StateSpace:
         if n == 0:
             return out
         lam, V = np.linalg.eig(self.A)
+        pole = np.min(np.abs(x[:, None] - lam[None, :]), axis=1) <= 1e-7 * (1.0 + np.abs(x))
+        if np.any(pole):  # on a pole (an integrator at DC): infinite there, the rest as usual
+            rest = StateSpace(self.A, self.B, self.C, self.D, self.dt).freqresp(f[~pole])
+            out[~pole] = rest
+            out[pole] = np.inf
+            return out
         if np.linalg.cond(V) < 1e8:
             Bm = np.linalg.solve(V, self.B.astype(complex))  # (n, n_in)
             Cm = self.C @ V  # (n_out, n)
