@@ -10,10 +10,12 @@ chosen cause. Each step:
    refined by least squares; discrete causes (delays, offsets) are enumerated.
 2. **Re-fit jointly.** The best :data:`JOINT_CANDIDATES` of the screen are each added to
    the chosen set and *all* continuous parameters re-fitted together (on the screening
-   part), each trial then scored on the whole estimation record. At the second step the second cause is also sought on top of each
-   of the first step's best :data:`PAIR_SINGLES` singles (a beam): two simple effects at
-   once (a gain and a delay) can look like one flexible cause (a damped second-order
-   lag), which the forward path alone would keep.
+   part), each trial then scored on the whole estimation record. At the second step the
+   second cause is also sought on top of each of the first step's best
+   :data:`PAIR_SINGLES` singles (a beam): two simple effects at once (a gain and a
+   delay) can look like one flexible cause (a damped second-order lag), which the
+   forward path alone would keep. Every discrete value in a trial is also tried at its
+   neighbours.
 3. **Stop or keep.** The best joint model is accepted when its BIC is lower than the
    current one's by more than :data:`ACCEPT_MARGIN` (among trials within that margin of
    the best, the one with the fewest parameters); otherwise the selection stops. After
