@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import math
 import os
 import sys
 import time
@@ -220,6 +221,23 @@ def failure_line(r: dict) -> str:
     return line + (f"; out of tolerance: {'; '.join(r['misses'])}" if r["misses"] else "")
 
 
+def z_scores(records: list[dict]) -> np.ndarray:
+    """(estimate - truth) / reported std of every found continuous parameter."""
+    out = []
+    for r in records:
+        if not r.get("named"):
+            continue
+        for h in r.get("hidden", []):
+            got = next((a for a in r["applied"] if a["cause"] == h["cause"]), None)
+            if got is None:
+                continue
+            for key, true in h["parameters"].items():
+                sd = (got.get("std") or {}).get(key)
+                if sd and math.isfinite(sd) and key in got["parameters"]:
+                    out.append((got["parameters"][key] - true) / sd)
+    return np.asarray(out, float)
+
+
 def report(records: list[dict], groups: list[str], wall: float, meta: dict) -> str:
     """The whole markdown report."""
     text, rates = table(records, groups)
@@ -257,6 +275,14 @@ def report(records: list[dict], groups: list[str], wall: float, meta: dict) -> s
         f"{c}: " + ", ".join(f"{k} {t}" for k, t in TOLERANCES[c].items()) for c in CAUSE_NAMES
     )
     lines += [f"Tolerances: {tol}; fit gap < {MAX_FIT_GAP:g} point.", ""]
+    z = z_scores(records)
+    if z.size:
+        within = ", ".join(f"{100 * np.mean(np.abs(z) <= k):.0f} % within {k}" for k in (1, 2, 3))
+        lines += [
+            f"Reported std: of {z.size} found continuous parameters, {within} std of the "
+            "truth (a Gaussian: 68, 95, 99.7 %).",
+            "",
+        ]
     failed = [r for r in records if not r.get("success")]
     lines.append(f"Failures ({len(failed)}):" if failed else "Failures: none.")
     lines += [failure_line(r) for r in failed]

@@ -301,6 +301,15 @@ def select(
             break
         chosen, cur_cost, cur_bic = _prune(est_full, est_screen, nominal, trial, cost, bic)
         accepted += 1
+    if chosen:
+        simpler, cur_cost, cur_bic = _simplify(
+            est_full, est_screen, nominal, plant, applicable, chosen, cur_bic
+        )
+        if simpler != chosen:  # what a replaced cause had left to the others may go now
+            simpler, cur_cost, cur_bic = _prune(
+                est_full, est_screen, nominal, simpler, cur_cost, cur_bic, every=True
+            )
+        chosen = simpler
     if chosen and est_screen is not est_full:  # the values from all of the estimation data
         chosen, cur_cost = joint_refit(est_full, nominal, chosen)
         cur_bic = est_full.bic(cur_cost, _n_free(chosen))
@@ -337,6 +346,58 @@ def _ranking(obj: Objective, nominal: Model, screened: list[Choice]) -> list[Cau
     return sorted(out, key=lambda c: c.score)
 
 
+def _simplify(
+    obj: Objective,
+    screen: Objective,
+    nominal: Model,
+    plant: PlantData | None,
+    applicable: list[Cause],
+    chosen: list[Choice],
+    bic: float,
+) -> tuple[list[Choice], float, float]:
+    """Each chosen cause replaced by a simpler one where that explains as much.
+
+    Some effects have a simpler twin: on a one-mode plant an additive mode at the plant's
+    own mode is a gain change, a wide notch of no depth acts like a control delay, a
+    critically damped pair far up like a low-pass. Forward selection keeps whichever it
+    met first; here every cause with fewer free values than a chosen one is fitted in its
+    place (on top of the others) and, where the joint re-fit's BIC comes within
+    :data:`ACCEPT_MARGIN` of the current one, the simpler set is kept (the rule of
+    :func:`select`: within the margin, the fewest values).
+    """
+    j = 0
+    while j < len(chosen):
+        c = chosen[j]
+        rest = chosen[:j] + chosen[j + 1 :]
+        names = {ch.cause for ch in rest}
+        simpler = [
+            k
+            for k in applicable
+            if k.n_free < CAUSES[c.cause].n_free and k.name not in names and k.name != c.cause
+        ]
+        best: tuple[float, list[Choice], float] | None = None
+        if simpler:
+            ctx = Context(build(nominal, rest), nominal, plant, screen)
+            for k in simpler:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    got = fit_single(k, ctx)
+                if got is None:
+                    continue
+                trial = rest[:j] + [got[0]] + rest[j:]
+                trial, _ = joint_refit(screen, nominal, trial, max_nfev=15)
+                cost = obj.cost(build(nominal, trial))
+                b = obj.bic(cost, _n_free(trial))
+                if b < bic + ACCEPT_MARGIN and (best is None or b < best[0]):
+                    best = (b, trial, cost)
+        if best is not None:
+            bic, chosen = best[0], best[1]
+            continue  # the same position again: the new cause may have a simpler twin too
+        j += 1
+    cost = obj.cost(build(nominal, chosen))
+    return chosen, cost, obj.bic(cost, _n_free(chosen))
+
+
 def _prune(
     obj: Objective,
     screen: Objective,
@@ -344,10 +405,15 @@ def _prune(
     chosen: list[Choice],
     cost: float,
     bic: float,
+    *,
+    every: bool = False,
 ) -> tuple[list[Choice], float, float]:
-    """Drop every earlier cause whose removal (the rest re-fitted) does not raise the BIC."""
+    """Drop causes whose removal (the rest re-fitted) does not raise the BIC by the margin.
+
+    Every earlier cause (the last was just accepted with its margin); ``every``: any.
+    """
     j = 0
-    while len(chosen) > 1 and j < len(chosen) - 1:
+    while len(chosen) > 1 and j < len(chosen) - (0 if every else 1):
         rest = chosen[:j] + chosen[j + 1 :]
         trial, _ = joint_refit(screen, nominal, rest, max_nfev=15)
         c = obj.cost(build(nominal, trial))
