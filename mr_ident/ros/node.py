@@ -19,14 +19,8 @@ from collections.abc import Sequence
 from typing import Any
 
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    ParameterType,
-    SetParametersResult,
-)
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -35,38 +29,20 @@ from std_msgs.msg import Float64MultiArray
 from ..allocator import keep_freed_memory
 from ..errors import MrIdentError
 from ..io.blocks import STREAMS, Block
-from ..io.config import PARAMETERS, IdentConfig
-from ..io.recording import McapRecorder
+from ..io.config import IdentConfig
 from ..live.align import Aligner
 from ..live.estimate import Estimate, estimate, publish_grid, warm_up
 from ..live.feed import SignalSources, SourceFeed
 from ..live.ingest import Ingest
 from ..numerics.signals import LoopData
-from .messages import BLOCK_QOS, BLOCK_TYPE, ResultPublishers, decode_raw, qos_dict
+from . import params
+from .health import Health, identification_status
+from .messages import BLOCK_QOS, BLOCK_TYPE, ResultPublishers, decode_raw
 from .program import handle_signals, ros_context, spin_until_stopped
+from .recorder import NodeRecorder
 from .sources import BATCH_S, SourceSubscriber
 
-WARN_HOLD_S = 10.0  # an anomaly keeps the level at WARN this long
 REORDER_WAIT_S = 0.5  # blocks wait this long (wall clock) for a missing one before it is a gap
-
-
-def _descriptor(name: str, default: Any) -> ParameterDescriptor:
-    spec = PARAMETERS[name]
-    d = ParameterDescriptor(name=name, description=spec.description)
-    low, high = (spec.low or 0.0), (spec.high or 0.0)
-    if isinstance(default, float):
-        d.type = ParameterType.PARAMETER_DOUBLE
-        d.floating_point_range = [
-            FloatingPointRange(from_value=float(low), to_value=float(high), step=0.0)
-        ]
-    elif isinstance(default, int):
-        d.type = ParameterType.PARAMETER_INTEGER
-        d.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=1)]
-    elif isinstance(default, str):
-        d.type = ParameterType.PARAMETER_STRING
-    else:
-        d.type = ParameterType.PARAMETER_DOUBLE_ARRAY
-    return d
 
 
 class IdentNode(Node):
@@ -74,20 +50,7 @@ class IdentNode(Node):
 
     def __init__(self, name: str = "mr_ident", **kwargs: Any):
         super().__init__(name, **kwargs)
-        defaults = IdentConfig().as_dict()
-        values = {}
-        for key, default in defaults.items():
-            if isinstance(default, list):
-                kind = (
-                    Parameter.Type.STRING_ARRAY
-                    if key.endswith("_source")
-                    else Parameter.Type.DOUBLE_ARRAY
-                )
-                p = self.declare_parameter(key, kind, _descriptor(key, default))
-                values[key] = tuple(p.value) if p.value is not None else ()
-            else:
-                values[key] = self.declare_parameter(key, default, _descriptor(key, default)).value
-        self.config = IdentConfig().replace(**values)  # raises ConfigError on a bad params file
+        self.config = params.declare(self)  # raises ConfigError on a bad params file
         self.add_on_set_parameters_callback(self._on_set)
 
         self._lock = threading.Lock()  # guards the estimate state below
@@ -107,13 +70,10 @@ class IdentNode(Node):
         self._busy = False
         self._stopping = False
         self._worker_thread: threading.Thread | None = None
-        self._recorder: McapRecorder | None = None
-        self._rec_channels: dict[int, int] = {}
-        self._record_error = ""
+        self._recording = NodeRecorder(self)
 
         self._subs = []
         self._sources: SourceSubscriber | None = None
-        self._rec_topics: dict[str, int] = {}
         if self.config.sources is None:  # the block contract on reference, input, output
             for s, topic in enumerate(STREAMS):
                 self._subs.append(
@@ -130,7 +90,7 @@ class IdentNode(Node):
                 self,
                 dict(self.config.sources),
                 self._new_feed,
-                self._record_raw,
+                self._recording.source,
                 self.config.fs_high,
             )
             self._sources.poll()
@@ -141,7 +101,7 @@ class IdentNode(Node):
         self._update_timer = self.create_timer(self.config.update_period_s, self._on_update)
         self.create_timer(1.0, self._publish_diagnostics)
         if self.config.record_path:
-            self._open_recorder(self.config.record_path)
+            self._recording.open(self.config.record_path)
         # One identification of a synthetic full-size window, so that the first real one
         # does not pay the one-time costs (see live.warm_up); estimates wait for it.
         self._busy = True
@@ -151,17 +111,8 @@ class IdentNode(Node):
         self._worker_thread.start()
 
     # -- parameters ------------------------------------------------------------------
-    def _on_set(self, params: list[Parameter]) -> SetParametersResult:
-        changes = {}
-        for p in params:
-            if p.name in PARAMETERS:
-                v = p.value
-                if p.type_ in (
-                    Parameter.Type.DOUBLE_ARRAY,
-                    Parameter.Type.STRING_ARRAY,
-                ) or isinstance(v, (list, tuple)):
-                    v = () if v is None else tuple(v)
-                changes[p.name] = v
+    def _on_set(self, changed: list[Parameter]) -> SetParametersResult:
+        changes = params.changes(changed)
         try:
             new = self.config.replace(**changes)
         except MrIdentError as err:
@@ -191,10 +142,10 @@ class IdentNode(Node):
             self.destroy_timer(self._update_timer)
             self._update_timer = self.create_timer(new.update_period_s, self._on_update)
         if new.record_path != old.record_path:
-            self._close_recorder()
-            self._record_error = ""
+            self._recording.close()
+            self._recording.error = ""
             if new.record_path:
-                self._open_recorder(new.record_path)
+                self._recording.open(new.record_path)
         return SetParametersResult(successful=True)
 
     @staticmethod
@@ -210,9 +161,7 @@ class IdentNode(Node):
     def _on_block(self, stream: int, raw: bytes) -> None:
         now = time.monotonic()
         self._arrivals[stream] = now
-        rec = self._recorder
-        if rec is not None:
-            self._record(rec, stream, raw)
+        self._recording.message(self._subs[stream].topic_name, BLOCK_TYPE, raw)
         item = decode_raw(raw)  # a Block or a BlockError, never an exception
         if isinstance(item, Block):
             self._samples_in += item.samples.shape[0]
@@ -240,57 +189,6 @@ class IdentNode(Node):
                 if st.samples > b:
                     self._arrivals[stream] = now
                     self._samples_in += st.samples - b
-
-    def _record_raw(self, topic: str, type_name: str, raw: bytes, info: dict[str, Any]) -> None:
-        """Record a raw message of a source topic (whatever its type) when recording."""
-        rec = self._recorder
-        if rec is None:
-            return
-        cid = self._rec_topics.get(topic)
-        if cid is None:
-            qos = [qos_dict(i.qos_profile) for i in self.get_publishers_info_by_topic(topic)]
-            try:
-                cid = self._rec_topics[topic] = rec.add_topic(topic, type_name, qos)
-            except MrIdentError as err:
-                self._record_error = f"cannot record {topic}: {err}"
-                return
-        self._write_record(rec, cid, raw, info.get("source_timestamp"))
-
-    def _write_record(
-        self, rec: McapRecorder, cid: int, raw: bytes, sent: int | None = None
-    ) -> None:
-        t = time.time_ns()
-        if (
-            not rec.write(cid, raw, t, sent or t)
-            and rec.error is not None
-            and rec is self._recorder
-        ):
-            self._close_recorder()
-            self._record_error = rec.failure  # ERROR on /diagnostics until record_path changes
-            self.get_logger().error(self._record_error)
-
-    def _record(self, rec: McapRecorder, stream: int, raw: bytes) -> None:
-        cid = self._rec_channels.get(stream)
-        if cid is None:
-            topic = self._subs[stream].topic_name
-            qos = [qos_dict(i.qos_profile) for i in self.get_publishers_info_by_topic(topic)]
-            cid = self._rec_channels[stream] = rec.add_topic(topic, BLOCK_TYPE, qos)
-        self._write_record(rec, cid, raw)
-
-    def _open_recorder(self, path: str) -> None:
-        self._record_error = ""
-        try:
-            self._recorder = McapRecorder(path)
-        except OSError as err:
-            self._record_error = f"cannot record to {path}: {err.strerror or err}"
-            self.get_logger().error(self._record_error)
-        self._rec_channels = {}
-        self._rec_topics = {}
-
-    def _close_recorder(self) -> None:
-        rec, self._recorder = self._recorder, None
-        if rec is not None:
-            rec.close()
 
     # -- estimation ---------------------------------------------------------------------
     def _on_update(self) -> None:
@@ -357,82 +255,31 @@ class IdentNode(Node):
     # -- diagnostics --------------------------------------------------------------------
     def diagnostic_status(self) -> DiagnosticStatus:
         """The node's status for /diagnostics: level, message, every counter."""
-        now = time.monotonic()
-        cfg = self.config
-        stats = self._aligner.stats
-        lo, hi = self._aligner.span()
-        fill = max(0, hi - lo) / cfg.window_samples
         with self._lock:
             est, err, err_t = self._last_estimate, self._last_error, self._last_error_time
             n_est, est_t = self._estimates, self._last_estimate_wall
-        recent = list(dict.fromkeys(text for t, text in self._notes if now - t < WARN_HOLD_S))
-        stalled = [
-            STREAMS[i] for i, t in enumerate(self._arrivals) if t and now - t > cfg.stall_timeout_s
-        ]
-        silent = [STREAMS[i] for i, t in enumerate(self._arrivals) if not t]
-        level, reason = DiagnosticStatus.OK, "estimating"
-        src = self._sources
-        src_problem = (src.error or src.rate_problem()) if src is not None else ""
-        if self._record_error:
-            level, reason = DiagnosticStatus.ERROR, self._record_error
-        elif src_problem:
-            level, reason = DiagnosticStatus.ERROR, src_problem
-        elif src is not None and src.sources is None:
-            level, reason = DiagnosticStatus.WARN, src.status
-        elif err and now - err_t < WARN_HOLD_S:
-            level, reason = DiagnosticStatus.ERROR, err
-        elif stalled:
-            level, reason = (
-                DiagnosticStatus.WARN,
-                f"stream(s) {', '.join(stalled)} stalled "
-                f"(> {cfg.stall_timeout_s:g} s without a block)",
-            )
-        elif recent:
-            more = f" (+{len(recent) - 1} more: recent_anomalies)" if len(recent) > 1 else ""
-            level, reason = DiagnosticStatus.WARN, self._notes[-1][1] + more
-        elif silent and now - self._started > cfg.stall_timeout_s:
-            level, reason = DiagnosticStatus.WARN, f"no data yet on {', '.join(silent)}"
-        elif est is None:
-            reason = (
-                f"filling window ({100 * fill:.0f} %, first estimate at "
-                f"{100 * cfg.min_samples / cfg.window_samples:.0f} %)"
-            )
-        values = {
-            "samples_in": self._samples_in,
-            "window_fill": f"{fill:.4f}",
-            "window_first_index": lo,
-            "window_end_index": hi,
-            "estimates": n_est,
-            "last_update_age_s": f"{now - est_t:.3f}" if est is not None else "never",
-            "recording": self._recorder.path.as_posix() if self._recorder else "",
-            "window_restarts": self._aligner.restarts,
-            "warm_up_s": self._warm_up or "running",
-            "recent_anomalies": " | ".join(recent[-8:]),
-        }
-        if src is not None:
-            values.update(src.values())
-        if est is not None:
-            values.update(
-                {
-                    "compute_s": f"{est.compute_s:.4f}",
-                    "lifting_phase": est.phase,
-                    "lifting_phase_source": est.phase_source,
-                    "estimate_first_index": est.first,
-                    "estimate_samples": est.n_samples,
-                }
-            )
-        else:
-            values["lifting_phase"] = cfg.lifting_phase
-        for name, st in stats.items():
-            values.update({f"{name}.{k}": v for k, v in st.as_dict().items()})
-        st = DiagnosticStatus(
-            level=level,
-            name=f"{self.get_name()}: identification",
-            message=reason,
-            hardware_id=self.get_fully_qualified_name(),
+        path = self._recording.path
+        health = Health(
+            now=time.monotonic(),
+            config=self.config,
+            stats=self._aligner.stats,
+            span=self._aligner.span(),
+            restarts=self._aligner.restarts,
+            estimate=est,
+            estimates=n_est,
+            estimate_wall=est_t,
+            error=err,
+            error_time=err_t,
+            notes=list(self._notes),
+            arrivals=list(self._arrivals),
+            started=self._started,
+            samples_in=self._samples_in,
+            sources=self._sources,
+            record_error=self._recording.error,
+            recording=path.as_posix() if path is not None else "",
+            warm_up=self._warm_up,
         )
-        st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
-        return st
+        return identification_status(health, self.get_name(), self.get_fully_qualified_name())
 
     def _publish_diagnostics(self) -> None:
         msg = DiagnosticArray()
@@ -448,7 +295,7 @@ class IdentNode(Node):
         t = self._worker_thread
         if t is not None:
             t.join(timeout)
-        self._close_recorder()
+        self._recording.close()
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -1,0 +1,125 @@
+"""The node's ``/diagnostics`` status ``<node>: identification``: level, reason, counters.
+
+:func:`identification_status` turns a :class:`Health` snapshot (taken by the node under its
+lock) into a DiagnosticStatus; the order of the checks is the order of what an operator
+must fix first: a recording that failed, a source that cannot work, a failed
+identification, a stalled stream, recent anomalies, silence, and otherwise the window
+filling or the estimates running.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+
+from ..io.blocks import STREAMS
+from ..io.config import IdentConfig
+from ..live.align import StreamStats
+from ..live.estimate import Estimate
+from .sources import SourceSubscriber
+
+WARN_HOLD_S = 10.0  # an anomaly keeps the level at WARN this long
+
+
+@dataclass(frozen=True)
+class Health:
+    """What the status is made of, at ``now`` (monotonic seconds)."""
+
+    now: float
+    config: IdentConfig
+    stats: dict[str, StreamStats]
+    span: tuple[int, int]
+    restarts: int
+    estimate: Estimate | None
+    estimates: int
+    estimate_wall: float
+    error: str
+    error_time: float
+    notes: list[tuple[float, str]]
+    arrivals: list[float]
+    started: float
+    samples_in: int
+    sources: SourceSubscriber | None
+    record_error: str
+    recording: str
+    warm_up: str
+
+
+def _level(h: Health) -> tuple[Any, str, list[str]]:
+    cfg, now, src = h.config, h.now, h.sources
+    recent = list(dict.fromkeys(text for t, text in h.notes if now - t < WARN_HOLD_S))
+    stalled = [STREAMS[i] for i, t in enumerate(h.arrivals) if t and now - t > cfg.stall_timeout_s]
+    silent = [STREAMS[i] for i, t in enumerate(h.arrivals) if not t]
+    src_problem = (src.error or src.rate_problem()) if src is not None else ""
+    lo, hi = h.span
+    fill = max(0, hi - lo) / cfg.window_samples
+    if h.record_error:
+        return DiagnosticStatus.ERROR, h.record_error, recent
+    if src_problem:
+        return DiagnosticStatus.ERROR, src_problem, recent
+    if src is not None and src.sources is None:
+        return DiagnosticStatus.WARN, src.status, recent
+    if h.error and now - h.error_time < WARN_HOLD_S:
+        return DiagnosticStatus.ERROR, h.error, recent
+    if stalled:
+        return (
+            DiagnosticStatus.WARN,
+            f"stream(s) {', '.join(stalled)} stalled "
+            f"(> {cfg.stall_timeout_s:g} s without a block)",
+            recent,
+        )
+    if recent:
+        more = f" (+{len(recent) - 1} more: recent_anomalies)" if len(recent) > 1 else ""
+        return DiagnosticStatus.WARN, h.notes[-1][1] + more, recent
+    if silent and now - h.started > cfg.stall_timeout_s:
+        return DiagnosticStatus.WARN, f"no data yet on {', '.join(silent)}", recent
+    if h.estimate is None:
+        return (
+            DiagnosticStatus.OK,
+            f"filling window ({100 * fill:.0f} %, first estimate at "
+            f"{100 * cfg.min_samples / cfg.window_samples:.0f} %)",
+            recent,
+        )
+    return DiagnosticStatus.OK, "estimating", recent
+
+
+def identification_status(h: Health, name: str, hardware_id: str) -> DiagnosticStatus:
+    """The status ``<name>: identification`` of ``h`` with every counter as a value."""
+    level, reason, recent = _level(h)
+    cfg, est = h.config, h.estimate
+    lo, hi = h.span
+    values: dict[str, Any] = {
+        "samples_in": h.samples_in,
+        "window_fill": f"{max(0, hi - lo) / cfg.window_samples:.4f}",
+        "window_first_index": lo,
+        "window_end_index": hi,
+        "estimates": h.estimates,
+        "last_update_age_s": f"{h.now - h.estimate_wall:.3f}" if est is not None else "never",
+        "recording": h.recording,
+        "window_restarts": h.restarts,
+        "warm_up_s": h.warm_up or "running",
+        "recent_anomalies": " | ".join(recent[-8:]),
+    }
+    if h.sources is not None:
+        values.update(h.sources.values())
+    if est is not None:
+        values.update(
+            {
+                "compute_s": f"{est.compute_s:.4f}",
+                "lifting_phase": est.phase,
+                "lifting_phase_source": est.phase_source,
+                "estimate_first_index": est.first,
+                "estimate_samples": est.n_samples,
+            }
+        )
+    else:
+        values["lifting_phase"] = cfg.lifting_phase
+    for stream, st in h.stats.items():
+        values.update({f"{stream}.{k}": v for k, v in st.as_dict().items()})
+    status = DiagnosticStatus(
+        level=level, name=f"{name}: identification", message=reason, hardware_id=hardware_id
+    )
+    status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+    return status
