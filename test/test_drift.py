@@ -107,6 +107,10 @@ def test_drift_refuses_bad_arguments(paper):
         drift(P, Reference.of_model(paper), dof=q, error_db=-1.0)
     with pytest.raises(ConfigError, match="dof must be >= 1"):
         drift(P, Reference.of_model(paper), dof=0)
+    per_bin = drift(P, Reference.of_model(paper), dof=np.full(P.frequency.size, q))
+    np.testing.assert_allclose(
+        per_bin.threshold, drift(P, Reference.of_model(paper), dof=q).threshold
+    )
     wide = replace(P, response=np.repeat(P.response, 2, axis=2), std=np.repeat(P.std, 2, axis=2))
     with pytest.raises(DimensionError, match="the reference is 1x1"):
         drift(wide, Reference.of_model(paper), dof=q)
@@ -116,7 +120,7 @@ def _d(level: str, size: float = 0.0, mask=None) -> Drift:
     K = 10
     sig = np.zeros(K, bool) if mask is None else np.asarray(mask, bool)
     z = np.zeros(K)
-    return Drift(np.arange(1.0, K + 1), z, z, 3.0, sig, size, level)
+    return Drift(np.arange(1.0, K + 1), z, z, np.full(K, 3.0), sig, size, level)
 
 
 def test_monitor_holds_levels_and_asks_for_a_diagnosis_once_per_drift():
@@ -137,3 +141,41 @@ def test_monitor_holds_levels_and_asks_for_a_diagnosis_once_per_drift():
     assert m.update(_d("warn", 2.0, low)).level == "ok"
     with pytest.raises(ConfigError, match="hold must be >= 1"):
         Monitor(hold=0)
+
+
+def test_plant_watch_holds_estimates_and_names_the_cause(paper):
+    """What node and replay run: unchanged plant held ok over 4 estimates; the plant gain
+    x 1.3 leaves ok after monitor_hold = 2 estimates, asks then once for a diagnosis, and the
+    diagnosis of the window (absolute indices: its phase from the model's) names the gain
+    within 2 %."""
+    from mr_ident.diagnosis.monitor import PlantWatch
+    from mr_ident.io.config import IdentConfig
+    from mr_ident.live.estimate import estimate
+    from mr_ident.numerics.signals import LoopData
+
+    cfg = IdentConfig(
+        fs_high=paper.fs_high, ratio=paper.ratio, window_s=20.0, monitor_hold=2, monitor_model="m"
+    )
+
+    def window(model, seed, first):
+        sim = simulate(model, duration=20.0, rng=np.random.default_rng(seed))
+        return LoopData(sim.r, sim.u, sim.y, ratio=model.ratio, first=first)
+
+    watch = PlantWatch(Reference.of_model(paper), paper, cfg)
+    for k in range(4):
+        w = window(paper, 20 + k, 3 * 1600 * k)
+        s = watch.observe(estimate(w, cfg))
+        assert s.level == "ok" and not s.diagnose, (k, s.drift.describe())
+    moved = replace(paper, plant_gain=1.3)
+    states = []
+    for k in range(3):
+        w = window(moved, 30 + k, 3 * 1600 * (k + 4))
+        est = estimate(w, cfg)
+        states.append(watch.observe(est))
+    assert [s.level for s in states[:2]] == ["ok", "warn"] or states[1].level == "error"
+    assert [s.diagnose for s in states] == [False, True, False]  # when the status leaves ok
+    found = watch.diagnose(w, est)
+    assert found is not None and found.cause == "gain_error"
+    assert abs(found.parameters["gain"] - 1.3) < 0.02 * 1.3
+    assert found.headline().startswith("cause: ") and "gain" in found.headline()
+    assert found.as_dict()["window_first"] == w.first

@@ -19,13 +19,13 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+import scipy.stats
+from numpy.typing import ArrayLike, NDArray
 
 from ..errors import ConfigError, DimensionError
 from ..numerics.arrays import ComplexArray, FloatArray
 from ..numerics.model import Model
 from ..numerics.results import FRF
-from .evidence import threshold
 
 #: The drift levels, in order of severity.
 LEVELS = ("ok", "warn", "error")
@@ -43,8 +43,8 @@ class Drift:
         ``max_entries |P̂ - P_ref| / |P_ref|``; nan where the reference has no value.
     sigma_error : ndarray, shape (K,)
         ``max_entries |P̂ - P_ref| / sqrt(σ̂² + σ_ref²)``; nan where not tested.
-    threshold : float
-        σ-error above which a bin is significant.
+    threshold : ndarray, shape (K,)
+        σ-error above which each bin is significant (its own dof).
     significant : ndarray of bool, shape (K,)
     size_db : float
         ``20 log10(1 + median deviation over the significant bins)``; 0 without any.
@@ -55,7 +55,7 @@ class Drift:
     frequency: FloatArray
     deviation: FloatArray
     sigma_error: FloatArray
-    threshold: float
+    threshold: FloatArray
     significant: NDArray[np.bool_]
     size_db: float
     level: str
@@ -128,14 +128,15 @@ def drift(
     estimate: FRF,
     reference: Reference,
     *,
-    dof: int,
+    dof: int | ArrayLike,
     alpha: float = 0.01,
     error_db: float = 6.0,
     min_hz: float = 0.0,
 ) -> Drift:
     """``estimate`` held against ``reference`` (see the module docstring).
 
-    ``dof``: the estimate's degrees of freedom q (``numerics.lpm.dof`` of its window);
+    ``dof``: the estimate's degrees of freedom q (``numerics.lpm.dof`` of its window), one
+    for every bin or one per bin (shape (K,), where the window width varies);
     ``alpha``: false-alarm probability per estimate over the whole band; ``error_db``: the
     size at which the level is ``error``; ``min_hz``: bins below it are not tested (the
     LPM's first n bins fit their polynomial on one side only, which an integrator's 1/f
@@ -145,8 +146,9 @@ def drift(
         raise ConfigError(f"alpha must be in (0, 1), got {alpha}")
     if not (error_db > 0 and math.isfinite(error_db)):
         raise ConfigError(f"error_db must be > 0, got {error_db}")
-    if dof < 1:
-        raise ConfigError(f"dof must be >= 1, got {dof}")
+    q = np.broadcast_to(np.asarray(dof, float), estimate.frequency.shape)
+    if not np.all(q >= 1):
+        raise ConfigError(f"dof must be >= 1, got {float(np.min(q)):g}")
     f = estimate.frequency
     P_ref, S_ref = reference.at(f)
     if P_ref.shape != estimate.response.shape:
@@ -161,7 +163,8 @@ def drift(
     z = np.where(np.isfinite(z) & (f >= min_hz)[:, None, None], z, np.nan).reshape(f.size, -1)
     rel = np.where(np.isfinite(rel), rel, np.nan).reshape(f.size, -1)
     tested = np.isfinite(z)
-    thr = threshold(alpha, int(tested.sum()), dof)
+    n_tests = max(int(tested.sum()), 1)
+    thr = np.sqrt(scipy.stats.f.isf(alpha / n_tests, 2, 2 * q))
     any_tested = tested.any(axis=1)
     z_bin = np.full(f.size, np.nan)
     z_bin[any_tested] = np.nanmax(z[any_tested], axis=1)

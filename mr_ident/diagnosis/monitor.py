@@ -17,13 +17,20 @@ and no ROS: the node feeds it and runs what it asks for.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import ConfigError
-from .drift import LEVELS, Drift
+from ..io.config import IdentConfig
+from ..live.estimate import Estimate
+from ..numerics.identify import method_of
+from ..numerics.lpm import dof as lpm_dof
+from ..numerics.model import Model
+from ..numerics.signals import LoopData
+from .drift import LEVELS, Drift, Reference, drift
 
 #: A drift whose size moved by more than this (dB) since the last diagnosis is diagnosed again.
 RESIZE_DB = 3.0
@@ -103,3 +110,102 @@ class Monitor:
         union = np.logical_or(mask, d.significant).sum()
         overlap = np.logical_and(mask, d.significant).sum() / union if union else 1.0
         return bool(overlap < MIN_OVERLAP)
+
+
+@dataclass(frozen=True)
+class WindowDiagnosis:
+    """A diagnosis of a monitored window, as the node publishes it (JSON-able ``as_dict``)."""
+
+    cause: str
+    parameters: dict[str, float]
+    std: dict[str, float]
+    findings: list[str]
+    fit_before: float
+    fit_after: float
+    window_first: int
+    window_samples: int
+    seconds: float
+
+    def as_dict(self) -> dict[str, object]:
+        """Plain types only (finite numbers; inf/nan as None)."""
+
+        def num(x: float) -> float | None:
+            return float(x) if np.isfinite(x) else None
+
+        return {
+            "cause": self.cause,
+            "parameters": {k: num(v) for k, v in self.parameters.items()},
+            "std": {k: num(v) for k, v in self.std.items()},
+            "findings": list(self.findings),
+            "fit_before": num(self.fit_before),
+            "fit_after": num(self.fit_after),
+            "window_first": self.window_first,
+            "window_samples": self.window_samples,
+            "seconds": self.seconds,
+        }
+
+    def headline(self) -> str:
+        """One line for a status message: the findings, or that nothing was found."""
+        if self.cause == "none":
+            return "cause: none found (the model explains this window)"
+        return "cause: " + "; ".join(self.findings)
+
+
+class PlantWatch:
+    """Monitoring of one loop against a reference: what the node and replay both run.
+
+    ``reference``: the drift baseline; ``model``: the model that names causes (None: the
+    cause is not sought); ``config``: the identification settings (method, n, degree) the
+    estimates come from, and the monitor_* thresholds.
+    """
+
+    def __init__(self, reference: Reference, model: Model | None, config: IdentConfig):
+        self.reference = reference
+        self.model = model
+        self.config = config
+        self.monitor = Monitor(config.monitor_hold)
+        self.last: MonitorState | None = None
+
+    def observe(self, est: Estimate) -> MonitorState:
+        """Hold one estimate against the reference; the monitor's new state."""
+        cfg = self.config
+        plant = est.identification.plant
+        _, n_y, n_u = plant.response.shape
+        n = cfg.lpm_n(n_u, n_y)
+        if method_of(cfg.method).uses_lpm:
+            q = lpm_dof(n, cfg.degree, n_u * method_of(cfg.method).lift(cfg.ratio))
+        else:
+            q = 1  # no noise model (etfe): its std is nan, so nothing is tested
+        d = drift(
+            plant,
+            self.reference,
+            dof=max(q, 1),
+            alpha=cfg.monitor_alpha,
+            error_db=cfg.monitor_error_db,
+            min_hz=(n + 1) * cfg.fs_high / est.n_samples,
+        )
+        self.last = self.monitor.update(d)
+        return self.last
+
+    def diagnose(self, window: LoopData, est: Estimate) -> WindowDiagnosis | None:
+        """The cause of the drift in ``window`` (the estimate's), or None without a model."""
+        if self.model is None:
+            return None
+        from .diagnose import diagnose  # the heavy part, only when a drift is diagnosed
+
+        t0 = time.perf_counter()
+        m = self.model
+        local = replace(m, sample_phase=(m.sample_phase - window.first) % m.ratio)
+        data = replace(window, fs_high=m.fs_high, ratio=m.ratio, first=0)
+        d = diagnose(local, data)
+        return WindowDiagnosis(
+            d.cause,
+            dict(d.parameters),
+            dict(d.applied[0].std) if d.applied else {},
+            [a.description for a in d.applied],
+            float(d.fit_before.y),
+            float(d.fit_after.y),
+            int(window.first),
+            int(window.n_samples),
+            time.perf_counter() - t0,
+        )

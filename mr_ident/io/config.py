@@ -101,6 +101,25 @@ PARAMETERS: dict[str, Param] = {
         0,
         1024,
     ),
+    "monitor_model": Param(
+        "model file whose plant each estimate is held against (README 'Monitoring'); the "
+        "diagnosis names the cause of a drift from it; empty: no monitoring"
+    ),
+    "monitor_reference": Param(
+        "result file (identify/replay --out) each estimate is held against, with its std; "
+        "overrides monitor_model as the reference (the model still names causes)"
+    ),
+    "monitor_alpha": Param(
+        "false-alarm probability per estimate of the drift test over the whole band", 1e-9, 0.5
+    ),
+    "monitor_error_db": Param(
+        "drift size (dB, 20 log10(1 + relative deviation)) at which the plant status is ERROR",
+        0.01,
+        100.0,
+    ),
+    "monitor_hold": Param(
+        "consecutive estimates that must agree before the plant status changes", 1, 1000
+    ),
 }
 
 
@@ -131,6 +150,11 @@ class IdentConfig:
     y_source: tuple[str, ...] = ()
     stamp_tolerance: float = 0.25
     identify_threads: int = 0
+    monitor_model: str = ""
+    monitor_reference: str = ""
+    monitor_alpha: float = 0.01
+    monitor_error_db: float = 6.0
+    monitor_hold: int = 3
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
