@@ -156,7 +156,9 @@ class PlantWatch:
 
     ``reference``: the drift baseline; ``model``: the model that names causes (None: the
     cause is not sought); ``config``: the identification settings (method, n, degree) the
-    estimates come from, and the monitor_* thresholds.
+    estimates come from, and the monitor_* thresholds. The monitor's request for a
+    diagnosis is passed on once the estimate's window lies wholly after the change (after
+    the end of the first drifted estimate's window): within two windows of the change.
     """
 
     def __init__(self, reference: Reference, model: Model | None, config: IdentConfig):
@@ -165,6 +167,10 @@ class PlantWatch:
         self.config = config
         self.monitor = Monitor(config.monitor_hold)
         self.last: MonitorState | None = None
+        #: First sample index whose windows hold only drifted data (the end of the first
+        #: drifted estimate's window), None while the estimates agree with the reference.
+        self.onset: int | None = None
+        self._pending = False
 
     def observe(self, est: Estimate) -> MonitorState:
         """Hold one estimate against the reference; the monitor's new state."""
@@ -184,8 +190,26 @@ class PlantWatch:
             error_db=cfg.monitor_error_db,
             min_hz=(n + 1) * cfg.fs_high / est.n_samples,
         )
-        self.last = self.monitor.update(d)
+        state = self.monitor.update(d)
+        end = est.first + est.n_samples
+        if d.level != "ok" and self.onset is None:
+            self.onset = end
+        elif state.level == "ok" and d.level == "ok":
+            self.onset = None
+        # a diagnosis is run on a window that lies wholly after the change: a window that
+        # straddles it would fit a blend of the old and the new plant
+        self._pending = (self._pending or state.diagnose) and state.level != "ok"
+        fresh = self.onset is not None and est.first >= self.onset
+        due = self._pending and fresh
+        if due:
+            self._pending = False
+        self.last = replace(state, diagnose=due)
         return self.last
+
+    @property
+    def waiting(self) -> bool:
+        """A diagnosis is due once a window after the change is in."""
+        return self._pending
 
     def diagnose(self, window: LoopData, est: Estimate) -> WindowDiagnosis | None:
         """The cause of the drift in ``window`` (the estimate's), or None without a model."""

@@ -38,6 +38,7 @@ from ..numerics.signals import LoopData
 from . import params
 from .health import Health, identification_status
 from .messages import BLOCK_QOS, BLOCK_TYPE, ResultPublishers, decode_raw
+from .monitoring import PlantMonitoring
 from .program import handle_signals, ros_context, spin_until_stopped
 from .recorder import NodeRecorder
 from .sources import BATCH_S, SourceSubscriber
@@ -97,6 +98,7 @@ class IdentNode(Node):
             self.create_timer(0.5, self._sources.poll)
             self.create_timer(BATCH_S, self._on_sources)
         self._results = ResultPublishers(self)
+        self._monitoring = PlantMonitoring(self, self.config)  # raises on a bad reference
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._update_timer = self.create_timer(self.config.update_period_s, self._on_update)
         self.create_timer(1.0, self._publish_diagnostics)
@@ -123,6 +125,10 @@ class IdentNode(Node):
                 reason="r_source, u_source and y_source are read at "
                 "start; restart the node to change them",
             )
+        try:
+            self._monitoring.reconfigure(new)
+        except MrIdentError as err:
+            return SetParametersResult(successful=False, reason=str(err))
         old, self.config = self.config, new
         if (new.fs_high, new.ratio, new.window_samples, new.reorder_blocks) != (
             old.fs_high,
@@ -215,6 +221,7 @@ class IdentNode(Node):
             est = estimate(window, cfg)
             if not self._stopping:
                 self._publish(est, cfg)
+                self._monitoring.observe(est, window, cfg)
             with self._lock:
                 self._last_estimate = est
                 self._last_estimate_wall = time.monotonic()
@@ -285,6 +292,10 @@ class IdentNode(Node):
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = [self.diagnostic_status()]
+        stale = max(3.0 * self.config.update_period_s, self.config.stall_timeout_s)
+        plant = self._monitoring.status(self.get_name(), self.get_fully_qualified_name(), stale)
+        if plant is not None:
+            msg.status.append(plant)
         self._pub_diag.publish(msg)
 
     def shutdown(self, timeout: float = 30.0) -> None:
@@ -295,6 +306,7 @@ class IdentNode(Node):
         t = self._worker_thread
         if t is not None:
             t.join(timeout)
+        self._monitoring.shutdown(timeout)
         self._recording.close()
 
 
