@@ -199,8 +199,8 @@ def read_bag(
         samples = [_before(s, feed.sampler, stop) for s in samples]
     notes = feed.push(samples) + Ingest(al).expire(float("inf"), 0.0)
     notes = feed.anomalies() + notes + bag.notes
-    counts = {t.name: t.messages for t in bag.topics.values() if t.name in sources.topics}
-    info = RecordingInfo(messages=counts, truncated=bool(bag.notes), reason="; ".join(bag.notes))
+    counts = {t: n for t, n in bag.read.items() if t in sources.topics}
+    info = RecordingInfo(messages=counts, truncated=bool(bag.cut), reason="; ".join(bag.cut))
     return BagRead(al, tuple(notes), info, fs, F, describe([s for _, _, s in sources.all]))
 
 
