@@ -5,7 +5,7 @@
 offers them to the node's :class:`~mr_ident.live.ingest.Ingest` and
 :class:`~mr_ident.live.align.Aligner`, and runs :func:`~mr_ident.live.estimate.estimate` on
 the window the node would have identified. :func:`recorded_signals` gives the latest
-clean stretch as data (for ``diagnose``).
+gap-free span as data (for ``identify`` and ``diagnose``; :mod:`mr_ident.live.spans`).
 """
 
 from __future__ import annotations
@@ -24,9 +24,10 @@ from ..io.sources import Samples, bag_types, describe, extract, resolve
 from ..numerics.signals import LoopData
 from .align import Aligner, StreamStats
 from .estimate import Estimate, estimate
-from .feed import SignalSources, SourceFeed, check_rate
+from .feed import SignalSources, SourceFeed, check_rate, enough_messages
 from .ingest import Ingest
 from .sampling import Sampler
+from .spans import DEFAULT_SPAN, check_span, choose
 
 
 def _feed(
@@ -109,31 +110,43 @@ def _what_broke(al: Aligner, notes: Sequence[str], info: RecordingInfo | None = 
 
 
 def recorded_signals(
-    path: str | Path, ratio: int, *, topics: Sequence[str] | None = None
+    path: str | Path,
+    ratio: int,
+    *,
+    topics: Sequence[str] | None = None,
+    span: str = DEFAULT_SPAN,
 ) -> tuple[LoopData, RecordingInfo]:
-    """r, u, y of the latest gap-free aligned span of a recording (all of it when clean).
+    """r, u, y of a gap-free aligned span of a recording (all of it when clean).
 
-    ``first`` is the span's first sample index.
+    ``span``: which one where there are gaps (:mod:`mr_ident.live.spans`; default the
+    longest); ``first`` is the span's first sample index, ``info.broken`` says which span
+    was used and why.
 
     Raises
     ------
     DataError
-        As :func:`read_blocks`, or when no aligned sample exists.
+        As :func:`read_blocks`, when no aligned sample exists, or ``span`` "all" with gaps.
     """
+    check_span(span)
     items, info, _ = read_blocks(path, topics)
     total = sum(item.samples.shape[0] for _, _, item in items if isinstance(item, Block))
-    al = Aligner(max(total, ratio), ratio, reorder_blocks=8)
+    al = Aligner(max(total, ratio), ratio, reorder_blocks=8, history=True)
     notes = _feed(al, items)
-    w = al.window(ratio)
-    if w is None:
-        raise DataError(
-            f"{path}: the recording holds no aligned samples of r, u and y"
-            + _what_broke(al, notes, info)
-        )
+    return _chosen(al, span, notes, info, str(path)), info
+
+
+def _chosen(
+    al: Aligner, span: str, notes: Sequence[str], info: RecordingInfo, what: str
+) -> LoopData:
+    """The ``span`` of an aligner with history; ``info.span``/``broken`` set."""
+    try:
+        w, note = choose(al, span, what=what)
+    except DataError as err:
+        raise DataError(f"{err}{_what_broke(al, notes, info)}") from None
     info.span = (w.first, w.end)
-    if al.restarts:
-        info.broken = _what_broke(al, notes).removeprefix("; ")
-    return w, info
+    if note:
+        info.broken = note + _what_broke(al, notes)
+    return w
 
 
 # -- bags with per-sample sources ---------------------------------------------------------
@@ -174,13 +187,17 @@ def read_bag(
     capacity: int | None = None,
     reorder_blocks: int = 8,
     stop: int | None = None,
+    history: bool = False,
+    msg_path: Sequence[str | Path] = (),
 ) -> BagRead:
     """Every sample of the sources through the node's own steps into an aligner.
 
     Through :class:`SourceFeed`, into an aligner of ``capacity`` samples (default: all of
-    them); rates read off the stamps where not given, and checked where given.
+    them; ``history``: keeping every gap-free span); rates read off the stamps where not
+    given, and checked where given. ``msg_path``: directories of ``.msg`` files for types
+    the bag does not define.
     """
-    bag = Bag.open(path)
+    bag = Bag.open(path, msg_path=msg_path)
     sources = resolve_sources(bag_types(bag), specs)
     if sources.r[0].kind == "blocks":
         raise DataError(
@@ -188,9 +205,10 @@ def read_bag(
             "--r/--u/--y"
         )
     samples = extract(bag, [src for _, _, src in sources.all])
+    enough_messages(bag, sources, samples, what=str(path))
     fs, F = check_rate(samples, sources, fs_high, ratio, what=str(path))
     total = max((s.stamps.size for s in samples), default=0) * F
-    al = Aligner(capacity or max(total, F), F, reorder_blocks)
+    al = Aligner(capacity or max(total, F), F, reorder_blocks, history=history)
     feed = SourceFeed(sources, Ingest(al), fs_high=fs, ratio=F)
     if stop is not None:
         feed.sampler.t0 = min(
@@ -218,6 +236,7 @@ def replay_bag(
     fs_high: float | None = None,
     ratio: int | None = None,
     stop: int | None = None,
+    msg_path: Sequence[str | Path] = (),
 ) -> ReplayResult:
     """:func:`replay` for per-sample sources.
 
@@ -225,7 +244,9 @@ def replay_bag(
     ``stop``); ``fs_high``/``ratio`` None: read off the stamps (and the configuration's
     replaced by them).
     """
-    read = read_bag(path, specs, fs_high=fs_high, ratio=ratio, capacity=None, stop=stop)
+    read = read_bag(
+        path, specs, fs_high=fs_high, ratio=ratio, capacity=None, stop=stop, msg_path=msg_path
+    )
     cfg = config.replace(fs_high=read.fs_high, ratio=read.ratio)
     al = Aligner(cfg.window_samples, cfg.ratio, cfg.reorder_blocks)
     lo, hi = read.aligner.span(stop)
@@ -252,21 +273,16 @@ def bag_signals(
     *,
     fs_high: float | None = None,
     ratio: int | None = None,
+    span: str = DEFAULT_SPAN,
+    msg_path: Sequence[str | Path] = (),
 ) -> tuple[LoopData, RecordingInfo]:
-    """r, u, y of the latest gap-free aligned span of a bag's sources.
+    """r, u, y of a gap-free aligned span of a bag's sources (``span``: which one).
 
-    With the rates (``identify`` and ``diagnose`` on a bag).
+    With the rates (``identify`` and ``diagnose`` on a bag); as :func:`recorded_signals`.
     """
-    read = read_bag(path, specs, fs_high=fs_high, ratio=ratio)
-    w = read.aligner.window(read.ratio)
-    if w is None:
-        raise DataError(
-            f"{path}: the sources give no aligned samples of r, u and y"
-            + _what_broke(read.aligner, read.notes, read.info)
-        )
-    read.info.span = (w.first, w.end)
-    if read.aligner.restarts:
-        read.info.broken = _what_broke(read.aligner, read.notes).removeprefix("; ")
+    check_span(span)
+    read = read_bag(path, specs, fs_high=fs_high, ratio=ratio, history=True, msg_path=msg_path)
+    w = _chosen(read.aligner, span, read.notes, read.info, f"{path}: sources {read.sources}")
     return LoopData(w.r, w.u, w.y, read.fs_high, read.ratio, first=w.first), read.info
 
 
@@ -278,6 +294,8 @@ def bag_estimates(
     topics: Sequence[str] | None = None,
     fs_high: float | None = None,
     ratio: int | None = None,
+    span: str = DEFAULT_SPAN,
+    msg_path: Sequence[str | Path] = (),
 ) -> Iterator[tuple[float, Estimate]]:
     """The estimates the node would have published while the bag was recorded.
 
@@ -285,14 +303,16 @@ def bag_estimates(
     ``update_period_s`` of loop time, once ``min_window_s`` is aligned; each estimate is of
     the latest ``window_s`` ending there. ``specs`` None: the block contract (``topics``),
     rates from the arguments or ``config``; with sources, rates as :func:`bag_signals`.
-    The latest gap-free span of the bag is replayed.
+    The gap-free span ``span`` of the bag is replayed (default the longest).
     """
     if specs is None:
         F = ratio or config.ratio
-        data, _ = recorded_signals(path, F, topics=topics)
+        data, _ = recorded_signals(path, F, topics=topics, span=span)
         cfg = config.replace(fs_high=fs_high or config.fs_high, ratio=F)
     else:
-        data, _ = bag_signals(path, specs, fs_high=fs_high, ratio=ratio)
+        data, _ = bag_signals(
+            path, specs, fs_high=fs_high, ratio=ratio, span=span, msg_path=msg_path
+        )
         cfg = config.replace(fs_high=data.fs_high, ratio=data.ratio)
     F, N = cfg.ratio, data.n_samples
     step = max(F, F * int(round(cfg.update_period_s * cfg.fs_high / F)))
