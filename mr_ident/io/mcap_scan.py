@@ -228,7 +228,15 @@ class McapScan:
             n = want  # new bytes, after what is carried over
             if end is not None:
                 n = min(n, end - pos - len(carry))
-            more = fh.read(n) if n > 0 else b""
+            try:
+                more = fh.read(n) if n > 0 else b""
+            except Exception as err:  # noqa: BLE001 - a damaged stream (zstd) ends the reading
+                more, n = b"", 1
+                self.cut = (
+                    f"{self.name}: unreadable after byte {pos + len(carry)} "
+                    f"({type(err).__name__}: {err}); what came before is used"
+                )
+                self.notes.append(self.cut)
             buf = carry + more if carry else more
             at_end = len(more) < n or n <= 0
             view = memoryview(buf)

@@ -236,6 +236,7 @@ def _bag_blocks(
             except BlockError as err:
                 item = err
             items.append((stream_of[topic], int(sent[i]), item))
+    items.sort(key=lambda it: it[1])  # a batch holds one topic after the other: by time
     cut = bag.cut
     info = RecordingInfo(
         messages={t: types[t].messages for t in types},

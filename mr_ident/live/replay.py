@@ -28,6 +28,7 @@ from .feed import SignalSources, SourceFeed, check_rate, enough_messages
 from .ingest import Ingest
 from .sampling import Sampler
 from .spans import DEFAULT_SPAN, check_span, choose
+from .spans import describe as describe_spans
 
 
 def _feed(
@@ -80,10 +81,13 @@ def replay(
     w = al.window(config.min_samples, stop=stop)
     if w is None:
         lo, hi = al.span(stop)
+        every = Aligner(1 << 62, config.ratio, config.reorder_blocks, history=True)
+        _feed(every, items, stop)  # every span, for the message
         raise DataError(
             f"{path}: the recording holds no gap-free aligned window of at least "
             f"{config.min_samples} samples (min_window_s = {config.min_window_s:g} s); "
-            f"aligned span at the end: {max(0, hi - lo)} samples" + _what_broke(al, notes, info)
+            f"aligned span at the end: {max(0, hi - lo)} samples; {describe_spans(every.spans())}"
+            + _what_broke(al, notes, info)
         )
     return ReplayResult(estimate(w, config), al.stats, info, tuple(notes))
 
@@ -245,7 +249,7 @@ def replay_bag(
     replaced by them).
     """
     read = read_bag(
-        path, specs, fs_high=fs_high, ratio=ratio, capacity=None, stop=stop, msg_path=msg_path
+        path, specs, fs_high=fs_high, ratio=ratio, stop=stop, history=True, msg_path=msg_path
     )
     cfg = config.replace(fs_high=read.fs_high, ratio=read.ratio)
     al = Aligner(cfg.window_samples, cfg.ratio, cfg.reorder_blocks)
@@ -260,7 +264,7 @@ def replay_bag(
             f"{path}: the sources give no gap-free aligned window of at least {cfg.min_samples} "
             f"samples (min_window_s = {cfg.min_window_s:g} s at {cfg.fs_high:g} Hz); aligned "
             "span at "
-            f"the end: {max(0, hi - lo)} samples"
+            f"the end: {max(0, hi - lo)} samples; {describe_spans(read.aligner.spans())}"
             + _what_broke(read.aligner, read.notes, read.info)
             + f"; sources: {read.sources}"
         )
