@@ -75,6 +75,23 @@ def test_an_sqlite_bag_gives_the_exact_plant(loop, tmp_path, version):
     _exact(model, sim, data)
 
 
+def test_rows_joined_in_sqlite_and_rows_fetched_one_by_one_give_the_same(
+    loop, tmp_path, monkeypatch
+):
+    """The fast path (group_concat, several groups of rows) equals fetching rows."""
+    from mr_ident.io import sqlite_bag
+
+    _, sim = loop
+    bag = joint_state_bag(tmp_path / "js", sim, stamps(3000, 240.0), storage=SQLITE)
+    monkeypatch.setattr(sqlite_bag, "ROWS", 1024)
+    fast, _ = bag_signals(bag, SPECS, fs_high=240.0, ratio=3)
+    monkeypatch.setattr(sqlite_bag, "AGGREGATE", False)
+    rows, _ = bag_signals(bag, SPECS, fs_high=240.0, ratio=3)
+    assert fast.n_samples == rows.n_samples == 3000
+    for a, b in ((fast.r, rows.r), (fast.u, rows.u), (fast.y, rows.y)):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_an_sqlite_bag_without_definitions_takes_the_installed_types(loop, tmp_path):
     model, sim = loop
     bag = joint_state_bag(tmp_path / "js", sim, stamps(sim.n_samples, 240.0), storage=SQLITE)

@@ -113,14 +113,17 @@ class SqlitePart:
         self.db = SqliteBag(path, definitions)
 
     def topics(self) -> dict[str, Topic]:
-        """Its topics (:class:`Part`), all known from its tables."""
+        """Its topics (:class:`Part`), all known from its tables.
+
+        Not counted (a pass over the table: :attr:`Bag.read` counts what is read).
+        """
         return {
-            name: Topic(name, type_, self.db.schemas.get(type_, ""), fmt, self.db.counts.get(i, 0))
-            for i, (name, type_, fmt) in self.db.topics.items()
+            name: Topic(name, type_, self.db.schemas.get(type_, ""), fmt)
+            for name, type_, fmt in self.db.topics.values()
         }
 
     def scan(self) -> None:
-        """Nothing to do: the tables list the topics."""
+        """Nothing to read: the tables list the topics."""
 
     def batches(self, topics: set[str]) -> Iterator[tuple[str, Batch, IntArray]]:
         """:meth:`SqliteBag.batches` (send times are receive times)."""

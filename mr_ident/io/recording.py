@@ -239,7 +239,7 @@ def _bag_blocks(
     items.sort(key=lambda it: it[1])  # a batch holds one topic after the other: by time
     cut = bag.cut
     info = RecordingInfo(
-        messages={t: types[t].messages for t in types},
+        messages=dict(bag.read),
         truncated=bool(cut),
         reason="; ".join(cut),
         file_bytes=sum(f.stat().st_size for f in bag.files),

@@ -7,9 +7,11 @@ timestamp = the receive time in ns, data = the CDR bytes); bags from Iron on add
 it). A type without a definition there is looked up among the installed interface
 packages and the ``--msg-path`` directories (``definitions``).
 
-Reading is batched as for MCAP: rows come out :data:`ROWS` at a time, their payloads are
-joined into one buffer, and each topic's messages of the batch are one
-:class:`~mr_ident.io.cdr.Batch` (offsets into that buffer): no Python per message. SQLite
+Reading is batched as for MCAP: :data:`ROWS` rows at a time come out of SQLite as one
+row (``group_concat`` joins their payloads into one buffer and their ids, topics,
+timestamps and lengths into text NumPy parses at once), and each topic's messages of the
+batch are one :class:`~mr_ident.io.cdr.Batch` (offsets into that buffer): no Python per
+message, not even a row object. SQLite
 bags store no publish time: a type without header is placed by its receive time.
 """
 
@@ -25,8 +27,10 @@ from ..errors import DataError
 from ..numerics.arrays import IntArray
 from .cdr import Batch
 
-#: Rows fetched at a time.
+#: Rows read at a time (a power of two).
 ROWS = 1 << 16
+#: Join each group of rows in SQLite (``group_concat``) rather than fetching rows.
+AGGREGATE = True
 
 
 class SqliteBag:
@@ -71,12 +75,6 @@ class SqliteBag:
         self.schemas = {
             t: embedded.get(t) or definitions(t) for t in {t for _, t, _ in self.topics.values()}
         }
-        self.counts = {
-            int(i): int(n)
-            for i, n in self._db.execute(
-                "SELECT topic_id, count(*) FROM messages GROUP BY topic_id"
-            )
-        }
 
     def close(self) -> None:
         """Close the database."""
@@ -87,20 +85,63 @@ class SqliteBag:
         ids = sorted(i for i, (n, _, f) in self.topics.items() if n in topics and f == "cdr")
         if not ids:
             return
-        cur = self._db.execute(
-            "SELECT topic_id, timestamp, length(data), data FROM messages WHERE topic_id IN "
-            f"({', '.join('?' * len(ids))}) ORDER BY id",
-            ids,
-        )
-        while rows := cur.fetchmany(ROWS):
-            tid, stamp, length, data = zip(*rows, strict=True)
-            tids = np.array(tid, dtype=np.int64)
-            stamps = np.array(stamp, dtype=np.int64)
-            lengths = np.array(length, dtype=np.int64)
+        where = f"topic_id IN ({', '.join(str(i) for i in ids)})"
+        utf8 = next(iter(self._db.execute("PRAGMA encoding")))[0] == "UTF-8"
+        parts = self._aggregated(where) if utf8 and AGGREGATE else self._rows(where)
+        for rowid, tids, stamps, lengths, blob in parts:
+            order = np.argsort(rowid, kind="stable")  # row order (already, as SQLite scans)
             offsets = np.zeros(lengths.size, dtype=np.int64)
             np.cumsum(lengths[:-1], out=offsets[1:])
-            buf = np.frombuffer(b"".join(data), dtype=np.uint8)
+            buf = np.frombuffer(blob, dtype=np.uint8)
+            tids, stamps, offsets, lengths = (
+                tids[order],
+                stamps[order],
+                offsets[order],
+                lengths[order],
+            )
             for i in ids:
                 sel = np.flatnonzero(tids == i)
                 if sel.size:
                     yield self.topics[i][0], Batch(buf, offsets[sel], lengths[sel]), stamps[sel]
+
+    def _aggregated(
+        self, where: str
+    ) -> Iterator[tuple[IntArray, IntArray, IntArray, IntArray, bytes]]:
+        """:data:`ROWS` rows at a time as one row of SQLite-joined columns (no Python per row).
+
+        ``group_concat`` joins the payloads byte for byte (a blob's bytes as text of its
+        length, in a UTF-8 database) and the numbers as comma-separated text.
+        """
+        cur = self._db.cursor()
+        cur.row_factory = None
+        shift = ROWS.bit_length() - 1
+        self._db.text_factory = bytes
+        try:
+            rows = cur.execute(
+                "SELECT group_concat(id), group_concat(topic_id), group_concat(timestamp), "
+                f"group_concat(length(data)), group_concat(data, '') FROM messages WHERE {where} "
+                f"GROUP BY id >> {shift} ORDER BY id >> {shift}"
+            )
+            for row in rows:
+                ids, tids, stamps, lengths = (
+                    np.fromstring(x, dtype=np.int64, sep=",") for x in row[:4]
+                )
+                yield ids, tids, stamps, lengths, row[4] or b""
+        finally:
+            self._db.text_factory = str
+
+    def _rows(self, where: str) -> Iterator[tuple[IntArray, IntArray, IntArray, IntArray, bytes]]:
+        """:data:`ROWS` rows at a time, fetched as rows (any database encoding)."""
+        cur = self._db.execute(
+            f"SELECT id, topic_id, timestamp, data FROM messages WHERE {where} ORDER BY id"
+        )
+        while rows := cur.fetchmany(ROWS):
+            rowid, tid, stamp, data = zip(*rows, strict=True)
+            lengths = np.fromiter(map(len, data), dtype=np.int64, count=len(data))
+            yield (
+                np.array(rowid, dtype=np.int64),
+                np.array(tid, dtype=np.int64),
+                np.array(stamp, dtype=np.int64),
+                lengths,
+                b"".join(data),
+            )
