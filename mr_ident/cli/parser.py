@@ -125,7 +125,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     i = sub.add_parser("identify", help="identify P_h (and the PFG) from r, u, y data")
     i.add_argument(
-        "data", type=Path, help="data: .csv, .npz, or a bag (rosbag2 directory or .mcap)"
+        "data",
+        type=Path,
+        help="data: .csv, .npz, or a bag (rosbag2 directory, .mcap, .db3, .mcap.zstd)",
     )
     i.add_argument(
         "--fs-high",
@@ -164,12 +166,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
 
     rp = sub.add_parser(
-        "replay", help="identify from an MCAP recording as the node would (or re-publish it)"
+        "replay", help="identify from a recording as the node would (or re-publish an MCAP file)"
     )
     rp.add_argument(
         "recording",
         type=Path,
-        help="MCAP file or rosbag2 directory (block topics, or --r/--u/--y)",
+        help="a bag: rosbag2 directory, .mcap, .db3 or .mcap.zstd (block topics, or --r/--u/--y)",
     )
     rp.add_argument(
         "--params",
@@ -223,7 +225,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     g.add_argument("model", type=Path, help="nominal model YAML")
     g.add_argument(
-        "data", type=Path, help="measured data: .csv, .npz, an .mcap recording or a bag"
+        "data",
+        type=Path,
+        help="measured data: .csv, .npz or a bag (rosbag2 directory, .mcap, .db3, .mcap.zstd)",
     )
     g.add_argument(
         "--validate",

@@ -10,9 +10,11 @@ and ``MSG: pkg/Type``; message encoding ``cdr``; channel metadata
 zstd-compressed and closed every ``chunk_size`` bytes, so a file cut short is
 readable up to its last finished chunk.
 
-Reading (:func:`read_blocks`) decodes with the independent ``mcap_ros2``
-decoder and tolerates a truncated file (it reports how much was recovered);
-:mod:`mr_ident.live.replay` runs what it reads through the node's own steps.
+Reading (:func:`read_blocks`) decodes MCAP files with the independent ``mcap_ros2``
+decoder and tolerates a truncated file (it reports how much was recovered); SQLite3 and
+zstd-compressed bags are read through :class:`~mr_ident.io.bags.Bag`, each block's CDR
+decoded by :func:`~mr_ident.io.blocks.cdr_fields`. :mod:`mr_ident.live.replay` runs what
+it reads through the node's own steps.
 """
 
 from __future__ import annotations
