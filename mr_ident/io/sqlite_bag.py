@@ -7,11 +7,11 @@ timestamp = the receive time in ns, data = the CDR bytes); bags from Iron on add
 it). A type without a definition there is looked up among the installed interface
 packages and the ``--msg-path`` directories (``definitions``).
 
-Reading is batched as for MCAP: :data:`ROWS` rows at a time come out of SQLite as one
-row (``group_concat`` joins their payloads into one buffer and their ids, topics,
-timestamps and lengths into text NumPy parses at once), and each topic's messages of the
-batch are one :class:`~mr_ident.io.cdr.Batch` (offsets into that buffer): no Python per
-message, not even a row object. SQLite
+Reading is batched as for MCAP: a topic's messages among :data:`ROWS` row ids come out
+of SQLite as one row (``group_concat`` joins their payloads into one buffer and their ids,
+timestamps and lengths into text NumPy parses at once) and are one
+:class:`~mr_ident.io.cdr.Batch` (offsets into that buffer): no Python per message, not
+even a row object. SQLite
 bags store no publish time: a type without header is placed by its receive time.
 """
 
@@ -87,9 +87,9 @@ class SqliteBag:
             return
         where = f"topic_id IN ({', '.join(str(i) for i in ids)})"
         utf8 = next(iter(self._db.execute("PRAGMA encoding")))[0] == "UTF-8"
-        parts = self._aggregated(where) if utf8 and AGGREGATE else self._rows(where)
-        for rowid, tids, stamps, lengths, blob in parts:
-            order = np.argsort(rowid, kind="stable")  # row order (already, as SQLite scans)
+        parts = self._aggregated(ids) if utf8 and AGGREGATE else self._rows(where)
+        for tids, rowid, stamps, lengths, blob in parts:
+            order = np.argsort(rowid, kind="stable")  # row order (as SQLite scans: no cost)
             offsets = np.zeros(lengths.size, dtype=np.int64)
             np.cumsum(lengths[:-1], out=offsets[1:])
             buf = np.frombuffer(blob, dtype=np.uint8)
@@ -105,28 +105,32 @@ class SqliteBag:
                     yield self.topics[i][0], Batch(buf, offsets[sel], lengths[sel]), stamps[sel]
 
     def _aggregated(
-        self, where: str
+        self, ids: list[int]
     ) -> Iterator[tuple[IntArray, IntArray, IntArray, IntArray, bytes]]:
-        """:data:`ROWS` rows at a time as one row of SQLite-joined columns (no Python per row).
+        """:data:`ROWS` row ids at a time and topic by topic, each as one row joined by SQLite.
 
         ``group_concat`` joins the payloads byte for byte (a blob's bytes as text of its
-        length, in a UTF-8 database) and the numbers as comma-separated text.
+        length, in a UTF-8 database) and the numbers as comma-separated text, NumPy parses
+        them at once; a range of row ids is a range scan of the table (no sort).
         """
-        cur = self._db.cursor()
-        cur.row_factory = None
-        shift = ROWS.bit_length() - 1
+        lo, hi = self._db.execute("SELECT min(id), max(id) FROM messages").fetchone()
+        if lo is None:
+            return
+        query = (
+            "SELECT group_concat(id), group_concat(timestamp), group_concat(length(data)), "
+            "group_concat(data, '') FROM messages WHERE id >= ? AND id < ? AND topic_id = ?"
+        )
         self._db.text_factory = bytes
         try:
-            rows = cur.execute(
-                "SELECT group_concat(id), group_concat(topic_id), group_concat(timestamp), "
-                f"group_concat(length(data)), group_concat(data, '') FROM messages WHERE {where} "
-                f"GROUP BY id >> {shift} ORDER BY id >> {shift}"
-            )
-            for row in rows:
-                ids, tids, stamps, lengths = (
-                    np.fromstring(x, dtype=np.int64, sep=",") for x in row[:4]
-                )
-                yield ids, tids, stamps, lengths, row[4] or b""
+            for start in range(int(lo), int(hi) + 1, ROWS):
+                for i in ids:
+                    row = self._db.execute(query, (start, start + ROWS, i)).fetchone()
+                    if row[0] is None:
+                        continue
+                    rowid, stamps, lengths = (
+                        np.fromstring(x, dtype=np.int64, sep=",") for x in row[:3]
+                    )
+                    yield np.full(rowid.size, i, np.int64), rowid, stamps, lengths, row[3]
         finally:
             self._db.text_factory = str
 
@@ -139,8 +143,8 @@ class SqliteBag:
             rowid, tid, stamp, data = zip(*rows, strict=True)
             lengths = np.fromiter(map(len, data), dtype=np.int64, count=len(data))
             yield (
-                np.array(rowid, dtype=np.int64),
                 np.array(tid, dtype=np.int64),
+                np.array(rowid, dtype=np.int64),
                 np.array(stamp, dtype=np.int64),
                 lengths,
                 b"".join(data),
