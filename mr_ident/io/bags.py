@@ -56,8 +56,8 @@ class Part(Protocol):
     def topics(self) -> dict[str, Topic]:
         """Its topics as far as they are known (all of them after :meth:`scan`)."""
 
-    def scan(self) -> None:
-        """Read the file once where its topics are not known without it."""
+    def scan(self, expected: set[str] | None = None) -> None:
+        """Read the file where its topics are not known without it (until ``expected``)."""
 
     def batches(self, topics: set[str]) -> Iterator[tuple[str, Batch, IntArray]]:
         """``(topic, batch, sent_ns)`` of the CDR messages of ``topics``, in file order."""
@@ -95,10 +95,10 @@ class McapPart:
             out[topic] = Topic(topic, name, schema, enc, count)
         return out
 
-    def scan(self) -> None:
-        """Walk the file once unless its summary listed the channels."""
+    def scan(self, expected: set[str] | None = None) -> None:
+        """Walk the file unless its summary listed the channels (until ``expected`` are)."""
         if not self.scanner.info.complete:
-            self.scanner.scan()
+            self.scanner.scan(expected)
 
     def batches(self, topics: set[str]) -> Iterator[tuple[str, Batch, IntArray]]:
         """:meth:`McapScan.messages`."""
@@ -122,7 +122,7 @@ class SqlitePart:
             for name, type_, fmt in self.db.topics.values()
         }
 
-    def scan(self) -> None:
+    def scan(self, expected: set[str] | None = None) -> None:
         """Nothing to read: the tables list the topics."""
 
     def batches(self, topics: set[str]) -> Iterator[tuple[str, Batch, IntArray]]:
@@ -169,6 +169,8 @@ class Bag:
         extra = tuple(Path(d) for d in msg_path)
         self._parts = [_part(f, notes, cache(lambda t: find_definition(t, extra))) for f in files]
         self.read: dict[str, int] = {}  # messages handed out per topic
+        #: The topics metadata.yaml lists (a scan for topics stops when a file has them all).
+        self.expected: set[str] | None = None
 
     @classmethod
     def open(cls, path: str | Path, *, msg_path: Sequence[str | Path] = ()) -> Bag:
@@ -191,17 +193,17 @@ class Bag:
         if p.is_dir():
             meta = p / "metadata.yaml"
             if meta.is_file():
-                files = _files_of(p, meta)
-            else:
-                files = sorted(f for f in p.iterdir() if f.name.endswith(BAG_FILES))
-                if not files:
-                    raise DataError(
-                        f"{p}: not a bag: no metadata.yaml and no .mcap, .db3 or .mcap.zstd file "
-                        "in the directory"
-                    )
-                notes.append(
-                    f"{p} has no metadata.yaml; reading {len(files)} file(s) in name order"
+                files, expected = _files_of(p, meta)
+                bag = cls(p, files, notes, dirs)
+                bag.expected = expected or None
+                return bag
+            files = sorted(f for f in p.iterdir() if f.name.endswith(BAG_FILES))
+            if not files:
+                raise DataError(
+                    f"{p}: not a bag: no metadata.yaml and no .mcap, .db3 or .mcap.zstd file "
+                    "in the directory"
                 )
+            notes.append(f"{p} has no metadata.yaml; reading {len(files)} file(s) in name order")
             return cls(p, files, notes, dirs)
         if not p.exists():
             raise DataError(f"cannot read bag {str(p)!r}: no such file or directory")
@@ -233,7 +235,7 @@ class Bag:
     def scanned_topics(self) -> dict[str, Topic]:
         """:attr:`topics`, after scanning the files whose topics are not known without it."""
         for part in self._parts:
-            part.scan()
+            part.scan(self.expected)
         return self.topics
 
     def batches(self, topics: set[str]) -> Iterator[tuple[str, Batch, IntArray]]:
@@ -247,7 +249,8 @@ class Bag:
                 yield topic, batch, sent
 
 
-def _files_of(directory: Path, meta: Path) -> list[Path]:
+def _files_of(directory: Path, meta: Path) -> tuple[list[Path], set[str]]:
+    """The files metadata.yaml lists, in order, and the topics it names."""
     try:
         doc = yaml.safe_load(meta.read_text())
     except yaml.YAMLError as err:
@@ -282,7 +285,14 @@ def _files_of(directory: Path, meta: Path) -> list[Path]:
         raise DataError(f"{meta} lists {', '.join(missing)}, which do not exist")
     if not files:
         raise DataError(f"{meta}: relative_file_paths is empty")
-    return files
+    topics = {
+        str(t["topic_metadata"]["name"])
+        for t in info.get("topics_with_message_count") or []
+        if isinstance(t, dict)
+        and isinstance(t.get("topic_metadata"), dict)
+        and t["topic_metadata"].get("name")
+    }
+    return files, topics
 
 
 def open_bag(path: str | Path, *, msg_path: Sequence[str | Path] = ()) -> Bag:

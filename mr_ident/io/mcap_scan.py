@@ -194,19 +194,33 @@ class McapScan:
         self.info = info
         self.notes = notes
         self.cut = ""  # why the file was not read to its end ("" if it was)
+        self._expected: set[str] | None = None
+
+    def _known(self) -> set[str]:
+        """Topics whose channel and schema are known."""
+        schemas = self.info.schemas
+        return {t for t, sid, _ in self.info.channels.values() if sid == 0 or sid in schemas}
 
     def _wanted(self, topics: set[str]) -> set[int]:
         return {
             cid for cid, (t, _, enc) in self.info.channels.items() if t in topics and enc == "cdr"
         }
 
-    def scan(self) -> None:
-        """Read the file once to learn its schemas, channels and message counts."""
+    def scan(self, expected: set[str] | None = None) -> None:
+        """Read the file once to learn its schemas, channels and message counts.
+
+        ``expected``: the topics the file is known to hold (a rosbag2 metadata.yaml); the
+        scan stops once each has its channel (its counts are then not known).
+        """
         if self.info.scanned:
             return
         self.info.counts = {}
-        for _ in self.messages(set(), count=True):
-            pass
+        self._expected = expected
+        try:
+            for _ in self.messages(set(), count=True):
+                pass
+        finally:
+            self._expected = None
         self.info.scanned = True
 
     def messages(
@@ -255,6 +269,8 @@ class McapScan:
             carry, pos, want = buf[stop:], pos + stop, WINDOW
             if at_end:
                 break
+            if self._expected and self._expected <= self._known():
+                return  # a scan for topics: every expected topic is known
         if (
             not state["done"] and not state["summary"] and end is None
         ):  # no footer: not finalised, or cut short
