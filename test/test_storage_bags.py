@@ -174,6 +174,16 @@ def test_a_file_compressed_bag_is_read_streamed_without_a_copy_on_disk(loop, tmp
     assert sorted(p.name for p in tmp_path.rglob("*")) == before  # nothing written
 
 
+def test_a_file_compressed_sqlite_bag_is_read_in_memory(loop, tmp_path):
+    model, sim = loop
+    bag = joint_state_bag(tmp_path / "js", sim, stamps(sim.n_samples, 240.0), storage=SQLITE)
+    _compress(bag)
+    before = sorted(p.name for p in tmp_path.rglob("*"))
+    data, _ = bag_signals(bag, SPECS, ratio=3)
+    _exact(model, sim, data)
+    assert sorted(p.name for p in tmp_path.rglob("*")) == before  # nothing written
+
+
 def test_a_compressed_file_cut_short_reads_what_it_holds(loop, tmp_path):
     """A bare .mcap.zstd (chunks of 16 kB, written by the mcap library) cut in half: the
     samples of its whole records, sample for sample, and a note that it was cut short."""

@@ -5,8 +5,9 @@ split bags are read in that order) or one file: ``.mcap`` (written by ``ros2 bag
 ``rosbags``, ``mcap_ros2``, the ``mcap`` library or ``mr-ident record``), ``.db3``
 (rosbag2's SQLite3 storage, :mod:`mr_ident.io.sqlite_bag`) or ``.mcap.zstd`` (a file that
 ``ros2 bag record --compression-mode file --compression-format zstd`` compressed whole;
-decompressed as it is read, never to disk). A directory without ``metadata.yaml`` (a
-recording that was killed) is read file by file in name order.
+decompressed as it is read, never to disk; a ``.db3.zstd`` is decompressed into memory,
+SQLite reading at random). A directory without ``metadata.yaml`` (a recording that was
+killed) is read file by file in name order.
 
 Every storage is a :class:`Part` (the protocol below; :data:`PARTS` maps a file to its
 kind): its topics with their type and ``ros2msg`` definition, and its messages of some
@@ -34,7 +35,7 @@ from .msgdef import find_definition
 from .sqlite_bag import SqliteBag
 
 #: Suffixes of the files a bag is made of.
-BAG_FILES = (".mcap", ".db3", ".mcap.zstd")
+BAG_FILES = (".mcap", ".db3", ".mcap.zstd", ".db3.zstd")
 
 
 @dataclass(frozen=True)
@@ -143,6 +144,7 @@ PARTS: dict[str, Callable[[Path, list[str], Callable[[str], str]], Part]] = {
     ".mcap": McapPart,
     ".mcap.zstd": McapPart,
     ".db3": SqlitePart,
+    ".db3.zstd": SqlitePart,
 }
 
 
@@ -152,8 +154,8 @@ def _part(path: Path, notes: list[str], definitions: Callable[[str], str]) -> Pa
             return kind(path, notes, definitions)
     if path.name.endswith(".zstd"):
         raise DataError(
-            f"{path}: a zstd-compressed {Path(path.stem).suffix or 'file'}; only compressed "
-            ".mcap files are read (decompress it with `zstd -d`)"
+            f"{path}: a zstd-compressed {Path(path.stem).suffix or 'file'}; compressed .mcap "
+            "and .db3 files are read (decompress it with `zstd -d`)"
         )
     return McapPart(path, notes, definitions)  # any other name: MCAP by its magic
 
@@ -174,7 +176,7 @@ class Bag:
 
     @classmethod
     def open(cls, path: str | Path, *, msg_path: Sequence[str | Path] = ()) -> Bag:
-        """A rosbag2 directory or a bag file (``.mcap``, ``.db3``, ``.mcap.zstd``).
+        """A rosbag2 directory or a bag file (``.mcap``, ``.db3``, ``.mcap.zstd``, ``.db3.zstd``).
 
         ``msg_path``: directories of ``.msg`` files (``pkg/msg/Type.msg``) for types the
         bag does not define and that are not installed.
@@ -200,8 +202,8 @@ class Bag:
             files = sorted(f for f in p.iterdir() if f.name.endswith(BAG_FILES))
             if not files:
                 raise DataError(
-                    f"{p}: not a bag: no metadata.yaml and no .mcap, .db3 or .mcap.zstd file "
-                    "in the directory"
+                    f"{p}: not a bag: no metadata.yaml and no .mcap, .db3, .mcap.zstd or "
+                    ".db3.zstd file in the directory"
                 )
             notes.append(f"{p} has no metadata.yaml; reading {len(files)} file(s) in name order")
             return cls(p, files, notes, dirs)

@@ -12,7 +12,9 @@ of SQLite as one row (``group_concat`` joins their payloads into one buffer and 
 timestamps and lengths into text NumPy parses at once) and are one
 :class:`~mr_ident.io.cdr.Batch` (offsets into that buffer): no Python per message, not
 even a row object. SQLite
-bags store no publish time: a type without header is placed by its receive time.
+bags store no publish time: a type without header is placed by its receive time. A
+file-compressed SQLite3 bag (``.db3.zstd``) is decompressed into memory (SQLite reads its
+pages at random, so it cannot be streamed).
 """
 
 from __future__ import annotations
@@ -26,6 +28,26 @@ import numpy as np
 from ..errors import DataError
 from ..numerics.arrays import IntArray
 from .cdr import Batch
+
+
+def _connect(path: Path) -> sqlite3.Connection:
+    """The database read-only; a zstd-compressed one (``.db3.zstd``) decompressed in memory.
+
+    SQLite reads pages at random, so a compressed database cannot be streamed: it is held
+    in memory (never written to disk).
+    """
+    if not path.name.endswith(".zstd"):
+        return sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+    import zstandard
+
+    with open(path, "rb") as fh, zstandard.ZstdDecompressor().stream_reader(fh) as z:
+        data = z.read()
+        while more := z.read(1 << 26):
+            data += more
+    db = sqlite3.connect(":memory:")
+    db.deserialize(data)
+    return db
+
 
 #: Rows read at a time (a power of two).
 ROWS = 1 << 16
@@ -52,7 +74,7 @@ class SqliteBag:
     def __init__(self, path: Path, definitions: Callable[[str], str]):
         self.path = path
         try:
-            self._db = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+            self._db = _connect(path)
             tables = {r[0] for r in self._db.execute("SELECT name FROM sqlite_master")}
         except sqlite3.DatabaseError as err:
             raise DataError(f"{path}: not an SQLite3 bag ({err})") from None
