@@ -148,3 +148,23 @@ def test_a_file_cut_short_reads_up_to_its_last_whole_record(loop, tmp_path, layo
         got.append(data.n_samples)
         np.testing.assert_array_equal(data.y, sim.y[: data.n_samples])
         np.testing.assert_array_equal(data.r, sim.r[: data.n_samples])
+
+
+def test_a_damaged_chunk_is_skipped_said_and_the_rest_read(loop, tmp_path):
+    """Bytes of one compressed chunk in the middle overwritten: its messages are left out
+    (a gap: the longest gap-free span is used), the reading says so and how many are
+    missing against the summary's statistics; the samples read are the simulated ones."""
+    _, sim = loop
+    n = 3000
+    path = joint_state_mcap(tmp_path / "x.mcap", sim, stamps(n, 240.0), chunk_size=16384)
+    raw = bytearray(path.read_bytes())
+    info = mcap_scan.read_summary(open(path, "rb"), len(raw))
+    starts = [p for p in mcap_scan.walk(raw, 8, info.data_end)[0] if raw[p] == 0x06]
+    mid = starts[len(starts) // 2]
+    raw[mid + 200 : mid + 400] = bytes(200)  # inside the zstd data of that chunk
+    path.write_bytes(bytes(raw))
+    data, rinfo = bag_signals(path, SPECS, fs_high=240.0, ratio=3)
+    assert rinfo.truncated and "unreadable chunk at byte" in rinfo.reason
+    assert "that its summary counts" in rinfo.reason and "gap" in rinfo.broken
+    assert 0 < data.n_samples < n
+    np.testing.assert_array_equal(data.y, sim.y[data.first : data.end])

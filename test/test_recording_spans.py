@@ -115,3 +115,16 @@ def test_too_little_data_is_an_error_saying_so(tmp_path, capsys, n, empty, match
     assert code == 2 and err.startswith("error: ") and "Traceback" not in err
     assert re.search(match, err), err
     assert not (tmp_path / "x.npz").exists()
+
+
+def test_batch_passes_the_span_and_its_rows_say_which_was_used(gappy, tmp_path, capsys):
+    import csv
+
+    _, _, path = gappy
+    out = tmp_path / "b"
+    args = ["batch", str(path), "--r", R, "--u", U, "--y", Y, "--ratio", "3", "--fs-high", "240"]
+    code = main([*args, "--span", "latest", "--workers", "1", "--out-dir", str(out)])
+    assert code == 0, capsys.readouterr().err
+    (row,) = list(csv.DictReader(open(out / "summary.csv")))
+    assert row["status"] == "ok" and row["first"] == "12003", row
+    assert "using the latest gap-free span [12003, 14400)" in row["notes"]

@@ -171,6 +171,7 @@ class Bag:
         extra = tuple(Path(d) for d in msg_path)
         self._parts = [_part(f, notes, cache(lambda t: find_definition(t, extra))) for f in files]
         self.read: dict[str, int] = {}  # messages handed out per topic
+        self.short: list[str] = []  # topics of which fewer messages came than counted
         #: The topics metadata.yaml lists (a scan for topics stops when a file has them all).
         self.expected: set[str] | None = None
 
@@ -218,8 +219,9 @@ class Bag:
 
     @property
     def cut(self) -> list[str]:
-        """Why files were not read to their end (empty when every file was)."""
-        return [n for n in self.notes if "what came before is used" in n]
+        """Why files were not read whole (empty when every file was)."""
+        marks = ("what came before is used", "are left out")
+        return [n for n in self.notes if any(m in n for m in marks)] + self.short
 
     @property
     def topics(self) -> dict[str, Topic]:
@@ -246,9 +248,17 @@ class Bag:
         In file order (within a chunk a topic's messages are in record order).
         """
         for part in self._parts:
+            got: dict[str, int] = {}
             for topic, batch, sent in part.batches(topics):
+                got[topic] = got.get(topic, 0) + batch.size
                 self.read[topic] = self.read.get(topic, 0) + batch.size
                 yield topic, batch, sent
+            for name, t in part.topics().items():  # counts from a summary's statistics
+                if name in topics and t.encoding == "cdr" and got.get(name, 0) < t.messages:
+                    self.short.append(
+                        f"{part.path.name}: read {got.get(name, 0)} of the {t.messages} "
+                        f"messages of {name} that its summary counts"
+                    )
 
 
 def _files_of(directory: Path, meta: Path) -> tuple[list[Path], set[str]]:

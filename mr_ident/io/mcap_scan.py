@@ -12,6 +12,8 @@ indexes only make the walk faster where they are there:
   index (no walk over the chunk's records), and a chunk that holds no wanted channel is
   not decompressed;
 * a chunk without message index: its records are walked;
+* a chunk whose data do not match its CRC (where the writer stored one), or that does
+  not decompress, is skipped and said (its messages are a gap);
 * messages outside chunks (an unchunked file): walked, one batch per channel and window.
 
 Either way a channel's messages come out as one :class:`~mr_ident.io.cdr.Batch` per chunk
@@ -25,6 +27,7 @@ zstd-compressed file, decompressed as it is read).
 from __future__ import annotations
 
 import struct
+import zlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import BinaryIO
@@ -311,13 +314,11 @@ class McapScan:
                     j += 1
                 try:
                     yield from self._chunk(view, p, offs[i + 1 : j], topics, count)
-                except DataError as err:
-                    self.cut = (
-                        f"{self.name}: unreadable chunk at byte {base + p} ({err}); what came "
-                        "before is used"
+                except Exception as err:  # noqa: BLE001 - a damaged chunk is skipped, and said
+                    self.notes.append(
+                        f"{self.name}: unreadable chunk at byte {base + p} "
+                        f"({type(err).__name__}: {err}); its messages are left out"
                     )
-                    self.notes.append(self.cut)
-                    state["done"] = True
             elif op == OP_DATA_END:
                 state["summary"] = True  # a stream: the summary follows (schemas, counts)
             elif op == OP_FOOTER:
@@ -350,7 +351,7 @@ class McapScan:
     ) -> Iterator[tuple[str, Batch, IntArray]]:
         """One chunk; ``index_at``: the message index records that follow it."""
         body = p + 9
-        size = struct.unpack_from("<Q", view, body + 16)[0]
+        size, crc = struct.unpack_from("<QI", view, body + 16)
         compression, q = _string(view, body + 28)
         (n,) = struct.unpack_from("<Q", view, q)
         raw = view[q + 8 : q + 8 + n]
@@ -367,6 +368,8 @@ class McapScan:
                 self.info.counts[c] = self.info.counts.get(c, 0) + nb // 16
             return
         records = _decompress(compression, raw, size)
+        if crc and zlib.crc32(records) != crc:  # a damaged chunk may decompress to garbage
+            raise DataError(f"its data do not match its CRC ({len(records)} bytes)")
         if known:
             offsets = {c: _index_offsets(view, ip) for c, ip in index.items()}
             if all(_valid(records, o) for o in offsets.values()):
