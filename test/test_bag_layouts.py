@@ -168,3 +168,20 @@ def test_a_damaged_chunk_is_skipped_said_and_the_rest_read(loop, tmp_path):
     assert "that its summary counts" in rinfo.reason and "gap" in rinfo.broken
     assert 0 < data.n_samples < n
     np.testing.assert_array_equal(data.y, sim.y[data.first : data.end])
+
+
+def test_a_record_length_past_the_end_of_the_file_ends_the_reading_there(loop, tmp_path):
+    """An unchunked file whose last record's length field is damaged (2**60): what came
+    before it is read, no attempt to read 2**60 bytes."""
+    _, sim = loop
+    path = joint_state_mcap(
+        tmp_path / "x.mcap", sim, stamps(600, 240.0), **_options(LAYOUTS["unchunked, no summary"])
+    )
+    raw = bytearray(path.read_bytes())
+    offs, _ = mcap_scan.walk(raw, 8, len(raw))
+    last = [p for p in offs if raw[p] == 0x05][-1]
+    raw[last + 1 : last + 9] = (1 << 60).to_bytes(8, "little")
+    path.write_bytes(bytes(raw))
+    data, info = bag_signals(path, SPECS, fs_high=240.0, ratio=3)
+    assert info.truncated and data.n_samples >= 594
+    np.testing.assert_array_equal(data.y, sim.y[: data.n_samples])

@@ -71,6 +71,7 @@ class McapPart:
         self.path = path
         self._definitions = definitions
         compressed = path.name.endswith(".zstd")
+        size = None if compressed else path.stat().st_size
         if compressed:
             info = McapInfo()
             opener: Callable[[], BinaryIO] = lambda: _zstd_stream(path)  # noqa: E731
@@ -80,7 +81,7 @@ class McapPart:
                 if fh.read(len(MAGIC)) != MAGIC:
                     raise DataError(f"{path}: not an MCAP file (bad magic)")
                 info = read_summary(fh, path.stat().st_size)
-        self.scanner = McapScan(path.name, opener, info, notes)
+        self.scanner = McapScan(path.name, opener, info, notes, size)
 
     def topics(self) -> dict[str, Topic]:
         """Its topics (:class:`Part`); a type without schema from ``definitions``."""

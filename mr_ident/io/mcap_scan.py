@@ -45,6 +45,8 @@ OP_MESSAGE_INDEX, OP_STATISTICS, OP_DATA_END = 0x07, 0x0B, 0x0F
 MESSAGE_HEAD = 1 + 8 + 2 + 4 + 8 + 8
 #: Bytes read at a time; a record larger than this is read whole.
 WINDOW = 1 << 24
+#: A record longer than this in a stream (whose size is not known) is taken as damage.
+LARGEST = 1 << 33
 _HEAD = struct.Struct("<BQ")
 _FOOTER = 1 + 8 + 8 + 8 + 4  # opcode, length, summary start, summary offset start, crc
 
@@ -187,12 +189,20 @@ class McapScan:
         What the summary gave (filled in further while scanning).
     notes : list of str
         Where what was skipped is said (a file cut short, an unreadable chunk).
+    size : int, optional
+        The file's size in bytes (None for a stream).
     """
 
     def __init__(
-        self, name: str, opener: Callable[[], BinaryIO], info: McapInfo, notes: list[str]
+        self,
+        name: str,
+        opener: Callable[[], BinaryIO],
+        info: McapInfo,
+        notes: list[str],
+        size: int | None = None,
     ):
         self.name = name
+        self.size = size
         self.opener = opener
         self.info = info
         self.notes = notes
@@ -265,8 +275,10 @@ class McapScan:
                 if at_end:
                     break
                 need = 9 + _HEAD.unpack_from(view, 0)[1] if len(buf) >= 9 else WINDOW
-                want = max(2 * want, need - len(buf) + WINDOW)
                 carry = buf
+                if need > (self.size - pos if self.size is not None else LARGEST):
+                    break  # a length past the end of the file (cut short, or damaged)
+                want = max(2 * want, need - len(buf) + WINDOW)
                 continue
             yield from self._records(view, offs, pos, topics, count, state)
             carry, pos, want = buf[stop:], pos + stop, WINDOW
@@ -281,6 +293,12 @@ class McapScan:
             self.cut = f"{self.name} ends {where} after byte {pos}; what came before is used"
             if self.cut not in self.notes:
                 self.notes.append(self.cut)
+        elif carry and end is not None and not state["done"]:
+            self.cut = (
+                f"{self.name}: the record at byte {pos} runs past the end of the data "
+                f"(damaged); what came before is used"
+            )
+            self.notes.append(self.cut)
 
     def _records(
         self,
