@@ -185,3 +185,66 @@ def test_a_record_length_past_the_end_of_the_file_ends_the_reading_there(loop, t
     data, info = bag_signals(path, SPECS, fs_high=240.0, ratio=3)
     assert info.truncated and data.n_samples >= 594
     np.testing.assert_array_equal(data.y, sim.y[: data.n_samples])
+
+
+class _Counting(__import__("io").BufferedReader):
+    """A file that counts the bytes read from it."""
+
+    bytes = 0
+
+    def read(self, size=-1):
+        out = super().read(size)
+        self.bytes += len(out)
+        return out
+
+
+def test_chunks_of_other_topics_are_skipped_by_the_chunk_index(loop, tmp_path, monkeypatch):
+    """A bag with a large topic nobody reads (a burst of 400 'images' of 4 kB before and
+    after the loop): with the chunk index its chunks are not read at all; without it every
+    byte is read (the message indexes still spare decompressing them). Same samples."""
+    import io
+
+    from mcap.writer import IndexType
+    from mcap.writer import Writer as McapWriter
+
+    _, sim = loop
+    n, got = 3000, {}
+    for name, index in (("indexed", IndexType.ALL), ("walked", IndexType.MESSAGE)):
+        path = tmp_path / f"{name}.mcap"
+        joint_state_mcap(path, sim, stamps(n, 240.0), chunk_size=16384, index_types=index)
+        raw = path.read_bytes()  # re-write with the burst around the loop's messages
+        with open(path, "wb") as fh:
+            w = McapWriter(fh, chunk_size=16384, index_types=index)
+            w.start(profile="ros2", library="test")
+            sid = w.register_schema("pkg/msg/Blob", "ros2msg", b"uint8[] data\n")
+            cam = w.register_channel("/camera", "cdr", sid)
+            noise = np.random.default_rng(1).integers(0, 256, 4000, dtype=np.uint8)
+            blob = b"\x00\x01\x00\x00" + noise.tobytes()  # incompressible
+            for k in range(400):
+                w.add_message(cam, log_time=k, data=blob, publish_time=k)
+            from mcap.reader import make_reader
+
+            src = make_reader(io.BytesIO(raw))
+            ids = {}
+            for schema, channel, msg in src.iter_messages():
+                if channel.topic not in ids:
+                    s = w.register_schema(schema.name, schema.encoding, schema.data)
+                    ids[channel.topic] = w.register_channel(channel.topic, "cdr", s)
+                w.add_message(
+                    ids[channel.topic], log_time=msg.log_time, data=msg.data,
+                    publish_time=msg.publish_time,
+                )  # fmt: skip
+            for k in range(400):
+                w.add_message(cam, log_time=k, data=blob, publish_time=k)
+            w.finish()
+        data, _ = bag_signals(path, SPECS, fs_high=240.0, ratio=3)
+        scanner = Bag.open(path)._parts[0].scanner
+        counted = _Counting(io.FileIO(path))
+        scanner.opener = lambda: counted  # noqa: B023
+        for _ in scanner.messages({"/joint_states", "/ident/reference"}):
+            pass
+        got[name] = (data, counted.bytes)
+    assert got["indexed"][1] < got["walked"][1] / 3  # the /camera chunks: not read
+    for data, _ in got.values():
+        for x, want in ((data.r, sim.r), (data.u, sim.u), (data.y, sim.y)):
+            np.testing.assert_array_equal(x, want[:n])

@@ -8,6 +8,8 @@ therefore walks the top-level records of the data section in file order, reading
 sequentially in windows of :data:`WINDOW` bytes, so that every message is seen; the
 indexes only make the walk faster where they are there:
 
+* the chunk index of a complete summary: the chunks that hold no wanted channel (and
+  their message indexes) are not read at all (the walk jumps over them);
 * a chunk followed by its message index records: each message's offset comes from the
   index (no walk over the chunk's records), and a chunk that holds no wanted channel is
   not decompressed;
@@ -40,7 +42,7 @@ from .cdr import Batch
 
 MAGIC = b"\x89MCAP0\r\n"
 OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x02, 0x03, 0x04, 0x05, 0x06
-OP_MESSAGE_INDEX, OP_STATISTICS, OP_DATA_END = 0x07, 0x0B, 0x0F
+OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_STATISTICS, OP_DATA_END = 0x07, 0x08, 0x0B, 0x0F
 #: Message record: opcode, length, channel, sequence, log time, publish time, then data.
 MESSAGE_HEAD = 1 + 8 + 2 + 4 + 8 + 8
 #: Bytes read at a time; a record larger than this is read whole.
@@ -65,6 +67,8 @@ class McapInfo:
     complete: bool = False
     data_end: int | None = None
     scanned: bool = False
+    #: From the chunk index: per chunk its byte range (with its message indexes) and channels.
+    chunks: list[tuple[int, int, frozenset[int]]] = field(default_factory=list)
 
 
 def _string(buf: bytes | memoryview, p: int) -> tuple[str, int]:
@@ -143,6 +147,16 @@ def _record(info: McapInfo, b: bytes | memoryview, p: int) -> None:
         topic, q = _string(b, body + 4)
         enc, _ = _string(b, q)
         info.channels.setdefault(cid, (topic, sid, enc))
+    elif op == OP_CHUNK_INDEX:
+        start, length = struct.unpack_from("<QQ", b, body + 16)
+        (n,) = struct.unpack_from("<I", b, body + 32)
+        pairs = [struct.unpack_from("<HQ", b, body + 36 + 10 * k) for k in range(n // 10)]
+        (index_length,) = struct.unpack_from("<Q", b, body + 36 + n)
+        end = start + length
+        if pairs and min(o for _, o in pairs) == end:  # its message indexes follow it
+            end += index_length
+        if pairs:  # a chunk without message index: its channels are not known
+            info.chunks.append((start, end, frozenset(c for c, _ in pairs)))
     elif op == OP_STATISTICS:
         (channel_count,) = struct.unpack_from("<I", b, body + 8 + 2)
         (n,) = struct.unpack_from("<I", b, body + 42)
@@ -245,12 +259,50 @@ class McapScan:
                 raise DataError(f"{self.name}: not an MCAP file (bad magic)")
             yield from self._walk_file(fh, topics, count)
 
+    def _skipped(self, topics: set[str], count: bool) -> list[tuple[int, int]]:
+        """Byte ranges of the chunks (with their message indexes) that hold no wanted channel.
+
+        From the chunk index of a complete summary; they are not read at all.
+        """
+        if count or not self.info.complete or self.size is None:
+            return []
+        wanted = self._wanted(topics)
+        known = set(self.info.channels)
+        out: list[tuple[int, int]] = []
+        for start, end, cids in sorted(self.info.chunks):
+            if cids <= known and not cids & wanted and (not out or start >= out[-1][1]):
+                out.append((start, end))
+        return out
+
     def _walk_file(
         self, fh: BinaryIO, topics: set[str], count: bool
     ) -> Iterator[tuple[str, Batch, IntArray]]:
-        pos, carry, want = len(MAGIC), b"", WINDOW
+        """The data section, less the chunks :meth:`_skipped` (read in segments between)."""
         end = self.info.data_end
-        state = {"summary": False, "done": False}
+        state = {"summary": False, "done": False, "stopped": False}
+        pos = len(MAGIC)
+        for a, b in self._skipped(topics, count):
+            if a > pos:
+                fh.seek(pos)
+                yield from self._walk(fh, pos, a, topics, count, state)
+            if state["done"] or state["stopped"]:
+                return
+            pos = b
+        fh.seek(pos)
+        yield from self._walk(fh, pos, end, topics, count, state)
+
+    def _walk(
+        self,
+        fh: BinaryIO,
+        pos: int,
+        end: int | None,
+        topics: set[str],
+        count: bool,
+        state: dict[str, bool],
+    ) -> Iterator[tuple[str, Batch, IntArray]]:
+        """Records from ``pos`` to ``end`` (None: the end of the file or stream), in windows."""
+        carry, want = b"", WINDOW
+        segment = end is not None and end != self.info.data_end
         while not state["done"]:
             n = want  # new bytes, after what is carried over
             if end is not None:
@@ -264,6 +316,7 @@ class McapScan:
                     f"({type(err).__name__}: {err}); what came before is used"
                 )
                 self.notes.append(self.cut)
+                state["stopped"] = True
             buf = carry + more if carry else more
             at_end = len(more) < n or n <= 0
             view = memoryview(buf)
@@ -286,6 +339,8 @@ class McapScan:
                 break
             if self._expected and self._expected <= self._known():
                 return  # a scan for topics: every expected topic is known
+        if segment and not carry:
+            return  # a segment between skipped chunks, read whole
         if (
             not state["done"] and not state["summary"] and end is None
         ):  # no footer: not finalised, or cut short
@@ -293,12 +348,15 @@ class McapScan:
             self.cut = f"{self.name} ends {where} after byte {pos}; what came before is used"
             if self.cut not in self.notes:
                 self.notes.append(self.cut)
+            state["stopped"] = True
         elif carry and end is not None and not state["done"]:
             self.cut = (
                 f"{self.name}: the record at byte {pos} runs past the end of the data "
                 f"(damaged); what came before is used"
             )
-            self.notes.append(self.cut)
+            if self.cut not in self.notes:
+                self.notes.append(self.cut)
+            state["stopped"] = True
 
     def _records(
         self,
