@@ -128,3 +128,18 @@ def test_batch_passes_the_span_and_its_rows_say_which_was_used(gappy, tmp_path, 
     (row,) = list(csv.DictReader(open(out / "summary.csv")))
     assert row["status"] == "ok" and row["first"] == "12003", row
     assert "using the latest gap-free span [12003, 14400)" in row["notes"]
+
+
+def test_replay_is_the_nodes_latest_window_unless_span_says_otherwise(gappy, tmp_path, capsys):
+    """The latest span [12003, 14400) is 9.99 s, under min_window_s = 10 s: replay as the
+    node fails and lists the spans; --span longest identifies [1002, 12000)."""
+    _, _, path = gappy
+    base = ["replay", str(path), "--r", R, "--u", U, "--y", Y, "--ratio", "3"]
+    code = main([*base, "--out", str(tmp_path / "a.npz")])
+    err = capsys.readouterr().err
+    assert code == 2 and "no gap-free aligned window of at least 2400 samples" in err, err
+    assert "the longest [1002, 12000) of 10998 samples; gaps at [999, 1002)" in err
+    code = main([*base, "--span", "longest", "--out", str(tmp_path / "b.npz")])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    assert "window [1002, 12000)" in out and "note: using the longest gap-free span" in err

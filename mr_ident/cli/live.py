@@ -46,7 +46,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             fs_high=res.estimate.identification.fs_high, ratio=res.estimate.identification.ratio
         )
     else:
-        res = replay(args.recording, cfg, topics=args.topics, stop=args.stop)
+        res = replay(args.recording, cfg, topics=args.topics, stop=args.stop, span=args.span)
     info, est = res.info, res.estimate
     if info.truncated:
         print(

@@ -72,16 +72,15 @@ def _sources(p: argparse.ArgumentParser) -> None:
         )
 
 
-def _reading(p: argparse.ArgumentParser, span: bool = True) -> None:
+def _reading(p: argparse.ArgumentParser, default_span: str = DEFAULT_SPAN) -> None:
     """--span and --msg-path: how a recording is read (README, "Bags")."""
-    if span:
-        p.add_argument(
-            "--span",
-            choices=SPANS,
-            default=DEFAULT_SPAN,
-            help="which gap-free span of a recording with gaps: the longest (default), the "
-            "latest, or all (an error where there are gaps)",
-        )
+    p.add_argument(
+        "--span",
+        choices=SPANS,
+        default=default_span,
+        help=f"which gap-free span of a recording with gaps: {', '.join(SPANS)} (default "
+        f"{default_span}; all: an error where there are gaps)",
+    )
     p.add_argument(
         "--msg-path",
         action="append",
@@ -190,7 +189,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="use the window ending at or before this sample index",
     )
     _sources(rp)
-    _reading(rp, span=False)
+    _reading(rp, default_span="latest")
     rp.add_argument(
         "--fs-high",
         type=_positive_float,

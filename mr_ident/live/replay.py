@@ -68,16 +68,25 @@ def replay(
     *,
     topics: Sequence[str] | None = None,
     stop: int | None = None,
+    span: str = "latest",
 ) -> ReplayResult:
     """Run a recording through the node's alignment and identification, offline.
 
     The estimate is computed from the last aligned window (``config.window_s``)
     ending at or before sample index ``stop`` (default: the end of the data) -
-    the window the live node identified last when it saw the same blocks.
+    the window the live node identified last when it saw the same blocks. ``span``
+    other than "latest": the last window of that gap-free span (:mod:`mr_ident.live.spans`)
+    instead.
     """
+    check_span(span)
     items, info, _ = read_blocks(path, topics)
     al = Aligner(config.window_samples, config.ratio, config.reorder_blocks)
-    notes = _feed(al, items, stop)
+    if span == "latest":
+        notes = _feed(al, items, stop)
+    else:
+        every = Aligner(1 << 62, config.ratio, config.reorder_blocks, history=True)
+        notes = _feed(every, items, stop)
+        notes = _span_into(al, every, span, notes, info, str(path))
     w = al.window(config.min_samples, stop=stop)
     if w is None:
         lo, hi = al.span(stop)
@@ -90,6 +99,16 @@ def replay(
             + _what_broke(al, notes, info)
         )
     return ReplayResult(estimate(w, config), al.stats, info, tuple(notes))
+
+
+def _span_into(
+    al: Aligner, every: Aligner, span: str, notes: list[str], info: RecordingInfo, what: str
+) -> list[str]:
+    """Push the gap-free span ``span`` of ``every`` (with history) into ``al``; the notes."""
+    w = _chosen(every, span, notes, info, what)
+    for s, x in enumerate((w.r, w.u, w.y)):
+        al.push(s, Block(w.first, x))
+    return [info.broken, *notes] if info.broken else notes
 
 
 def _what_broke(al: Aligner, notes: Sequence[str], info: RecordingInfo | None = None) -> str:
@@ -240,24 +259,31 @@ def replay_bag(
     fs_high: float | None = None,
     ratio: int | None = None,
     stop: int | None = None,
+    span: str = "latest",
     msg_path: Sequence[str | Path] = (),
 ) -> ReplayResult:
     """:func:`replay` for per-sample sources.
 
     The window the node would have identified last (``config.window_s``, ending at or before
-    ``stop``); ``fs_high``/``ratio`` None: read off the stamps (and the configuration's
-    replaced by them).
+    ``stop``; ``span`` other than "latest": the last window of that gap-free span);
+    ``fs_high``/``ratio`` None: read off the stamps (and the configuration's replaced by
+    them).
     """
+    check_span(span)
     read = read_bag(
         path, specs, fs_high=fs_high, ratio=ratio, stop=stop, history=True, msg_path=msg_path
     )
     cfg = config.replace(fs_high=read.fs_high, ratio=read.ratio)
     al = Aligner(cfg.window_samples, cfg.ratio, cfg.reorder_blocks)
     lo, hi = read.aligner.span(stop)
-    w = read.aligner.window(1, stop=stop)
-    if w is not None:
-        for s, x in enumerate((w.r, w.u, w.y)):
-            al.push(s, Block(w.first, x))
+    notes = list(read.notes)
+    if span == "latest":
+        w = read.aligner.window(1, stop=stop)
+        if w is not None:
+            for s, x in enumerate((w.r, w.u, w.y)):
+                al.push(s, Block(w.first, x))
+    else:
+        notes = _span_into(al, read.aligner, span, notes, read.info, str(path))
     win = al.window(cfg.min_samples, stop=stop)
     if win is None:
         raise DataError(
@@ -268,7 +294,7 @@ def replay_bag(
             + _what_broke(read.aligner, read.notes, read.info)
             + f"; sources: {read.sources}"
         )
-    return ReplayResult(estimate(win, cfg), read.aligner.stats, read.info, read.notes)
+    return ReplayResult(estimate(win, cfg), read.aligner.stats, read.info, tuple(notes))
 
 
 def bag_signals(
