@@ -239,11 +239,12 @@ def main() -> None:
         print(
             f"  ours        {n3 / dt3 / 1e6:7.2f} M messages/s   ({dt3:.1f} s for every message)"
         )
-    rs = rosbags_rate(sqlite)
-    print(
-        f"  rosbags     {rs / 1e6:7.3f} M messages/s   (sqlite3: AnyReader + deserialize, first "
-        f"{SAMPLE} messages)"
-    )
+        if kind == "sqlite3":
+            rs = rosbags_rate(bag)
+            print(
+                f"  rosbags     {rs / 1e6:7.3f} M messages/s   (AnyReader + deserialize, first "
+                f"{SAMPLE} messages)"
+            )
     dt2, n2 = ours(small)
     print(f"bag: {small.name}, {n2} messages (joint order and frame_id change message to message)")
     print(f"  ours        {n2 / dt2 / 1e6:7.2f} M messages/s")
