@@ -238,3 +238,24 @@ def test_the_block_contract_reads_the_same_from_every_storage(loop, tmp_path, st
         assert s1 == s2 and b1.first == b2.first
         np.testing.assert_array_equal(b1.samples, b2.samples)
     assert got[2] == ref[2]
+
+
+@pytest.mark.parametrize(
+    ("content", "match"),
+    [
+        (b"not a database at all" * 100, "not an SQLite3 bag"),
+        (None, "not a rosbag2 SQLite3 bag: expected tables 'topics' and 'messages'"),
+    ],
+    ids=["garbage", "other-database"],
+)
+def test_a_db3_that_is_not_a_bag_is_an_error_naming_the_file(tmp_path, capsys, content, match):
+    path = tmp_path / "x.db3"
+    if content is None:
+        with sqlite3.connect(path) as con:
+            con.execute("CREATE TABLE t (a INTEGER)")
+    else:
+        path.write_bytes(content)
+    args = ["identify", str(path), "--r", R, "--u", U, "--y", Y, "--ratio", "3"]
+    code = main([*args, "--out", str(tmp_path / "o.npz")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith(f"error: {path}") and match in err, err

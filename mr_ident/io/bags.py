@@ -150,9 +150,12 @@ PARTS: dict[str, Callable[[Path, list[str], Callable[[str], str]], Part]] = {
 
 
 def _part(path: Path, notes: list[str], definitions: Callable[[str], str]) -> Part:
-    for suffix, kind in PARTS.items():
-        if path.name.endswith(suffix):
-            return kind(path, notes, definitions)
+    try:
+        for suffix, kind in PARTS.items():
+            if path.name.endswith(suffix):
+                return kind(path, notes, definitions)
+    except OSError as err:
+        raise DataError(f"cannot read bag file {str(path)!r}: {err.strerror or err}") from None
     if path.name.endswith(".zstd"):
         raise DataError(
             f"{path}: a zstd-compressed {Path(path.stem).suffix or 'file'}; compressed .mcap "

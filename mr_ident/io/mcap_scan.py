@@ -339,8 +339,8 @@ class McapScan:
                 break
             if self._expected and self._expected <= self._known():
                 return  # a scan for topics: every expected topic is known
-        if segment and not carry:
-            return  # a segment between skipped chunks, read whole
+        if (segment and not carry) or state["stopped"]:
+            return  # a segment between skipped chunks read whole, or a damaged stream (said)
         if (
             not state["done"] and not state["summary"] and end is None
         ):  # no footer: not finalised, or cut short

@@ -29,6 +29,9 @@ from ..errors import DataError
 from ..numerics.arrays import IntArray
 from .cdr import Batch
 
+#: Rows of one read: topic ids, row ids, timestamps, lengths, the joined payloads.
+_Part = tuple[IntArray, IntArray, IntArray, IntArray, bytes]
+
 
 def _connect(path: Path) -> sqlite3.Connection:
     """The database read-only; a zstd-compressed one (``.db3.zstd``) decompressed in memory.
@@ -47,6 +50,14 @@ def _connect(path: Path) -> sqlite3.Connection:
     db = sqlite3.connect(":memory:")
     db.deserialize(data)
     return db
+
+
+def _checked(parts: Iterator[_Part], path: Path) -> Iterator[_Part]:
+    """``parts``, a damaged database turned into a DataError naming the file."""
+    try:
+        yield from parts
+    except sqlite3.DatabaseError as err:
+        raise DataError(f"{path}: the SQLite3 database cannot be read ({err})") from None
 
 
 #: Rows read at a time (a power of two).
@@ -110,7 +121,7 @@ class SqliteBag:
         where = f"topic_id IN ({', '.join(str(i) for i in ids)})"
         utf8 = next(iter(self._db.execute("PRAGMA encoding")))[0] == "UTF-8"
         parts = self._aggregated(ids) if utf8 and AGGREGATE else self._rows(where)
-        for tids, rowid, stamps, lengths, blob in parts:
+        for tids, rowid, stamps, lengths, blob in _checked(parts, self.path):
             order = np.argsort(rowid, kind="stable")  # row order (as SQLite scans: no cost)
             offsets = np.zeros(lengths.size, dtype=np.int64)
             np.cumsum(lengths[:-1], out=offsets[1:])
@@ -126,9 +137,7 @@ class SqliteBag:
                 if sel.size:
                     yield self.topics[i][0], Batch(buf, offsets[sel], lengths[sel]), stamps[sel]
 
-    def _aggregated(
-        self, ids: list[int]
-    ) -> Iterator[tuple[IntArray, IntArray, IntArray, IntArray, bytes]]:
+    def _aggregated(self, ids: list[int]) -> Iterator[_Part]:
         """:data:`ROWS` row ids at a time and topic by topic, each as one row joined by SQLite.
 
         ``group_concat`` joins the payloads byte for byte (a blob's bytes as text of its
@@ -156,7 +165,7 @@ class SqliteBag:
         finally:
             self._db.text_factory = str
 
-    def _rows(self, where: str) -> Iterator[tuple[IntArray, IntArray, IntArray, IntArray, bytes]]:
+    def _rows(self, where: str) -> Iterator[_Part]:
         """:data:`ROWS` rows at a time, fetched as rows (any database encoding)."""
         cur = self._db.execute(
             f"SELECT id, topic_id, timestamp, data FROM messages WHERE {where} ORDER BY id"
