@@ -81,7 +81,7 @@ class McapPart:
                 if fh.read(len(MAGIC)) != MAGIC:
                     raise DataError(f"{path}: not an MCAP file (bad magic)")
                 info = read_summary(fh, path.stat().st_size)
-        self.scanner = McapScan(path.name, opener, info, notes, size)
+        self.scanner = McapScan(str(path), opener, info, notes, size)
 
     def topics(self) -> dict[str, Topic]:
         """Its topics (:class:`Part`); a type without schema from ``definitions``."""

@@ -255,7 +255,13 @@ class McapScan:
     ) -> Iterator[tuple[str, Batch, IntArray]]:
         """``(topic, batch, sent_ns)`` of the wanted topics' CDR messages, in file order."""
         with self.opener() as fh:
-            if fh.read(len(MAGIC)) != MAGIC:
+            try:
+                head = fh.read(len(MAGIC))
+            except Exception as err:  # noqa: BLE001 - e.g. a .zstd that is not zstd
+                raise DataError(
+                    f"{self.name}: cannot be read ({type(err).__name__}: {err})"
+                ) from None
+            if head != MAGIC:
                 raise DataError(f"{self.name}: not an MCAP file (bad magic)")
             yield from self._walk_file(fh, topics, count)
 
