@@ -18,7 +18,10 @@ Measured in one run:
   200 000 messages;
 * mcap_ros2: ``read_ros2_messages`` on the first 200 000 messages;
 * ours on a bag whose layout changes message to message (joint order and frame_id
-  alternate; 400 000 messages).
+  alternate; 400 000 messages);
+* ours on the same messages in rosbag2's SQLite3 storage (written by ``rosbags``) and as a
+  file-compressed bag (the MCAP bag's file zstd-compressed whole, as ``ros2 bag record
+  --compression-mode file`` leaves it; read as a stream); rosbags on the SQLite3 bag.
 """
 
 from __future__ import annotations
@@ -62,13 +65,14 @@ def _offset_of(template: bytes, value: float) -> int:
     return pos
 
 
-def make_bag(path: Path, seconds: float, rate: float) -> int:
+def make_bag(path: Path, seconds: float, rate: float, storage: str = "mcap") -> int:
     from bagmaker import T0, BagWriter
+    from rosbags.rosbag2 import StoragePlugin
 
     n = int(seconds * rate)
     rng = np.random.default_rng(0)
     t = T0 + np.rint(np.arange(n) * 1e9 / rate).astype(np.int64)
-    with BagWriter(path) as bw:
+    with BagWriter(path, storage=StoragePlugin[storage.upper()]) as bw:
         js = bw.ts.serialize_cdr(
             bw.joint_state(T0, ["j0", "j1"], position=[1.25, 2.5], effort=[3.75, 4.125]),
             "sensor_msgs/msg/JointState",
@@ -125,6 +129,27 @@ def make_changing_bag(path: Path, n: int) -> int:
     return 2 * n
 
 
+def compress(plain: Path, out: Path) -> None:
+    """rosbag2's file compression of a bag: each file zstd-compressed whole (``.zstd``)."""
+    import yaml
+    import zstandard
+
+    out.mkdir(parents=True)
+    meta = yaml.safe_load((plain / "metadata.yaml").read_text())
+    info = meta["rosbag2_bagfile_information"]
+    names = []
+    for rel in info["relative_file_paths"]:
+        with open(plain / rel, "rb") as src, open(out / f"{rel}.zstd", "wb") as dst:
+            zstandard.ZstdCompressor(level=3).copy_stream(src, dst)
+        names.append(f"{rel}.zstd")
+    info.update(relative_file_paths=names, compression_format="zstd", compression_mode="FILE")
+    (out / "metadata.yaml").write_text(yaml.safe_dump(meta))
+
+
+def size_gb(path: Path) -> float:
+    return sum(f.stat().st_size for f in path.iterdir()) / 1e9
+
+
 def ours(path: Path) -> tuple[float, int]:
     from mr_ident.io.bags import Bag
     from mr_ident.io.sources import bag_types, extract
@@ -179,14 +204,19 @@ def main() -> None:
             f"{sum(f.stat().st_size for f in big.iterdir()) / 1e9:.2f} GB) "
             f"with rosbags in {time.perf_counter() - t0:.0f} s"
         )
+    sqlite = args.out_dir / f"js_{args.hours:g}h_{args.rate:g}Hz_sqlite3"
+    if not (sqlite / "metadata.yaml").exists():
+        t0 = time.perf_counter()
+        n = make_bag(sqlite, args.hours * 3600, args.rate, storage="sqlite3")
+        print(f"wrote {sqlite} ({n} messages) with rosbags in {time.perf_counter() - t0:.0f} s")
+    zstd = args.out_dir / f"js_{args.hours:g}h_{args.rate:g}Hz_zstd"
+    if not (zstd / "metadata.yaml").exists():
+        compress(big, zstd)
     small = args.out_dir / "changing_layout"
     if not (small / "metadata.yaml").exists():
         make_changing_bag(small, 200_000)
     dt, n = ours(big)
-    print(
-        f"bag: {big.name}, {n} messages (JointState, fixed layout), "
-        f"{sum(f.stat().st_size for f in big.iterdir()) / 1e9:.2f} GB"
-    )
+    print(f"bag: {big.name}, {n} messages (JointState, fixed layout), {size_gb(big):.2f} GB")
     print(
         f"  ours        {n / dt / 1e6:7.2f} M messages/s   ({dt:.1f} s for every message: "
         "stamps and values "
@@ -203,6 +233,18 @@ def main() -> None:
         "messages)"
     )
     print(f"  ours / rosbags = {n / dt / rb:.0f} x, ours / mcap_ros2 = {n / dt / mc:.0f} x")
+    for kind, bag in (("sqlite3", sqlite), ("mcap.zstd", zstd)):
+        dt3, n3 = ours(bag)
+        print(f"bag: {bag.name}, {n3} messages ({kind}: the same messages), {size_gb(bag):.2f} GB")
+        print(
+            f"  ours        {n3 / dt3 / 1e6:7.2f} M messages/s   ({dt3:.1f} s for every message)"
+        )
+        if kind == "sqlite3":
+            rs = rosbags_rate(bag)
+            print(
+                f"  rosbags     {rs / 1e6:7.3f} M messages/s   (AnyReader + deserialize, first "
+                f"{SAMPLE} messages)"
+            )
     dt2, n2 = ours(small)
     print(f"bag: {small.name}, {n2} messages (joint order and frame_id change message to message)")
     print(f"  ours        {n2 / dt2 / 1e6:7.2f} M messages/s")

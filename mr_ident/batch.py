@@ -31,6 +31,7 @@ import numpy as np
 
 from .errors import ConfigError, MrIdentError
 from .live.recordings import BAG_SUFFIXES, DATA_SUFFIXES, is_bag
+from .live.spans import DEFAULT_SPAN, check_span
 
 if TYPE_CHECKING:
     from .numerics.model import Model
@@ -60,9 +61,12 @@ class BatchOptions:
     n: int | None = None
     degree: int = 2
     period: int | None = None
+    span: str = DEFAULT_SPAN
+    msg_path: tuple[Path, ...] = ()
     threads: int = 1
 
     def __post_init__(self) -> None:
+        check_span(self.span)
         if self.task not in TASKS:
             raise ConfigError(f"task must be one of {', '.join(TASKS)}, got {self.task!r}")
         if self.task == "diagnose" and self.model is None:
@@ -240,6 +244,8 @@ def _run(job: Job, opts: BatchOptions) -> dict[str, str]:
         topics=opts.topics,
         fs_high=opts.fs_high or (model.fs_high if model and bag else None),
         ratio=opts.ratio or (model.ratio if model and bag else None),
+        span=opts.span,
+        msg_path=opts.msg_path,
     )
     data = loaded.data
     fs, F = settle_rates(

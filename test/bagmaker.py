@@ -57,11 +57,12 @@ def stamps(
 
 
 class BagWriter:
-    """A rosbag2 bag (MCAP storage) written with rosbags; messages built from dicts."""
+    """A rosbag2 bag written with rosbags (MCAP storage unless ``storage`` says otherwise,
+    format version ``version``); messages built from dicts."""
 
-    def __init__(self, path: Path, ts=None):
+    def __init__(self, path: Path, ts=None, *, storage=StoragePlugin.MCAP, version: int = 9):
         self.ts = ts or typestore()
-        self.w = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+        self.w = Writer(path, version=version, storage_plugin=storage)
         self.conns: dict[str, object] = {}
 
     def __enter__(self):
@@ -130,25 +131,60 @@ class BagWriter:
         return V(header=self.header(t), values=np.asarray(values, float), names_version=version)
 
 
-def joint_state_bag(path, sim, t, *, skip=(), names=("j0", "j1")):
-    """A rosbag2 bag of a simulated SISO loop as ros2_control publishes it: y and u in
-    /joint_states (joint j1, beside a constant j0), r in /ident/reference; stamps ``t``
-    (ns), samples in ``skip`` dropped, received 0.3 ms after their stamp."""
-    with BagWriter(path) as bw:
-        for k in range(t.size):
-            if k in skip:
-                continue
-            tk = int(t[k])
-            bw.write(
-                "/joint_states",
-                "sensor_msgs/msg/JointState",
-                bw.joint_state(tk, names, position=[0.5, sim.y[k, 0]], effort=[0.0, sim.u[k, 0]]),
-                tk + 300_000,
-            )
-            bw.write(
-                "/ident/reference",
-                "sensor_msgs/msg/JointState",
-                bw.joint_state(tk, ["j1"], position=[sim.r[k, 0]]),
-                tk + 300_000,
-            )
+def joint_state_messages(bw, sim, t, *, skip=(), names=("j0", "j1")):
+    """``(topic, type, message, log_ns)`` of a simulated SISO loop as ros2_control publishes
+    it: y and u in /joint_states (joint j1, beside a constant j0), r in /ident/reference;
+    stamps ``t`` (ns), samples in ``skip`` dropped, received 0.3 ms after their stamp."""
+    js = "sensor_msgs/msg/JointState"
+    for k in range(t.size):
+        if k in skip:
+            continue
+        tk = int(t[k])
+        pos, eff = [0.5, sim.y[k, 0]], [0.0, sim.u[k, 0]]
+        yield (
+            "/joint_states",
+            js,
+            bw.joint_state(tk, names, position=pos, effort=eff),
+            tk + 300_000,
+        )
+        yield (
+            "/ident/reference",
+            js,
+            bw.joint_state(tk, ["j1"], position=[sim.r[k, 0]]),
+            tk + 300_000,
+        )
+
+
+def joint_state_bag(path, sim, t, *, skip=(), names=("j0", "j1"), **writer):
+    """:func:`joint_state_messages` as a rosbag2 bag (``writer``: :class:`BagWriter`'s
+    storage and version)."""
+    with BagWriter(path, **writer) as bw:
+        for topic, type_, msg, log in joint_state_messages(bw, sim, t, skip=skip, names=names):
+            bw.write(topic, type_, msg, log)
+    return path
+
+
+def joint_state_mcap(path, sim, t, *, skip=(), **options):
+    """:func:`joint_state_messages` as one MCAP file written by the ``mcap`` library's own
+    writer with ``options`` (use_chunking, index_types, use_statistics, ...); the schemas are
+    rosbags' ``ros2msg`` text, the payloads rosbags' CDR, publish time = log time."""
+    from mcap.writer import Writer as McapWriter
+
+    bw = BagWriter.__new__(BagWriter)
+    bw.ts = typestore()
+    schemas, channels = {}, {}
+    with open(path, "wb") as fh:
+        w = McapWriter(fh, **options)
+        w.start(profile="ros2", library="mcap python")
+        for seq, (topic, type_, msg, log) in enumerate(
+            joint_state_messages(bw, sim, t, skip=skip)
+        ):
+            if type_ not in schemas:
+                text, _ = bw.ts.generate_msgdef(type_, ros_version=2)
+                schemas[type_] = w.register_schema(type_, "ros2msg", text.encode())
+            if topic not in channels:
+                channels[topic] = w.register_channel(topic, "cdr", schemas[type_])
+            data = bytes(bw.ts.serialize_cdr(msg, type_))
+            w.add_message(channels[topic], log_time=log, data=data, publish_time=log, sequence=seq)
+        w.finish()
     return path

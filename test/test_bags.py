@@ -373,33 +373,3 @@ def test_resolve_names_the_introspection_topics_it_reads(loop, tmp_path):
         True,
     )
     assert T0 > 0
-
-
-def test_an_sqlite_bag_is_refused_with_the_command_that_converts_it(tmp_path, capsys):
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    ts = get_typestore(Stores.ROS2_JAZZY)
-    F64 = ts.types["std_msgs/msg/Float64"]
-    with Writer(tmp_path / "old", version=9, storage_plugin=StoragePlugin.SQLITE3) as w:
-        c = w.add_connection("/r", "std_msgs/msg/Float64", typestore=ts)
-        w.write(c, 1, ts.serialize_cdr(F64(data=1.0), "std_msgs/msg/Float64"))
-    for target in (tmp_path / "old", next((tmp_path / "old").glob("*.db3"))):
-        code = main(
-            [
-                "replay",
-                str(target),
-                "--r",
-                "/r.data",
-                "--u",
-                "/r.data",
-                "--y",
-                "/r.data",
-                "--ratio",
-                "1",
-                "--out",
-                str(tmp_path / "x.npz"),
-            ]
-        )
-        err = capsys.readouterr().err
-        assert code == 2 and "SQLite (.db3) bag" in err and "ros2 bag convert" in err, err

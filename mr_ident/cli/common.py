@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from ..errors import ConfigError, DataError
 
@@ -35,20 +35,31 @@ def source_specs(args: argparse.Namespace) -> dict[str, list[str]] | None:
     return specs
 
 
+def reading(args: argparse.Namespace) -> dict[str, Any]:
+    """--span and --msg-path as keyword arguments of the library's readers."""
+    out: dict[str, Any] = {"msg_path": tuple(getattr(args, "msg_path", None) or ())}
+    if getattr(args, "span", None) is not None:
+        out["span"] = args.span
+    return out
+
+
 def read_loop(
     path: Path,
     specs: dict[str, list[str]] | None,
     fs_high: float | None,
     ratio: int | None,
     topics: list[str] | None = None,
+    **options: Any,
 ) -> LoopData:
     """r, u, y of a data file or a bag (per-sample sources, or the block contract: ``topics``).
 
-    What the reading noticed goes to stderr as warnings.
+    ``options``: :func:`reading`. What the reading noticed goes to stderr as warnings.
     """
     from ..live.recordings import load_recording
 
-    loaded = load_recording(path, specs=specs, topics=topics, fs_high=fs_high, ratio=ratio)
+    loaded = load_recording(
+        path, specs=specs, topics=topics, fs_high=fs_high, ratio=ratio, **options
+    )
     for note in loaded.notes:
         print(f"warning: {note}", file=sys.stderr)
     return loaded.data
@@ -78,13 +89,14 @@ def read_for_diagnosis(
     period: int | None,
     topics: list[str] | None,
     specs: dict[str, list[str]] | None = None,
+    **options: Any,
 ) -> LoopData:
     """Data for diagnose from a file or a bag; rates from the file where given, else the model."""
     from dataclasses import replace
 
     from ..live.recordings import is_bag
 
-    data = read_loop(path, specs, model.fs_high, model.ratio, topics)
+    data = read_loop(path, specs, model.fs_high, model.ratio, topics, **options)
     if is_bag(path):  # a bag's rates are the model's
         fs, F = model.fs_high, model.ratio
     else:

@@ -6,7 +6,7 @@ import argparse
 from typing import TYPE_CHECKING
 
 from ..errors import ConfigError
-from .common import read_for_diagnosis, source_specs
+from .common import read_for_diagnosis, reading, source_specs
 
 if TYPE_CHECKING:
     pass
@@ -32,9 +32,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         raise ConfigError(f"--alpha must be in (0, 1), got {args.alpha}")
     model = load_model(args.model)
     specs = source_specs(args)
-    data = read_for_diagnosis(args.data, model, args.period, args.topics, specs)
+    data = read_for_diagnosis(args.data, model, args.period, args.topics, specs, **reading(args))
     val = (
-        read_for_diagnosis(args.validate, model, args.period, args.topics, specs)
+        read_for_diagnosis(args.validate, model, args.period, args.topics, specs, **reading(args))
         if args.validate
         else None
     )

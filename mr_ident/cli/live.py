@@ -10,7 +10,7 @@ import sys
 from typing import TYPE_CHECKING
 
 from ..errors import ConfigError
-from .common import source_specs, write_plots
+from .common import reading, source_specs, write_plots
 
 if TYPE_CHECKING:
     pass
@@ -39,12 +39,14 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
         fs = args.fs_high or (cfg.fs_high if args.params else None)
         F = args.ratio or (cfg.ratio if args.params else None)
-        res = replay_bag(args.recording, cfg, specs, fs_high=fs, ratio=F, stop=args.stop)
+        res = replay_bag(
+            args.recording, cfg, specs, fs_high=fs, ratio=F, stop=args.stop, **reading(args)
+        )
         cfg = cfg.replace(
             fs_high=res.estimate.identification.fs_high, ratio=res.estimate.identification.ratio
         )
     else:
-        res = replay(args.recording, cfg, topics=args.topics, stop=args.stop)
+        res = replay(args.recording, cfg, topics=args.topics, stop=args.stop, span=args.span)
     info, est = res.info, res.estimate
     if info.truncated:
         print(
@@ -122,7 +124,7 @@ def cmd_view(args: argparse.Namespace) -> int:
         fs_high = args.fs_high or (model.fs_high if model else None)
         ratio = args.ratio or (model.ratio if model else None)
         for t_loop, est in bag_estimates(
-            args.bag, cfg, specs, topics=args.topics, fs_high=fs_high, ratio=ratio
+            args.bag, cfg, specs, topics=args.topics, fs_high=fs_high, ratio=ratio, **reading(args)
         ):
             if args.speed > 0:
                 stop.wait(t_wall + t_loop / args.speed - time.monotonic())

@@ -10,7 +10,7 @@ import math
 from typing import TYPE_CHECKING, Any
 
 from ..errors import ConfigError, DataError
-from .common import read_loop, resolve_rates, source_specs, write_plots
+from .common import read_loop, reading, resolve_rates, source_specs, write_plots
 
 if TYPE_CHECKING:
     pass
@@ -47,6 +47,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
         source_specs(args),
         args.fs_high or (model.fs_high if model else None),
         args.ratio or (model.ratio if model else None),
+        **reading(args),
     )
     fs, F = resolve_rates(args, data, model)
     N = data.n_samples
@@ -128,6 +129,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         n=args.n,
         degree=args.degree,
         period=args.period,
+        **reading(args),
         threads=1 if args.scheduler else batch.threads_per_job(workers),
     )
     args.out_dir.mkdir(parents=True, exist_ok=True)

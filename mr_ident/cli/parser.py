@@ -8,6 +8,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+from ..live.spans import DEFAULT_SPAN, SPANS
 from ..numerics.catalog import METHOD_NAMES
 
 EXIT_USAGE = 2
@@ -71,6 +72,25 @@ def _sources(p: argparse.ArgumentParser) -> None:
         )
 
 
+def _reading(p: argparse.ArgumentParser, default_span: str = DEFAULT_SPAN) -> None:
+    """--span and --msg-path: how a recording is read (README, "Bags")."""
+    p.add_argument(
+        "--span",
+        choices=SPANS,
+        default=default_span,
+        help=f"which gap-free span of a recording with gaps: {', '.join(SPANS)} (default "
+        f"{default_span}; all: an error where there are gaps)",
+    )
+    p.add_argument(
+        "--msg-path",
+        action="append",
+        type=Path,
+        metavar="DIR",
+        help="directory of .msg files (DIR/pkg/msg/Type.msg) for types a bag does not define "
+        "and that are not installed (repeatable)",
+    )
+
+
 def _lpm_options(p: argparse.ArgumentParser) -> None:
     """--n and --degree: the LPM's window half-width and polynomial degree."""
     p.add_argument(
@@ -104,7 +124,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     i = sub.add_parser("identify", help="identify P_h (and the PFG) from r, u, y data")
     i.add_argument(
-        "data", type=Path, help="data: .csv, .npz, or a bag (rosbag2 directory or .mcap)"
+        "data",
+        type=Path,
+        help="data: .csv, .npz, or a bag (rosbag2 directory, .mcap, .db3, .mcap.zstd)",
     )
     i.add_argument(
         "--fs-high",
@@ -120,6 +142,7 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--method", choices=METHOD_NAMES, default="freq-lifted")
     _lpm_options(i)
     _sources(i)
+    _reading(i)
     i.add_argument("--out", type=Path, required=True, help="result .npz")
     i.add_argument(
         "--plot", type=Path, help="Bode plot PNG (the PFG goes next to it as *_pfg.png)"
@@ -142,12 +165,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
 
     rp = sub.add_parser(
-        "replay", help="identify from an MCAP recording as the node would (or re-publish it)"
+        "replay", help="identify from a recording as the node would (or re-publish an MCAP file)"
     )
     rp.add_argument(
         "recording",
         type=Path,
-        help="MCAP file or rosbag2 directory (block topics, or --r/--u/--y)",
+        help="a bag: rosbag2 directory, .mcap, .db3 or .mcap.zstd (block topics, or --r/--u/--y)",
     )
     rp.add_argument(
         "--params",
@@ -166,6 +189,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="use the window ending at or before this sample index",
     )
     _sources(rp)
+    _reading(rp, default_span="latest")
     rp.add_argument(
         "--fs-high",
         type=_positive_float,
@@ -200,7 +224,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     g.add_argument("model", type=Path, help="nominal model YAML")
     g.add_argument(
-        "data", type=Path, help="measured data: .csv, .npz, an .mcap recording or a bag"
+        "data",
+        type=Path,
+        help="measured data: .csv, .npz or a bag (rosbag2 directory, .mcap, .db3, .mcap.zstd)",
     )
     g.add_argument(
         "--validate",
@@ -208,6 +234,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="independent validation data (default: the last 30 %% of DATA)",
     )
     _sources(g)
+    _reading(g)
     g.add_argument("--json", type=Path, required=True, help="report .json")
     g.add_argument("--report", type=Path, help="report .html (self-contained, figures embedded)")
     g.add_argument("--out-model", type=Path, help="extended model YAML")
@@ -267,6 +294,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--topics", nargs=3, metavar=("R", "U", "Y"), help="block-contract topics of r, u, y"
     )
     _sources(b)
+    _reading(b)
     b.add_argument(
         "--workers",
         type=_int_at_least(1),
@@ -303,6 +331,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--topics", nargs=3, metavar=("R", "U", "Y"), help="bag: block-contract topics of r, u, y"
     )
     _sources(v)
+    _reading(v)
     v.add_argument("--fs-high", type=_positive_float, help="bag: high sample rate in Hz")
     v.add_argument("--ratio", type=_int_at_least(1), help="bag: F")
     v.add_argument(

@@ -1,38 +1,41 @@
-"""Bags: rosbag2 directories and bare MCAP files, read chunk by chunk for speed.
+"""Bags: rosbag2 directories, MCAP files of any layout, SQLite3 bags, zstd-compressed files.
 
-A bag is either a rosbag2 directory (``metadata.yaml`` lists its files in
-``relative_file_paths``; split bags are read in that order) or one ``.mcap`` file (written
-by ``ros2 bag record``, ``rosbags``, ``mcap_ros2`` or ``mr-ident record``). SQLite
-(``.db3``) bags are refused with the command that converts them. A directory without
-``metadata.yaml`` (a recording that was killed) is read file by file in name order.
+A bag is a rosbag2 directory (``metadata.yaml`` lists its files in ``relative_file_paths``;
+split bags are read in that order) or one file: ``.mcap`` (written by ``ros2 bag record``,
+``rosbags``, ``mcap_ros2``, the ``mcap`` library or ``mr-ident record``), ``.db3``
+(rosbag2's SQLite3 storage, :mod:`mr_ident.io.sqlite_bag`) or ``.mcap.zstd`` (a file that
+``ros2 bag record --compression-mode file --compression-format zstd`` compressed whole;
+decompressed as it is read, never to disk; a ``.db3.zstd`` is decompressed into memory,
+SQLite reading at random). A directory without ``metadata.yaml`` (a recording that was
+killed) is read file by file in name order.
 
-Reading is organised for speed: the MCAP summary lists the chunks; each chunk is read and
-decompressed once, and its message index gives, per channel, the offset of every
-message, so that a channel's messages of one chunk are one :class:`~mr_ident.io.cdr.Batch`
-and their fields come out with a few NumPy operations (:mod:`mr_ident.io.cdr`). A chunk
-without message index, or a file without summary (cut short), is scanned record by record
-instead, as far as it can be read; :attr:`Bag.notes` says what was skipped.
+Every storage is a :class:`Part` (the protocol below; :data:`PARTS` maps a file to its
+kind): its topics with their type and ``ros2msg`` definition, and its messages of some
+topics as batches. MCAP files are walked in file order (:mod:`mr_ident.io.mcap_scan`), so
+every message is read whatever the file indexes; :attr:`Bag.notes` says what was skipped.
+A type whose definition the bag does not carry comes from the installed interface
+packages or the ``msg_path`` directories (``pkg/msg/Type.msg``).
 """
 
 from __future__ import annotations
 
-import struct
-from collections.abc import Iterator
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
-from typing import Any
+from typing import BinaryIO, Protocol
 
-import numpy as np
 import yaml
 
 from ..errors import DataError, yaml_problem
 from ..numerics.arrays import IntArray
 from .cdr import Batch
+from .mcap_scan import MAGIC, McapInfo, McapScan, read_summary
+from .msgdef import find_definition
+from .sqlite_bag import SqliteBag
 
-MAGIC = b"\x89MCAP0\r\n"
-_OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK = 0x03, 0x04, 0x05, 0x06
-#: Message record: opcode, length, channel, sequence, log time, publish time, then data.
-_MESSAGE_HEAD = 1 + 8 + 2 + 4 + 8 + 8
+#: Suffixes of the files a bag is made of.
+BAG_FILES = (".mcap", ".db3", ".mcap.zstd", ".db3.zstd")
 
 
 @dataclass(frozen=True)
@@ -46,309 +49,224 @@ class Topic:
     messages: int = 0
 
 
-@dataclass
-class _File:
+class Part(Protocol):
+    """One file of a bag, whatever its storage."""
+
     path: Path
-    schemas: dict[int, tuple[str, str, bytes]] = field(
-        default_factory=dict
-    )  # id -> name, encoding, data
-    channels: dict[int, tuple[str, int, str]] = field(
-        default_factory=dict
-    )  # id -> topic, schema, encoding
-    chunks: list[Any] = field(default_factory=list)  # mcap ChunkIndex
-    counts: dict[int, int] = field(default_factory=dict)
-    summary: bool = True
+
+    def topics(self) -> dict[str, Topic]:
+        """Its topics as far as they are known (all of them after :meth:`scan`)."""
+
+    def scan(self, expected: set[str] | None = None) -> None:
+        """Read the file where its topics are not known without it (until ``expected``)."""
+
+    def batches(self, topics: set[str]) -> Iterator[tuple[str, Batch, IntArray]]:
+        """``(topic, batch, sent_ns)`` of the CDR messages of ``topics``, in file order."""
 
 
-def _decompress(compression: str, data: bytes, size: int) -> bytes:
-    if compression == "":
-        return data
-    if compression == "zstd":
-        import zstandard
+class McapPart:
+    """An MCAP file, plain or zstd-compressed whole (read as a stream)."""
 
-        return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
-    if compression == "lz4":
-        import lz4.frame
+    def __init__(self, path: Path, notes: list[str], definitions: Callable[[str], str]):
+        self.path = path
+        self._definitions = definitions
+        compressed = path.name.endswith(".zstd")
+        size = None if compressed else path.stat().st_size
+        if compressed:
+            info = McapInfo()
+            opener: Callable[[], BinaryIO] = lambda: _zstd_stream(path)  # noqa: E731
+        else:
+            opener = lambda: open(path, "rb")  # noqa: E731
+            with opener() as fh:
+                if fh.read(len(MAGIC)) != MAGIC:
+                    raise DataError(f"{path}: not an MCAP file (bad magic)")
+                info = read_summary(fh, path.stat().st_size)
+        self.scanner = McapScan(str(path), opener, info, notes, size)
 
-        out: bytes = lz4.frame.decompress(data)
+    def topics(self) -> dict[str, Topic]:
+        """Its topics (:class:`Part`); a type without schema from ``definitions``."""
+        info = self.scanner.info
+        out: dict[str, Topic] = {}
+        for cid, (topic, sid, enc) in info.channels.items():
+            name, sch_enc, data = info.schemas.get(sid, ("", "", b""))
+            schema = data.decode(errors="replace") if sch_enc == "ros2msg" else ""
+            if not schema and name:
+                schema = self._definitions(name)
+            prev = out.get(topic)
+            count = info.counts.get(cid, 0) + (prev.messages if prev else 0)
+            out[topic] = Topic(topic, name, schema, enc, count)
         return out
-    raise DataError(f"unknown MCAP chunk compression {compression!r}")
+
+    def scan(self, expected: set[str] | None = None) -> None:
+        """Walk the file unless its summary listed the channels (until ``expected`` are)."""
+        if not self.scanner.info.complete:
+            self.scanner.scan(expected)
+
+    def batches(self, topics: set[str]) -> Iterator[tuple[str, Batch, IntArray]]:
+        """:meth:`McapScan.messages`."""
+        return self.scanner.messages(topics)
 
 
-def _string(buf: bytes, p: int) -> tuple[str, int]:
-    (n,) = struct.unpack_from("<I", buf, p)
-    return buf[p + 4 : p + 4 + n].decode(), p + 4 + n
+class SqlitePart:
+    """A ``.db3`` file of rosbag2's SQLite3 storage."""
+
+    def __init__(self, path: Path, notes: list[str], definitions: Callable[[str], str]):
+        self.path = path
+        self.db = SqliteBag(path, definitions)
+
+    def topics(self) -> dict[str, Topic]:
+        """Its topics (:class:`Part`), all known from its tables.
+
+        Not counted (a pass over the table: :attr:`Bag.read` counts what is read).
+        """
+        return {
+            name: Topic(name, type_, self.db.schemas.get(type_, ""), fmt)
+            for name, type_, fmt in self.db.topics.values()
+        }
+
+    def scan(self, expected: set[str] | None = None) -> None:
+        """Nothing to read: the tables list the topics."""
+
+    def batches(self, topics: set[str]) -> Iterator[tuple[str, Batch, IntArray]]:
+        """:meth:`SqliteBag.batches` (send times are receive times)."""
+        return self.db.batches(topics)
+
+
+def _zstd_stream(path: Path) -> BinaryIO:
+    import zstandard
+
+    fh = open(path, "rb")
+    reader: BinaryIO = zstandard.ZstdDecompressor().stream_reader(fh, closefd=True)
+    return reader
+
+
+#: How each kind of bag file is read (by the end of its name).
+PARTS: dict[str, Callable[[Path, list[str], Callable[[str], str]], Part]] = {
+    ".mcap": McapPart,
+    ".mcap.zstd": McapPart,
+    ".db3": SqlitePart,
+    ".db3.zstd": SqlitePart,
+}
+
+
+def _part(path: Path, notes: list[str], definitions: Callable[[str], str]) -> Part:
+    try:
+        for suffix, kind in PARTS.items():
+            if path.name.endswith(suffix):
+                return kind(path, notes, definitions)
+    except OSError as err:
+        raise DataError(f"cannot read bag file {str(path)!r}: {err.strerror or err}") from None
+    if path.name.endswith(".zstd"):
+        raise DataError(
+            f"{path}: a zstd-compressed {Path(path.stem).suffix or 'file'}; compressed .mcap "
+            "and .db3 files are read (decompress it with `zstd -d`)"
+        )
+    return McapPart(path, notes, definitions)  # any other name: MCAP by its magic
 
 
 class Bag:
     """The files of one bag (module docstring); use :meth:`open`."""
 
-    def __init__(self, path: Path, files: list[Path], notes: list[str]):
+    def __init__(
+        self, path: Path, files: list[Path], notes: list[str], msg_path: Sequence[Path] = ()
+    ):
         self.path = path
         self.notes = notes
-        self._files = [self._index(f) for f in files]
+        extra = tuple(Path(d) for d in msg_path)
+        self._parts = [_part(f, notes, cache(lambda t: find_definition(t, extra))) for f in files]
+        self.read: dict[str, int] = {}  # messages handed out per topic
+        self.short: list[str] = []  # topics of which fewer messages came than counted
+        #: The topics metadata.yaml lists (a scan for topics stops when a file has them all).
+        self.expected: set[str] | None = None
 
     @classmethod
-    def open(cls, path: str | Path) -> Bag:
-        """A rosbag2 directory or a ``.mcap`` file.
+    def open(cls, path: str | Path, *, msg_path: Sequence[str | Path] = ()) -> Bag:
+        """A rosbag2 directory or a bag file (``.mcap``, ``.db3``, ``.mcap.zstd``, ``.db3.zstd``).
+
+        ``msg_path``: directories of ``.msg`` files (``pkg/msg/Type.msg``) for types the
+        bag does not define and that are not installed.
 
         Raises
         ------
         DataError
-            Not a bag, an SQLite bag, a compressed rosbag2 bag, or a listed file missing.
+            Not a bag, a storage or compression that is not read, or a listed file missing.
         """
         p = Path(path)
+        for d in msg_path:
+            if not Path(d).is_dir():
+                raise DataError(f"--msg-path {str(d)!r}: not a directory")
+        dirs = [Path(d) for d in msg_path]
         notes: list[str] = []
         if p.is_dir():
             meta = p / "metadata.yaml"
             if meta.is_file():
-                files = _files_of(p, meta)
-            else:
-                files = sorted(p.glob("*.mcap"))
-                if sorted(p.glob("*.db3")):
-                    raise DataError(_SQLITE.format(p))
-                if not files:
-                    raise DataError(
-                        f"{p}: not a bag: no metadata.yaml and no .mcap file in the directory"
-                    )
-                notes.append(
-                    f"{p} has no metadata.yaml; reading {len(files)} .mcap file(s) in name order"
+                files, expected = _files_of(p, meta)
+                bag = cls(p, files, notes, dirs)
+                bag.expected = expected or None
+                return bag
+            files = sorted(f for f in p.iterdir() if f.name.endswith(BAG_FILES))
+            if not files:
+                raise DataError(
+                    f"{p}: not a bag: no metadata.yaml and no .mcap, .db3, .mcap.zstd or "
+                    ".db3.zstd file in the directory"
                 )
-            return cls(p, files, notes)
-        if p.suffix == ".db3":
-            raise DataError(_SQLITE.format(p))
+            notes.append(f"{p} has no metadata.yaml; reading {len(files)} file(s) in name order")
+            return cls(p, files, notes, dirs)
         if not p.exists():
             raise DataError(f"cannot read bag {str(p)!r}: no such file or directory")
-        return cls(p, [p], notes)
-
-    # -- index --------------------------------------------------------------------------
-    def _index(self, path: Path) -> _File:
-        from mcap.reader import make_reader
-
-        f = _File(path)
-        try:
-            with open(path, "rb") as fh:
-                if fh.read(8) != MAGIC:
-                    raise DataError(f"{path}: not an MCAP file (bad magic)")
-                fh.seek(0)
-                summary = make_reader(fh).get_summary()
-        except DataError:
-            raise
-        except Exception:  # noqa: BLE001 - no readable summary: scan instead
-            summary = None
-        if summary is None:
-            f.summary = False
-            self.notes.append(
-                f"{path.name} has no summary (not finalised or cut short); scanned record by "
-                "record"
-            )
-            return f
-        for sid, s in summary.schemas.items():
-            f.schemas[sid] = (s.name, s.encoding, bytes(s.data))
-        for cid, c in summary.channels.items():
-            f.channels[cid] = (c.topic, c.schema_id, c.message_encoding)
-        f.chunks = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
-        if summary.statistics is not None:
-            f.counts = dict(summary.statistics.channel_message_counts)
-        return f
+        return cls(p, [p], notes, dirs)
 
     @property
     def files(self) -> list[Path]:
         """The bag's files, in reading order."""
-        return [f.path for f in self._files]
+        return [f.path for f in self._parts]
+
+    @property
+    def cut(self) -> list[str]:
+        """Why files were not read whole (empty when every file was)."""
+        marks = ("what came before is used", "are left out")
+        return [n for n in self.notes if any(m in n for m in marks)] + self.short
 
     @property
     def topics(self) -> dict[str, Topic]:
-        """Every topic of the bag with its type and embedded schema.
-
-        From the files with a summary; a scanned file adds its topics while it is read.
-        """
+        """Every topic of the bag with its type and definition, as far as known unscanned."""
         out: dict[str, Topic] = {}
-        for f in self._files:
-            for cid, (topic, sid, enc) in f.channels.items():
-                name, sch_enc, data = f.schemas.get(sid, ("", "", b""))
-                prev = out.get(topic)
-                count = f.counts.get(cid, 0) + (prev.messages if prev else 0)
-                out[topic] = Topic(
-                    topic,
-                    name,
-                    data.decode(errors="replace") if sch_enc == "ros2msg" else "",
-                    enc,
-                    count,
+        for part in self._parts:
+            for name, t in part.topics().items():
+                prev = out.get(name)
+                n = t.messages + (prev.messages if prev else 0)
+                out[name] = Topic(
+                    name, t.type, t.schema or (prev.schema if prev else ""), t.encoding, n
                 )
         return out
 
     def scanned_topics(self) -> dict[str, Topic]:
-        """:attr:`topics`, after scanning files that have no summary (reads them once)."""
-        for f in self._files:
-            if not f.summary and not f.channels:
-                for _ in self._scan(f, set()):
-                    pass
+        """:attr:`topics`, after scanning the files whose topics are not known without it."""
+        for part in self._parts:
+            part.scan(self.expected)
         return self.topics
 
-    # -- messages -------------------------------------------------------------------------
     def batches(self, topics: set[str]) -> Iterator[tuple[str, Batch, IntArray]]:
-        """``(topic, batch, log_time_ns)`` for the messages of ``topics``, chunk by chunk.
+        """``(topic, batch, sent_ns)`` for the messages of ``topics``, file by file.
 
         In file order (within a chunk a topic's messages are in record order).
         """
-        for f in self._files:
-            if f.summary:
-                yield from self._chunks(f, topics)
-            else:
-                yield from self._scan(f, topics)
-
-    def _chunks(self, f: _File, topics: set[str]) -> Iterator[tuple[str, Batch, IntArray]]:
-        wanted = {cid for cid, (t, _, enc) in f.channels.items() if t in topics and enc == "cdr"}
-        with open(f.path, "rb") as fh:
-            for ci in f.chunks:
-                ids = (
-                    wanted & set(ci.message_index_offsets) if ci.message_index_offsets else wanted
-                )
-                if not ids:
-                    continue
-                fh.seek(ci.chunk_start_offset)
-                raw = fh.read(ci.chunk_length)
-                records = self._chunk_records(raw, f.path)
-                if ci.message_index_offsets:
-                    fh.seek(ci.chunk_start_offset + ci.chunk_length)
-                    index = fh.read(ci.message_index_length)
-                    base = ci.chunk_start_offset + ci.chunk_length
-                    for cid in sorted(ids):
-                        offsets = _message_index(index, ci.message_index_offsets[cid] - base)
-                        yield self._batch(f, cid, records, offsets)
-                else:
-                    yield from self._split(f, records, ids)
-
-    @staticmethod
-    def _chunk_records(raw: bytes, path: Path) -> bytes:
-        if len(raw) < 9 or raw[0] != _OP_CHUNK:
-            raise DataError(f"{path}: the summary points at a chunk that is not there")
-        p = 9
-        _start, _end, size, _crc = struct.unpack_from("<QQQI", raw, p)
-        compression, p = _string(raw, p + 28)
-        (n,) = struct.unpack_from("<Q", raw, p)
-        return _decompress(compression, raw[p + 8 : p + 8 + n], size)
-
-    @staticmethod
-    def _batch(
-        f: _File, cid: int, records: bytes, offsets: IntArray
-    ) -> tuple[str, Batch, IntArray]:
-        buf = np.frombuffer(records, dtype=np.uint8)
-        windows = np.lib.stride_tricks.as_strided(
-            buf, (max(buf.size - _MESSAGE_HEAD + 1, 1), _MESSAGE_HEAD), (1, 1), writeable=False
-        )
-        head = windows[offsets]
-        length = np.ascontiguousarray(head[:, 1:9]).view("<u8")[:, 0].astype(np.int64)
-        log = np.ascontiguousarray(head[:, 15:23]).view("<u8")[:, 0].astype(np.int64)
-        sent = np.ascontiguousarray(head[:, 23:31]).view("<u8")[:, 0].astype(np.int64)
-        # The time a message was sent: the publish time where the writer stored one (rosbag2
-        # since Jazzy: the DDS source timestamp), else the log (receive) time.
-        sent = np.where(sent > 0, sent, log)
-        return f.channels[cid][0], Batch(buf, offsets + _MESSAGE_HEAD, length - 22), sent
-
-    def _split(
-        self, f: _File, records: bytes, ids: set[int]
-    ) -> Iterator[tuple[str, Batch, IntArray]]:
-        """Records of a chunk without message index, scanned."""
-        per: dict[int, list[int]] = {}
-        p, n = 0, len(records)
-        while p + 9 <= n:
-            op, length = records[p], struct.unpack_from("<Q", records, p + 1)[0]
-            if op == _OP_MESSAGE:
-                (cid,) = struct.unpack_from("<H", records, p + 9)
-                if cid in ids:
-                    per.setdefault(cid, []).append(p)
-            elif op == _OP_SCHEMA:
-                self._schema_record(f, records, p + 9)
-            elif op == _OP_CHANNEL:
-                self._channel_record(f, records, p + 9)
-            p += 9 + length
-        for cid, offs in sorted(per.items()):
-            yield self._batch(f, cid, records, np.asarray(offs, dtype=np.int64))
-
-    @staticmethod
-    def _schema_record(f: _File, b: bytes, p: int) -> None:
-        (sid,) = struct.unpack_from("<H", b, p)
-        name, p = _string(b, p + 2)
-        enc, p = _string(b, p)
-        (n,) = struct.unpack_from("<I", b, p)
-        f.schemas[sid] = (name, enc, b[p + 4 : p + 4 + n])
-
-    @staticmethod
-    def _channel_record(f: _File, b: bytes, p: int) -> None:
-        cid, sid = struct.unpack_from("<HH", b, p)
-        topic, p = _string(b, p + 4)
-        enc, _ = _string(b, p)
-        f.channels[cid] = (topic, sid, enc)
-
-    def _scan(self, f: _File, topics: set[str]) -> Iterator[tuple[str, Batch, IntArray]]:
-        """A file without summary, read record by record as far as it goes."""
-        with open(f.path, "rb") as fh:
-            data = fh.read()
-        p, n = len(MAGIC), len(data)
-        loose: dict[int, list[int]] = {}
-        while p + 9 <= n:
-            op, length = data[p], struct.unpack_from("<Q", data, p + 1)[0]
-            if p + 9 + length > n:
-                self.notes.append(
-                    f"{f.path.name} ends inside a record after byte {p} of {n}; "
-                    "what came before is used"
-                )
-                break
-            body = p + 9
-            if op == _OP_SCHEMA:
-                self._schema_record(f, data, body)
-            elif op == _OP_CHANNEL:
-                self._channel_record(f, data, body)
-            elif op == _OP_CHUNK:
-                try:
-                    records = self._chunk_records(data[p : p + 9 + length], f.path)
-                except Exception as err:  # noqa: BLE001 - a damaged chunk ends the scan
-                    self.notes.append(
-                        f"{f.path.name}: unreadable chunk at byte {p} ({err}); what came before "
-                        "is used"
+        for part in self._parts:
+            got: dict[str, int] = {}
+            for topic, batch, sent in part.batches(topics):
+                got[topic] = got.get(topic, 0) + batch.size
+                self.read[topic] = self.read.get(topic, 0) + batch.size
+                yield topic, batch, sent
+            for name, t in part.topics().items():  # counts from a summary's statistics
+                if name in topics and t.encoding == "cdr" and got.get(name, 0) < t.messages:
+                    self.short.append(
+                        f"{part.path.name}: read {got.get(name, 0)} of the {t.messages} "
+                        f"messages of {name} that its summary counts"
                     )
-                    break
-                self._split_channels(f, records)
-                ids = {c for c, (t, _, enc) in f.channels.items() if t in topics and enc == "cdr"}
-                yield from self._split(f, records, ids)
-            elif op == _OP_MESSAGE:
-                (cid,) = struct.unpack_from("<H", data, body)
-                loose.setdefault(cid, []).append(p)
-            p = body + length
-        for cid, offs in sorted(loose.items()):
-            if f.channels.get(cid, ("", 0, ""))[0] in topics:
-                yield self._batch(f, cid, data, np.asarray(offs, dtype=np.int64))
-
-    def _split_channels(self, f: _File, records: bytes) -> None:
-        p, n = 0, len(records)
-        while p + 9 <= n:
-            op, length = records[p], struct.unpack_from("<Q", records, p + 1)[0]
-            if op == _OP_SCHEMA:
-                self._schema_record(f, records, p + 9)
-            elif op == _OP_CHANNEL:
-                self._channel_record(f, records, p + 9)
-            p += 9 + length
 
 
-def _message_index(index: bytes, start: int) -> IntArray:
-    """Offsets (into the chunk's records) of the messages of one MessageIndex record."""
-    (n,) = struct.unpack_from("<I", index, start + 9 + 2)
-    pairs = np.frombuffer(index, dtype="<u8", count=n // 8, offset=start + 9 + 2 + 4).reshape(
-        -1, 2
-    )
-    return pairs[:, 1].astype(np.int64)
-
-
-_SQLITE = (
-    "{}: an SQLite (.db3) bag; mr-ident reads MCAP bags. Convert it with "
-    "`ros2 bag convert -i BAG -o out.yaml`, out.yaml holding "
-    "'output_bags: [{{uri: BAG_mcap, storage_id: mcap}}]'"
-)
-
-
-def _files_of(directory: Path, meta: Path) -> list[Path]:
+def _files_of(directory: Path, meta: Path) -> tuple[list[Path], set[str]]:
+    """The files metadata.yaml lists, in order, and the topics it names."""
     try:
         doc = yaml.safe_load(meta.read_text())
     except yaml.YAMLError as err:
@@ -357,26 +275,42 @@ def _files_of(directory: Path, meta: Path) -> list[Path]:
     if not isinstance(info, dict):
         raise DataError(f"{meta}: no 'rosbag2_bagfile_information' mapping")
     storage = info.get("storage_identifier", "")
-    if storage == "sqlite3":
-        raise DataError(_SQLITE.format(directory))
-    if storage not in ("mcap", ""):
-        raise DataError(f"{meta}: storage {storage!r} is not read (only mcap)")
-    if info.get("compression_format") or info.get("compression_mode"):
+    if storage not in ("mcap", "sqlite3", ""):
+        raise DataError(f"{meta}: storage {storage!r} is not read (mcap or sqlite3)")
+    mode = str(info.get("compression_mode") or "").lower()
+    fmt = str(info.get("compression_format") or "").lower()
+    if mode in ("", "none") and not fmt:
+        mode = ""
+    elif mode != "file" or fmt != "zstd":
         raise DataError(
-            f"{meta}: a bag compressed by rosbag2 ({info.get('compression_format')}, "
-            f"{info.get('compression_mode')}) is not read; convert it with `ros2 bag convert` "
-            "(MCAP's own chunk compression is read)"
+            f"{meta}: compression_mode {info.get('compression_mode')!r} with "
+            f"compression_format {info.get('compression_format')!r} is not read (a bag "
+            "compressed by file with zstd is); convert it with `ros2 bag convert`"
         )
     rel = info.get("relative_file_paths") or []
     files = [directory / r for r in rel]
+    if mode == "file":  # listed compressed; a bag still being recorded lists the plain name
+        files = [
+            f
+            if f.name.endswith(".zstd") or not f.with_name(f.name + ".zstd").is_file()
+            else f.with_name(f.name + ".zstd")
+            for f in files
+        ]
     missing = [str(f) for f in files if not f.is_file()]
     if missing:
         raise DataError(f"{meta} lists {', '.join(missing)}, which do not exist")
     if not files:
         raise DataError(f"{meta}: relative_file_paths is empty")
-    return files
+    topics = {
+        str(t["topic_metadata"]["name"])
+        for t in info.get("topics_with_message_count") or []
+        if isinstance(t, dict)
+        and isinstance(t.get("topic_metadata"), dict)
+        and t["topic_metadata"].get("name")
+    }
+    return files, topics
 
 
-def open_bag(path: str | Path) -> Bag:
+def open_bag(path: str | Path, *, msg_path: Sequence[str | Path] = ()) -> Bag:
     """:meth:`Bag.open`."""
-    return Bag.open(path)
+    return Bag.open(path, msg_path=msg_path)

@@ -116,3 +116,43 @@ def decode_block(dims: Sequence[tuple[str, int, int]], data_offset: int, data: A
             (int(first), n),
         )
     return Block(int(first), x)
+
+
+def cdr_fields(payload: bytes) -> tuple[list[tuple[str, int, int]], int, FloatArray]:
+    """The layout dims, data_offset and data of one CDR ``Float64MultiArray`` message.
+
+    Raises
+    ------
+    BlockError
+        ``malformed``: the bytes end before the message does.
+    """
+    import struct
+
+    base = 4  # alignment origin: after the encapsulation header
+    p = base
+
+    def align(p: int, k: int) -> int:
+        return base + (p - base + k - 1) // k * k
+
+    try:
+        p = align(p, 4)
+        (ndim,) = struct.unpack_from("<I", payload, p)
+        p += 4
+        dims = []
+        for _ in range(ndim):
+            p = align(p, 4)
+            (n,) = struct.unpack_from("<I", payload, p)
+            label = payload[p + 4 : p + 4 + max(n - 1, 0)].decode(errors="replace")
+            p = align(p + 4 + n, 4)
+            size, stride = struct.unpack_from("<II", payload, p)
+            dims.append((label, int(size), int(stride)))
+            p += 8
+        p = align(p, 4)
+        offset, count = struct.unpack_from("<II", payload, p)
+        p = align(p + 8, 8) if count else p + 8
+        if p + 8 * count > len(payload):
+            raise struct.error("data runs past the message")
+        data = np.frombuffer(payload, dtype="<f8", count=count, offset=p).astype(float)
+    except struct.error as err:
+        raise BlockError("malformed", f"undecodable message: {err}") from None
+    return dims, int(offset), data

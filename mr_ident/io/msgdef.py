@@ -14,6 +14,7 @@ import json
 import os
 import re
 import sys
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -145,15 +146,15 @@ _BUILTIN = {
 }
 
 
-def _share_dirs() -> list[Path]:
+def _share_dirs(extra: Sequence[Path] = ()) -> list[Path]:
     prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
     prefixes.append(sys.prefix)
-    return [Path(p) / "share" for p in dict.fromkeys(prefixes)]
+    return [Path(d) for d in extra] + [Path(p) / "share" for p in dict.fromkeys(prefixes)]
 
 
-def _interface_file(type_name: str, suffix: str) -> Path:
+def _interface_file(type_name: str, suffix: str, extra: Sequence[Path] = ()) -> Path:
     pkg, kind, name = _split(type_name)
-    for share in _share_dirs():
+    for share in _share_dirs(extra):
         f = share / pkg / kind / f"{name}{suffix}"
         if f.is_file():
             return f
@@ -172,8 +173,12 @@ def _split(type_name: str) -> tuple[str, str, str]:
     raise MrIdentError(f"type name must be pkg/msg/Type, got {type_name!r}")
 
 
-def message_definition(type_name: str) -> str:
-    """The full concatenated ``ros2msg`` definition of ``type_name`` (rosbag2's form)."""
+def message_definition(type_name: str, extra: Sequence[Path] = ()) -> str:
+    """The full concatenated ``ros2msg`` definition of ``type_name`` (rosbag2's form).
+
+    From the ``.msg`` files under ``extra`` (directories laid out as ``pkg/msg/Type.msg``,
+    searched first), AMENT_PREFIX_PATH and this environment's ``share``.
+    """
     pkg = _split(type_name)[0]
 
     def deps(pkg: str, text: str) -> list[str]:
@@ -194,10 +199,10 @@ def message_definition(type_name: str) -> str:
             dp, _, dn = _split(d)
             key = f"{dp}/{dn}"
             if key not in texts:
-                texts[key] = _interface_file(f"{dp}/msg/{dn}", ".msg").read_text()
+                texts[key] = _interface_file(f"{dp}/msg/{dn}", ".msg", extra).read_text()
                 visit(dp, texts[key])
 
-    main = _interface_file(type_name, ".msg").read_text()
+    main = _interface_file(type_name, ".msg", extra).read_text()
     visit(pkg, main)
     parts = [main.rstrip("\n")] + [
         f"{SEPARATOR}\nMSG: {key}\n" + text.rstrip("\n") for key, text in texts.items()
@@ -217,3 +222,11 @@ def type_hash(type_name: str) -> str:
 def installed_schema(type_name: str) -> str:
     """The concatenated ``ros2msg`` text of an installed type (from its ``.msg`` files)."""
     return message_definition(type_name)
+
+
+def find_definition(type_name: str, extra: Sequence[Path] = ()) -> str:
+    """:func:`message_definition`, or "" when a type it needs is found nowhere."""
+    try:
+        return message_definition(type_name, extra)
+    except (MrIdentError, OSError):
+        return ""

@@ -10,9 +10,11 @@ and ``MSG: pkg/Type``; message encoding ``cdr``; channel metadata
 zstd-compressed and closed every ``chunk_size`` bytes, so a file cut short is
 readable up to its last finished chunk.
 
-Reading (:func:`read_blocks`) decodes with the independent ``mcap_ros2``
-decoder and tolerates a truncated file (it reports how much was recovered);
-:mod:`mr_ident.live.replay` runs what it reads through the node's own steps.
+Reading (:func:`read_blocks`) decodes MCAP files with the independent ``mcap_ros2``
+decoder and tolerates a truncated file (it reports how much was recovered); SQLite3 and
+zstd-compressed bags are read through :class:`~mr_ident.io.bags.Bag`, each block's CDR
+decoded by :func:`~mr_ident.io.blocks.cdr_fields`. :mod:`mr_ident.live.replay` runs what
+it reads through the node's own steps.
 """
 
 from __future__ import annotations
@@ -21,13 +23,16 @@ import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..errors import DataError, MrIdentError
-from .blocks import BLOCK_TYPE, STREAMS, Block, BlockError, decode_block
+from .blocks import BLOCK_TYPE, STREAMS, Block, BlockError, cdr_fields, decode_block
 from .msgdef import message_definition, type_hash
+
+if TYPE_CHECKING:
+    from .bags import Bag
 
 
 def qos_yaml(profiles: Sequence[Mapping[str, Any]]) -> str:
@@ -199,6 +204,52 @@ def _stream_of_topic(topic: str, topics: Sequence[str] | None) -> int | None:
     return None
 
 
+def _plain_mcap(path: Path) -> bool:
+    return not path.name.endswith((".db3", ".zstd"))
+
+
+def _bag_blocks(
+    bag: Bag, topics: Sequence[str] | None
+) -> tuple[list[tuple[int, int, Block | BlockError]], RecordingInfo, list[str]]:
+    """:func:`read_blocks` for an SQLite3 or zstd-compressed bag: through :class:`Bag`."""
+    types = bag.scanned_topics()
+    stream_of: dict[str, int] = {}
+    for name, t in types.items():
+        s = _stream_of_topic(name, topics)
+        if s is None:
+            continue
+        if t.type != BLOCK_TYPE:
+            raise DataError(
+                f"{bag.path}: topic {name!r} has schema {t.type!r}, expected {BLOCK_TYPE}"
+            )
+        stream_of[name] = s
+    found = sorted(types)
+    missing = [n for s, n in enumerate(topics or STREAMS) if s not in set(stream_of.values())]
+    if missing:
+        raise DataError(f"{bag.path}: topic(s) {missing} not in the recording; it holds {found}")
+    items: list[tuple[int, int, Block | BlockError]] = []
+    for topic, batch, sent in bag.batches(set(stream_of)):
+        for i in range(batch.size):  # a block holds many samples: few messages
+            o, n = int(batch.offset[i]), int(batch.length[i])
+            try:
+                item: Block | BlockError = decode_block(
+                    *cdr_fields(batch.buf[o : o + n].tobytes())
+                )
+            except BlockError as err:
+                item = err
+            items.append((stream_of[topic], int(sent[i]), item))
+    items.sort(key=lambda it: it[1])  # a batch holds one topic after the other: by time
+    cut = bag.cut
+    info = RecordingInfo(
+        messages=dict(bag.read),
+        truncated=bool(cut),
+        reason="; ".join(cut),
+        file_bytes=sum(f.stat().st_size for f in bag.files),
+    )
+    info.bytes_read = info.file_bytes
+    return items, info, found
+
+
 def read_blocks(
     path: str | Path, topics: Sequence[str] | None = None
 ) -> tuple[list[tuple[int, int, Block | BlockError]], RecordingInfo, list[str]]:
@@ -215,10 +266,13 @@ def read_blocks(
         whose schema is not std_msgs/msg/Float64MultiArray.
     """
     p = Path(path)
-    if p.is_dir():  # a rosbag2 directory: its files in order
+    if p.is_dir() or not _plain_mcap(p):
         from .bags import Bag
 
-        files = Bag.open(p).files
+        bag = Bag.open(p)
+        if not all(_plain_mcap(f) for f in bag.files):
+            return _bag_blocks(bag, topics)
+        files = bag.files  # a rosbag2 directory of MCAP files: each in order
         parts = [read_blocks(f, topics) for f in files]
         info = RecordingInfo(
             file_bytes=sum(x[1].file_bytes for x in parts),

@@ -111,8 +111,9 @@ def resolve(spec: SourceSpec, types: Mapping[str, tuple[str, str]]) -> Resolved:
 def _registry(spec: SourceSpec, type_name: str, schema: str) -> Registry:
     if not schema:
         raise DataError(
-            f"source {spec.text!r}: no message definition of {type_name} (the bag embeds none "
-            "and it is not installed)"
+            f"source {spec.text!r}: no message definition of {type_name}: the bag embeds none "
+            "and it is not installed; give --msg-path DIR with its .msg files (and those it "
+            f"uses) as DIR/{type_name.split('/')[0]}/msg/<Type>.msg"
         )
     return parse_schema(type_name, schema)
 

@@ -58,9 +58,12 @@ class _Stream:
     before: dict = field(
         default_factory=dict
     )  # first -> array, arrived before origin (start-up reordering)
+    past: list | None = None  # with history: the chunks of every earlier contiguous run
 
     def reset(self, at: int) -> None:
-        self.chunks.clear()
+        if self.past is not None and self.chunks:
+            self.past.append(list(self.chunks))
+        self.chunks = deque()
         self.start = self.end = self.origin = at
         self.before = {}
         self.pending = {k: v for k, v in self.pending.items() if k >= at}
@@ -88,6 +91,9 @@ class Aligner:
         declared a gap (the stream restarts after it).
     channels : sequence of 3 ints, optional
         Expected channel counts of r, u, y; otherwise fixed by each stream's first block.
+    history : bool
+        Keep every contiguous run of each stream, not only the latest (for a recording,
+        whose gap-free spans are all wanted: :meth:`spans`, :meth:`extract`).
 
     Policy: a hole restarts the stream after it (so the window restarts). A block
     that starts before the stream's end must repeat the samples held for the
@@ -107,11 +113,12 @@ class Aligner:
         ratio: int,
         reorder_blocks: int = 8,
         channels: Sequence[int] | None = None,
+        history: bool = False,
     ):
         self.capacity = int(capacity)
         self.ratio = int(ratio)
         self.reorder_blocks = int(reorder_blocks)
-        self._s = [_Stream() for _ in STREAMS]
+        self._s = [_Stream(past=[] if history else None) for _ in STREAMS]
         if channels is not None:
             for s, c in zip(self._s, channels, strict=True):
                 s.channels = int(c)
@@ -314,6 +321,50 @@ class Aligner:
             return None
         r, u, y = (self._extract(s, lo, hi) for s in self._s)
         return LoopData(r, u, y, ratio=self.ratio, first=lo)
+
+    def _runs(self, s: _Stream) -> list[tuple[int, int, list[tuple[int, FloatArray]]]]:
+        """A stream's contiguous runs (start, end, chunks), earlier and current.
+
+        Where the index went back, a later run holds the indices it shares with an earlier one.
+        """
+        runs = [list(c) for c in (s.past or [])] + ([list(s.chunks)] if s.chunks else [])
+        out: list[tuple[int, int, list[tuple[int, FloatArray]]]] = []
+        for k, chunks in enumerate(runs):
+            lo, hi = chunks[0][0], chunks[-1][0] + chunks[-1][1].shape[0]
+            pieces = [(lo, hi)]
+            for later in runs[k + 1 :]:
+                a, b = later[0][0], later[-1][0] + later[-1][1].shape[0]
+                pieces = [
+                    q for x, y in pieces for q in ((x, min(y, a)), (max(x, b), y)) if q[1] > q[0]
+                ]
+            out += [(x, y, chunks) for x, y in pieces]
+        return out
+
+    def spans(self) -> list[tuple[int, int]]:
+        """Every aligned gap-free span ``[first, end)`` (whole periods), in index order.
+
+        Needs ``history`` for more than the latest.
+        """
+        F = self.ratio
+        common = [(lo, hi) for lo, hi, _ in self._runs(self._s[0])]
+        for s in self._s[1:]:
+            other = [(lo, hi) for lo, hi, _ in self._runs(s)]
+            common = [
+                (max(a, c), min(b, d))
+                for a, b in common
+                for c, d in other
+                if min(b, d) > max(a, c)
+            ]
+        snapped = ((-(-lo // F) * F, hi // F * F) for lo, hi in common)
+        return sorted((lo, hi) for lo, hi in snapped if hi > lo)
+
+    def extract(self, lo: int, hi: int) -> LoopData:
+        """r, u, y of the aligned span ``[lo, hi)`` (one of :meth:`spans`)."""
+        out = []
+        for s in self._s:
+            run = next(c for a, b, c in reversed(self._runs(s)) if a <= lo and hi <= b)
+            out.append(self._extract(_Stream(chunks=deque(run)), lo, hi))
+        return LoopData(out[0], out[1], out[2], ratio=self.ratio, first=lo)
 
     @staticmethod
     def _extract(s: _Stream, lo: int, hi: int) -> FloatArray:

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConfigError, DataError
+from ..io.bags import Bag
 from ..io.blocks import STREAMS
 from ..io.sources import Resolved, Samples
 from .ingest import Ingest
@@ -152,6 +153,47 @@ class SourceFeed:
                     f"{st.unmatched} messages without a value"
                 )
         return out
+
+
+#: Messages a source's topic must hold: the rate and the grid are read off three stamps.
+MIN_MESSAGES = 3
+
+
+def enough_messages(
+    bag: Bag, sources: SignalSources, samples: Sequence[Samples], *, what: str
+) -> None:
+    """Every source has at least :data:`MIN_MESSAGES` messages, and values in them.
+
+    Raises
+    ------
+    DataError
+        A topic with nothing on it, too few messages, or a path that matched in none.
+    """
+    topics = bag.topics
+
+    def listing() -> str:
+        read = bag.read
+        return ", ".join(f"{t} ({read.get(t, topics[t].messages)})" for t in sorted(topics))
+
+    for (_, _, src), smp in zip(sources.all, samples, strict=True):
+        n = int(smp.stamps.size)
+        where = f"source {src.spec.text} (topic {src.topic})"
+        if n == 0:
+            raise DataError(
+                f"{what}: topic {src.topic} has no messages ({where}); the bag's topics and "
+                f"their messages: {listing()}"
+            )
+        if n < MIN_MESSAGES:
+            raise DataError(
+                f"{what}: too few messages: topic {src.topic} holds {n} ({where}); at least "
+                f"{MIN_MESSAGES} are needed to read the rate off the stamps, and an "
+                "identification needs many periods of the excitation"
+            )
+        if not smp.valid.any():
+            raise DataError(
+                f"{what}: {where} gave no value in any of its {n} messages (the path matched "
+                "nothing: a name or index that is not in them?)"
+            )
 
 
 def check_rate(

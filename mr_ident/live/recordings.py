@@ -18,13 +18,14 @@ from typing import TYPE_CHECKING
 
 from ..errors import ConfigError
 from ..numerics.signals import LoopData
+from .spans import DEFAULT_SPAN, check_span
 
 if TYPE_CHECKING:
     from ..numerics.model import Model
 
 #: Suffixes of the files read as loop data (bags are directories or these suffixes).
 DATA_SUFFIXES = (".csv", ".npz")
-BAG_SUFFIXES = (".mcap", ".db3")
+BAG_SUFFIXES = (".mcap", ".db3", ".zstd")
 
 
 @dataclass(frozen=True)
@@ -36,7 +37,7 @@ class Loaded:
 
 
 def is_bag(path: Path) -> bool:
-    """A rosbag2 directory or a bag file (``.mcap``; ``.db3`` is refused when read)."""
+    """A rosbag2 directory or a bag file (``.mcap``, ``.db3``, ``.mcap.zstd``)."""
     return path.is_dir() or path.suffix.lower() in BAG_SUFFIXES
 
 
@@ -91,6 +92,8 @@ def load_recording(
     topics: Sequence[str] | None = None,
     fs_high: float | None = None,
     ratio: int | None = None,
+    span: str = DEFAULT_SPAN,
+    msg_path: Sequence[str | Path] = (),
 ) -> Loaded:
     """r, u, y of a recording.
 
@@ -102,7 +105,10 @@ def load_recording(
     topics : the block-contract topics of a bag (None: matched by name)
     fs_high, ratio : the rates a bag needs (a data file may give its own, kept as given:
         the caller settles them with :func:`settle_rates`)
+    span : which gap-free span of a bag with gaps (:mod:`mr_ident.live.spans`)
+    msg_path : directories of ``.msg`` files for types a bag does not define
     """
+    check_span(span)
     p = Path(path)
     if not is_bag(p):
         if specs is not None:
@@ -121,17 +127,16 @@ def load_recording(
             raise ConfigError("ratio F unknown: pass --ratio or --model")
         if fs_high is None:
             raise ConfigError("fs_high unknown: pass --fs-high or --model")
-        data, info = recorded_signals(p, ratio, topics=topics)
+        data, info = recorded_signals(p, ratio, topics=topics, span=span)
         data = replace(data, fs_high=fs_high, ratio=ratio)
     else:
         from .replay import bag_signals
 
-        data, info = bag_signals(p, specs, fs_high=fs_high, ratio=ratio)
+        data, info = bag_signals(
+            p, specs, fs_high=fs_high, ratio=ratio, span=span, msg_path=msg_path
+        )
     if info.truncated:
         notes.append(f"{p} is truncated ({info.reason}); using the {data.n_samples} samples read")
     if info.broken:
-        notes.append(
-            f"{p}: using the latest gap-free span [{info.span[0]}, {info.span[1]}) of "
-            f"{data.n_samples} samples ({info.broken})"
-        )
+        notes.append(f"{p}: {info.broken}")
     return Loaded(data, tuple(notes))

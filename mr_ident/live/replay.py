@@ -5,7 +5,7 @@
 offers them to the node's :class:`~mr_ident.live.ingest.Ingest` and
 :class:`~mr_ident.live.align.Aligner`, and runs :func:`~mr_ident.live.estimate.estimate` on
 the window the node would have identified. :func:`recorded_signals` gives the latest
-clean stretch as data (for ``diagnose``).
+gap-free span as data (for ``identify`` and ``diagnose``; :mod:`mr_ident.live.spans`).
 """
 
 from __future__ import annotations
@@ -24,9 +24,11 @@ from ..io.sources import Samples, bag_types, describe, extract, resolve
 from ..numerics.signals import LoopData
 from .align import Aligner, StreamStats
 from .estimate import Estimate, estimate
-from .feed import SignalSources, SourceFeed, check_rate
+from .feed import SignalSources, SourceFeed, check_rate, enough_messages
 from .ingest import Ingest
 from .sampling import Sampler
+from .spans import DEFAULT_SPAN, check_span, choose
+from .spans import describe as describe_spans
 
 
 def _feed(
@@ -66,25 +68,47 @@ def replay(
     *,
     topics: Sequence[str] | None = None,
     stop: int | None = None,
+    span: str = "latest",
 ) -> ReplayResult:
     """Run a recording through the node's alignment and identification, offline.
 
     The estimate is computed from the last aligned window (``config.window_s``)
     ending at or before sample index ``stop`` (default: the end of the data) -
-    the window the live node identified last when it saw the same blocks.
+    the window the live node identified last when it saw the same blocks. ``span``
+    other than "latest": the last window of that gap-free span (:mod:`mr_ident.live.spans`)
+    instead.
     """
+    check_span(span)
     items, info, _ = read_blocks(path, topics)
     al = Aligner(config.window_samples, config.ratio, config.reorder_blocks)
-    notes = _feed(al, items, stop)
+    if span == "latest":
+        notes = _feed(al, items, stop)
+    else:
+        every = Aligner(1 << 62, config.ratio, config.reorder_blocks, history=True)
+        notes = _feed(every, items, stop)
+        notes = _span_into(al, every, span, notes, info, str(path))
     w = al.window(config.min_samples, stop=stop)
     if w is None:
         lo, hi = al.span(stop)
+        every = Aligner(1 << 62, config.ratio, config.reorder_blocks, history=True)
+        _feed(every, items, stop)  # every span, for the message
         raise DataError(
             f"{path}: the recording holds no gap-free aligned window of at least "
             f"{config.min_samples} samples (min_window_s = {config.min_window_s:g} s); "
-            f"aligned span at the end: {max(0, hi - lo)} samples" + _what_broke(al, notes, info)
+            f"aligned span at the end: {max(0, hi - lo)} samples; {describe_spans(every.spans())}"
+            + _what_broke(al, notes, info)
         )
     return ReplayResult(estimate(w, config), al.stats, info, tuple(notes))
+
+
+def _span_into(
+    al: Aligner, every: Aligner, span: str, notes: list[str], info: RecordingInfo, what: str
+) -> list[str]:
+    """Push the gap-free span ``span`` of ``every`` (with history) into ``al``; the notes."""
+    w = _chosen(every, span, notes, info, what)
+    for s, x in enumerate((w.r, w.u, w.y)):
+        al.push(s, Block(w.first, x))
+    return [info.broken, *notes] if info.broken else notes
 
 
 def _what_broke(al: Aligner, notes: Sequence[str], info: RecordingInfo | None = None) -> str:
@@ -109,31 +133,43 @@ def _what_broke(al: Aligner, notes: Sequence[str], info: RecordingInfo | None = 
 
 
 def recorded_signals(
-    path: str | Path, ratio: int, *, topics: Sequence[str] | None = None
+    path: str | Path,
+    ratio: int,
+    *,
+    topics: Sequence[str] | None = None,
+    span: str = DEFAULT_SPAN,
 ) -> tuple[LoopData, RecordingInfo]:
-    """r, u, y of the latest gap-free aligned span of a recording (all of it when clean).
+    """r, u, y of a gap-free aligned span of a recording (all of it when clean).
 
-    ``first`` is the span's first sample index.
+    ``span``: which one where there are gaps (:mod:`mr_ident.live.spans`; default the
+    longest); ``first`` is the span's first sample index, ``info.broken`` says which span
+    was used and why.
 
     Raises
     ------
     DataError
-        As :func:`read_blocks`, or when no aligned sample exists.
+        As :func:`read_blocks`, when no aligned sample exists, or ``span`` "all" with gaps.
     """
+    check_span(span)
     items, info, _ = read_blocks(path, topics)
     total = sum(item.samples.shape[0] for _, _, item in items if isinstance(item, Block))
-    al = Aligner(max(total, ratio), ratio, reorder_blocks=8)
+    al = Aligner(max(total, ratio), ratio, reorder_blocks=8, history=True)
     notes = _feed(al, items)
-    w = al.window(ratio)
-    if w is None:
-        raise DataError(
-            f"{path}: the recording holds no aligned samples of r, u and y"
-            + _what_broke(al, notes, info)
-        )
+    return _chosen(al, span, notes, info, str(path)), info
+
+
+def _chosen(
+    al: Aligner, span: str, notes: Sequence[str], info: RecordingInfo, what: str
+) -> LoopData:
+    """The ``span`` of an aligner with history; ``info.span``/``broken`` set."""
+    try:
+        w, note = choose(al, span, what=what)
+    except DataError as err:
+        raise DataError(f"{err}{_what_broke(al, notes, info)}") from None
     info.span = (w.first, w.end)
-    if al.restarts:
-        info.broken = _what_broke(al, notes).removeprefix("; ")
-    return w, info
+    if note:
+        info.broken = note + _what_broke(al, notes)
+    return w
 
 
 # -- bags with per-sample sources ---------------------------------------------------------
@@ -174,13 +210,17 @@ def read_bag(
     capacity: int | None = None,
     reorder_blocks: int = 8,
     stop: int | None = None,
+    history: bool = False,
+    msg_path: Sequence[str | Path] = (),
 ) -> BagRead:
     """Every sample of the sources through the node's own steps into an aligner.
 
     Through :class:`SourceFeed`, into an aligner of ``capacity`` samples (default: all of
-    them); rates read off the stamps where not given, and checked where given.
+    them; ``history``: keeping every gap-free span); rates read off the stamps where not
+    given, and checked where given. ``msg_path``: directories of ``.msg`` files for types
+    the bag does not define.
     """
-    bag = Bag.open(path)
+    bag = Bag.open(path, msg_path=msg_path)
     sources = resolve_sources(bag_types(bag), specs)
     if sources.r[0].kind == "blocks":
         raise DataError(
@@ -188,9 +228,10 @@ def read_bag(
             "--r/--u/--y"
         )
     samples = extract(bag, [src for _, _, src in sources.all])
+    enough_messages(bag, sources, samples, what=str(path))
     fs, F = check_rate(samples, sources, fs_high, ratio, what=str(path))
     total = max((s.stamps.size for s in samples), default=0) * F
-    al = Aligner(capacity or max(total, F), F, reorder_blocks)
+    al = Aligner(capacity or max(total, F), F, reorder_blocks, history=history)
     feed = SourceFeed(sources, Ingest(al), fs_high=fs, ratio=F)
     if stop is not None:
         feed.sampler.t0 = min(
@@ -199,8 +240,8 @@ def read_bag(
         samples = [_before(s, feed.sampler, stop) for s in samples]
     notes = feed.push(samples) + Ingest(al).expire(float("inf"), 0.0)
     notes = feed.anomalies() + notes + bag.notes
-    counts = {t.name: t.messages for t in bag.topics.values() if t.name in sources.topics}
-    info = RecordingInfo(messages=counts, truncated=bool(bag.notes), reason="; ".join(bag.notes))
+    counts = {t: n for t, n in bag.read.items() if t in sources.topics}
+    info = RecordingInfo(messages=counts, truncated=bool(bag.cut), reason="; ".join(bag.cut))
     return BagRead(al, tuple(notes), info, fs, F, describe([s for _, _, s in sources.all]))
 
 
@@ -218,32 +259,42 @@ def replay_bag(
     fs_high: float | None = None,
     ratio: int | None = None,
     stop: int | None = None,
+    span: str = "latest",
+    msg_path: Sequence[str | Path] = (),
 ) -> ReplayResult:
     """:func:`replay` for per-sample sources.
 
     The window the node would have identified last (``config.window_s``, ending at or before
-    ``stop``); ``fs_high``/``ratio`` None: read off the stamps (and the configuration's
-    replaced by them).
+    ``stop``; ``span`` other than "latest": the last window of that gap-free span);
+    ``fs_high``/``ratio`` None: read off the stamps (and the configuration's replaced by
+    them).
     """
-    read = read_bag(path, specs, fs_high=fs_high, ratio=ratio, capacity=None, stop=stop)
+    check_span(span)
+    read = read_bag(
+        path, specs, fs_high=fs_high, ratio=ratio, stop=stop, history=True, msg_path=msg_path
+    )
     cfg = config.replace(fs_high=read.fs_high, ratio=read.ratio)
     al = Aligner(cfg.window_samples, cfg.ratio, cfg.reorder_blocks)
     lo, hi = read.aligner.span(stop)
-    w = read.aligner.window(1, stop=stop)
-    if w is not None:
-        for s, x in enumerate((w.r, w.u, w.y)):
-            al.push(s, Block(w.first, x))
+    notes = list(read.notes)
+    if span == "latest":
+        w = read.aligner.window(1, stop=stop)
+        if w is not None:
+            for s, x in enumerate((w.r, w.u, w.y)):
+                al.push(s, Block(w.first, x))
+    else:
+        notes = _span_into(al, read.aligner, span, notes, read.info, str(path))
     win = al.window(cfg.min_samples, stop=stop)
     if win is None:
         raise DataError(
             f"{path}: the sources give no gap-free aligned window of at least {cfg.min_samples} "
             f"samples (min_window_s = {cfg.min_window_s:g} s at {cfg.fs_high:g} Hz); aligned "
             "span at "
-            f"the end: {max(0, hi - lo)} samples"
+            f"the end: {max(0, hi - lo)} samples; {describe_spans(read.aligner.spans())}"
             + _what_broke(read.aligner, read.notes, read.info)
             + f"; sources: {read.sources}"
         )
-    return ReplayResult(estimate(win, cfg), read.aligner.stats, read.info, read.notes)
+    return ReplayResult(estimate(win, cfg), read.aligner.stats, read.info, tuple(notes))
 
 
 def bag_signals(
@@ -252,21 +303,16 @@ def bag_signals(
     *,
     fs_high: float | None = None,
     ratio: int | None = None,
+    span: str = DEFAULT_SPAN,
+    msg_path: Sequence[str | Path] = (),
 ) -> tuple[LoopData, RecordingInfo]:
-    """r, u, y of the latest gap-free aligned span of a bag's sources.
+    """r, u, y of a gap-free aligned span of a bag's sources (``span``: which one).
 
-    With the rates (``identify`` and ``diagnose`` on a bag).
+    With the rates (``identify`` and ``diagnose`` on a bag); as :func:`recorded_signals`.
     """
-    read = read_bag(path, specs, fs_high=fs_high, ratio=ratio)
-    w = read.aligner.window(read.ratio)
-    if w is None:
-        raise DataError(
-            f"{path}: the sources give no aligned samples of r, u and y"
-            + _what_broke(read.aligner, read.notes, read.info)
-        )
-    read.info.span = (w.first, w.end)
-    if read.aligner.restarts:
-        read.info.broken = _what_broke(read.aligner, read.notes).removeprefix("; ")
+    check_span(span)
+    read = read_bag(path, specs, fs_high=fs_high, ratio=ratio, history=True, msg_path=msg_path)
+    w = _chosen(read.aligner, span, read.notes, read.info, f"{path}: sources {read.sources}")
     return LoopData(w.r, w.u, w.y, read.fs_high, read.ratio, first=w.first), read.info
 
 
@@ -278,6 +324,8 @@ def bag_estimates(
     topics: Sequence[str] | None = None,
     fs_high: float | None = None,
     ratio: int | None = None,
+    span: str = DEFAULT_SPAN,
+    msg_path: Sequence[str | Path] = (),
 ) -> Iterator[tuple[float, Estimate]]:
     """The estimates the node would have published while the bag was recorded.
 
@@ -285,14 +333,16 @@ def bag_estimates(
     ``update_period_s`` of loop time, once ``min_window_s`` is aligned; each estimate is of
     the latest ``window_s`` ending there. ``specs`` None: the block contract (``topics``),
     rates from the arguments or ``config``; with sources, rates as :func:`bag_signals`.
-    The latest gap-free span of the bag is replayed.
+    The gap-free span ``span`` of the bag is replayed (default the longest).
     """
     if specs is None:
         F = ratio or config.ratio
-        data, _ = recorded_signals(path, F, topics=topics)
+        data, _ = recorded_signals(path, F, topics=topics, span=span)
         cfg = config.replace(fs_high=fs_high or config.fs_high, ratio=F)
     else:
-        data, _ = bag_signals(path, specs, fs_high=fs_high, ratio=ratio)
+        data, _ = bag_signals(
+            path, specs, fs_high=fs_high, ratio=ratio, span=span, msg_path=msg_path
+        )
         cfg = config.replace(fs_high=data.fs_high, ratio=data.ratio)
     F, N = cfg.ratio, data.n_samples
     step = max(F, F * int(round(cfg.update_period_s * cfg.fs_high / F)))

@@ -1,0 +1,92 @@
+"""Which gap-free span of a recording is used: ``--span latest|longest|all``.
+
+A recording with gaps (dropped cycles, a restarted publisher, samples off the grid) holds
+several aligned gap-free spans; an estimate never spans a gap. The rule, in one place:
+
+``longest`` (the default)
+    the span with the most samples (the latest of equally long ones);
+``latest``
+    the last span (what the live node identifies from at the end of the recording);
+``all``
+    every sample: the recording must be gap-free, else an error says where the gaps are.
+
+The reading says which span was used and where the gaps are (:func:`describe`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+from ..errors import ConfigError, DataError
+
+if TYPE_CHECKING:  # numpy-free at import: the parser takes SPANS from here
+    from ..numerics.signals import LoopData
+    from .align import Aligner
+
+SPANS = ("longest", "latest", "all")
+DEFAULT_SPAN = "longest"
+
+
+def check_span(span: str) -> str:
+    """``span`` if it is one of :data:`SPANS`, else a ConfigError naming them."""
+    if span not in SPANS:
+        raise ConfigError(f"span must be one of {', '.join(SPANS)}, got {span!r}")
+    return span
+
+
+def gaps(spans: Sequence[tuple[int, int]]) -> list[tuple[int, int]]:
+    """The index ranges between consecutive spans."""
+    return [(a[1], b[0]) for a, b in zip(spans, spans[1:], strict=False) if b[0] > a[1]]
+
+
+def describe(spans: Sequence[tuple[int, int]], most: int = 4) -> str:
+    """The spans and the gaps between them in words (at most ``most`` of each listed)."""
+
+    def ranges(xs: Sequence[tuple[int, int]]) -> str:
+        shown = ", ".join(f"[{a}, {b})" for a, b in xs[:most])
+        return shown + (f" and {len(xs) - most} more" if len(xs) > most else "")
+
+    if not spans:
+        return "no aligned gap-free span"
+    longest = max(spans, key=lambda s: (s[1] - s[0], s[0]))
+    g = gaps(spans)
+    text = (
+        f"{len(spans)} gap-free span(s), the longest [{longest[0]}, {longest[1]}) of "
+        f"{longest[1] - longest[0]} samples"
+    )
+    if g:
+        text += f"; gaps at {ranges(g)}"
+    return text
+
+
+def choose(al: Aligner, span: str, *, what: str) -> tuple[LoopData, str]:
+    """The span ``span`` of the aligned recording in ``al`` (an aligner with history).
+
+    Returns the data and a note for the user ("" when the recording is gap-free).
+
+    Raises
+    ------
+    DataError
+        No aligned sample at all, or ``span == "all"`` and the recording has gaps.
+    """
+    check_span(span)
+    spans = al.spans()
+    if not spans:
+        raise DataError(f"{what}: the recording holds no aligned samples of r, u and y")
+    if len(spans) == 1:
+        return al.extract(*spans[0]), ""
+    if span == "all":
+        raise DataError(
+            f"{what}: --span all needs a gap-free recording; it holds {describe(spans)} "
+            "(--span longest or latest uses one span)"
+        )
+    if span == "latest":
+        lo, hi = spans[-1]
+    else:
+        lo, hi = max(spans, key=lambda s: (s[1] - s[0], s[0]))
+    note = (
+        f"using the {span} gap-free span [{lo}, {hi}) of {hi - lo} samples; "
+        f"{describe(spans)} (--span latest|longest|all chooses)"
+    )
+    return al.extract(lo, hi), note
