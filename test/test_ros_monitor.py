@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 pytest.importorskip("rclpy")
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
@@ -22,8 +23,11 @@ from std_msgs.msg import Float64MultiArray, String  # noqa: E402
 from test_ros_node import PAPER, await_subscribers, fast_params, publishers, wait_for  # noqa: E402
 from test_ros_node import graph as graph  # noqa: E402  (the fixture)
 
+from mr_ident.cli import main  # noqa: E402
+from mr_ident.diagnosis.monitor import load_watch, watch_windows  # noqa: E402
 from mr_ident.io.datafile import read_data  # noqa: E402
 from mr_ident.io.modelfile import load_model  # noqa: E402
+from mr_ident.live.replay import bag_windows  # noqa: E402
 from mr_ident.numerics.excitation import SimSource  # noqa: E402
 from mr_ident.numerics.simulate import simulate  # noqa: E402
 from mr_ident.ros.messages import RESULT_QOS, block_msg  # noqa: E402
@@ -68,12 +72,14 @@ def _send(pubs, src: SimSource, seconds: float, block: int = 240, pause: float =
         time.sleep(pause)
 
 
-def test_node_reports_ok_then_the_drift_and_its_cause(graph, tmp_path: Path):
+def test_node_reports_ok_then_the_drift_and_its_cause(graph, tmp_path: Path, capsys):
     """The loop as modelled: every plant status OK ("matches the reference") over >= 5
     checked estimates. Then the plant gain rises 30 % (the stream goes on, same indices):
     WARN or ERROR within 60 s, ~/drift published, and the cause named on ~/diagnosis and in
     the status message (gain within 3 %), the window kept beside record_path for offline
-    diagnosis."""
+    diagnosis. Replay of the node's recording (every 2 s of loop time; library and
+    ``mr-ident replay --params``) gives the same: OK, then WARN/ERROR within two windows of
+    the change, and the gain named."""
     nominal = _noisy(load_model(PAPER))
     rec = tmp_path / "run.mcap"
     params = fast_params(
@@ -118,3 +124,24 @@ def test_node_reports_ok_then_the_drift_and_its_cause(graph, tmp_path: Path):
     assert event.exists() and event.parent == tmp_path
     data = read_data(event)
     assert data.n_samples == node.config.window_samples and data.ratio == 3
+
+    # replay of the node's recording: the same statuses (OK, then the drift) and cause
+    node.set_parameters([Parameter("record_path", value="")])  # the recording finalised
+    cfg = node.config.replace(record_path="", update_period_s=2.0)
+    watch = load_watch(cfg)
+    events = watch_windows(bag_windows(rec, cfg), watch)
+    levels = [e.level for e in events]
+    assert levels[0] == "ok" and levels[-1] in ("warn", "error"), events
+    change = 36.0  # s of loop time at which the gain rose
+    first_drift = next(e.time_s for e in events if e.level != "ok")
+    assert change < first_drift <= change + 2 * cfg.window_s, events
+    assert "plant gain 1.3" in events[-1].text, events
+
+    # the same from the command line: mr-ident replay --params with monitor_model
+    params = tmp_path / "node.yaml"
+    fields = {k: v for k, v in cfg.as_dict().items() if not k.endswith("_source")}
+    params.write_text(yaml.safe_dump({"mr_ident": {"ros__parameters": fields}}))
+    rc = main(["replay", str(rec), "--params", str(params), "--out", str(tmp_path / "r.npz")])
+    out = capsys.readouterr().out
+    assert rc == 0 and "plant at " in out and " OK matches the reference" in out, out
+    assert "plant gain 1.3" in out and ("WARN drift" in out or "ERROR drift" in out), out

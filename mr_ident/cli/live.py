@@ -13,7 +13,7 @@ from ..errors import ConfigError
 from .common import reading, source_specs, write_plots
 
 if TYPE_CHECKING:
-    pass
+    from ..io.config import IdentConfig
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
@@ -72,7 +72,29 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
         model = load_model(args.model) if args.model else None
         write_plots(est.identification, args.plot, cfg.fs_high, cfg.ratio, est.n_samples, model)
+    if cfg.monitor_model or cfg.monitor_reference:
+        _replay_monitoring(args, cfg, specs)
     return 0
+
+
+def _replay_monitoring(
+    args: argparse.Namespace, cfg: IdentConfig, specs: dict[str, list[str]] | None
+) -> None:
+    """The plant status changes the node would have shown (monitor_* in --params)."""
+    from ..diagnosis.monitor import load_watch, watch_windows
+    from ..live.replay import bag_windows
+
+    watch = load_watch(cfg)
+    assert watch is not None
+    fs, F = cfg.fs_high, cfg.ratio
+    if specs is not None:
+        windows = bag_windows(args.recording, cfg, specs, fs_high=fs, ratio=F, **reading(args))
+    else:
+        windows = bag_windows(
+            args.recording, cfg, topics=args.topics, fs_high=fs, ratio=F, **reading(args)
+        )
+    for ev in watch_windows(windows, watch):
+        print(f"plant at {ev.time_s:.1f} s: {ev.level.upper()} {ev.text}")
 
 
 def cmd_record(args: argparse.Namespace) -> int:

@@ -18,6 +18,7 @@ and no ROS: the node feeds it and runs what it asks for.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -25,7 +26,9 @@ from numpy.typing import NDArray
 
 from ..errors import ConfigError
 from ..io.config import IdentConfig
-from ..live.estimate import Estimate
+from ..io.datafile import read_result
+from ..io.modelfile import load_model
+from ..live.estimate import Estimate, estimate
 from ..numerics.identify import method_of
 from ..numerics.lpm import dof as lpm_dof
 from ..numerics.model import Model
@@ -233,3 +236,60 @@ class PlantWatch:
             int(window.n_samples),
             time.perf_counter() - t0,
         )
+
+
+def load_watch(cfg: IdentConfig) -> PlantWatch | None:
+    """The watch ``cfg``'s monitor_* parameters ask for, or None (monitoring off).
+
+    ConfigError/DataError naming the file and what is wrong with it (unreadable, another
+    rate or F than the node's).
+    """
+    if not (cfg.monitor_model or cfg.monitor_reference):
+        return None
+    model: Model | None = None
+    if cfg.monitor_model:
+        model = load_model(cfg.monitor_model)
+        if (model.fs_high, model.ratio) != (cfg.fs_high, cfg.ratio):
+            raise ConfigError(
+                f"monitor_model {cfg.monitor_model!r} is at fs_high = {model.fs_high:g} Hz, "
+                f"F = {model.ratio}; the loop runs at fs_high = {cfg.fs_high:g} Hz, "
+                f"F = {cfg.ratio}"
+            )
+    if cfg.monitor_reference:
+        reference = Reference.of_frf(read_result(cfg.monitor_reference))
+    else:
+        assert model is not None  # one of the two is given
+        reference = Reference.of_model(model)
+    return PlantWatch(reference, model, cfg)
+
+
+@dataclass(frozen=True)
+class StatusEvent:
+    """A change of the plant status in a replay: when (loop s), the level, in words."""
+
+    time_s: float
+    level: str
+    text: str
+
+
+def watch_windows(
+    windows: Iterable[tuple[float, LoopData, IdentConfig]], watch: PlantWatch
+) -> list[StatusEvent]:
+    """Monitoring over recorded windows, as the node runs it live: the status changes.
+
+    ``windows``: (loop time, window, config) as :func:`~mr_ident.live.replay.bag_windows`
+    yields them. An event where the held level changes and where a cause is found (the
+    diagnosis runs inline here, on the same window the node would use).
+    """
+    out: list[StatusEvent] = []
+    for t, w, cfg in windows:
+        est = estimate(w, cfg)
+        state = watch.observe(est)
+        if state.changed or not out:
+            text = state.drift.describe() if state.level != "ok" else "matches the reference"
+            out.append(StatusEvent(t, state.level, text))
+        if state.diagnose:
+            found = watch.diagnose(w, est)
+            if found is not None:
+                out.append(StatusEvent(t, state.level, found.headline()))
+    return out

@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from ..errors import DataError
 from ..io.bags import Bag
@@ -316,7 +317,7 @@ def bag_signals(
     return LoopData(w.r, w.u, w.y, read.fs_high, read.ratio, first=w.first), read.info
 
 
-def bag_estimates(
+def bag_windows(
     path: str | Path,
     config: IdentConfig,
     specs: Mapping[str, Sequence[str]] | None = None,
@@ -326,14 +327,15 @@ def bag_estimates(
     ratio: int | None = None,
     span: str = DEFAULT_SPAN,
     msg_path: Sequence[str | Path] = (),
-) -> Iterator[tuple[float, Estimate]]:
-    """The estimates the node would have published while the bag was recorded.
+) -> Iterator[tuple[float, LoopData, IdentConfig]]:
+    """The windows the node would have identified while the bag was recorded.
 
-    Yields (loop time in s since the first aligned sample, estimate) every
-    ``update_period_s`` of loop time, once ``min_window_s`` is aligned; each estimate is of
-    the latest ``window_s`` ending there. ``specs`` None: the block contract (``topics``),
-    rates from the arguments or ``config``; with sources, rates as :func:`bag_signals`.
-    The gap-free span ``span`` of the bag is replayed (default the longest).
+    Yields (loop time in s since the first aligned sample, window, the config with the
+    bag's rates) every ``update_period_s`` of loop time, once ``min_window_s`` is aligned;
+    each window is the latest ``window_s`` ending there. ``specs`` None: the block contract
+    (``topics``), rates from the arguments or ``config``; with sources, rates as
+    :func:`bag_signals`. The gap-free span ``span`` of the bag is replayed (default the
+    longest).
     """
     if specs is None:
         F = ratio or config.ratio
@@ -357,4 +359,18 @@ def bag_estimates(
             data.r[start:end], data.u[start:end], data.y[start:end], ratio=F,
             first=data.first + start,
         )  # fmt: skip
-        yield end / cfg.fs_high, estimate(w, cfg)
+        yield end / cfg.fs_high, w, cfg
+
+
+def bag_estimates(
+    path: str | Path,
+    config: IdentConfig,
+    specs: Mapping[str, Sequence[str]] | None = None,
+    **kwargs: Any,
+) -> Iterator[tuple[float, Estimate]]:
+    """The estimates the node would have published while the bag was recorded.
+
+    (loop time, estimate) of every window of :func:`bag_windows` (same arguments).
+    """
+    for t, w, cfg in bag_windows(path, config, specs, **kwargs):
+        yield t, estimate(w, cfg)

@@ -26,14 +26,11 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray, String
 
-from ..diagnosis.drift import Reference
-from ..diagnosis.monitor import MonitorState, PlantWatch, WindowDiagnosis
-from ..errors import ConfigError, MrIdentError
+from ..diagnosis.monitor import MonitorState, PlantWatch, WindowDiagnosis, load_watch
+from ..errors import MrIdentError
 from ..io.config import IdentConfig
-from ..io.datafile import read_result, write_data
-from ..io.modelfile import load_model
+from ..io.datafile import write_data
 from ..live.estimate import Estimate, publish_grid
-from ..numerics.model import Model
 from ..numerics.signals import LoopData
 from .messages import RESULT_QOS, multiarray
 
@@ -42,31 +39,6 @@ _LEVEL = {
     "warn": DiagnosticStatus.WARN,
     "error": DiagnosticStatus.ERROR,
 }
-
-
-def load_watch(cfg: IdentConfig) -> PlantWatch | None:
-    """The watch ``cfg``'s monitor_* parameters ask for, or None (monitoring off).
-
-    ConfigError/DataError naming the file and what is wrong with it (unreadable, another
-    rate or F than the node's).
-    """
-    if not (cfg.monitor_model or cfg.monitor_reference):
-        return None
-    model: Model | None = None
-    if cfg.monitor_model:
-        model = load_model(cfg.monitor_model)
-        if (model.fs_high, model.ratio) != (cfg.fs_high, cfg.ratio):
-            raise ConfigError(
-                f"monitor_model {cfg.monitor_model!r} is at fs_high = {model.fs_high:g} Hz, "
-                f"F = {model.ratio}; the node runs at fs_high = {cfg.fs_high:g} Hz, "
-                f"F = {cfg.ratio}"
-            )
-    if cfg.monitor_reference:
-        reference = Reference.of_frf(read_result(cfg.monitor_reference))
-    else:
-        assert model is not None  # one of the two is given
-        reference = Reference.of_model(model)
-    return PlantWatch(reference, model, cfg)
 
 
 class PlantMonitoring:
@@ -95,7 +67,8 @@ class PlantMonitoring:
     def reconfigure(self, cfg: IdentConfig) -> None:
         """New parameters: the watch reloaded when a monitor_* value or the rates changed.
 
-        Raises what :func:`load_watch` raises (the parameter set is then refused).
+        Raises what :func:`~mr_ident.diagnosis.monitor.load_watch` raises (the parameter
+        set is then refused).
         """
         keys = (
             *("monitor_model", "monitor_reference", "monitor_alpha", "monitor_error_db"),
