@@ -179,3 +179,42 @@ def test_plant_watch_holds_estimates_and_names_the_cause(paper):
     assert abs(found.parameters["gain"] - 1.3) < 0.02 * 1.3
     assert found.headline().startswith("cause: ") and "gain" in found.headline()
     assert found.as_dict()["window_first"] == w.first
+
+
+@pytest.mark.parametrize(
+    "change,cause,key,true,tol",
+    [
+        ({"mode_changes": ((55.4, 61.0, 0.04, 1.0),)}, "mode_shift", "frequency_hz", 61.0, 0.02),
+        ({"input_delay": 1.5 / 240.0}, "input_delay", "delay_s", 1.5 / 240.0, 0.1 / 240.0),
+    ],
+    ids=["mode_shift", "input_delay"],
+)
+def test_plant_watch_names_a_moved_mode_and_a_delay(paper, change, cause, key, true, tol):
+    """The watch over consecutive 20 s windows of one running loop whose plant changes at a
+    window boundary: not ok within two windows, the cause named on a window after the
+    change with its value within tolerance (frequency 2 %, delay 0.1 sample). The paper's
+    plant under the softer lead controller of test_validate (half gain: the paper's own
+    loop is near instability with 1.5 samples more delay)."""
+    from mr_ident.diagnosis.monitor import PlantWatch
+    from mr_ident.io.config import IdentConfig
+    from mr_ident.live.estimate import estimate
+    from mr_ident.numerics.signals import LoopData
+    from mr_ident.numerics.systems import TransferMatrix
+
+    paper = replace(paper, controller=TransferMatrix.siso([3000.0, -2700.0], [1.0, -0.3], 3 / 240))
+    y = simulate(paper, duration=20.0, rng=np.random.default_rng(0)).y
+    noisy = replace(paper, noise_std=0.02 * float(np.std(y)))  # 34 dB
+    cfg = IdentConfig(fs_high=240.0, ratio=3, window_s=20.0, monitor_hold=2, monitor_model="m")
+    watch = PlantWatch(Reference.of_model(paper), paper, cfg)
+    found, seen = None, []
+    for k, model in enumerate([noisy, noisy, replace(noisy, **change), replace(noisy, **change)]):
+        sim = simulate(model, duration=20.0, rng=np.random.default_rng(40 + k))
+        w = LoopData(sim.r, sim.u, sim.y, ratio=3, first=4800 * k)
+        est = estimate(w, cfg)
+        s = watch.observe(est)
+        seen.append(s.level)
+        if s.diagnose:
+            found = watch.diagnose(w, est)
+    assert seen[:2] == ["ok", "ok"] and seen[3] != "ok", seen
+    assert found is not None and found.cause == cause, found
+    assert abs(found.parameters[key] - true) <= tol * (true if key == "frequency_hz" else 1)
