@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 export ROS_LOG_DIR ?= $(CURDIR)/out/ros_log
 export MPLBACKEND := Agg
 
-.PHONY: demo paper test lint bench bench-bag bench-live bench-diagnose soak motor-bench venv clean
+.PHONY: demo paper test lint bench bench-bag bench-live bench-diagnose bench-monitor soak motor-bench venv clean
 
 venv: $(STAMP)
 
@@ -47,6 +47,10 @@ bench-live: $(STAMP)
 # 1200 cases, sized for ~45 min on 2 cores at <= 4.5 s per diagnosis; not part of `make test`
 bench-diagnose: $(STAMP)
 	$(PY) benchmarks/bench_diagnose.py
+
+# false alarms of the plant monitoring: 5 loops x 600 s watched against their own model (~1 min)
+bench-monitor: $(STAMP)
+	$(PY) benchmarks/bench_monitor.py
 
 # 30 min of sim + node + recorder (SOAK_MINUTES=5 make soak for a shorter run); ~4 GB in out/soak
 soak: $(STAMP)
