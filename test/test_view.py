@@ -325,3 +325,19 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
                 assert len(err) == 1 and err[0].startswith(start), (name, p.stderr)
     finally:
         server.stop()
+
+
+def test_the_plant_status_and_drift_bands_reach_the_state():
+    """Monitoring in the view: the plant status beside the identification's health, and the
+    significant drift bins of ~/drift as bands (contiguous published bins joined)."""
+    from mr_ident.view.state import ViewState
+
+    st = ViewState()
+    assert st.snapshot()["plant"] == {}
+    f = np.array([1.0, 2.0, 3.0, 5.0, 8.0, 13.0])
+    st.set_drift(f, [False, True, True, False, True, False])
+    st.set_plant({"level": "1", "message": "drift 2.3 dB at 2-8 Hz"})
+    snap = st.snapshot()["plant"]
+    assert snap["bands"] == [[2.0, 3.0], [8.0, 8.0]] and snap["message"].startswith("drift")
+    st.set_health({"level": "0", "message": "estimating"})
+    assert st.snapshot()["plant"]["level"] == "1"  # not overwritten by the health

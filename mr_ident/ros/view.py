@@ -1,7 +1,7 @@
 """``mr-ident view`` on a live graph.
 
-Subscribes to the node's estimate and /diagnostics and hands them to the view's state; the
-HTTP server (:mod:`mr_ident.view.server`) shows them.
+Subscribes to the node's estimate, its drift (monitoring) and /diagnostics and hands them to
+the view's state; the HTTP server (:mod:`mr_ident.view.server`) shows them.
 """
 
 from __future__ import annotations
@@ -51,12 +51,21 @@ def _listen(rclpy: Any, node_name: str, collector: _Collector) -> Any:
 
     def diag(m: DiagnosticArray) -> None:
         for s in m.status:
-            if s.name.startswith(node_name.strip("/")):
-                values = status_values(s)
-                collector.window = {
-                    k: values[k] for k in ("estimate_first", "estimate_samples") if k in values
-                }
-                collector.state.set_health(values)
+            if not s.name.startswith(node_name.strip("/")):
+                continue
+            values = status_values(s)
+            if s.name.endswith(": plant"):  # the monitoring status, beside the identification
+                collector.state.set_plant(values)
+                continue
+            collector.window = {
+                k: values[k] for k in ("estimate_first", "estimate_samples") if k in values
+            }
+            collector.state.set_health(values)
+
+    def drift(m: Float64MultiArray) -> None:
+        rows = np.frombuffer(m.data, dtype=float).reshape(4, -1)  # f, deviation, z, threshold
+        with np.errstate(invalid="ignore"):
+            collector.state.set_drift(rows[0], rows[2] > rows[3])
 
     subs = {
         "frequencies": vec("freq"),
@@ -67,6 +76,7 @@ def _listen(rclpy: Any, node_name: str, collector: _Collector) -> Any:
     }
     for topic, cb in subs.items():
         n.create_subscription(Float64MultiArray, f"{base}/{topic}", cb, RESULT_QOS)
+    n.create_subscription(Float64MultiArray, f"{base}/drift", drift, RESULT_QOS)
     n.create_subscription(DiagnosticArray, "/diagnostics", diag, 10)
     return n
 

@@ -36,6 +36,7 @@ class ViewState:
         self._cond = threading.Condition()
         self._estimate: dict[str, Any] | None = None
         self._health: dict[str, str] = {}
+        self._plant: dict[str, Any] = {}  # the plant status (monitoring) and drift bands
         self._version = 0
         self._received = 0.0
         self._history: dict[int, dict[str, Any]] = {}  # the last HISTORY estimates by version
@@ -90,6 +91,29 @@ class ViewState:
                 self._history.pop(next(iter(self._history)))  # the oldest estimate
             self._cond.notify_all()
 
+    def set_plant(self, values: dict[str, str]) -> None:
+        """The node's plant status (monitoring): its key-values, level and message."""
+        with self._cond:
+            self._plant = dict(values) | {"bands": self._plant.get("bands", [])}
+            self._version += 1
+            self._cond.notify_all()
+
+    def set_drift(self, frequency: ArrayLike, significant: ArrayLike) -> None:
+        """The latest ~/drift: significant bins become bands [[f_lo, f_hi], ...] (Hz)."""
+        f = np.asarray(frequency, float)
+        sig = np.asarray(significant, bool)
+        idx = np.flatnonzero(sig)
+        bands: list[list[float]] = []
+        if idx.size:
+            cut = np.flatnonzero(np.diff(idx) > 1)
+            starts = np.concatenate([[idx[0]], idx[cut + 1]])
+            ends = np.concatenate([idx[cut], [idx[-1]]])
+            bands = [[float(f[a]), float(f[b])] for a, b in zip(starts, ends, strict=True)]
+        with self._cond:
+            self._plant = self._plant | {"bands": bands}
+            self._version += 1
+            self._cond.notify_all()
+
     def set_health(self, values: dict[str, str]) -> None:
         """The node's /diagnostics key-values (level and message included)."""
         with self._cond:
@@ -100,7 +124,9 @@ class ViewState:
     def snapshot(self) -> dict[str, Any]:
         """The state as JSON-ready dict.
 
-        Keys: version, source, estimate (None before the first), health, estimate_age_s.
+        Keys: version, source, estimate (None before the first), health, plant (the
+        monitoring status and its drift ``bands``; empty without monitoring),
+        estimate_age_s.
         """
         with self._cond:
             age = time.time() - self._received if self._estimate is not None else None
@@ -109,6 +135,7 @@ class ViewState:
                 "source": self.source,
                 "estimate": self._estimate,
                 "health": dict(self._health),
+                "plant": dict(self._plant),
                 "estimate_age_s": age,
             }
 

@@ -99,6 +99,13 @@ function drawHealth(state) {
     const gaps = Object.entries(h).filter(([k]) => k.endsWith(".gaps")).reduce((a, [, v]) => a + Number(v), 0);
     rows.push(["gaps (all streams)", String(gaps)]);
   }
+  const plant = state.plant || {};
+  if ("message" in plant) {  // monitoring against a reference: the plant status
+    const names = ["OK", "WARN", "ERROR", "STALE"];
+    rows.push(["plant", `${names[Number(plant.level)] || plant.level}: ${plant.message}`]);
+    if (plant.bands && plant.bands.length)
+      rows.push(["drift bands (Hz)", plant.bands.map(([a, b]) => `${fmt(a)}–${fmt(b)}`).join(", ")]);
+  }
   if (est && est.sigma_error_median !== undefined) rows.push(["σ-error vs model (median)", fmt(est.sigma_error_median)]);
   if (est && est.window) for (const [k, v] of Object.entries(est.window)) rows.push([`window ${k}`, fmt(v)]);
   for (const [k, label] of SHOWN) if (k in h) rows.push([label, fmt(h[k])]);
@@ -118,8 +125,15 @@ function draw(state) {
   if (!est) { waiting.style.display = ""; return; }
   waiting.style.display = "none";
   const { mag, phase, plotted } = bodeTraces(est);
-  Plotly.react("mag", mag, LAYOUT("magnitude", "|P| (dB)"));
-  Plotly.react("phase", phase, LAYOUT("phase", "∠P (deg)"));
+  // the monitoring's significant drift bands, shaded behind the Bode plots
+  const bands = (state.plant && state.plant.bands) || [];
+  const shade = bands.map(([lo, hi]) => ({
+    type: "rect", xref: "x", yref: "paper", x0: lo, x1: hi, y0: 0, y1: 1,
+    fillcolor: "#cf222e22", line: { width: 0 }, layer: "below",
+  }));
+  Plotly.react("mag", mag, { ...LAYOUT("magnitude", "|P| (dB)"), shapes: shade });
+  Plotly.react("phase", phase, { ...LAYOUT("phase", "∠P (deg)"), shapes: shade });
+  plotted.drift_bands = bands;
   const pfg = pfgTraces(est);
   if (pfg) Plotly.react("pfg", pfg, LAYOUT("Performance Frequency Gain", "PFG"));
   if (est.sigma_error) {  // |P̂ − P_model| / σ per bin: above 2-3 the model is contradicted
