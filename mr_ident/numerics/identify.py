@@ -2,7 +2,8 @@
 
 :func:`identify` checks its input, runs one method of the table
 :data:`~mr_ident.numerics.methods.METHODS` (``freq-lifted``, ``time-lifted``, ``lpm``,
-``etfe``: see :mod:`mr_ident.numerics.methods`) and, given the controller, adds the PFG.
+``structured``, ``etfe``: see :mod:`mr_ident.numerics.methods`) and, given the
+controller, adds the PFG.
 :func:`check_options` and :func:`min_samples` are the option and record-length rules,
 shared with the node's configuration.
 """
@@ -138,7 +139,7 @@ def identify(
         High sample rate in Hz.
     ratio : int
         F = h_l / h_h.
-    method : {"freq-lifted", "time-lifted", "lpm", "etfe"}
+    method : {"freq-lifted", "time-lifted", "lpm", "structured", "etfe"}
     n : int, optional
         LPM window half-width; default :func:`default_n` (8 for a SISO loop up to F = 3).
     degree : int
