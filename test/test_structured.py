@@ -30,7 +30,8 @@ def _window_lstsq(X, Y, n, R):
 
 
 def brute_force_structured(r, u, y, F, n, R):
-    """Both stages bin by bin, straight from the definition (SISO)."""
+    """Both stages bin by bin, straight from the definition (SISO; the first stage of
+    degree R - 1, see ``instrument_degree``)."""
     N = r.shape[0]
     M = N // F
     Rf, Uf, Yf = (dft(x)[:, 0] for x in (r, u, y))
@@ -39,7 +40,7 @@ def brute_force_structured(r, u, y, F, n, R):
     Z = np.empty(N, complex)
     for k in range(M):
         idx = (k + win)[:, None] + M * np.arange(F)[None, :]
-        S = _window_lstsq(Rf[idx % N], Uf[idx % N], n, R)  # (F, F)
+        S = _window_lstsq(Rf[idx % N], Uf[idx % N], n, max(R - 1, 0))  # (F, F), degree R-1
         Z[k + M * np.arange(F)] = S @ Rf[k + M * np.arange(F)]
     # Stage 2 at every high-rate bin: [y; u] on Z in the window kappa-n..kappa+n.
     P = np.empty(N // 2 + 1, complex)

@@ -33,6 +33,15 @@ def resolve_workers(workers: int | None) -> int:
     return workers
 
 
+def one_blas_thread() -> threadpool_limits:
+    """Context: OpenBLAS on one thread.
+
+    Its threads on the small batched products of the LPM made one fit up to 30x slower on
+    the shared 2-core machine.
+    """
+    return threadpool_limits(limits=1, user_api="blas")
+
+
 def thread_map(fn: Callable[[T], R], items: Iterable[T], workers: int) -> list[R]:
     """``[fn(i) for i in items]``, on ``workers`` threads when more than one, in order."""
     todo = list(items)
