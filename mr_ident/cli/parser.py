@@ -40,7 +40,13 @@ def _window_n(text: str) -> int | str:
     """``--n``: "auto" or an integer >= 1."""
     if text.strip().lower() == "auto":
         return "auto"
-    return _int_at_least(1)(text)
+    try:
+        v = int(text)
+    except ValueError:
+        v = 0
+    if v < 1:
+        raise argparse.ArgumentTypeError(f'expected "auto" or an integer >= 1, got {text!r}')
+    return v
 
 
 def _frequencies(text: str) -> tuple[float, ...]:
