@@ -1,6 +1,7 @@
-"""Benchmark: the paper's full size, identified with freq-lifted (P_h, std and PFG).
+"""Benchmark: the paper's full size, identified with freq-lifted and structured (P_h, std, PFG).
 
-6000 s at 240 Hz (N = 1.44 M samples), F = 3, n = 8, R = 2. Runs our LPM engine and
+6000 s at 240 Hz (N = 1.44 M samples), F = 3, n = 8, R = 2 (and both methods once more
+with n = auto: four windows each). Runs our LPM engine and
 a straightforward batched-QR numpy LPM (J and S fitted separately, as two LPMs; also
 with one QR for both) through the same pipeline, in the same run, interleaved, and
 prints wall time, peak traced memory and their ratio. Also times the simulator, and the
@@ -116,13 +117,15 @@ def main() -> None:
     N = sim.r.shape[0]
     K_low = model.controller_frf(N // 3)
 
-    def run(workers=None):
+    def run(workers=None, method="freq-lifted", n=8):
         return identify(
             sim.r,
             sim.u,
             sim.y,
             fs_high=240.0,
             ratio=3,
+            method=method,
+            n=n,
             controller_low=K_low,
             keep_lifted=False,
             workers=workers,
@@ -137,7 +140,12 @@ def main() -> None:
             return run(1)
 
     identify(sim.r[:3000], sim.u[:3000], sim.y[:3000], fs_high=240.0, ratio=3)  # warm-up
-    fns = {"ours": run, "one": lambda: run(1)}
+    fns = {
+        "ours": run,
+        "one": lambda: run(1),
+        "structured": lambda: run(method="structured"),
+        "structured_one": lambda: run(1, method="structured"),
+    }
     if not args.skip_reference:
         fns["ref"] = reference
         fns["ref_joint"] = lambda: reference(split=None)
@@ -158,6 +166,21 @@ def main() -> None:
         f"error {err:.1e}; {resolve_workers(None)} threads)"
     )
     print(f"  same, one thread    {t['one']:7.3f} s   peak {mem['one']:7.1f} MB")
+    err_s = np.median(np.abs(out["structured"].plant.response - truth) / np.abs(truth))
+    print(
+        f"identify structured   {t['structured']:7.3f} s   peak {mem['structured']:7.1f} MB   "
+        f"(same outputs; median rel. error {err_s:.1e})"
+    )
+    print(
+        f"  same, one thread    {t['structured_one']:7.3f} s   peak "
+        f"{mem['structured_one']:7.1f} MB"
+    )
+    auto = {m: lambda m=m: run(method=m, n="auto") for m in ("freq-lifted", "structured")}
+    ta, _ = best_times(auto, args.repeat)
+    print(
+        f"n auto (4 windows)    freq-lifted {ta['freq-lifted']:.3f} s, structured "
+        f"{ta['structured']:.3f} s"
+    )
     if not args.skip_reference:
         d = np.max(np.abs(out["ref"].plant.response - res.plant.response) / np.abs(truth))
         print(
@@ -188,6 +211,7 @@ def larger_ratio(model, N: int, F: int) -> None:
             sim.y,
             fs_high=m.fs_high,
             ratio=F,
+            n=None,  # the default rule's fixed window (not auto)
             controller_low=K_low,
             keep_lifted=False,
         )

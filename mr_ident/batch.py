@@ -58,7 +58,7 @@ class BatchOptions:
     fs_high: float | None = None
     ratio: int | None = None
     method: str = "freq-lifted"
-    n: int | None = None
+    n: int | str | None = "auto"
     degree: int = 2
     period: int | None = None
     span: str = DEFAULT_SPAN

@@ -148,3 +148,27 @@ def plot_errors(
     ax.legend(fontsize=8)
     fig.tight_layout()
     return _save(fig, path)
+
+
+def plot_windows(
+    frequency: NDArray,
+    windows: Mapping[str, NDArray],
+    path: str | Path,
+    *,
+    title: str,
+    nyquist_low: float | None = None,
+) -> Path:
+    """The LPM window half-width n used per frequency, one step curve per method."""
+    fig = Figure(figsize=(7.5, 3.2))
+    ax = fig.subplots()
+    for j, (name, n) in enumerate(windows.items()):
+        ax.semilogx(frequency, n, lw=0.8, color=f"C{j}", label=name, drawstyle="steps-mid")
+    if nyquist_low:
+        ax.axvline(nyquist_low, color="0.5", ls=":", lw=1)
+    ax.set_xlabel("frequency [Hz]")
+    ax.set_ylabel("window half-width n")
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return _save(fig, path)

@@ -37,6 +37,19 @@ def _int_at_least(low: int) -> Callable[[str], int]:
     return parse
 
 
+def _window_n(text: str) -> int | str:
+    """``--n``: "auto" or an integer >= 1."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        v = int(text)
+    except ValueError:
+        v = 0
+    if v < 1:
+        raise argparse.ArgumentTypeError(f'expected "auto" or an integer >= 1, got {text!r}')
+    return v
+
+
 def _frequencies(text: str) -> tuple[float, ...]:
     out = []
     for part in text.split(","):
@@ -95,9 +108,10 @@ def _lpm_options(p: argparse.ArgumentParser) -> None:
     """--n and --degree: the LPM's window half-width and polynomial degree."""
     p.add_argument(
         "--n",
-        type=_int_at_least(1),
-        default=None,
-        help="LPM window half-width (default: 8, more where F or the channels need it)",
+        type=_window_n,
+        default="auto",
+        help="LPM window half-width: auto (default: chosen per frequency from candidates "
+        "8, 12, 18, 27 by least estimated mean-squared error) or an integer",
     )
     p.add_argument(
         "--degree", type=_int_at_least(0), default=2, help="LPM polynomial degree R (default 2)"

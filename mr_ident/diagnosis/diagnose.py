@@ -171,7 +171,7 @@ def diagnose(
     data: LoopData,
     validation: LoopData | None = None,
     *,
-    n: int | None = None,
+    n: int | str | None = None,
     degree: int = 2,
     alpha: float = 0.01,
     max_causes: int = 3,
@@ -189,9 +189,10 @@ def diagnose(
         ``holdout`` fraction is held out for validation).
     validation : LoopData, optional
         Independent validation data.
-    n : int, optional
-        LPM window half-width for the frequency-domain evidence (default:
-        :func:`~mr_ident.numerics.identify.default_n`).
+    n : int or "auto", optional
+        LPM window half-width for the frequency-domain evidence (default and "auto":
+        :func:`~mr_ident.numerics.identify.default_n`; the per-bin test compares against
+        one noise-estimate dof, so diagnose keeps one window for all bins).
     degree : int
         LPM polynomial degree.
     alpha : float
@@ -227,7 +228,9 @@ def diagnose(
     """
     if not 0.0 < alpha < 1.0:
         raise ConfigError(f"alpha must be in (0, 1), got {alpha!r}")
-    if n is None:
+    if isinstance(n, str) and n != "auto":
+        raise ConfigError(f'n must be an integer >= 1 or "auto", got {n!r}')
+    if n is None or isinstance(n, str):  # the evidence test needs one window (one dof) for all
         n = default_n("freq-lifted", degree, model.ratio, model.n_u, max(model.n_u, model.n_y))
     if not 0.05 <= holdout <= 0.5:
         raise ConfigError(f"holdout must be in [0.05, 0.5], got {holdout!r}")

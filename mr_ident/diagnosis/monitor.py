@@ -178,20 +178,27 @@ class PlantWatch:
     def observe(self, est: Estimate) -> MonitorState:
         """Hold one estimate against the reference; the monitor's new state."""
         cfg = self.config
-        plant = est.identification.plant
+        ident = est.identification
+        plant = ident.plant
         _, n_y, n_u = plant.response.shape
-        n = cfg.lpm_n(n_u, n_y)
-        if method_of(cfg.method).uses_lpm:
-            q = lpm_dof(n, cfg.degree, n_u * method_of(cfg.method).lift(cfg.ratio))
-        else:
-            q = 1  # no noise model (etfe): its std is nan, so nothing is tested
+        n = (
+            np.asarray(ident.n_used, float)
+            if ident.n_used is not None  # n = auto: the window chosen per bin
+            else np.full(plant.frequency.size, cfg.lpm_n(n_u, n_y), float)
+        )
+        method = method_of(cfg.method)
+        q = np.ones_like(n)  # no noise model (etfe): its std is nan, nothing is tested
+        if method.uses_lpm:  # the dof of each window width used (a handful of widths)
+            widths, where = np.unique(n, return_inverse=True)
+            n_in = n_u * method.lift(cfg.ratio)
+            q = np.array([max(lpm_dof(int(w), cfg.degree, n_in), 1) for w in widths])[where]
         d = drift(
             plant,
             self.reference,
-            dof=max(q, 1),
+            dof=q,
             alpha=cfg.monitor_alpha,
             error_db=cfg.monitor_error_db,
-            min_hz=(n + 1) * cfg.fs_high / est.n_samples,
+            min_hz=(float(n[0]) + 1) * cfg.fs_high / est.n_samples,
         )
         state = self.monitor.update(d)
         end = est.first + est.n_samples

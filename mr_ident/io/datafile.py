@@ -9,7 +9,9 @@ NPZ (data)
     ``fs_high`` (Hz) and ``ratio`` (F).
 NPZ (result, written by ``mr-ident identify``)
     ``frequency`` (K,), ``P`` (K, n_y, n_u) complex, ``P_std`` (K, n_y, n_u) and,
-    with a controller, ``pfg``, ``pfg_std`` (K,); plus ``method``, ``fs_high``, ``ratio``.
+    with a controller, ``pfg``, ``pfg_std`` (K,); plus ``method``, ``fs_high``, ``ratio``
+    and ``n`` (K,), the LPM window half-width used per bin (0: none; files written before
+    it read the same).
 
 Writers go through a temporary file and a rename: a failed write leaves nothing.
 """
@@ -246,6 +248,9 @@ def write_result(path: str | Path, ident: Identification) -> None:
         "P": ident.plant.response,
         "P_std": ident.plant.std,
         "method": np.array(ident.plant.method),
+        "n": np.zeros(ident.plant.frequency.size, np.int64)
+        if ident.n_used is None
+        else ident.n_used,
         "fs_high": ident.fs_high,
         "ratio": ident.ratio,
     }

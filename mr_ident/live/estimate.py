@@ -118,7 +118,7 @@ def estimate(window: LoopData, config: IdentConfig) -> Estimate:
         fs_high=config.fs_high,
         ratio=F,
         method=config.method,
-        n=config.lpm_n(window.r.shape[1], max(window.u.shape[1], window.y.shape[1])),
+        n=config.identify_n,
         degree=config.degree,
         controller_low=K_low,
         phase=phase,

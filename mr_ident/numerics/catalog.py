@@ -6,4 +6,4 @@ against :data:`~mr_ident.numerics.methods.METHODS` by the tests.
 """
 
 #: The identification methods, in the README's order.
-METHOD_NAMES: tuple[str, ...] = ("freq-lifted", "time-lifted", "lpm", "etfe")
+METHOD_NAMES: tuple[str, ...] = ("freq-lifted", "time-lifted", "lpm", "structured", "etfe")

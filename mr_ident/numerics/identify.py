@@ -2,27 +2,33 @@
 
 :func:`identify` checks its input, runs one method of the table
 :data:`~mr_ident.numerics.methods.METHODS` (``freq-lifted``, ``time-lifted``, ``lpm``,
-``etfe``: see :mod:`mr_ident.numerics.methods`) and, given the controller, adds the PFG.
+``structured``, ``etfe``: see :mod:`mr_ident.numerics.methods`) and, given the
+controller, adds the PFG.
 :func:`check_options` and :func:`min_samples` are the option and record-length rules,
 shared with the node's configuration.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import ConfigError, DataError, DimensionError
 from .arrays import FloatArray
+from .bandwidth import candidates, select
 from .lifting import check_ratio
 from .lpm import check_lpm_options, smallest_n
-from .methods import METHODS, FitRequest, Method
+from .methods import METHODS, FitRequest, Method, PlantFit
 from .pfg import pfg_from_plant
 from .results import FRF, PFG, Identification
-from .threads import resolve_workers
+from .threads import one_blas_thread, resolve_workers
 
-__all__ = ["METHODS", "check_options", "default_n", "identify", "min_samples"]
+__all__ = ["AUTO", "METHODS", "check_options", "default_n", "identify", "min_samples"]
 
+#: The value of ``n`` that chooses the window per frequency from the data.
+AUTO = "auto"
 #: The paper's window half-width: the least the default takes.
 N_FLOOR = 8
 #: The default n leaves at least this many degrees of freedom beyond the minimum.
@@ -120,7 +126,7 @@ def identify(
     fs_high: float,
     ratio: int,
     method: str = "freq-lifted",
-    n: int | None = None,
+    n: int | str | None = AUTO,
     degree: int = 2,
     controller_low: ArrayLike | None = None,
     phase: int = 0,
@@ -138,9 +144,13 @@ def identify(
         High sample rate in Hz.
     ratio : int
         F = h_l / h_h.
-    method : {"freq-lifted", "time-lifted", "lpm", "etfe"}
-    n : int, optional
-        LPM window half-width; default :func:`default_n` (8 for a SISO loop up to F = 3).
+    method : {"freq-lifted", "time-lifted", "lpm", "structured", "etfe"}
+    n : int, "auto" or None, default "auto"
+        LPM window half-width. ``"auto"``: per frequency, the candidate of least estimated
+        mean-squared error among :func:`~mr_ident.numerics.bandwidth.candidates` from
+        :func:`default_n` up to 4 times that (as the record allows); see
+        :mod:`mr_ident.numerics.bandwidth`. None: :func:`default_n` (8 for a SISO loop up
+        to F = 3). The n used per bin is ``Identification.n_used``.
     degree : int
         Polynomial degree R (default 2).
     controller_low : array_like, shape (M, n_u, n_y), optional
@@ -196,16 +206,41 @@ def identify(
     ra, ua, ya = _check_signals(r, u, y, F)
     N = ra.shape[0]
     ny, nu = ya.shape[1], ua.shape[1]
-    if n is None:
-        n = default_n(method, degree, F, ra.shape[1], max(ny, nu))
-    q = check_options(method, n, degree, F, ra.shape[1], max(ny, nu))
-    if m.uses_lpm and N < m.min_samples(n, F):
+    n_min = default_n(method, degree, F, ra.shape[1], max(ny, nu))
+    auto = isinstance(n, str)
+    if auto and n != AUTO:
+        raise ConfigError(f'n must be an integer >= 1, None or "{AUTO}", got {n!r}')
+    n0 = n_min if n is None or isinstance(n, str) else n
+    check_options(method, n0, degree, F, ra.shape[1], max(ny, nu))
+    if m.uses_lpm and N < m.min_samples(n0, F):
         raise DataError(
-            f"too few samples for the LPM window: {method} needs {2 * (2 * n + 1)} independent "
+            f"too few samples for the LPM window: {method} needs {2 * (2 * n0 + 1)} independent "
             "bins "
-            f"(2 x (2n+1), n={n}) per period, i.e. N >= {m.min_samples(n, F)} samples; got N = {N}"
+            f"(2 x (2n+1), n={n0}) per period, i.e. N >= {m.min_samples(n0, F)} samples; "
+            f"got N = {N}"
         )
-    fit = m.fit(FitRequest(ra, ua, ya, F, n, degree, q, keep_lifted, n_workers))
+    ns: tuple[int, ...] = (n0,)
+    if auto and m.uses_lpm:
+        ns = candidates(n0, (N // (2 * m.lift(F)) - 1) // 2)
+
+    def fit_with(nj: int, keep: bool) -> PlantFit:
+        qj = check_options(method, nj, degree, F, ra.shape[1], max(ny, nu))
+        return m.fit(FitRequest(ra, ua, ya, F, nj, degree, qj, keep, n_workers))
+
+    with one_blas_thread():
+        fits = [fit_with(nj, keep_lifted and j == 0) for j, nj in enumerate(ns)]
+    fit = fits[0]
+    n_used = np.full(N // 2 + 1, ns[0] if m.uses_lpm else 0, dtype=np.int64)
+    if len(ns) > 1:
+        more = fits
+        choice = select(
+            ns,
+            np.stack([f.P_half for f in more]),
+            np.stack([f.var_half for f in more]),
+            halfwidth=ns[-1],
+        )
+        fit = replace(fit, P_half=choice.response, var_half=choice.variance)
+        n_used = choice.n
     std_half = np.sqrt(np.maximum(fit.var_half, 0.0))
     freq = np.arange(1, N // 2 + 1) * fs_high / N
     plant = FRF(freq, fit.P_half[1:], std_half[1:], method)
@@ -235,4 +270,5 @@ def identify(
         lifted_S=fit.lifted_S,
         fs_high=float(fs_high),
         ratio=F,
+        n_used=n_used[1:],
     )

@@ -15,6 +15,10 @@ function and one more row.
 ``lpm``
     LTI LPM on the high-rate spectra r -> [y; u], indirect step: the frequency-lifted
     method with F = 1, blind to the periodic time variation (the aliases act as noise).
+``structured``
+    Frequency-lifted instrument, diagonal lifted plant: the lifted LPM of r -> u gives the
+    instrument ``Z = S̃ R̃``; per alias an LPM of [y; u] on Z along the high-rate axis and
+    the indirect step (:mod:`mr_ident.numerics.structured`).
 ``etfe``
     ``Y / U`` per bin, no window, no noise model (std NaN). SISO only.
 """
@@ -43,6 +47,7 @@ from .lifting import (
 )
 from .lpm import lpm_bins_last, warn_rank_deficient
 from .results import LiftedFRF
+from .structured import structured_block
 from .threads import thread_map
 
 
@@ -274,6 +279,36 @@ def _time_lifted(req: FitRequest) -> PlantFit:
     )
 
 
+def _structured(req: FitRequest) -> PlantFit:
+    F, N, n = req.ratio, req.n_samples, req.n
+    ny, nu = req.y.shape[1], req.u.shape[1]
+    Rh, Uh, Yh = (half_spectrum(x, workers=req.workers) for x in (req.r, req.u, req.y))
+    Kc = N // F // 2
+    P_half = np.full((N // 2 + 1, ny, nu), np.nan + 0j)
+    var_half = np.full((N // 2 + 1, ny, nu), np.nan)
+    step = block_bins(F, req.r.shape[1], max(ny, nu))
+
+    def block(b0: int) -> int:
+        """Both stages and the indirect step on one block of low-rate bins (own bins only)."""
+        kb = range(b0, min(b0 + step, Kc + 1))
+        window = range(kb.start - 2 * n, kb.stop + 2 * n)
+        Rl, Yl, Ul = (freq_lift_half(X, window, F, N) for X in (Rh, Yh, Uh))
+        G, Cv, Ainv, n_bad = structured_block(Rl, Yl, Ul, F, n, req.degree)
+        P, rdiag, cdiag = _indirect_diag(G, Cv, Ainv, ny)  # bins ordered l * B + j
+        B = len(kb)
+        P = P.reshape(ny, nu, F, B).transpose(3, 2, 0, 1)
+        var = (
+            rdiag.reshape(ny, F, B).transpose(2, 1, 0)[:, :, :, None]
+            * cdiag.reshape(nu, F, B).transpose(2, 1, 0)[:, :, None, :]
+        )
+        _store_half(P_half, var_half, kb, P, var, F, N)
+        return n_bad
+
+    n_bad = sum(thread_map(block, range(0, Kc + 1, step), req.workers))
+    warn_rank_deficient(n_bad, F * (Kc + 1), stacklevel=4)
+    return PlantFit(P_half, var_half)
+
+
 def _lpm(req: FitRequest) -> PlantFit:
     return _freq_lifted(req, ratio=1)
 
@@ -298,6 +333,7 @@ METHODS: dict[str, Method] = {
         Method("freq-lifted", _freq_lifted, lifted=True),
         Method("time-lifted", _time_lifted, lifted=True),
         Method("lpm", _lpm, lifted=False),
+        Method("structured", _structured, lifted=True),
         Method("etfe", _etfe, lifted=False, uses_lpm=False),
     )
 }

@@ -191,6 +191,9 @@ class Identification:
         The lifted closed-loop maps r->y and r->u (lifted methods only).
     fs_high : float
     ratio : int
+    n_used : ndarray of int, shape (n_freq,), or None
+        The LPM window half-width used at each plant frequency (chosen per bin with
+        ``n="auto"``; constant otherwise; 0 for a method without a window).
     """
 
     plant: FRF
@@ -199,6 +202,7 @@ class Identification:
     lifted_S: LiftedFRF | None
     fs_high: float
     ratio: int
+    n_used: IntArray | None = None
 
     def __post_init__(self) -> None:
         if self.pfg is not None and self.pfg.frequency.shape != self.plant.frequency.shape:
@@ -206,6 +210,13 @@ class Identification:
                 f"pfg must be on the plant's {self.plant.frequency.size} frequencies, "
                 f"got {self.pfg.frequency.size}"
             )
+        if self.n_used is not None:
+            object.__setattr__(self, "n_used", readonly(self.n_used, np.int64))
+            if self.n_used.shape != self.plant.frequency.shape:
+                raise DimensionError(
+                    f"n_used must be (n_freq={self.plant.frequency.size},), got "
+                    f"{self.n_used.shape}"
+                )
         if (self.lifted_J is None) != (self.lifted_S is None):
             raise DimensionError("lifted_J and lifted_S come together (both or neither)")
         if not (self.fs_high > 0 and self.ratio >= 1):

@@ -11,11 +11,18 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
-from typing import TypeVar
+from typing import Any, TypeVar
 
-from threadpoolctl import threadpool_limits
+import numpy  # noqa: F401  (loads OpenBLAS before the controller below looks for it)
+from threadpoolctl import ThreadpoolController
 
 from ..errors import ConfigError
+
+#: The BLAS libraries, found once at import. Finding them walks the loaded libraries
+#: (``dl_iterate_phdr``, a Python callback under the loader's lock); done per call, it
+#: deadlocked when another thread loaded an extension module meanwhile (the node's worker
+#: identifying while the main thread imported a message type).
+_BLAS = ThreadpoolController()
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -33,13 +40,22 @@ def resolve_workers(workers: int | None) -> int:
     return workers
 
 
+def one_blas_thread() -> Any:
+    """Context: OpenBLAS on one thread (the libraries found at import, never searched again).
+
+    Its threads on the small batched products of the LPM made one fit up to 30x slower on
+    the shared 2-core machine.
+    """
+    return _BLAS.limit(limits=1, user_api="blas")
+
+
 def thread_map(fn: Callable[[T], R], items: Iterable[T], workers: int) -> list[R]:
     """``[fn(i) for i in items]``, on ``workers`` threads when more than one, in order."""
     todo = list(items)
     if workers <= 1 or len(todo) <= 1:
         return [fn(i) for i in todo]
     with (
-        threadpool_limits(limits=1, user_api="blas"),
+        one_blas_thread(),
         ThreadPoolExecutor(
             max_workers=min(workers, len(todo)), thread_name_prefix="mr_ident"
         ) as pool,
