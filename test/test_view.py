@@ -341,3 +341,20 @@ def test_the_plant_status_and_drift_bands_reach_the_state():
     assert snap["bands"] == [[2.0, 3.0], [8.0, 8.0]] and snap["message"].startswith("drift")
     st.set_health({"level": "0", "message": "estimating"})
     assert st.snapshot()["plant"]["level"] == "1"  # not overwritten by the health
+
+
+def test_an_identification_as_the_reference_is_drawn_with_its_std():
+    """`view --reference RESULT.npz`: the reference interpolated onto the estimate's bins
+    (nan outside its band), labelled, and the σ-error with both stds."""
+    from mr_ident.numerics.results import FRF
+    from mr_ident.view.state import ViewState
+
+    f_ref = np.linspace(1.0, 10.0, 10)
+    ref = FRF(f_ref, np.full((10, 1, 1), 2.0 + 0j), np.full((10, 1, 1), 0.3), "reference")
+    st = ViewState(reference=ref)
+    f = np.array([2.0, 5.5, 20.0])
+    st.set_estimate(f, np.full((3, 1, 1), 2.5 + 0j), np.full((3, 1, 1), 0.4))
+    est = st.estimate()
+    assert est["model_label"] == "reference"
+    assert est["model_re"][:2] == [2.0, 2.0] and est["model_re"][2] is None  # outside: none
+    assert abs(est["sigma_error"][0] - 0.5 / 0.5) < 1e-12  # |2.5 - 2| / sqrt(0.4² + 0.3²)

@@ -124,7 +124,14 @@ def cmd_view(args: argparse.Namespace) -> int:
     if args.speed < 0:
         raise ConfigError(f"--speed must be >= 0, got {args.speed:g}")
     source = f"bag {args.bag}" if args.bag else f"node /{args.node.strip('/')}"
-    server = ViewServer(ViewState(model, source), args.host, args.port).start()
+    reference = None
+    if args.reference is not None:
+        from ..io.datafile import read_result
+
+        if model is not None:
+            raise ConfigError("give --model or --reference, not both")
+        reference = read_result(args.reference)
+    server = ViewServer(ViewState(model, source, reference), args.host, args.port).start()
     print(f"view: {server.url}  (Ctrl-C to stop)", flush=True)
     try:
         if args.bag is None:

@@ -333,6 +333,11 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--port", type=_int_at_least(0), default=8765, help="HTTP port (default 8765)")
     v.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
     v.add_argument("--model", type=Path, help="model YAML: its P_h and the sigma-error are shown")
+    v.add_argument(
+        "--reference",
+        type=Path,
+        help="result NPZ (identify/replay --out): drawn with the sigma-error instead of a model",
+    )
     v.add_argument("--node", default="mr_ident", help="the node's name (default mr_ident)")
     v.add_argument(
         "--wait",

@@ -14,7 +14,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..diagnosis.drift import Reference
 from ..numerics.model import Model
+from ..numerics.results import FRF
 
 
 def _list(a: ArrayLike) -> list[float | None]:
@@ -30,8 +32,11 @@ class ViewState:
 
     HISTORY = 32
 
-    def __init__(self, model: Model | None = None, source: str = "") -> None:
+    def __init__(
+        self, model: Model | None = None, source: str = "", reference: FRF | None = None
+    ) -> None:
         self.model = model
+        self.reference = reference  # an identification to draw instead of a model
         self.source = source
         self._cond = threading.Condition()
         self._estimate: dict[str, Any] | None = None
@@ -68,16 +73,19 @@ class ViewState:
             "pfg_std": None if pfg_std is None else _list(pfg_std),
             "window": window or {},
         }
-        if (
-            self.model is not None
-            and self.model.n_y == Pa.shape[1]
-            and self.model.n_u == Pa.shape[2]
-        ):
-            Pm = self.model.plant_discrete().freqresp(f)
+        ref: tuple[Any, Any, str] | None = None
+        if self.model is not None and (self.model.n_y, self.model.n_u) == Pa.shape[1:]:
+            ref = (self.model.plant_discrete().freqresp(f), 0.0, "model P_h")
+        elif self.reference is not None and self.reference.response.shape[1:] == Pa.shape[1:]:
+            Pr, Sr = Reference.of_frf(self.reference).at(f)  # nan outside its band
+            ref = (Pr, Sr, "reference")
+        if ref is not None:
+            Pm, Sm, label = ref
             est["model_re"] = _list(np.transpose(Pm.real, (1, 2, 0)))
             est["model_im"] = _list(np.transpose(Pm.imag, (1, 2, 0)))
+            est["model_label"] = label
             with np.errstate(divide="ignore", invalid="ignore"):
-                sig = np.abs(Pa - Pm) / Sa
+                sig = np.abs(Pa - Pm) / np.sqrt(Sa**2 + np.square(Sm))
             finite = sig[np.isfinite(sig)]
             est["sigma_error_median"] = float(np.median(finite)) if finite.size else None
             est["sigma_error"] = _list(np.transpose(sig, (1, 2, 0)))

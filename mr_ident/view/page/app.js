@@ -47,7 +47,8 @@ function bodeTraces(est) {
     if (est.model_re) {
       const mr = entry(est.model_re, est.shape, o, i, K), mi = entry(est.model_im, est.shape, o, i, K);
       const dash = { color: "#000", width: 1, dash: "dash" };
-      const mname = ny * nu > 1 ? `model [${o},${i}]` : "model P_h";
+      const label = est.model_label || "model P_h";
+      const mname = ny * nu > 1 ? `${label} [${o},${i}]` : label;
       mag.push({ x: f, y: mr.map((r, k) => db(Math.hypot(r, mi[k]))), mode: "lines", name: mname, line: dash });
       phase.push({ x: f, y: unwrap(mr.map((r, k) => Math.atan2(mi[k], r) * 180 / Math.PI)), mode: "lines", line: dash, showlegend: false });
     }
