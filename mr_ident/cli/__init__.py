@@ -33,7 +33,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         handle_signals()  # before anything slow: a signal from now on stops cleanly
     args = build_parser().parse_args(argv)
     keep_freed_memory()
-    from . import diagnose_cmd, live, offline
+    from . import diagnose_cmd, excite, live, offline
 
     commands = {
         "simulate": offline.cmd_simulate,
@@ -45,6 +45,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "view": live.cmd_view,
         "demo": live.cmd_demo,
         "diagnose": diagnose_cmd.cmd_diagnose,
+        "excite": excite.cmd_excite,
     }
     try:
         with warnings.catch_warnings():

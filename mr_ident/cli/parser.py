@@ -50,6 +50,18 @@ def _window_n(text: str) -> int | str:
     return v
 
 
+def _band(text: str) -> tuple[float, float]:
+    """``LO,HI`` in Hz."""
+    parts = text.split(",")
+    try:
+        lo, hi = (float(x) for x in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected LO,HI in Hz, got {text!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 <= lo < hi):
+        raise argparse.ArgumentTypeError(f"expected 0 <= LO < HI, got {text!r}")
+    return lo, hi
+
+
 def _frequencies(text: str) -> tuple[float, ...]:
     out = []
     for part in text.split(","):
@@ -359,6 +371,35 @@ def build_parser() -> argparse.ArgumentParser:
         default=1.0,
         help="bag: loop time per wall time (default 1: as live; 0: as fast as possible)",
     )
+
+    x = sub.add_parser("excite", help="design a multisine excitation (NPZ or CSV)")
+    x.add_argument("--fs-high", type=_positive_float, required=True, help="sample rate in Hz")
+    x.add_argument("--band", type=_band, required=True, help="LO,HI: the excited band in Hz")
+    x.add_argument("--period", type=_int_at_least(4), required=True, help="samples per period")
+    x.add_argument("--periods", type=_int_at_least(1), default=1, help="P periods (default 1)")
+    x.add_argument(
+        "--realizations", type=_int_at_least(1), default=1, help="M random-phase realizations"
+    )
+    x.add_argument(
+        "--kind",
+        choices=("full", "odd", "odd-random"),
+        default="odd-random",
+        help="lines: every one in the band, the odd ones, or odd with one detection line "
+        "left out at random per group of 3 (default)",
+    )
+    x.add_argument("--rms", type=_positive_float, default=1.0, help="RMS of each input (1)")
+    x.add_argument("--inputs", type=_int_at_least(1), default=1, help="orthogonal inputs (1)")
+    x.add_argument("--ratio", type=_int_at_least(1), default=1, help="F (for --lifted)")
+    x.add_argument(
+        "--lifted",
+        action="store_true",
+        help="keep only lines whose F lifted aliases do not collide (needs --ratio)",
+    )
+    x.add_argument(
+        "--slope", type=float, default=0.0, help="amplitude slope in dB/decade (0: flat)"
+    )
+    x.add_argument("--seed", type=int, default=0, help="random phases' seed")
+    x.add_argument("--out", type=Path, required=True, help="FILE.npz or FILE.csv")
 
     d = sub.add_parser(
         "demo", help="live demo: simulated loop + node over DDS, recording, replay, plots"

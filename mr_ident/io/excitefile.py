@@ -1,0 +1,59 @@
+"""Excitation files: a multisine design written as NPZ or CSV (``mr-ident excite``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..numerics.multisine import Multisine
+from .atomic import atomic_write
+
+
+def write_excitation(path: str | Path, ms: Multisine, *, ratio: int = 1) -> None:
+    """``ms`` to ``path`` by suffix.
+
+    NPZ: ``r`` (M, P·N) for one input, (M, P·N, n_in) for several; ``fs_high``, ``ratio``,
+    ``period``, ``lines`` (n_in, L; -1 pads), ``detection``, ``kind``, ``crest_factor``
+    (M, n_in). CSV: a column ``t`` (s), then ``r`` per realization (``r_m<k>``; with several
+    inputs ``r_m<k>_u<i>``), one row per sample; the design in a ``#`` header line.
+    """
+    p = Path(path)
+    M, n, n_in = ms.r.shape
+    suffix = p.suffix.lower()
+    if suffix == ".npz":
+
+        def w(fh: Any) -> None:
+            np.savez(
+                fh,
+                r=ms.r[:, :, 0] if n_in == 1 else ms.r,
+                fs_high=ms.fs_high,
+                ratio=int(ratio),
+                period=ms.period,
+                lines=ms.lines,
+                detection=ms.detection,
+                kind=ms.kind,
+                crest_factor=ms.crest_factor,
+            )
+
+        atomic_write(p, w, binary=True)
+    elif suffix == ".csv":
+        names = ["t"] + [
+            f"r_m{m}" if n_in == 1 else f"r_m{m}_u{i}" for m in range(M) for i in range(n_in)
+        ]
+        t = np.arange(n) / ms.fs_high
+        table = np.column_stack([t, ms.r.transpose(1, 0, 2).reshape(n, M * n_in)])
+        head = (
+            f"# multisine {ms.kind}: fs_high {ms.fs_high:g} Hz, period {ms.period} samples, "
+            f"{n // ms.period} periods, {M} realizations, {n_in} inputs, ratio {ratio}\n"
+        )
+
+        def w_csv(fh: Any) -> None:
+            fh.write(head)
+            np.savetxt(fh, table, delimiter=",", header=",".join(names), comments="", fmt="%.17g")
+
+        atomic_write(p, w_csv, binary=False)
+    else:
+        raise ConfigError(f"--out must end in .npz or .csv, got {str(p)!r}")
