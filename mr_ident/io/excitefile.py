@@ -7,7 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, DataError
+from ..numerics.arrays import FloatArray
 from ..numerics.multisine import Multisine
 from .atomic import atomic_write
 
@@ -57,3 +58,27 @@ def write_excitation(path: str | Path, ms: Multisine, *, ratio: int = 1) -> None
         atomic_write(p, w_csv, binary=False)
     else:
         raise ConfigError(f"--out must end in .npz or .csv, got {str(p)!r}")
+
+
+def read_excitation(path: str | Path) -> tuple[FloatArray, float, int]:
+    """An excitation NPZ of :func:`write_excitation`: (r (M, P·N, n_in), fs_high, period).
+
+    DataError naming the file and what it lacks.
+    """
+    p = Path(path)
+    try:
+        z = np.load(p, allow_pickle=False)
+    except (OSError, ValueError) as err:
+        raise DataError(f"cannot read excitation {str(p)!r}: {err}") from None
+    with z:
+        missing = [k for k in ("r", "fs_high", "period") if k not in z.files]
+        if missing:
+            raise DataError(
+                f"{p} is not an excitation file (mr-ident excite --out FILE.npz): missing "
+                f"{', '.join(missing)}"
+            )
+        r = np.asarray(z["r"], float)
+        r = r[:, :, None] if r.ndim == 2 else r
+        if r.ndim != 3:
+            raise DataError(f"{p}: r must be (M, P*N) or (M, P*N, n_in), got {z['r'].shape}")
+        return r, float(z["fs_high"]), int(z["period"])

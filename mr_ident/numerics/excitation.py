@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 
+from ..errors import ConfigError
 from .arrays import FloatArray
 from .model import Model
 from .simulate import LoopStream
@@ -32,11 +33,29 @@ def multisine(model: Model, period_s: float, rng: np.random.Generator) -> FloatA
 
 
 class Excitation:
-    """Endless reference: white noise, or a multisine repeated period after period."""
+    """Endless reference: white noise, a multisine period after period, or a signal looped.
 
-    def __init__(self, model: Model, kind: str, rng: np.random.Generator, period_s: float = 10.0):
+    ``kind`` "signal": the given ``signal`` (n, n_u) played in a loop (a designed
+    excitation, e.g. every realization of ``mr-ident excite`` one after another).
+    """
+
+    def __init__(
+        self,
+        model: Model,
+        kind: str,
+        rng: np.random.Generator,
+        period_s: float = 10.0,
+        signal: FloatArray | None = None,
+    ):
         self.model, self.kind, self.rng = model, kind, rng
         self._period = multisine(model, period_s, rng) if kind == "multisine" else None
+        if kind == "signal":
+            if signal is None or signal.ndim != 2 or signal.shape[1] != model.n_u:
+                got = None if signal is None else signal.shape
+                raise ConfigError(
+                    f"an excitation signal must have shape (n, n_u={model.n_u}), got {got}"
+                )
+            self._period = np.asarray(signal, float)
 
     def take(self, first: int, n: int) -> FloatArray:
         """Samples ``first .. first + n - 1`` of the reference, shape (n, n_u)."""
@@ -62,10 +81,11 @@ class SimSource:
         seed: int = 0,
         period_s: float = 10.0,
         start_index: int = 0,
+        signal: FloatArray | None = None,
     ):
         self.model, self.block = model, int(block)
         self.rng = np.random.default_rng(seed)
-        self.exc = Excitation(model, excitation, self.rng, period_s)
+        self.exc = Excitation(model, excitation, self.rng, period_s, signal)
         self.loop = LoopStream(model)
         self.next_index = start_index
         self._buf = np.zeros((0, model.n_u + model.n_u + model.n_y))

@@ -16,9 +16,25 @@ from collections.abc import Sequence
 
 from ..errors import MrIdentError
 from ..io.blocks import STREAMS
+from ..io.excitefile import read_excitation
 from ..io.modelfile import load_model
+from ..numerics.arrays import FloatArray
 from ..numerics.excitation import SimSource
+from ..numerics.model import Model
 from .program import Stop, handle_signals, ros_context
+
+
+def excitation_signal(path: str, model: Model) -> FloatArray:
+    """Every realization of an excitation file one after another, shape (M·P·N, n_u).
+
+    MrIdentError when the file's rate or inputs are not the model's.
+    """
+    r, fs, _ = read_excitation(path)
+    if fs != model.fs_high:
+        raise MrIdentError(f"{path} is at fs_high = {fs:g} Hz, the model at {model.fs_high:g} Hz")
+    if r.shape[2] != model.n_u:
+        raise MrIdentError(f"{path} has {r.shape[2]} input(s), the model {model.n_u}")
+    return r.reshape(-1, r.shape[2])
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -37,7 +53,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="seconds of simulated time (default: until Ctrl-C)",
     )
-    p.add_argument("--excitation", choices=("white", "multisine"), default="white")
+    p.add_argument(
+        "--excitation",
+        default="white",
+        help="white, multisine, or an excitation file of mr-ident excite (FILE.npz: every "
+        "realization in turn, looped)",
+    )
     p.add_argument(
         "--period", type=float, default=10.0, help="multisine period in seconds (default 10)"
     )
@@ -127,12 +148,16 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise MrIdentError(f"--subscribers must be >= 0, got {args.subscribers}")
         if args.block < 1:
             raise MrIdentError(f"--block must be >= 1 sample, got {args.block}")
+        kind, signal = args.excitation, None
+        if kind not in ("white", "multisine"):
+            kind, signal = "signal", excitation_signal(args.excitation, model)
         source = SimSource(
             model,
             block=args.block,
-            excitation=args.excitation,
+            excitation=kind,
             seed=args.seed,
             period_s=args.period,
+            signal=signal,
         )
     except MrIdentError as err:
         print(f"error: {err}", file=sys.stderr)
