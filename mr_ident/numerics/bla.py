@@ -1,0 +1,156 @@
+"""Best linear approximation from periodic multisine data: noise and nonlinear distortion.
+
+Data: M realizations (independent random phases) of P periods of N samples of r, u, y
+(steady state: drop the first periods before). Per realization m, excited line k,
+period p: U_mp(k), Y_mp(k) (DFT of one period). Following Pintelon and Schoukens,
+*System Identification: A Frequency Domain Approach*, 2nd ed. (2012), sec. 3.6 and 4.3
+(the "robust method"):
+
+- the period means Ū_m(k), Ȳ_m(k) keep what r drives, the noise averages out; their
+  sample (co)variances over the P periods, divided by P, are the noise (co)variances of
+  the means;
+- per realization ``G_m = Ȳ_m / Ū_m``; with known periodic r this holds in closed loop as
+  well (the noise is not periodic), and in the multirate loop too: the plant is LTI at
+  the high rate, so y = P_h u at every high-rate line; with a design whose F lifted
+  aliases do not collide (``mr-ident excite --lifted``), no other excited line's alias
+  reaches line k through the sampled controller;
+- noise variance of G_m (first order): ``(σ²_Y + |G_m|² σ²_U - 2 Re(conj(G_m) σ_YU)) / |Ū_m|²``;
+- the BLA ``Ĝ = mean_m G_m``; its total variance ``var_m(G_m) / M`` (noise and the
+  stochastic nonlinear contributions, which vary with the random phases); its noise
+  variance ``mean_m(σ²_{G,m}) / M``; the nonlinear variance their difference (clipped at 0,
+  the total then the noise's).
+
+Unexcited lines between the excited ones show the distortion's kind: with an odd
+design, even lines hold even nonlinear distortion, the left-out odd lines (detection
+lines) odd distortion; their level is the mean power of Ȳ there less the noise's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ConfigError, DimensionError
+from .arrays import ComplexArray, FloatArray, IntArray
+
+
+@dataclass(frozen=True)
+class BLA:
+    """The best linear approximation on the excited lines, and the distortion's levels.
+
+    Attributes
+    ----------
+    lines : ndarray of int, shape (K,)
+        Excited DFT lines of the period (frequency ``lines fs / N``).
+    response : ndarray, shape (K,)
+        The BLA.
+    std, noise_std, nl_std : ndarray, shape (K,)
+        Its total std, the part from noise, the part from stochastic nonlinear distortion
+        (``std² = noise_std² + nl_std²``); noise_std is nan with one period, nl_std with
+        one realization.
+    odd_level, even_level : ndarray, shape (n_y,)
+        Mean power of Ȳ over the unexcited odd (detection) and even lines in the excited
+        band, less the noise's there (0 when within noise); nan without such lines.
+    noise_level : ndarray, shape (n_y,)
+        Mean noise power of Ȳ over the same lines.
+    periods, realizations : int
+    """
+
+    lines: IntArray
+    response: ComplexArray
+    std: FloatArray
+    noise_std: FloatArray
+    nl_std: FloatArray
+    odd_level: FloatArray
+    even_level: FloatArray
+    noise_level: FloatArray
+    periods: int
+    realizations: int
+
+
+def _periods(x: FloatArray, period: int, name: str) -> ComplexArray:
+    """(M, P, N//2+1) spectra of every period of x (M, P·N)."""
+    M, n = x.shape
+    if n % period:
+        raise ConfigError(
+            f"{name} has {n} samples per realization, not a multiple of the period {period}"
+        )
+    return np.fft.rfft(x.reshape(M, n // period, period), axis=2)
+
+
+def best_linear_approximation(
+    r: FloatArray, u: FloatArray, y: FloatArray, period: int, lines: IntArray | None = None
+) -> BLA:
+    """The BLA of u -> y from M realizations of P periods (module docstring).
+
+    ``r, u, y``: shape (M, P·N) (one channel each); ``lines``: the excited lines, else
+    those where r's period spectrum is above 1e-6 of its peak. ConfigError/DimensionError
+    for shapes that do not fit, fewer than 2 periods and 2 realizations together.
+    """
+    arrs = [np.atleast_2d(np.asarray(a, float)) for a in (r, u, y)]
+    if not (arrs[0].shape == arrs[1].shape == arrs[2].shape):
+        raise DimensionError(
+            f"r, u, y must have one shape (M, P*N); got {[a.shape for a in arrs]}"
+        )
+    R, U, Y = (_periods(a, period, name) for a, name in zip(arrs, "ruy", strict=True))
+    M, P = U.shape[:2]
+    if P < 2 and M < 2:
+        raise ConfigError(
+            "the noise and nonlinear parts need at least 2 periods or 2 realizations; "
+            "got 1 of each"
+        )
+    if lines is None:
+        Rm = np.abs(R[0].mean(axis=0))
+        lines = np.flatnonzero(Rm > 1e-6 * Rm.max())
+        lines = lines[lines > 0]
+    lines = np.asarray(lines, np.int64)
+    Um, Ym = U.mean(axis=1), Y.mean(axis=1)  # (M, L)
+    Uk, Yk = Um[:, lines], Ym[:, lines]
+    G = Yk / Uk  # (M, K)
+    if P > 1:
+        dU, dY = U - Um[:, None], Y - Ym[:, None]
+        var_u = np.sum(np.abs(dU) ** 2, axis=1) / (P - 1) / P  # of the means, (M, L)
+        var_y = np.sum(np.abs(dY) ** 2, axis=1) / (P - 1) / P
+        cov_yu = np.sum(dY * np.conj(dU), axis=1) / (P - 1) / P
+        var_g = (
+            var_y[:, lines]
+            + np.abs(G) ** 2 * var_u[:, lines]
+            - 2 * np.real(np.conj(G) * cov_yu[:, lines])
+        ) / np.abs(Uk) ** 2
+        noise_var = np.maximum(var_g.mean(axis=0), 0.0) / M
+    else:
+        var_y = np.full(Ym.shape, np.nan)
+        noise_var = np.full(lines.size, np.nan)
+    bla = G.mean(axis=0)
+    total_var = np.var(G, axis=0, ddof=1) / M if M > 1 else noise_var.copy()
+    nl_var = np.maximum(total_var - noise_var, 0.0) if M > 1 else np.full(lines.size, np.nan)
+    if M > 1 and P > 1:  # a spread below the noise's is the noise's (std² = noise² + nl²)
+        total_var = noise_var + nl_var
+    # the unexcited lines inside the excited band: odd (detection) and even
+    band = np.arange(lines.min(), lines.max() + 1) if lines.size else np.zeros(0, np.int64)
+    quiet = np.setdiff1d(band, lines)
+    power = np.mean(np.abs(Ym) ** 2, axis=0)  # (L,)
+    noise_p = np.mean(var_y, axis=0) if P > 1 else np.full(power.shape, np.nan)
+
+    def level(which: IntArray) -> tuple[float, float]:
+        if which.size == 0:
+            return float("nan"), float("nan")
+        nz = float(np.mean(noise_p[which]))
+        return max(float(np.mean(power[which])) - nz, 0.0), nz
+
+    odd_l, nz_odd = level(quiet[quiet % 2 == 1])
+    even_l, nz_even = level(quiet[quiet % 2 == 0])
+    noise_level = np.nanmean([nz_odd, nz_even]) if quiet.size else float("nan")
+    return BLA(
+        lines,
+        bla,
+        np.sqrt(total_var),
+        np.sqrt(noise_var),
+        np.sqrt(nl_var),
+        np.array([odd_l]),
+        np.array([even_l]),
+        np.array([noise_level]),
+        int(P),
+        int(M),
+    )
