@@ -106,7 +106,8 @@ def lifted_controller(
     a, b = controller_factors(k, F, n_samples, phase=phase, delay=delay)
     right = np.ones_like(a) if b is None else b
     nu, ny = Kl.shape[1:]
-    C = a.T[:, :, None, None, None] * Kl[:, None, :, None, :] * right.T[:, None, None, :, None]
+    with np.errstate(invalid="ignore"):  # an integrating K_l is inf at DC: nan there
+        C = a.T[:, :, None, None, None] * Kl[:, None, :, None, :] * right.T[:, None, None, :, None]
     out: ComplexArray = C.reshape(k.size, F * nu, F * ny)
     return out
 
@@ -140,6 +141,7 @@ def closed_loop_maps(
     Pt = lift_frf(P_full, F, bins=bins)
     C = lifted_controller(K_low, bins, F, N, phase=phase, delay=delay)
     eye = np.eye(C.shape[1])[None]
-    S: ComplexArray = np.asarray(np.linalg.inv(eye + C @ Pt), dtype=np.complex128)
+    with np.errstate(invalid="ignore"):  # nan at DC with an integrating K_l (see above)
+        S: ComplexArray = np.asarray(np.linalg.inv(eye + C @ Pt), dtype=np.complex128)
     J: ComplexArray = Pt @ S
     return J, S

@@ -111,13 +111,19 @@ class TransferMatrix:
         )
 
     def __call__(self, x: ArrayLike) -> NDArray[np.complex128]:
-        """Evaluate at complex points ``x`` (s or z), shape (K,) -> (K, n_out, n_in)."""
+        """Evaluate at complex points ``x`` (s or z), shape (K,) -> (K, n_out, n_in).
+
+        On a pole (an integrating controller at z = 1) the value is inf, without a warning:
+        that is the answer there.
+        """
         xa = np.atleast_1d(np.asarray(x, dtype=complex))
         no, ni = self.shape
         out = np.empty((xa.size, no, ni), dtype=complex)
-        for o in range(no):
-            for i in range(ni):
-                out[:, o, i] = np.polyval(self.num[o][i], xa) / np.polyval(self.den[o][i], xa)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for o in range(no):
+                for i in range(ni):
+                    num, den = np.polyval(self.num[o][i], xa), np.polyval(self.den[o][i], xa)
+                    out[:, o, i] = num / den
         return out
 
     def freqresp(self, frequency: ArrayLike, *, dt: float | None = None) -> NDArray[np.complex128]:
