@@ -86,3 +86,29 @@ def test_bad_shapes_and_too_little_data_are_refused():
         best_linear_approximation(x[:, :N], x[:, :N], x[:, :N], N)
     with pytest.raises(ConfigError, match="not a multiple of the period"):
         best_linear_approximation(x[:, :-1], x[:, :-1], x[:, :-1], N)
+
+
+def test_identify_period_writes_the_bla_with_its_parts(tmp_path, capsys):
+    """`mr-ident identify DATA.npz --period N`: r, u, y of shape (M, n) in, the BLA with
+    noise_std and nl_std out (read_result reads it as any result); the cubic loop's nonlinear
+    std above its noise's; bad periods refused."""
+    from mr_ident.cli import main
+    from mr_ident.io.datafile import read_result
+
+    ms = design(fs_high=1.0, period=N, band=(0.01, 0.3), kind="odd-random", periods=P + 1,
+                realizations=M)  # fmt: skip
+    r = ms.r[:, :, 0]
+    rng = np.random.default_rng(5)
+    y = scipy.signal.lfilter(B, A, r + 0.3 * r**3, axis=1) + 1e-3 * rng.standard_normal(r.shape)
+    data = tmp_path / "periodic.npz"
+    np.savez(data, r=r, u=r, y=y, fs_high=100.0)
+    out = tmp_path / "bla.npz"
+    assert main(["identify", str(data), "--period", str(N), "--out", str(out)]) == 0
+    assert "BLA on" in capsys.readouterr().out
+    frf = read_result(out)
+    z = np.load(out)
+    assert frf.response.shape[0] == z["nl_std"].shape[0] and str(z["method"]) == "bla"
+    assert np.median(z["nl_std"]) > 5 * np.median(z["noise_std"])
+    np.testing.assert_allclose(frf.frequency, ms.lines[0] * 100.0 / N)
+    assert main(["identify", str(data), "--period", str(N + 1), "--out", str(out)]) == 2
+    assert "does not divide" in capsys.readouterr().err

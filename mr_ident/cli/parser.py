@@ -173,6 +173,18 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument(
         "--plot", type=Path, help="Bode plot PNG (the PFG goes next to it as *_pfg.png)"
     )
+    i.add_argument(
+        "--period",
+        type=_int_at_least(4),
+        help="periodic data (an NPZ with r, u, y of shape (M realizations, n)): the best "
+        "linear approximation with its noise and nonlinear std",
+    )
+    i.add_argument(
+        "--transient-periods",
+        type=_int_at_least(0),
+        default=1,
+        help="with --period: leading periods dropped as transient (default 1)",
+    )
 
     q = sub.add_parser("paper", help="the paper's example end to end: figures and an error table")
     q.add_argument("--duration", type=_positive_float, default=600.0, help="seconds (default 600)")

@@ -1,0 +1,68 @@
+"""Periodic multi-realization data (r, u, y of shape (M, n)) and the BLA result file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import DataError
+from ..numerics.arrays import FloatArray
+from ..numerics.bla import BLA
+from .atomic import atomic_write
+
+
+def read_realizations(
+    path: str | Path,
+) -> tuple[FloatArray, FloatArray, FloatArray, float | None, int | None]:
+    """r, u, y of an NPZ as (M, n) each, with ``fs_high`` and ``ratio`` where given.
+
+    One channel; a 1-D array is one realization. DataError naming the file and what does
+    not fit.
+    """
+    p = Path(path)
+    if p.suffix.lower() != ".npz":
+        raise DataError(f"periodic data with realizations must be an .npz file, got {str(p)!r}")
+    try:
+        z = np.load(p, allow_pickle=False)
+    except (OSError, ValueError) as err:
+        raise DataError(f"cannot read {str(p)!r}: {err}") from None
+    with z:
+        missing = [k for k in "ruy" if k not in z.files]
+        if missing:
+            raise DataError(f"{p}: missing {', '.join(missing)} (has {', '.join(z.files)})")
+        arrs = [np.atleast_2d(np.asarray(z[k], float)) for k in "ruy"]
+        fs = float(z["fs_high"]) if "fs_high" in z.files else None
+        F = int(z["ratio"]) if "ratio" in z.files else None
+    if not (arrs[0].shape == arrs[1].shape == arrs[2].shape) or arrs[0].ndim != 2:
+        raise DataError(
+            f"{p}: r, u, y must each be (M realizations, n samples) of one channel; got "
+            f"{', '.join(str(a.shape) for a in arrs)}"
+        )
+    return arrs[0], arrs[1], arrs[2], fs, F
+
+
+def write_bla(path: str | Path, bla: BLA, *, fs_high: float, ratio: int, period: int) -> None:
+    """The BLA as a result NPZ that ``read_result`` takes.
+
+    ``frequency``, ``P``, ``P_std``, with ``noise_std``, ``nl_std``, ``odd_level``,
+    ``even_level``, ``noise_level``, ``periods``, ``realizations`` beside.
+    """
+    f = bla.lines * fs_high / period
+    arrays: dict[str, Any] = {
+        "frequency": f,
+        "P": bla.response[:, None, None],
+        "P_std": bla.std[:, None, None],
+        "noise_std": bla.noise_std[:, None, None],
+        "nl_std": bla.nl_std[:, None, None],
+        "odd_level": bla.odd_level,
+        "even_level": bla.even_level,
+        "noise_level": bla.noise_level,
+        "periods": bla.periods,
+        "realizations": bla.realizations,
+        "method": "bla",
+        "fs_high": float(fs_high),
+        "ratio": int(ratio),
+    }
+    atomic_write(Path(path), lambda fh: np.savez(fh, **arrays), binary=True)
