@@ -93,6 +93,11 @@ def main(argv: list[str] | None = None) -> int:
     from mr_ident.cli import main as cli
 
     o = args.out_dir
+    # the nonlinear distortion of the odd-odd Type B: its unexcited lines against the noise
+    period = str(int(b["nrofs"]))
+    bla = ["identify", str(o / "typeB.npz"), "--period", period, "--out", str(o / "typeB_bla.npz")]
+    if cli(bla) != 0:
+        return 2
     return cli(
         [
             "diagnose",

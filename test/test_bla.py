@@ -112,3 +112,20 @@ def test_identify_period_writes_the_bla_with_its_parts(tmp_path, capsys):
     np.testing.assert_allclose(frf.frequency, ms.lines[0] * 100.0 / N)
     assert main(["identify", str(data), "--period", str(N + 1), "--out", str(out)]) == 2
     assert "does not divide" in capsys.readouterr().err
+
+
+def test_distortion_by_band_tells_a_nonlinear_plant_from_a_linear_one():
+    """Per band, dB above the noise on the unexcited lines: linear within 3 dB of 0 (noise
+    only); cubic: odd lines > 20 dB, even lines within 3 dB of 0."""
+    from mr_ident.numerics.bla import distortion_by_band
+
+    edges = np.array([0.01, 0.1, 0.3])
+    for nl, odd_lo, odd_hi in ((lambda u: u, -3.0, 3.0), (lambda u: u + 0.3 * u**3, 20, 99)):
+        ms = design(fs_high=1.0, period=N, band=(0.01, 0.3), kind="odd-random", periods=9)
+        r = ms.r[0, :, 0]
+        rng = np.random.default_rng(3)
+        y = scipy.signal.lfilter(B, A, nl(r)) + 1e-3 * rng.standard_normal(r.shape)
+        for b in distortion_by_band(r[N:], y[N:], N, 1.0, edges):
+            assert odd_lo < b.odd_db < odd_hi, b
+            assert abs(b.even_db) < 3.0, b
+            assert b.excited_db > 30, b

@@ -85,7 +85,7 @@ def identify_periodic(args: argparse.Namespace) -> int:
     import numpy as np
 
     from ..io.periodicfile import read_realizations, write_bla
-    from ..numerics.bla import best_linear_approximation
+    from ..numerics.bla import best_linear_approximation, distortion_by_band
     from ..numerics.results import FRF
 
     r, u, y, fs, F = read_realizations(args.data)
@@ -105,17 +105,24 @@ def identify_periodic(args: argparse.Namespace) -> int:
         )
     bla = best_linear_approximation(r[:, skip:], u[:, skip:], y[:, skip:], N)
     write_bla(args.out, bla, fs_high=fs, ratio=F, period=N)
-    ratio = float(np.nanmedian(bla.nl_std) / np.nanmedian(bla.noise_std))
-
-    def db(x: float) -> str:
-        return "n/a" if not np.isfinite(x) else f"{10 * np.log10(max(x, 1e-300)):.0f} dB"
-
+    if bla.realizations > 1 and bla.periods > 1:
+        ratio = float(np.median(bla.nl_std) / np.median(bla.noise_std))
+        parts = f"nonlinear/noise std {ratio:.2g} (median over the lines)"
+    else:
+        parts = "one realization or period: no nonlinear/noise split (the lines still tell)"
     print(
-        f"wrote {args.out} (BLA on {bla.lines.size} lines from {bla.realizations} realization(s) "
-        f"x {bla.periods} period(s); nonlinear/noise std {ratio:.2g} (median); distortion "
-        f"above noise: odd {db(bla.odd_level[0] / bla.noise_level[0])}, even "
-        f"{db(bla.even_level[0] / bla.noise_level[0])})"
+        f"wrote {args.out} (BLA on {bla.lines.size} lines, {bla.realizations} realization(s) "
+        f"x {bla.periods} period(s); {parts})"
     )
+    if bla.periods > 1:  # the distortion at the unexcited lines, per band
+        f_ex = bla.lines * fs / N
+        edges = np.geomspace(max(f_ex[0], fs / N), f_ex[-1] * (1 + 1e-9), 5)
+        print("band (Hz)        excited  odd lines  even lines   (dB above the noise)")
+        for b in distortion_by_band(r[:, skip:], y[:, skip:], N, fs, edges):
+            print(
+                f"{b.band[0]:7.3g}-{b.band[1]:<7.3g}  {b.excited_db:7.1f}  {b.odd_db:9.1f}  "
+                f"{b.even_db:10.1f}"
+            )
     if args.plot:
         from ..plots import plot_bode
 

@@ -79,13 +79,78 @@ def _periods(x: FloatArray, period: int, name: str) -> ComplexArray:
     return np.fft.rfft(x.reshape(M, n // period, period), axis=2)
 
 
+def excited_lines(R: ComplexArray) -> IntArray:
+    """Lines where r's mean period spectrum (first realization) is within 60 dB of its peak.
+
+    A measured or quantised reference has a floor well above numerical zero.
+    """
+    Rm = np.abs(R[0].mean(axis=0))
+    k = np.flatnonzero(Rm > 1e-3 * Rm.max())
+    return k[k > 0].astype(np.int64)
+
+
+@dataclass(frozen=True)
+class BandLevels:
+    """Per band (Hz): Ȳ's power over excited, unexcited odd and unexcited even lines.
+
+    Each in dB above the noise power of Ȳ on those lines (nan without such lines).
+    """
+
+    band: tuple[float, float]
+    excited_db: float
+    odd_db: float
+    even_db: float
+
+
+def distortion_by_band(
+    r: FloatArray, y: FloatArray, period: int, fs: float, edges: FloatArray
+) -> list[BandLevels]:
+    """Levels above the noise per band between ``edges`` (Hz), from P >= 2 periods.
+
+    ``r, y``: (M, P·N) or (P·N,); the first realization is used. The excited lines are
+    those of :func:`excited_lines`. With an odd (or odd-odd) design, power at the unexcited
+    odd lines is odd nonlinear distortion, at the even lines even distortion; near 0 dB
+    it is noise only.
+    """
+    R, Y = (
+        _periods(np.atleast_2d(np.asarray(a, float)), period, n) for a, n in ((r, "r"), (y, "y"))
+    )
+    P = Y.shape[1]
+    if P < 2:
+        raise ConfigError(f"levels above the noise need >= 2 periods, got {P}")
+    Ym = Y[0].mean(axis=0)
+    noise = np.sum(np.abs(Y[0] - Ym) ** 2, axis=0) / (P - 1) / P
+    ex = excited_lines(R)
+    k = np.arange(Ym.size)
+    f = k * fs / period
+    out = []
+
+    def db(which: IntArray) -> float:
+        if which.size == 0:
+            return float("nan")
+        return float(10 * np.log10(np.mean(np.abs(Ym[which]) ** 2) / np.mean(noise[which])))
+
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        inb = k[(f >= lo) & (f < hi) & (k > 0)]
+        quiet = np.setdiff1d(inb, ex)
+        out.append(
+            BandLevels(
+                (float(lo), float(hi)),
+                db(np.intersect1d(inb, ex)),
+                db(quiet[quiet % 2 == 1]),
+                db(quiet[quiet % 2 == 0]),
+            )
+        )
+    return out
+
+
 def best_linear_approximation(
     r: FloatArray, u: FloatArray, y: FloatArray, period: int, lines: IntArray | None = None
 ) -> BLA:
     """The BLA of u -> y from M realizations of P periods (module docstring).
 
     ``r, u, y``: shape (M, P·N) (one channel each); ``lines``: the excited lines, else
-    those where r's period spectrum is above 1e-6 of its peak. ConfigError/DimensionError
+    :func:`excited_lines`. ConfigError/DimensionError
     for shapes that do not fit, fewer than 2 periods and 2 realizations together.
     """
     arrs = [np.atleast_2d(np.asarray(a, float)) for a in (r, u, y)]
@@ -101,8 +166,7 @@ def best_linear_approximation(
             "got 1 of each"
         )
     if lines is None:
-        Rm = np.abs(R[0].mean(axis=0))
-        lines = np.flatnonzero(Rm > 1e-6 * Rm.max())
+        lines = excited_lines(R)
         lines = lines[lines > 0]
     lines = np.asarray(lines, np.int64)
     Um, Ym = U.mean(axis=1), Y.mean(axis=1)  # (M, L)
