@@ -31,6 +31,7 @@ from typing import Any, ParamSpec
 import numpy as np
 
 from ..errors import ConfigError, DataError
+from ..numerics.bla import BandLevels, distortion_by_band, excited_lines
 from ..numerics.identify import default_n, min_samples
 from ..numerics.model import Model
 from ..numerics.signals import LoopData
@@ -140,6 +141,29 @@ class Diagnosis:
     estimation: str
     validation: str
     traces: dict[str, Any] = field(default_factory=dict)
+    distortion: list[BandLevels] = field(default_factory=list)
+
+    @property
+    def nonlinear(self) -> bool:
+        """Nonlinear distortion stands out of the noise (periodic data: :func:`distortion`)."""
+        return any(
+            max(b.odd_db, b.even_db) > NL_THRESHOLD_DB
+            for b in self.distortion
+            if np.isfinite(b.odd_db) or np.isfinite(b.even_db)
+        )
+
+    def distortion_text(self) -> str:
+        """The finding in words, or "" when there is none."""
+        if not self.nonlinear:
+            return ""
+        worst = max(self.distortion, key=lambda b: np.nanmax([b.odd_db, b.even_db]))
+        odd = max((b.odd_db for b in self.distortion if np.isfinite(b.odd_db)), default=np.nan)
+        even = max((b.even_db for b in self.distortion if np.isfinite(b.even_db)), default=np.nan)
+        return (
+            f"nonlinear distortion up to {odd:.0f} dB (odd lines) and {even:.0f} dB (even lines) "
+            f"above the noise, most at {worst.band[0]:.3g}-{worst.band[1]:.3g} Hz (counted as "
+            "noise in the criterion; any linear cause describes the best linear approximation)"
+        )
 
 
 _P = ParamSpec("_P")
@@ -298,4 +322,28 @@ def diagnose(
         est_desc,
         val_desc,
         traces,
+        distortion(est),
     )
+
+
+#: A band whose unexcited lines stand this many dB above the noise shows distortion.
+NL_THRESHOLD_DB = 6.0
+
+
+def distortion(rec: LoopData) -> list[BandLevels]:
+    """Distortion levels per band of periodic single-output data; [] for other data.
+
+    Four log-spaced bands over the excited range, the first (transient) period dropped.
+    """
+    if rec.period is None or rec.y.shape[1] != 1 or rec.n_samples // rec.period < 3:
+        return []
+    Pn, fs = rec.period, rec.rates()[0]
+    skip = rec.r[Pn:, 0], rec.y[Pn:, 0]
+    R = np.fft.rfft(skip[0][: (skip[0].size // Pn) * Pn].reshape(-1, Pn), axis=1)
+    lines = excited_lines(R[None])
+    if lines.size < 2:
+        return []
+    f = lines * fs / Pn
+    edges = np.geomspace(f[0], f[-1] * (1 + 1e-9), 5)
+    n = (skip[0].size // Pn) * Pn
+    return distortion_by_band(skip[0][:n], skip[1][:n], Pn, fs, edges)

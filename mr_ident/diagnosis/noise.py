@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import scipy.ndimage
 import scipy.stats
@@ -75,4 +77,50 @@ def noise_spectrum(
         S = np.minimum(S, PLATEAU_CAP * _ring_median(S, 2 * n + 2, 32))
     med = scipy.ndimage.median_filter(S, size=(33, 1), mode="nearest")
     S = med * dof / scipy.stats.chi2.median(dof)
+    if rec.period is not None:
+        S = S + distortion_floor(rec, y)  # periodic distortion counts as noise (the BLA's)
     return np.maximum(S, 1e-30 * max(float(S.max()), 1e-300))
+
+
+def distortion_floor(rec: LoopData, y: FloatArray) -> FloatArray:
+    """Nonlinear distortion's variance on the record's bins (periodic data), (n_bins, n_y).
+
+    In a best linear approximation the stochastic nonlinear distortion acts as noise
+    (Pintelon and Schoukens 2012, sec. 3.6), but it is periodic: the spread over periods
+    does not see it. At the lines r does not excite it is measured directly, the power of
+    the period mean less its noise part; at every line it is the median of that over the
+    unexcited lines within 16 lines of it (0 with fewer than 4 there, as amid a fully
+    excited band, where it cannot be measured; noise alone gives a median of 0).
+    In the record's DFT (P periods, orthonormal) a periodic component lies on every P-th
+    bin with P times its period-DFT power; elsewhere it adds nothing.
+    """
+    Pn = rec.period
+    assert Pn is not None
+    n_per = rec.n_samples // Pn - 1  # the first period is transient
+    n_bins = (rec.n_samples - Pn) // 2 + 1
+    out = np.zeros((n_bins, y.shape[1]))
+    if n_per < 2:
+        return out
+    R = np.fft.rfft(rec.r[Pn:, 0].reshape(n_per, Pn), axis=1, norm="ortho").mean(axis=0)
+    Y = np.fft.rfft(y[Pn:].reshape(n_per, Pn, -1), axis=1, norm="ortho")  # (P, L, n_y)
+    Ym = Y.mean(axis=0)
+    var_mean = np.var(Y, axis=0, ddof=1) / n_per
+    quiet = np.flatnonzero(np.abs(R) < 1e-3 * np.abs(R).max())
+    quiet = quiet[quiet > 0]
+    if quiet.size == 0:
+        return out
+    excess = np.maximum(np.abs(Ym[quiet]) ** 2 - var_mean[quiet], 0.0)  # (Q, n_y)
+    lines = np.arange(Ym.shape[0])
+    pos = np.clip(np.searchsorted(quiet, lines), 0, quiet.size)
+    # the unexcited lines among the 16 nearest each line (8 each side) within 16 lines of it;
+    # fewer than 4 there (a line amid a fully excited band): nothing measured, 0
+    idx = np.clip(pos[:, None] + np.arange(-8, 8)[None, :], 0, quiet.size - 1)
+    near = np.abs(quiet[idx] - lines[:, None]) <= 16  # (L, 16)
+    vals = np.where(near[:, :, None], excess[idx], np.nan)  # (L, 16, n_y)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-nan rows: no neighbour
+        D = np.nanmedian(vals, axis=1)
+    D = np.where((near.sum(axis=1) >= 4)[:, None] & np.isfinite(D), D, 0.0)  # (L, n_y)
+    b = np.arange(0, n_bins, n_per)
+    out[b] = n_per * D[: b.size]
+    return out

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from .diagnose import Diagnosis
+from .diagnose import NL_THRESHOLD_DB, Diagnosis
 from .selection import ACCEPT_MARGIN
 
 
@@ -44,7 +44,21 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
             }
             for c in d.applied
         ],
-        "findings": [c.description for c in d.applied],
+        "findings": ([d.distortion_text()] if d.nonlinear else [])
+        + [c.description for c in d.applied],
+        "nonlinear_distortion": {
+            "detected": d.nonlinear,
+            "threshold_db": NL_THRESHOLD_DB,
+            "bands": [
+                {
+                    "band_hz": list(b.band),
+                    "excited_db": _finite(b.excited_db),
+                    "odd_db": _finite(b.odd_db),
+                    "even_db": _finite(b.even_db),
+                }
+                for b in d.distortion
+            ],
+        },
         "criterion": "BIC = 2 sum_k |E(k)|^2/S_noise(k) + p ln(n_bins) of the residual y - y_sim; "
         "lower is better; forward selection with joint re-fits: a cause (set) is accepted when "
         f"it lowers the BIC by more than {ACCEPT_MARGIN:g}",
