@@ -141,50 +141,55 @@ def read_csv(path: str | Path) -> LoopData:
     return LoopData(arrays["r"], arrays["u"], arrays["y"], fs, None)
 
 
+def load_npz(path: str | Path, required: tuple[str, ...], what: str) -> dict[str, Any]:
+    """Every array of an NPZ file (the file closed again), ``required`` ones checked.
+
+    DataError naming the file, ``what`` it should be, and what it lacks and has.
+    """
+    p = Path(path)
+    try:
+        with np.load(p, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except (OSError, ValueError) as err:
+        raise DataError(f"cannot read {str(p)!r} as {what}: {err}") from None
+    missing = [k for k in required if k not in arrays]
+    if missing:
+        raise DataError(
+            f"{p} is not {what}: missing {', '.join(missing)}; it has "
+            f"{', '.join(sorted(arrays)) or 'nothing'}"
+        )
+    return arrays
+
+
 def read_npz(path: str | Path) -> LoopData:
     """Read an NPZ data file (module docstring)."""
     p = Path(path)
-    try:
-        z = np.load(p, allow_pickle=False)
-    except (OSError, ValueError) as err:
-        raise DataError(f"cannot read {str(p)!r} as NPZ: {err}") from err
-    with z:
-        missing = [s for s in _SIGNALS if s not in z.files]
-        if missing:
+    z = load_npz(p, _SIGNALS, "an NPZ data file (r, u, y, fs_high, ratio)")
+    arrays = {}
+    for s in _SIGNALS:
+        a = np.asarray(z[s])
+        if a.dtype.kind not in "fiu":
+            raise DataError(f"{p}: array {s!r} must be numeric, got dtype {a.dtype}")
+        if a.ndim not in (1, 2) or a.shape[0] == 0 or a.size == 0:
             raise DataError(
-                f"{p}: missing array(s) {missing}; an NPZ data file holds r, u, y, fs_high, ratio"
+                f"{p}: array {s!r} must have shape (N,) or (N, channels) with N > 0, got {a.shape}"
             )
-        arrays = {}
-        for s in _SIGNALS:
-            a = np.asarray(z[s])
-            if a.dtype.kind not in "fiu":
-                raise DataError(f"{p}: array {s!r} must be numeric, got dtype {a.dtype}")
-            if a.ndim not in (1, 2) or a.shape[0] == 0 or a.size == 0:
-                raise DataError(
-                    f"{p}: array {s!r} must have shape (N,) or (N, channels) with N > 0, got "
-                    f"{a.shape}"
-                )
-            a = a.astype(float)
-            if a.ndim == 1:
-                a = a[:, None]
-            _check_finite(s, a, str(p))
-            arrays[s] = a
-        fs = ratio = None
-        if "fs_high" in z.files:
-            v = np.asarray(z["fs_high"])
-            if (
-                v.size != 1
-                or v.dtype.kind not in "fiu"
-                or not np.isfinite(v).all()
-                or float(v) <= 0
-            ):
-                raise DataError(f"{p}: fs_high must be one positive number, got {v.tolist()!r}")
-            fs = float(v)
-        if "ratio" in z.files:
-            v = np.asarray(z["ratio"])
-            if v.size != 1 or v.dtype.kind not in "fiu" or float(v) != int(v) or int(v) < 1:
-                raise DataError(f"{p}: ratio must be one integer >= 1, got {v.tolist()!r}")
-            ratio = int(v)
+        a = a.astype(float)
+        if a.ndim == 1:
+            a = a[:, None]
+        _check_finite(s, a, str(p))
+        arrays[s] = a
+    fs = ratio = None
+    if "fs_high" in z:
+        v = np.asarray(z["fs_high"])
+        if v.size != 1 or v.dtype.kind not in "fiu" or not np.isfinite(v).all() or float(v) <= 0:
+            raise DataError(f"{p}: fs_high must be one positive number, got {v.tolist()!r}")
+        fs = float(v)
+    if "ratio" in z:
+        v = np.asarray(z["ratio"])
+        if v.size != 1 or v.dtype.kind not in "fiu" or float(v) != int(v) or int(v) < 1:
+            raise DataError(f"{p}: ratio must be one integer >= 1, got {v.tolist()!r}")
+        ratio = int(v)
     lens = {s: arrays[s].shape[0] for s in _SIGNALS}
     if len(set(lens.values())) != 1:
         raise DataError(f"{p}: r, u, y have unequal lengths {lens}")
@@ -262,17 +267,7 @@ def write_result(path: str | Path, ident: Identification) -> None:
 
 def read_result(path: str | Path) -> FRF:
     """P_h of a result NPZ written by :func:`write_result`, as an FRF (with its std)."""
-    p = Path(path)
-    try:
-        z = np.load(p, allow_pickle=False)
-    except (OSError, ValueError) as err:
-        raise DataError(f"cannot read result {str(p)!r}: {err}") from None
-    with z:
-        missing = [k for k in ("frequency", "P", "P_std") if k not in z.files]
-        if missing:
-            raise DataError(
-                f"{p} is not an identification result (written by mr-ident identify): "
-                f"missing {', '.join(missing)}; it has {', '.join(sorted(z.files)) or 'nothing'}"
-            )
-        method = str(z["method"]) if "method" in z.files else "reference"
-        return FRF(z["frequency"], z["P"], z["P_std"], method)
+    what = "an identification result (written by mr-ident identify)"
+    z = load_npz(path, ("frequency", "P", "P_std"), what)
+    method = str(z["method"]) if "method" in z else "reference"
+    return FRF(z["frequency"], z["P"], z["P_std"], method)

@@ -11,6 +11,7 @@ from ..errors import ConfigError, DataError
 from ..numerics.arrays import FloatArray
 from ..numerics.multisine import Multisine
 from .atomic import atomic_write
+from .datafile import load_npz
 
 
 def write_excitation(path: str | Path, ms: Multisine, *, ratio: int = 1) -> None:
@@ -66,19 +67,11 @@ def read_excitation(path: str | Path) -> tuple[FloatArray, float, int]:
     DataError naming the file and what it lacks.
     """
     p = Path(path)
-    try:
-        z = np.load(p, allow_pickle=False)
-    except (OSError, ValueError) as err:
-        raise DataError(f"cannot read excitation {str(p)!r}: {err}") from None
-    with z:
-        missing = [k for k in ("r", "fs_high", "period") if k not in z.files]
-        if missing:
-            raise DataError(
-                f"{p} is not an excitation file (mr-ident excite --out FILE.npz): missing "
-                f"{', '.join(missing)}"
-            )
-        r = np.asarray(z["r"], float)
-        r = r[:, :, None] if r.ndim == 2 else r
-        if r.ndim != 3:
-            raise DataError(f"{p}: r must be (M, P*N) or (M, P*N, n_in), got {z['r'].shape}")
-        return r, float(z["fs_high"]), int(z["period"])
+    z = load_npz(
+        p, ("r", "fs_high", "period"), "an excitation file (mr-ident excite --out FILE.npz)"
+    )
+    r = np.asarray(z["r"], float)
+    r = r[:, :, None] if r.ndim == 2 else r
+    if r.ndim != 3:
+        raise DataError(f"{p}: r must be (M, P*N) or (M, P*N, n_in), got {z['r'].shape}")
+    return r, float(z["fs_high"]), int(z["period"])

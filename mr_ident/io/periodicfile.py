@@ -11,6 +11,7 @@ from ..errors import DataError
 from ..numerics.arrays import FloatArray
 from ..numerics.bla import BLA
 from .atomic import atomic_write
+from .datafile import load_npz
 
 
 def read_realizations(
@@ -24,17 +25,10 @@ def read_realizations(
     p = Path(path)
     if p.suffix.lower() != ".npz":
         raise DataError(f"periodic data with realizations must be an .npz file, got {str(p)!r}")
-    try:
-        z = np.load(p, allow_pickle=False)
-    except (OSError, ValueError) as err:
-        raise DataError(f"cannot read {str(p)!r}: {err}") from None
-    with z:
-        missing = [k for k in "ruy" if k not in z.files]
-        if missing:
-            raise DataError(f"{p}: missing {', '.join(missing)} (has {', '.join(z.files)})")
-        arrs = [np.atleast_2d(np.asarray(z[k], float)) for k in "ruy"]
-        fs = float(z["fs_high"]) if "fs_high" in z.files else None
-        F = int(z["ratio"]) if "ratio" in z.files else None
+    z = load_npz(p, ("r", "u", "y"), "periodic data (r, u, y of shape (M, n))")
+    arrs = [np.atleast_2d(np.asarray(z[k], float)) for k in "ruy"]
+    fs = float(z["fs_high"]) if "fs_high" in z else None
+    F = int(z["ratio"]) if "ratio" in z else None
     if not (arrs[0].shape == arrs[1].shape == arrs[2].shape) or arrs[0].ndim != 2:
         raise DataError(
             f"{p}: r, u, y must each be (M realizations, n samples) of one channel; got "
