@@ -188,3 +188,21 @@ def joint_state_mcap(path, sim, t, *, skip=(), **options):
             w.add_message(channels[topic], log_time=log, data=data, publish_time=log, sequence=seq)
         w.finish()
     return path
+
+
+def paper_loop():
+    """The paper's loop simulated for 60 s (seed 0): (model, LoopData), the bags' content."""
+    from mr_ident.io.modelfile import load_model
+    from mr_ident.numerics.simulate import simulate
+
+    model = load_model(Path(__file__).resolve().parents[1] / "config" / "paper_example.yaml")
+    return model, simulate(model, duration=60.0, rng=np.random.default_rng(0))
+
+
+def plant_error(model, data) -> float:
+    """Median relative error of the default identification of ``data`` against the model."""
+    from mr_ident.numerics.identify import identify
+
+    res = identify(data.r, data.u, data.y, fs_high=data.fs_high, ratio=data.ratio)
+    P = model.plant_discrete().freqresp(res.plant.frequency)
+    return float(np.median(np.abs(res.plant.response - P) / np.abs(P)))

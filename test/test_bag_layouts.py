@@ -13,15 +13,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from bagmaker import joint_state_bag, joint_state_mcap, stamps
-from test_bags import PAPER, R, U, Y
+from bagmaker import joint_state_bag, joint_state_mcap, paper_loop, plant_error, stamps
+from test_bags import R, U, Y
 
 from mr_ident.io import mcap_scan
 from mr_ident.io.bags import Bag
-from mr_ident.io.modelfile import load_model
 from mr_ident.live.replay import bag_signals
-from mr_ident.numerics.identify import identify
-from mr_ident.numerics.simulate import simulate
 
 SPECS = {"r": [R], "u": [U], "y": [Y]}
 LAYOUTS = {
@@ -68,15 +65,7 @@ def _options(layout: dict) -> dict:
 
 @pytest.fixture(scope="module")
 def loop():
-    model = load_model(PAPER)
-    sim = simulate(model, duration=60.0, rng=np.random.default_rng(0))
-    return model, sim
-
-
-def _error(model, data) -> float:
-    res = identify(data.r, data.u, data.y, fs_high=data.fs_high, ratio=data.ratio)
-    P = model.plant_discrete().freqresp(res.plant.frequency)
-    return float(np.median(np.abs(res.plant.response - P) / np.abs(P)))
+    return paper_loop()
 
 
 @pytest.mark.parametrize("layout", sorted(LAYOUTS))
@@ -90,7 +79,7 @@ def test_every_layout_gives_every_sample_and_the_exact_plant(loop, tmp_path, lay
     for got, want in ((data.r, sim.r), (data.u, sim.u), (data.y, sim.y)):
         np.testing.assert_array_equal(got, want)
     assert data.fs_high == pytest.approx(240.0, rel=1e-9)
-    assert _error(model, data) < 1e-4
+    assert plant_error(model, data) < 1e-4
     assert info.messages == {"/joint_states": sim.n_samples, "/ident/reference": sim.n_samples}
 
 

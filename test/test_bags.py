@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from bagmaker import T0, BagWriter, joint_state_bag, stamps
+from bagmaker import T0, BagWriter, joint_state_bag, paper_loop, plant_error, stamps
 
 from mr_ident.cli import main
 from mr_ident.io.modelfile import load_model
@@ -32,15 +32,7 @@ Y = '/joint_states.position{name=="j1"}'
 
 @pytest.fixture(scope="module")
 def loop():
-    model = load_model(PAPER)
-    sim = simulate(model, duration=60.0, rng=np.random.default_rng(0))
-    return model, sim
-
-
-def _error(model, data) -> float:
-    res = identify(data.r, data.u, data.y, fs_high=data.fs_high, ratio=data.ratio)
-    P = model.plant_discrete().freqresp(res.plant.frequency)
-    return float(np.median(np.abs(res.plant.response - P) / np.abs(P)))
+    return paper_loop()
 
 
 def test_joint_states_give_the_exact_plant_with_rates_read_off_the_stamps(loop, tmp_path):
@@ -49,7 +41,7 @@ def test_joint_states_give_the_exact_plant_with_rates_read_off_the_stamps(loop, 
     data, info = bag_signals(bag, {"r": [R], "u": [U], "y": [Y]}, ratio=3)
     assert data.n_samples == sim.n_samples and data.fs_high == pytest.approx(240.0, rel=1e-9)
     np.testing.assert_array_equal(data.y[:, 0], sim.y[:, 0])
-    assert _error(model, data) < 1e-4 and not info.truncated
+    assert plant_error(model, data) < 1e-4 and not info.truncated
 
 
 def test_a_pid_controller_state_carries_r_y_and_u_in_one_message(loop, tmp_path):
@@ -79,7 +71,7 @@ def test_a_pid_controller_state_carries_r_y_and_u_in_one_message(loop, tmp_path)
         {"r": [base + ".reference"], "u": [base + ".output"], "y": [base + ".feedback"]},
         ratio=3,
     )
-    assert data.n_samples == sim.n_samples and _error(model, data) < 1e-4
+    assert data.n_samples == sim.n_samples and plant_error(model, data) < 1e-4
 
 
 def test_the_controller_manager_introspection_topics(loop, tmp_path):
@@ -134,7 +126,7 @@ def test_the_controller_manager_introspection_topics(loop, tmp_path):
         ratio=3,
     )
     np.testing.assert_array_equal(data.u[:, 0], sim.u[:, 0])
-    assert _error(model, data) < 1e-4
+    assert plant_error(model, data) < 1e-4
 
 
 def test_a_split_bag_is_read_in_the_order_of_its_metadata(loop, tmp_path):
@@ -152,7 +144,7 @@ def test_a_split_bag_is_read_in_the_order_of_its_metadata(loop, tmp_path):
     meta["rosbag2_bagfile_information"]["relative_file_paths"] = ["split_0.mcap", "split_1.mcap"]
     (split / "metadata.yaml").write_text(yaml.safe_dump(meta))
     data, _ = bag_signals(split, {"r": [R], "u": [U], "y": [Y]}, fs_high=240.0, ratio=3)
-    assert data.n_samples == sim.n_samples and _error(model, data) < 1e-4
+    assert data.n_samples == sim.n_samples and plant_error(model, data) < 1e-4
 
 
 def test_dropped_cycles_are_gaps_and_jitter_within_the_tolerance_is_absorbed(loop, tmp_path):
@@ -166,7 +158,7 @@ def test_dropped_cycles_are_gaps_and_jitter_within_the_tolerance_is_absorbed(loo
     data, info = bag_signals(bag, {"r": [R], "u": [U], "y": [Y]}, fs_high=240.0, ratio=3)
     assert data.first >= 3002 and data.end == sim.n_samples and "gaps" in info.broken
     np.testing.assert_array_equal(data.y[:, 0], sim.y[data.first : data.end, 0])
-    assert _error(model, data) < 1e-4
+    assert plant_error(model, data) < 1e-4
 
 
 def test_a_held_low_rate_source_spreads_over_F_samples_and_gives_F(tmp_path):

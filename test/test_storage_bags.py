@@ -19,17 +19,14 @@ import sqlite3
 import numpy as np
 import pytest
 import yaml
-from bagmaker import BagWriter, joint_state_bag, stamps
+from bagmaker import BagWriter, joint_state_bag, paper_loop, plant_error, stamps
 from rosbags.rosbag2 import StoragePlugin
-from test_bags import PAPER, R, U, Y
+from test_bags import R, U, Y
 
 from mr_ident.cli import main
 from mr_ident.io.blocks import encode_fields
-from mr_ident.io.modelfile import load_model
 from mr_ident.io.recording import read_blocks
 from mr_ident.live.replay import bag_signals
-from mr_ident.numerics.identify import identify
-from mr_ident.numerics.simulate import simulate
 
 SPECS = {"r": [R], "u": [U], "y": [Y]}
 SQLITE = StoragePlugin.SQLITE3
@@ -37,22 +34,14 @@ SQLITE = StoragePlugin.SQLITE3
 
 @pytest.fixture(scope="module")
 def loop():
-    model = load_model(PAPER)
-    sim = simulate(model, duration=60.0, rng=np.random.default_rng(0))
-    return model, sim
-
-
-def _error(model, data) -> float:
-    res = identify(data.r, data.u, data.y, fs_high=data.fs_high, ratio=data.ratio)
-    P = model.plant_discrete().freqresp(res.plant.frequency)
-    return float(np.median(np.abs(res.plant.response - P) / np.abs(P)))
+    return paper_loop()
 
 
 def _exact(model, sim, data) -> None:
     assert data.n_samples == sim.n_samples and data.fs_high == pytest.approx(240.0, rel=1e-9)
     for got, want in ((data.r, sim.r), (data.u, sim.u), (data.y, sim.y)):
         np.testing.assert_array_equal(got, want)
-    assert _error(model, data) < 1e-4
+    assert plant_error(model, data) < 1e-4
 
 
 def _drop_definitions(bag) -> None:
