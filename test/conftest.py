@@ -18,6 +18,21 @@ def paper_model() -> Model:
     return load_model(ROOT / "config" / "paper_example.yaml")
 
 
+@pytest.fixture(scope="session")
+def mimo_model() -> Model:
+    """A 2x2 closed loop at F = 2: a coupled second-order plant, a diagonal first-order K_l."""
+    from mr_ident.io.modelfile import model_from_dict
+
+    return model_from_dict(
+        {
+            "fs_high": 100.0,
+            "ratio": 2,
+            "plant": {"num": [[[1.0], [0.2]], [[0.1], [2.0]]], "den": [1.0, 3.0, 10.0]},
+            "controller": {"num": [[[0.5, 0.0], [0.0]], [[0.0], [0.4, 0.0]]], "den": [1.0, -0.5]},
+        }
+    )
+
+
 def brute_force_loop(
     model: Model, r: np.ndarray, v: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:

@@ -77,17 +77,8 @@ def test_the_reported_std_matches_the_spread_over_noisy_runs(paper_model, method
     assert 0.8 < per_bin < 1.2, per_bin
 
 
-def test_mimo_freq_lifted_recovers_the_plant():
-    from mr_ident.io.modelfile import model_from_dict
-
-    model = model_from_dict(
-        {
-            "fs_high": 100.0,
-            "ratio": 2,
-            "plant": {"num": [[[1.0], [0.2]], [[0.1], [2.0]]], "den": [1.0, 3.0, 10.0]},
-            "controller": {"num": [[[0.5, 0.0], [0.0]], [[0.0], [0.4, 0.0]]], "den": [1.0, -0.5]},
-        }
-    )
+def test_mimo_freq_lifted_recovers_the_plant(mimo_model):
+    model = mimo_model
     sim = simulate(model, duration=200.0, rng=np.random.default_rng(3))
     res = identify(sim.r, sim.u, sim.y, fs_high=100.0, ratio=2, n=10)
     truth = model.plant_frf(sim.r.shape[0])[1:]
