@@ -115,10 +115,8 @@ def identify_periodic(args: argparse.Namespace) -> int:
         f"x {bla.periods} period(s); {parts})"
     )
     if bla.periods > 1:  # the distortion at the unexcited lines, per band
-        f_ex = bla.lines * fs / N
-        edges = np.geomspace(max(f_ex[0], fs / N), f_ex[-1] * (1 + 1e-9), 5)
         print("band (Hz)        excited  odd lines  even lines   (dB above the noise)")
-        for b in distortion_by_band(r[:, skip:], y[:, skip:], N, fs, edges):
+        for b in distortion_by_band(r[:, skip:], y[:, skip:], N, fs):
             print(
                 f"{b.band[0]:7.3g}-{b.band[1]:<7.3g}  {b.excited_db:7.1f}  {b.odd_db:9.1f}  "
                 f"{b.even_db:10.1f}"

@@ -31,7 +31,7 @@ from typing import Any, ParamSpec
 import numpy as np
 
 from ..errors import ConfigError, DataError
-from ..numerics.bla import BandLevels, distortion_by_band, excited_lines
+from ..numerics.bla import BandLevels, distortion_by_band
 from ..numerics.identify import default_n, min_samples
 from ..numerics.model import Model
 from ..numerics.signals import LoopData
@@ -338,12 +338,5 @@ def distortion(rec: LoopData) -> list[BandLevels]:
     if rec.period is None or rec.y.shape[1] != 1 or rec.n_samples // rec.period < 3:
         return []
     Pn, fs = rec.period, rec.rates()[0]
-    skip = rec.r[Pn:, 0], rec.y[Pn:, 0]
-    R = np.fft.rfft(skip[0][: (skip[0].size // Pn) * Pn].reshape(-1, Pn), axis=1)
-    lines = excited_lines(R[None])
-    if lines.size < 2:
-        return []
-    f = lines * fs / Pn
-    edges = np.geomspace(f[0], f[-1] * (1 + 1e-9), 5)
-    n = (skip[0].size // Pn) * Pn
-    return distortion_by_band(skip[0][:n], skip[1][:n], Pn, fs, edges)
+    n = (rec.n_samples // Pn - 1) * Pn  # whole periods after the first
+    return distortion_by_band(rec.r[Pn : Pn + n, 0], rec.y[Pn : Pn + n, 0], Pn, fs)

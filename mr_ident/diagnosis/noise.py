@@ -9,6 +9,7 @@ import scipy.ndimage
 import scipy.stats
 
 from ..numerics.arrays import FloatArray
+from ..numerics.bla import excited_lines
 from ..numerics.model import Model
 from ..numerics.results import Identification
 from ..numerics.signals import LoopData
@@ -101,12 +102,11 @@ def distortion_floor(rec: LoopData, y: FloatArray) -> FloatArray:
     out = np.zeros((n_bins, y.shape[1]))
     if n_per < 2:
         return out
-    R = np.fft.rfft(rec.r[Pn:, 0].reshape(n_per, Pn), axis=1, norm="ortho").mean(axis=0)
+    R = np.fft.rfft(rec.r[Pn:, 0].reshape(n_per, Pn), axis=1)  # (P, L)
     Y = np.fft.rfft(y[Pn:].reshape(n_per, Pn, -1), axis=1, norm="ortho")  # (P, L, n_y)
     Ym = Y.mean(axis=0)
     var_mean = np.var(Y, axis=0, ddof=1) / n_per
-    quiet = np.flatnonzero(np.abs(R) < 1e-3 * np.abs(R).max())
-    quiet = quiet[quiet > 0]
+    quiet = np.setdiff1d(np.arange(1, Ym.shape[0]), excited_lines(R[None]))
     if quiet.size == 0:
         return out
     excess = np.maximum(np.abs(Ym[quiet]) ** 2 - var_mean[quiet], 0.0)  # (Q, n_y)

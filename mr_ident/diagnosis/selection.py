@@ -131,35 +131,71 @@ def solve_linear(obj: Objective, cause: Cause, current: Model, choice: Choice) -
     return replace(choice, x=tuple(float(t) for t in x0))
 
 
+@dataclass(frozen=True)
+class _Continuous:
+    """The continuous values of a set of choices as one vector (discrete ones left fixed).
+
+    ``cont``: indices of the continuous choices; ``sizes``: their values' counts; ``x``,
+    ``lower``, ``upper``, ``scale``: concatenated values and bounds.
+    """
+
+    choices: list[Choice]
+    cont: list[int]
+    sizes: list[int]
+    x: FloatArray
+    lower: FloatArray
+    upper: FloatArray
+    scale: FloatArray
+
+    @classmethod
+    def of(cls, nominal: Model, choices: list[Choice]) -> _Continuous:
+        cont = [j for j, c in enumerate(choices) if not CAUSES[c.cause].discrete]
+        parts = [CAUSES[choices[j].cause].bounds(nominal, choices[j]) for j in cont]
+        x = [np.asarray(choices[j].x, float) for j in cont]
+
+        def cat(arrays: list[FloatArray]) -> FloatArray:
+            return np.concatenate(arrays) if arrays else np.zeros(0)
+
+        return cls(
+            choices,
+            cont,
+            [len(choices[j].x) for j in cont],
+            cat(x),
+            cat([b[0] for b in parts]),
+            cat([b[1] for b in parts]),
+            cat([b[2] for b in parts]),
+        )
+
+    def unpack(self, x: FloatArray) -> list[Choice]:
+        """The choices with the continuous values ``x``."""
+        out, k = list(self.choices), 0
+        for j, n in zip(self.cont, self.sizes, strict=True):
+            out[j] = replace(self.choices[j], x=tuple(float(v) for v in x[k : k + n]))
+            k += n
+        return out
+
+
 def joint_refit(
     obj: Objective, nominal: Model, choices: list[Choice], *, max_nfev: int = 30
 ) -> tuple[list[Choice], float]:
     """Every continuous parameter of ``choices`` re-fitted together (discrete ones fixed)."""
-    cont = [j for j, c in enumerate(choices) if not CAUSES[c.cause].discrete]
-    if not cont:
-        return choices, obj.cost(build(nominal, choices))
-    sizes = [len(choices[j].x) for j in cont]
-    parts = [CAUSES[choices[j].cause].bounds(nominal, choices[j]) for j in cont]
-    lo = np.concatenate([b[0] for b in parts])
-    hi = np.concatenate([b[1] for b in parts])
-    sc = np.concatenate([b[2] for b in parts])
-
-    def unpack(x: FloatArray) -> list[Choice]:
-        out = list(choices)
-        k = 0
-        for j, n in zip(cont, sizes, strict=True):
-            out[j] = replace(choices[j], x=tuple(float(v) for v in x[k : k + n]))
-            k += n
-        return out
-
-    x0 = clip(np.concatenate([np.asarray(choices[j].x, float) for j in cont]), lo, hi)
+    v = _Continuous.of(nominal, choices)
     start = obj.cost(build(nominal, choices))
+    if not v.cont:
+        return choices, start
+    x0 = clip(v.x, v.lower, v.upper)
     x, cost = least_squares(
-        obj, lambda x: build(nominal, unpack(x)), x0, lo, hi, sc, max_nfev=max_nfev
+        obj,
+        lambda x: build(nominal, v.unpack(x)),
+        x0,
+        v.lower,
+        v.upper,
+        v.scale,
+        max_nfev=max_nfev,
     )
     if cost > start:
         return choices, start
-    return unpack(x), cost
+    return v.unpack(x), cost
 
 
 def parameter_std(obj: Objective, nominal: Model, choices: list[Choice]) -> list[Params]:
@@ -173,28 +209,18 @@ def parameter_std(obj: Objective, nominal: Model, choices: list[Choice]) -> list
     Discrete values are given std 0; a singular direction (a value the data do not
     determine) gets inf.
     """
-    cont = [j for j, c in enumerate(choices) if not CAUSES[c.cause].discrete]
+    v = _Continuous.of(nominal, choices)
+    cont, sizes = v.cont, v.sizes
     out: list[Params] = [{k: 0.0 for k in CAUSES[c.cause].named(c, nominal)} for c in choices]
     if not cont:
         return out
-    x0 = np.concatenate([np.asarray(choices[j].x, float) for j in cont])
-    sizes = [len(choices[j].x) for j in cont]
-    scale = np.concatenate([CAUSES[choices[j].cause].bounds(nominal, choices[j])[2] for j in cont])
-
-    def with_x(x: FloatArray) -> list[Choice]:
-        new, k = list(choices), 0
-        for j, n in zip(cont, sizes, strict=True):
-            new[j] = replace(choices[j], x=tuple(float(v) for v in x[k : k + n]))
-            k += n
-        return new
-
     r0 = obj.residuals(build(nominal, choices))
-    steps = 1e-4 * np.maximum(np.abs(scale), 1e-12)
+    steps = 1e-4 * np.maximum(np.abs(v.scale), 1e-12)
     cols = []
     for i, h in enumerate(steps):
-        x = x0.copy()
+        x = v.x.copy()
         x[i] += h
-        cols.append((obj.residuals(build(nominal, with_x(x))) - r0) / h)
+        cols.append((obj.residuals(build(nominal, v.unpack(x))) - r0) / h)
     J = np.column_stack(cols)
     with np.errstate(all="ignore"):
         cov = 0.5 * np.linalg.pinv(J.T @ J, rcond=1e-12, hermitian=True)

@@ -103,14 +103,15 @@ class BandLevels:
 
 
 def distortion_by_band(
-    r: FloatArray, y: FloatArray, period: int, fs: float, edges: FloatArray
+    r: FloatArray, y: FloatArray, period: int, fs: float, edges: FloatArray | None = None
 ) -> list[BandLevels]:
     """Levels above the noise per band between ``edges`` (Hz), from P >= 2 periods.
 
     ``r, y``: (M, P·N) or (P·N,); the first realization is used. The excited lines are
-    those of :func:`excited_lines`. With an odd (or odd-odd) design, power at the unexcited
-    odd lines is odd nonlinear distortion, at the even lines even distortion; near 0 dB
-    it is noise only.
+    those of :func:`excited_lines`; ``edges`` None: four log-spaced bands over them ([]
+    with fewer than two). With an odd (or odd-odd) design, power at the unexcited odd lines
+    is odd nonlinear distortion, at the even lines even distortion; near 0 dB it is noise
+    only.
     """
     R, Y = (
         _periods(np.atleast_2d(np.asarray(a, float)), period, n) for a, n in ((r, "r"), (y, "y"))
@@ -123,6 +124,10 @@ def distortion_by_band(
     ex = excited_lines(R)
     k = np.arange(Ym.size)
     f = k * fs / period
+    if edges is None:
+        if ex.size < 2:
+            return []
+        edges = np.geomspace(f[ex[0]], f[ex[-1]] * (1 + 1e-9), 5)
     out = []
 
     def db(which: IntArray) -> float:
