@@ -49,7 +49,8 @@ bench-live: $(STAMP)
 	$(PY) benchmarks/bench_live.py
 
 # diagnose on seeded random loops (100 per cause, 100 pairs, 100 with nothing hidden);
-# 1200 cases, sized for ~45 min on 2 cores at <= 4.5 s per diagnosis; not part of `make test`
+# 1200 cases, about 80 min on 2 cores as measured (run it split: --causes, --per-cause);
+# not part of `make test`
 bench-diagnose: $(STAMP)
 	$(PY) benchmarks/bench_diagnose.py
 
