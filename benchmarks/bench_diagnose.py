@@ -140,13 +140,27 @@ def run_case(case: dict, duration: float) -> dict:
         applied = [(c.cause, {k: float(v) for k, v in c.parameters.items()}) for c in d.applied]
         fit_true = time_fit(sc.true, sc.data, d.traces["start"]).y
         stds = [{k: float(v) for k, v in c.std.items()} for c in d.applied]
-        v = judge(sc, applied, fit_true - d.fit_after.y, stds)
+        equivalents = [
+            [(q.cause, dict(q.parameters), dict(q.std), q.delta_bic) for q in c.equivalents]
+            for c in d.applied
+        ]
+        v = judge(
+            sc, applied, fit_true - d.fit_after.y, stds, [[e[:3] for e in q] for q in equivalents]
+        )
     except Exception:
         return out | {"status": "traceback", "error": traceback.format_exc()}
     return out | {
         "applied": [
-            {"cause": c, "parameters": p, "std": sd}
-            for (c, p), sd in zip(applied, stds, strict=True)
+            {
+                "cause": c,
+                "parameters": p,
+                "std": sd,
+                "equivalents": [
+                    {"cause": e, "parameters": ep, "std": es, "delta_bic": db}
+                    for e, ep, es, db in eq
+                ],
+            }
+            for (c, p), sd, eq in zip(applied, stds, equivalents, strict=True)
         ],
         "fit_before": d.fit_before.y,
         "fit_after": d.fit_after.y,
@@ -156,6 +170,7 @@ def run_case(case: dict, duration: float) -> dict:
         "parameters_ok": v.parameters_ok,
         "success": v.success,
         "consistent": v.consistent,
+        "stated": v.stated,
         "misses": list(v.misses),
     }
 
@@ -182,8 +197,8 @@ def table(records: list[dict], groups: list[str]) -> tuple[str, dict[str, float]
     """The markdown table and each group's success rate (%)."""
     head = (
         "| hidden | cases | named first | parameters in tolerance | success | success within "
-        f"{COVERAGE:g} std | median fit gap | median s | p95 s |\n"
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|"
+        f"{COVERAGE:g} std | with stated equivalents | median fit gap | median s | p95 s |\n"
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
     )
     rows, rates = [head], {}
     for g in groups:
@@ -195,13 +210,14 @@ def table(records: list[dict], groups: list[str]) -> tuple[str, dict[str, float]
         params = [bool(r.get("parameters_ok")) for r in rs] if g != "none" else []
         success = [bool(r.get("success")) for r in rs]
         loose = [bool(r.get("success") or r.get("consistent")) for r in rs]
+        stated = [bool(r.get("success") or r.get("consistent") or r.get("stated")) for r in rs]
         gaps = [r["fit_gap"] for r in ok]
         secs = [r["seconds"] for r in ok]  # diagnoses that ran to the end
         rates[g] = 100 * float(np.mean(success))
         label = "none (nothing named)" if g == "none" else g
         rows.append(
             f"| {label} | {len(rs)} | {_pct(named)} | {_pct(params)} | {_pct(success)} "
-            f"| {_pct(loose)} "
+            f"| {_pct(loose)} | {_pct(stated)} "
             f"| {_med(gaps)} | {_med(secs, fmt='.1f')} | {_med(secs, 95, '.1f')} |"
         )
     return "\n".join(rows), rates
@@ -216,7 +232,12 @@ def failure_line(r: dict) -> str:
     if r.get("status") != "ok":
         last = r.get("error", "").strip().splitlines()[-1:] or ["?"]
         return f"- {where}; {r.get('status')}: {last[0]}"
-    named = ", ".join(_text(a["cause"], a["parameters"]) for a in r["applied"]) or "nothing"
+
+    def said(a: dict) -> str:
+        alts = " or ".join(_text(q["cause"], q["parameters"]) for q in a.get("equivalents", []))
+        return _text(a["cause"], a["parameters"]) + (f" (or, as well, {alts})" if alts else "")
+
+    named = ", ".join(said(a) for a in r["applied"]) or "nothing"
     line = f"- {where}; named {named}; fit gap {r['fit_gap']:.2f}"
     return line + (f"; out of tolerance: {'; '.join(r['misses'])}" if r["misses"] else "")
 

@@ -173,7 +173,14 @@ def report_html(
             for k, v in a["parameters"].items()
         )
 
-    applied = ", ".join(f"{a['cause']} ({with_std(a)})" for a in summary["applied"]) or "none"
+    def with_equivalents(a: dict[str, Any]) -> str:
+        alts = "; ".join(
+            f"{q['cause']} ({with_std(q)}, BIC {q['delta_bic']:+.1f})"
+            for q in a.get("equivalents", [])
+        )
+        return f"{a['cause']} ({with_std(a)})" + (f" — or, as well: {alts}" if alts else "")
+
+    applied = ", ".join(with_equivalents(a) for a in summary["applied"]) or "none"
     bands = ", ".join(f"{lo:.3g}–{hi:.3g} Hz" for lo, hi in summary["significant_bands"]) or "none"
     bands_after = (
         ", ".join(f"{lo:.3g}–{hi:.3g} Hz" for lo, hi in summary["significant_bands_after"])

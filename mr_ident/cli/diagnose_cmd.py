@@ -85,6 +85,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             f"{k} ± {v:.2g}" for k, v in a.std.items() if v > 0 and k in a.parameters
         )
         print(f"  found: {a.description}" + (f" (std: {spread})" if spread else ""))
+        for q in a.equivalents:
+            print(f"    or, as well (BIC {q.delta_bic:+.1f}): {q.description}")
     if d.nonlinear:
         print(f"  found: {d.distortion_text()}")
     for path in (args.json, args.report, args.out_model):

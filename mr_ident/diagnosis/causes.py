@@ -40,6 +40,30 @@ class Choice:
 
 
 @dataclass(frozen=True)
+class Equivalent:
+    """Another cause that explains the data as well as a chosen one (in its place).
+
+    Attributes
+    ----------
+    cause : str
+    parameters, std : dict
+        Its fitted values (jointly with the other chosen causes) and their standard
+        deviations.
+    description : str
+        The finding in words.
+    delta_bic : float
+        BIC of the set with this cause in place of the chosen one, minus the chosen set's:
+        below the selection's margin, so the data do not tell the two apart.
+    """
+
+    cause: str
+    parameters: Params
+    std: Params
+    description: str
+    delta_bic: float
+
+
+@dataclass(frozen=True)
 class CauseFit:
     """One cause fitted to the data.
 
@@ -65,6 +89,9 @@ class CauseFit:
         Standard deviation of each of :attr:`parameters` (the Gauss-Newton covariance of
         the joint fit, by the delta method for derived quantities); empty where not
         computed (the ranking) and 0 for a discrete value.
+    equivalents : tuple of Equivalent
+        Other causes that, in this one's place, explain the data as well (the data do not
+        tell them apart; :mod:`~mr_ident.diagnosis.equivalence`), best first.
     """
 
     cause: str
@@ -76,6 +103,7 @@ class CauseFit:
     description: str = ""
     choice: Choice | None = field(default=None, compare=False)
     std: Params = field(default_factory=dict)
+    equivalents: tuple[Equivalent, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -36,6 +36,7 @@ from ..numerics.identify import default_n, min_samples
 from ..numerics.model import Model
 from ..numerics.signals import LoopData
 from .causes import CauseFit, PlantData
+from .equivalence import with_equivalents
 from .evidence import Evidence, frf_evidence, identify_record
 from .noise import noise_spectrum
 from .objective import Objective, settle_samples
@@ -289,7 +290,8 @@ def diagnose(
     screen = full if n_screen == est.n_samples else Objective(est.part(0, n_screen), model, noise)
     plant = PlantData(ev_before.frequency, ev_before.P_hat, ev_before.P_std)
     sel = select(full, screen, model, plant, max_causes=max_causes)
-    ranking, applied, current = sel.ranking, sel.chosen, sel.model
+    ranking, current = sel.ranking, sel.model
+    applied = with_equivalents(full, screen, model, plant, sel.chosen, sel.ranking)
     val_part = val.part(val_start, val.n_samples) if val_start else val
     pred_b, pred_a = predict(model, val), predict(current, val)
     if not val_start and model.controller is not None and val.period is None:

@@ -41,6 +41,16 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
                 "parameters": c.parameters,
                 "std": {k: _finite(v) for k, v in c.std.items()},
                 "description": c.description,
+                "equivalents": [
+                    {
+                        "cause": q.cause,
+                        "parameters": q.parameters,
+                        "std": {k: _finite(v) for k, v in q.std.items()},
+                        "description": q.description,
+                        "delta_bic": _finite(q.delta_bic),
+                    }
+                    for q in c.equivalents
+                ],
             }
             for c in d.applied
         ],

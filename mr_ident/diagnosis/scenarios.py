@@ -18,6 +18,7 @@ its rms at least (else it is drawn again).
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
@@ -147,7 +148,10 @@ class Verdict:
     ``success``: ``parameters_ok`` and ``fit_gap < MAX_FIT_GAP`` (nothing hidden: named).
     ``consistent``: as ``success``, but a parameter outside its tolerance counts as found
     when it lies within :data:`COVERAGE` of the diagnosis's own standard deviations of the
-    truth (a value the data determine only loosely, reported honestly).
+    truth (a value the data determine only loosely, reported honestly). ``stated``: as
+    ``consistent``, but a hidden cause also counts as named when the diagnosis stated it
+    among a chosen cause's equivalent explanations (the data cannot tell them apart; the
+    diagnosis says so and gives both).
     """
 
     named: bool
@@ -156,6 +160,7 @@ class Verdict:
     success: bool
     misses: tuple[str, ...]
     consistent: bool = False
+    stated: bool = False
 
 
 def _logu(rng: np.random.Generator, lo: float, hi: float) -> float:
@@ -438,20 +443,48 @@ def judge(
     applied: Sequence[tuple[str, Mapping[str, float]]],
     fit_gap: float,
     stds: Sequence[Mapping[str, float]] | None = None,
+    equivalents: Sequence[Sequence[tuple[str, Mapping[str, float], Mapping[str, float]]]]
+    | None = None,
 ) -> Verdict:
     """Whether a diagnosis found what ``scenario`` hides (the rules: :class:`Verdict`).
 
     ``applied``: the causes the diagnosis applied, in order, with their parameters;
     ``fit_gap``: the true model's validation fit % of y minus the extended model's;
-    ``stds``: per applied cause, its parameters' standard deviations (for ``consistent``).
+    ``stds``: per applied cause, its parameters' standard deviations (for ``consistent``);
+    ``equivalents``: per applied cause, the (cause, parameters, std) it stated as explaining
+    the data as well (for ``stated``).
     """
+    spreads = list(stds) if stds is not None else [{} for _ in applied]
+    v = _verdict(scenario, applied, fit_gap, spreads)
+    options = [
+        [(c, p, sd)] + list(equivalents[j] if equivalents is not None else ())
+        for j, ((c, p), sd) in enumerate(zip(applied, spreads, strict=True))
+    ]
+    stated = any(
+        (
+            w := _verdict(
+                scenario, [(c, p) for c, p, _ in combo], fit_gap, [sd for *_, sd in combo]
+            )
+        ).success
+        or w.consistent
+        for combo in itertools.product(*options)
+    )
+    return replace(v, stated=stated)
+
+
+def _verdict(
+    scenario: Scenario,
+    applied: Sequence[tuple[str, Mapping[str, float]]],
+    fit_gap: float,
+    stds: Sequence[Mapping[str, float]],
+) -> Verdict:
     names, hidden = [c for c, _ in applied], [h.cause for h in scenario.hidden]
     one = len(hidden) == 1
     named = names[:1] == hidden if one else sorted(names) == sorted(hidden)
     misses, loose = [], []
     for h in scenario.hidden if named else ():
         j = names.index(h.cause)
-        got, spread = applied[j][1], (stds[j] if stds is not None else {})
+        got, spread = applied[j][1], stds[j]
         for key, true in h.parameters.items():
             tol, est = TOLERANCES[h.cause][key], float(got.get(key, math.nan))
             if not tol.within(est, true, scenario.nominal.fs_high):

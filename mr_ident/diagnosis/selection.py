@@ -372,6 +372,32 @@ def _ranking(obj: Objective, nominal: Model, screened: list[Choice]) -> list[Cau
     return sorted(out, key=lambda c: c.score)
 
 
+def swap(
+    obj: Objective,
+    screen: Objective,
+    nominal: Model,
+    plant: PlantData | None,
+    chosen: list[Choice],
+    j: int,
+    cause: Cause,
+) -> tuple[float, list[Choice], float] | None:
+    """``chosen`` with ``cause`` in place of its ``j``-th: (BIC, choices, cost), or None.
+
+    ``cause`` is fitted on top of the others (on ``screen``), then every continuous value
+    re-fitted jointly; the BIC and cost are of ``obj``. None: ``cause`` has no proposal.
+    """
+    rest = chosen[:j] + chosen[j + 1 :]
+    ctx = Context(build(nominal, rest), nominal, plant, screen)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        got = fit_single(cause, ctx)
+    if got is None:
+        return None
+    trial, _ = joint_refit(screen, nominal, rest[:j] + [got[0]] + rest[j:], max_nfev=15)
+    cost = obj.cost(build(nominal, trial))
+    return obj.bic(cost, _n_free(trial)), trial, cost
+
+
 def _simplify(
     obj: Objective,
     screen: Objective,
@@ -402,20 +428,14 @@ def _simplify(
             if k.n_free < CAUSES[c.cause].n_free and k.name not in names and k.name != c.cause
         ]
         best: tuple[float, list[Choice], float] | None = None
-        if simpler:
-            ctx = Context(build(nominal, rest), nominal, plant, screen)
-            for k in simpler:
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
-                    got = fit_single(k, ctx)
-                if got is None:
-                    continue
-                trial = rest[:j] + [got[0]] + rest[j:]
-                trial, _ = joint_refit(screen, nominal, trial, max_nfev=15)
-                cost = obj.cost(build(nominal, trial))
-                b = obj.bic(cost, _n_free(trial))
-                if b < bic + ACCEPT_MARGIN and (best is None or b < best[0]):
-                    best = (b, trial, cost)
+        for k in simpler:
+            got = swap(obj, screen, nominal, plant, chosen, j, k)
+            if (
+                got is not None
+                and got[0] < bic + ACCEPT_MARGIN
+                and (best is None or got[0] < best[0])
+            ):
+                best = got
         if best is not None:
             bic, chosen = best[0], best[1]
             continue  # the same position again: the new cause may have a simpler twin too
