@@ -49,10 +49,24 @@ bench-live: $(STAMP)
 	$(PY) benchmarks/bench_live.py
 
 # diagnose on seeded random loops (100 per cause, 100 pairs, 100 with nothing hidden);
-# 1200 cases, about 80 min on 2 cores as measured (run it split: --causes, --per-cause);
-# not part of `make test`
+# 1200 cases, about 80 min on 2 cores, so run in three parts of about 30 min, each its own
+# JSON in out/bench_diagnose/: `make bench-diagnose PART=A` (nothing hidden and the first
+# five causes), PART=B (the other five), PART=C (the pairs); without PART all three, then
+# the merged report. Not part of `make test`
+BENCH_DIAG := $(PY) benchmarks/bench_diagnose.py
+DIAG_OUT   := out/bench_diagnose
+DIAG_A     := --causes gain_error,input_delay,additive_mode,mode_shift,series_lowpass --pairs 0
+DIAG_B     := --causes series_resonance,controller_notch,control_delay,sampling_offset,periodic_disturbance --pairs 0 --none 0
+DIAG_C     := --per-cause 0 --none 0
+PART       ?= A B C
 bench-diagnose: $(STAMP)
-	$(PY) benchmarks/bench_diagnose.py
+	mkdir -p $(DIAG_OUT)
+	for p in $(PART); do \
+	  case $$p in A) a="$(DIAG_A)";; B) a="$(DIAG_B)";; C) a="$(DIAG_C)";; \
+	    *) echo "error: PART must be A, B or C, got $$p" >&2; exit 2;; esac; \
+	  $(BENCH_DIAG) $$a --json $(DIAG_OUT)/part$$p.json > $(DIAG_OUT)/part$$p.md || exit 1; \
+	done
+	$(BENCH_DIAG) --report $(DIAG_OUT)/part*.json
 
 # false alarms of the plant monitoring: 5 loops x 600 s watched against their own model (~1 min)
 bench-monitor: $(STAMP)
