@@ -14,10 +14,8 @@ from dataclasses import dataclass
 from ..errors import ConfigError
 from . import lpm, lrm
 from .arrays import ComplexArray
+from .catalog import LOCAL_MODELS
 from .lrm import DenominatorTerm
-
-#: The local models, the default first.
-LOCAL_MODELS = ("polynomial", "rational")
 
 
 def check_local(local: object) -> str:
@@ -33,10 +31,9 @@ def check_options(local: str, n: int, degree: int, n_in: int, n_out: int) -> int
     The rational check counts the denominator against the ``n_out`` outputs of one map
     (the fits hold at least those, so their own q is no smaller).
     """
-    q = lpm.check_lpm_options(n, degree, n_in, n_out)
-    if check_local(local) == "rational":
-        q = lrm.check_lrm_options(n, degree, n_in, n_out, n_out)
-    return q
+    if check_local(local) == "rational":  # its rule is the stricter one
+        return lrm.check_lrm_options(n, degree, n_in, n_out, n_out)
+    return lpm.check_lpm_options(n, degree, n_in, n_out)
 
 
 def smallest_n(local: str, degree: int, n_in: int, n_out: int, margin: int = 0) -> int:

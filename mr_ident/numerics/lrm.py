@@ -53,6 +53,7 @@ from numpy.typing import NDArray
 from ..errors import ConfigError
 from .arrays import BoolArray, ComplexArray
 from .budget import lrm_chunk_bins
+from .lpm import check_window
 from .lpm import dof as lpm_dof
 from .threads import thread_map
 
@@ -80,7 +81,7 @@ def smallest_n(degree: int, n_in: int, n_out: int, n_fit: int, margin: int = 0) 
     4
     """
     need = n_out + margin + (degree + 1) * (n_in + 1) + -(-den_degree(degree) // n_fit)
-    return need // 2 + 1
+    return (need - 1) // 2 + 1
 
 
 def check_lrm_options(n: int, degree: int, n_in: int, n_out: int, n_fit: int) -> int:
@@ -94,7 +95,8 @@ def check_lrm_options(n: int, degree: int, n_in: int, n_out: int, n_fit: int) ->
     ConfigError
         If ``degree < 1`` (no denominator) or the window cannot support the orders.
     """
-    if isinstance(degree, bool) or not isinstance(degree, (int, np.integer)) or degree < 1:
+    check_window(n, degree)
+    if degree < 1:
         raise ConfigError(
             f"local rational needs degree R >= 1 (numerator, transient and denominator "
             f"order R), got {degree!r}"
