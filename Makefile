@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 export ROS_LOG_DIR ?= $(CURDIR)/out/ros_log
 export MPLBACKEND := Agg
 
-.PHONY: demo paper test lint bench bench-structured bench-bag bench-live bench-diagnose bench-monitor soak motor-bench venv clean
+.PHONY: demo paper test lint bench lrm-figure bench-structured bench-bag bench-live bench-diagnose bench-monitor soak motor-bench venv clean
 
 venv: $(STAMP)
 
@@ -33,6 +33,10 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_identify.py
+
+# docs/lrm.png: polynomial and rational local models on a lightly damped mode (a few seconds)
+lrm-figure: $(STAMP)
+	$(PY) scripts/lrm_figure.py
 
 # accuracy of every LPM method at n = 8 and n = auto: paper's loop (3 seeds), 24 random
 # loops, the reported std over 50 runs; about 2.5 min on 2 cores

@@ -60,6 +60,7 @@ class BatchOptions:
     method: str = "freq-lifted"
     n: int | str | None = "auto"
     degree: int = 2
+    local: str = "polynomial"
     period: int | None = None
     span: str = DEFAULT_SPAN
     msg_path: tuple[Path, ...] = ()
@@ -272,7 +273,8 @@ def _run(job: Job, opts: BatchOptions) -> dict[str, str]:
         loop = model.identify_arguments(data.n_samples) if model is not None else {}
         ident = identify(
             data.r, data.u, data.y, fs_high=fs, ratio=F, method=opts.method, n=opts.n,
-            degree=opts.degree, keep_lifted=False, workers=opts.threads, **loop,
+            degree=opts.degree, local=opts.local, keep_lifted=False, workers=opts.threads,
+            **loop,
         )  # fmt: skip
         write_result(job.result, ident)
         pl = ident.plant

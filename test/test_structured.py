@@ -109,7 +109,8 @@ def test_bins_without_excitation_come_out_nan_not_spread():
     R[60:100] = 0.0
     U = R + 0.1 * spec(1)
     Y = 2.0 * U
-    G, _, _, n_bad = structured_block(R, Y, U, F, n, 2)
+    fit = structured_block(R, Y, U, F, n, 2)
+    G, n_bad = fit.G, fit.n_bad
     bad = ~np.isfinite(G).all(axis=(0, 1))
     assert n_bad == bad.sum() > 0
     assert np.isfinite(G[:, :, :20]).all()

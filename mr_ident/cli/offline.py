@@ -70,6 +70,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
         method=args.method,
         n=args.n,
         degree=args.degree,
+        local=args.local,
         keep_lifted=False,
         **loop,
     )  # the result holds P_h and the PFG
@@ -180,6 +181,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         method=args.method,
         n=args.n,
         degree=args.degree,
+        local=args.local,
         period=args.period,
         **reading(args),
         threads=1 if args.scheduler else batch.threads_per_job(workers),

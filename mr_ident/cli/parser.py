@@ -9,7 +9,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ..live.spans import DEFAULT_SPAN, SPANS
-from ..numerics.catalog import METHOD_NAMES
+from ..numerics.catalog import LOCAL_MODELS, METHOD_NAMES
 
 EXIT_USAGE = 2
 
@@ -130,6 +130,17 @@ def _lpm_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _local_option(p: argparse.ArgumentParser) -> None:
+    """--local: the local model of the LPM methods' windows (README, "Local rational models")."""
+    p.add_argument(
+        "--local",
+        choices=LOCAL_MODELS,
+        default=LOCAL_MODELS[0],
+        help="local model per window: polynomial (LPM, default) or rational (a common "
+        "denominator of order --degree: lightly damped modes with few bins across them)",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``mr-ident`` and its subcommands."""
     p = _Parser(
@@ -167,6 +178,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     i.add_argument("--method", choices=METHOD_NAMES, default="freq-lifted")
     _lpm_options(i)
+    _local_option(i)
     _sources(i)
     _reading(i)
     i.add_argument("--out", type=Path, required=True, help="result .npz")
@@ -327,6 +339,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--ratio", type=_int_at_least(1), help="F")
     b.add_argument("--method", choices=METHOD_NAMES, default="freq-lifted")
     _lpm_options(b)
+    _local_option(b)
     b.add_argument("--period", type=_int_at_least(2), help="diagnose: samples per period")
     b.add_argument(
         "--topics", nargs=3, metavar=("R", "U", "Y"), help="block-contract topics of r, u, y"

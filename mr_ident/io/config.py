@@ -55,6 +55,10 @@ PARAMETERS: dict[str, Param] = {
         1000,
     ),
     "degree": Param("LPM polynomial degree R of G and of the transient", 0, 10),
+    "local": Param(
+        "local model per window: polynomial (LPM) or rational (a common denominator of "
+        "order degree: lightly damped modes with few bins across them; slower)"
+    ),
     "window_s": Param("length of the sliding window identified, in seconds", 1e-3, 1e7),
     "min_window_s": Param(
         "first estimate once the aligned window holds this many seconds", 1e-3, 1e7
@@ -133,6 +137,7 @@ class IdentConfig:
     method: str = "freq-lifted"
     n: int = 0
     degree: int = 2
+    local: str = "polynomial"
     window_s: float = 60.0
     min_window_s: float = 10.0
     update_period_s: float = 2.0
@@ -238,8 +243,8 @@ class IdentConfig:
                 f"min_window_s ({self.min_window_s:g}) must not exceed window_s "
                 f"({self.window_s:g})"
             )
+        check_options(self.method, self.lpm_n(1, 1), self.degree, self.ratio, 1, 1, self.local)
         if self.method != "etfe":
-            check_options(self.method, self.lpm_n(1, 1), self.degree, self.ratio, 1, 1)
             need = record_minimum(self.method, self.lpm_n(1, 1), self.ratio)
             if self.min_samples < need:
                 raise ConfigError(
@@ -268,7 +273,7 @@ class IdentConfig:
         ``n``, or the default rule (:func:`~mr_ident.numerics.identify.default_n`) for
         0.
         """
-        return self.n or default_n(self.method, self.degree, self.ratio, n_in, n_out)
+        return self.n or default_n(self.method, self.degree, self.ratio, n_in, n_out, self.local)
 
     @property
     def identify_n(self) -> int | str:

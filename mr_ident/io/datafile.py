@@ -253,6 +253,7 @@ def write_result(path: str | Path, ident: Identification) -> None:
         "P": ident.plant.response,
         "P_std": ident.plant.std,
         "method": np.array(ident.plant.method),
+        "local": np.array(ident.local),
         "n": np.zeros(ident.plant.frequency.size, np.int64)
         if ident.n_used is None
         else ident.n_used,

@@ -120,6 +120,7 @@ def estimate(window: LoopData, config: IdentConfig) -> Estimate:
         method=config.method,
         n=config.identify_n,
         degree=config.degree,
+        local=config.local,
         controller_low=K_low,
         phase=phase,
         delay=config.control_delay,

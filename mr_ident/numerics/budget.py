@@ -66,3 +66,25 @@ def block_bins(ratio: int, n_in: int, n_out: int) -> int:
     """
     k = 2 * BLOCK_BINS * lifted_cost(3, 1, 1) // lifted_cost(ratio, n_in, n_out)
     return _power_of_two_below(k, BLOCK_BINS, 256)
+
+
+#: Complex numbers an LRM chunk may hold (32 MB): its windows are formed explicitly.
+LRM_CHUNK_NUMBERS = 1 << 21
+
+
+def lrm_cost(n_in: int, n_out: int, degree: int, n: int) -> int:
+    """Complex numbers an LRM chunk holds per bin.
+
+    Four copies of the windows' regressor and right-hand sides (2n+1 rows of
+    (R+1)(n_in+1) + n_out (R+1) columns), three P x P matrices and the denominator's
+    cross products.
+    """
+    p = (degree + 1) * (n_in + 1)
+    return 4 * (2 * n + 1) * (p + n_out * (degree + 1)) + 3 * p * p + (n_out * degree) ** 2
+
+
+def lrm_chunk_bins(n_in: int, n_out: int, degree: int, n: int) -> int:
+    """LRM bins per chunk: :data:`LRM_CHUNK_NUMBERS` over :func:`lrm_cost` (64 to 4096)."""
+    return _power_of_two_below(
+        LRM_CHUNK_NUMBERS // lrm_cost(n_in, n_out, degree, n), CHUNK_BINS, 64
+    )

@@ -7,3 +7,7 @@ against :data:`~mr_ident.numerics.methods.METHODS` by the tests.
 
 #: The identification methods, in the README's order.
 METHOD_NAMES: tuple[str, ...] = ("freq-lifted", "time-lifted", "lpm", "structured", "etfe")
+
+#: The local models of the LPM methods' windows, the default first
+#: (:mod:`mr_ident.numerics.local`).
+LOCAL_MODELS: tuple[str, ...] = ("polynomial", "rational")

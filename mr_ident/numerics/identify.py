@@ -19,7 +19,8 @@ from ..errors import ConfigError, DataError, DimensionError
 from .arrays import FloatArray
 from .bandwidth import candidates, select
 from .lifting import check_ratio
-from .lpm import check_lpm_options, smallest_n
+from .local import check_local, smallest_n
+from .local import check_options as check_local_options
 from .methods import METHODS, FitRequest, Method, PlantFit
 from .pfg import pfg_from_plant
 from .results import FRF, PFG, Identification
@@ -42,36 +43,58 @@ def method_of(name: str) -> Method:
     return METHODS[name]
 
 
-def check_options(method: str, n: int, degree: int, ratio: int, n_in: int, n_out: int) -> int:
+def check_options(
+    method: str,
+    n: int,
+    degree: int,
+    ratio: int,
+    n_in: int,
+    n_out: int,
+    local: str = "polynomial",
+) -> int:
     """Validate the LPM options of ``method``; return the residual degrees of freedom q.
 
-    For ``n_in`` excitation and ``n_out`` = max(n_y, n_u) channels; q is 0 for the ETFE.
+    For ``n_in`` excitation and ``n_out`` = max(n_y, n_u) channels; q is 0 for the ETFE
+    (which has no local model: ``local`` must be "polynomial" there).
 
     The rule: ``q = 2n+1 - (R+1)(lift n_in + 1) > lift n_out`` with lift = F for the
-    lifted methods, else 1 (:func:`~mr_ident.numerics.lpm.check_lpm_options`).
+    lifted methods, else 1 (:func:`~mr_ident.numerics.lpm.check_lpm_options`); with
+    ``local="rational"`` the denominator's unknowns count too
+    (:func:`~mr_ident.numerics.lrm.check_lrm_options`).
     """
     m = method_of(method)
     if not m.uses_lpm:
+        if check_local(local) != "polynomial":
+            raise ConfigError(
+                f"local = {local!r} applies to the LPM methods; {method} fits no local model"
+            )
         return 0
     lift = m.lift(ratio)
-    return check_lpm_options(n, degree, n_in * lift, n_out * lift)
+    return check_local_options(local, n, degree, n_in * lift, n_out * lift)
 
 
-def default_n(method: str, degree: int, ratio: int, n_in: int, n_out: int) -> int:
+def default_n(
+    method: str, degree: int, ratio: int, n_in: int, n_out: int, local: str = "polynomial"
+) -> int:
     """The default window half-width: 8 (the paper's), or more where F or the channels need it.
 
     The smallest n >= 8 whose residual degrees of freedom exceed the outputs of the fit by
     :data:`DOF_MARGIN`: ``2n+1 - (R+1)(lift n_in + 1) >= lift n_out + 2``, lift = F for a
-    lifted method, else 1.
+    lifted method, else 1 (``local="rational"``: less the denominator's share,
+    :func:`~mr_ident.numerics.lrm.dof`).
 
     >>> default_n("freq-lifted", 2, 3, 1, 1), default_n("freq-lifted", 2, 10, 1, 1)
     (8, 22)
+    >>> default_n("freq-lifted", 2, 3, 1, 1, "rational")
+    9
     """
     m = method_of(method)
     if not m.uses_lpm:
         return N_FLOOR
     lift = m.lift(ratio)
-    return max(N_FLOOR, smallest_n(degree, n_in * lift, n_out * lift, margin=DOF_MARGIN - 1))
+    return max(
+        N_FLOOR, smallest_n(local, degree, n_in * lift, n_out * lift, margin=DOF_MARGIN - 1)
+    )
 
 
 def min_samples(method: str, n: int, ratio: int) -> int:
@@ -128,6 +151,7 @@ def identify(
     method: str = "freq-lifted",
     n: int | str | None = AUTO,
     degree: int = 2,
+    local: str = "polynomial",
     controller_low: ArrayLike | None = None,
     phase: int = 0,
     delay: int = 0,
@@ -152,7 +176,13 @@ def identify(
         :mod:`mr_ident.numerics.bandwidth`. None: :func:`default_n` (8 for a SISO loop up
         to F = 3). The n used per bin is ``Identification.n_used``.
     degree : int
-        Polynomial degree R (default 2).
+        Polynomial degree R (default 2); with ``local="rational"`` the order of the
+        numerator, the transient and the common denominator.
+    local : {"polynomial", "rational"}
+        The local model of every window (:mod:`mr_ident.numerics.local`): the LPM, or the
+        local rational model (:mod:`mr_ident.numerics.lrm`: a common denominator per
+        window, for lightly damped modes; slower, and its default window is wider by the
+        denominator's degrees of freedom).
     controller_low : array_like, shape (M, n_u, n_y), optional
         Controller frequency response on all low-rate bins ``z = exp(2j pi k/M)``,
         k = 0..M-1; when given, the PFG is computed from P_h and it.
@@ -206,12 +236,12 @@ def identify(
     ra, ua, ya = _check_signals(r, u, y, F)
     N = ra.shape[0]
     ny, nu = ya.shape[1], ua.shape[1]
-    n_min = default_n(method, degree, F, ra.shape[1], max(ny, nu))
+    n_min = default_n(method, degree, F, ra.shape[1], max(ny, nu), local)
     auto = isinstance(n, str)
     if auto and n != AUTO:
         raise ConfigError(f'n must be an integer >= 1, None or "{AUTO}", got {n!r}')
     n0 = n_min if n is None or isinstance(n, str) else n
-    check_options(method, n0, degree, F, ra.shape[1], max(ny, nu))
+    check_options(method, n0, degree, F, ra.shape[1], max(ny, nu), local)
     if m.uses_lpm and N < m.min_samples(n0, F):
         raise DataError(
             f"too few samples for the LPM window: {method} needs {2 * (2 * n0 + 1)} independent "
@@ -224,8 +254,8 @@ def identify(
         ns = candidates(n0, (N // (2 * m.lift(F)) - 1) // 2)
 
     def fit_with(nj: int, keep: bool) -> PlantFit:
-        qj = check_options(method, nj, degree, F, ra.shape[1], max(ny, nu))
-        return m.fit(FitRequest(ra, ua, ya, F, nj, degree, qj, keep, n_workers))
+        qj = check_options(method, nj, degree, F, ra.shape[1], max(ny, nu), local)
+        return m.fit(FitRequest(ra, ua, ya, F, nj, degree, qj, keep, n_workers, local))
 
     with one_blas_thread():
         fits = [fit_with(nj, keep_lifted and j == 0) for j, nj in enumerate(ns)]
@@ -271,4 +301,5 @@ def identify(
         fs_high=float(fs_high),
         ratio=F,
         n_used=n_used[1:],
+        local=local,
     )

@@ -103,6 +103,14 @@ def smallest_n(degree: int, n_in: int, n_out: int, margin: int = 0) -> int:
     return (n_out + margin + (degree + 1) * (n_in + 1) - 1) // 2 + 1
 
 
+def check_window(n: int, degree: int) -> None:
+    """ConfigError unless n (window half-width) is an integer >= 1 and the degree >= 0."""
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ConfigError(f"n (window half-width) must be an integer >= 1, got {n!r}")
+    if isinstance(degree, bool) or not isinstance(degree, (int, np.integer)) or degree < 0:
+        raise ConfigError(f"degree R must be an integer >= 0, got {degree!r}")
+
+
 def check_lpm_options(n: int, degree: int, n_in: int, n_out: int) -> int:
     """Validate the window half-width, degree and dimensions; return the dof q.
 
@@ -111,10 +119,7 @@ def check_lpm_options(n: int, degree: int, n_in: int, n_out: int) -> int:
     ConfigError
         If ``n < 1``, ``degree < 0`` or ``q = dof(n, R, n_in) <= n_out``.
     """
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-        raise ConfigError(f"n (window half-width) must be an integer >= 1, got {n!r}")
-    if isinstance(degree, bool) or not isinstance(degree, (int, np.integer)) or degree < 0:
-        raise ConfigError(f"degree R must be an integer >= 0, got {degree!r}")
+    check_window(n, degree)
     q = dof(n, degree, n_in)
     if q <= n_out:
         need = smallest_n(degree, n_in, n_out)

@@ -45,7 +45,9 @@ from .lifting import (
     unlift_frf,
     unlift_variance,
 )
-from .lpm import lpm_bins_last, warn_rank_deficient
+from .local import LocalFit, local_fit
+from .lpm import warn_rank_deficient
+from .lrm import DenominatorTerm
 from .results import LiftedFRF
 from .structured import structured_block
 from .threads import thread_map
@@ -53,7 +55,11 @@ from .threads import thread_map
 
 @dataclass(frozen=True)
 class FitRequest:
-    """Checked input of a method: r, u, y (N, channels), F, LPM options and threads."""
+    """Checked input of a method: r, u, y (N, channels), F, LPM options and threads.
+
+    ``local``: the local model of the fits, "polynomial" (LPM) or "rational" (LRM),
+    :mod:`mr_ident.numerics.local`.
+    """
 
     r: FloatArray
     u: FloatArray
@@ -64,6 +70,7 @@ class FitRequest:
     dof: int
     keep_lifted: bool
     workers: int
+    local: str = "polynomial"
 
     @property
     def n_samples(self) -> int:
@@ -138,15 +145,17 @@ def _indirect_full(
 
 
 def _indirect_diag(
-    G: ComplexArray, Cv: ComplexArray, Ainv: ComplexArray, n_y: int
-) -> tuple[ComplexArray, FloatArray, FloatArray]:
+    fit: LocalFit, n_y: int
+) -> tuple[ComplexArray, FloatArray, FloatArray, FloatArray | None]:
     """:func:`_indirect_full` bins-last, keeping only the diagonals of the covariance factors.
 
-    G (n_y + n_u, n_u, K), Cv (n_y + n_u, n_y + n_u, K), Ainv (n_u, n_u, K) as
-    :func:`~mr_ident.numerics.lpm.lpm_bins_last` returns them. Returns P (n_y, n_u, K),
-    ``diag(E C_v E^H)`` (n_y, K) and ``diag(S^-T A^-1 conj(S^-1))`` (n_u, K): enough for
-    the standard deviation of every entry of P.
+    ``fit`` of [J; S]: G (n_y + n_u, n_u, K), C_v (n_y + n_u, n_y + n_u, K), A^-1 (n_u, n_u,
+    K). Returns P (n_y, n_u, K), ``diag(E C_v E^H)`` (n_y, K) and
+    ``diag(S^-T A^-1 conj(S^-1))`` (n_u, K): enough for the standard deviation of every
+    entry of P; and, for a rational fit, the denominator's share of it (n_y, n_u, K)
+    (:func:`_den_variance`), else None.
     """
+    G, Cv, Ainv = fit.G, fit.noise_cov, fit.inv_gram
     J, S = G[:n_y], G[n_y:]
     Sinv = batched.inv(S)
     P = batched.matmul(J, Sinv)
@@ -161,7 +170,28 @@ def _indirect_diag(
     col = batched.real_dot(
         batched.matmul(Sinv.transpose(1, 0, 2), Ainv), Sinv.transpose(1, 0, 2), axis=1
     )
-    return P, np.maximum(row, 0.0), np.maximum(col, 0.0)
+    extra = None if fit.den is None else _den_variance(_den_gain(fit.den, P, Sinv, n_y), fit.den)
+    return P, np.maximum(row, 0.0), np.maximum(col, 0.0), extra
+
+
+def _den_gain(den: DenominatorTerm, P: ComplexArray, Sinv: ComplexArray, n_y: int) -> ComplexArray:
+    """How the denominator's error moves P = J S^-1, bins last: g (n_y, n_u, R_d, K).
+
+    ``dG[o, j] = -sum_t C0[o, j, t] dd_t``, so ``dP = E dG S^-1 = -g dd`` with
+    ``g[a, b, t] = sum_{o, j} E[a, o] C0[o, j, t] S^-1[j, b]``, ``E = [I, -P]``.
+    """
+    C0 = den.gain
+    EC = C0[:n_y] - np.einsum("ack,cjtk->ajtk", P, C0[n_y:])
+    g: ComplexArray = np.einsum("ajtk,jbk->abtk", EC, Sinv)
+    return g
+
+
+def _den_variance(g: ComplexArray, den: DenominatorTerm) -> FloatArray:
+    """``E|g dd|^2 = Re sum_{t,s} g_t S_d[t, s] conj(g_s)`` per entry: g (..., R_d, K)."""
+    v: FloatArray = np.maximum(
+        np.einsum("...tk,tsk,...sk->...k", g, den.cov, np.conj(g)).real, 0.0
+    )
+    return v
 
 
 def _store_half(
@@ -199,50 +229,38 @@ def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
 
     step = block_bins(F, req.r.shape[1], max(ny, nu))
 
-    def block(b0: int) -> tuple[int, tuple[ComplexArray, ...] | None]:
+    def block(b0: int) -> tuple[int, int, tuple[ComplexArray, ...] | None]:
         """Lift, fit, indirect step and unlift one block of bins.
 
         Blocks bound the memory and run on threads; each writes only its own bins.
         """
         kb = range(b0, min(b0 + step, Kc + 1))
         window = range(kb.start - n, kb.stop + n)
-        G, Cv, Ainv, nb = lpm_bins_last(
+        fit = local_fit(
+            req.local,
             freq_lift_half(Rh, window, F, N),
             np.concatenate(
                 [freq_lift_half(Yh, window, F, N), freq_lift_half(Uh, window, F, N)], axis=1
             ),
             n,
             req.degree,
-            req.dof,
         )  # bins-last
-        P, rdiag, cdiag = _indirect_diag(G, Cv, Ainv, F * ny)
-        _store_half(
-            P_half,
-            var_half,
-            kb,
-            unlift_frf(P.transpose(2, 0, 1), F),
-            unlift_variance(rdiag.T, cdiag.T, F),
-            F,
-            N,
-        )
-        return nb, (tuple(a.transpose(2, 0, 1) for a in (G, Cv, Ainv)) if keep else None)
+        P, rdiag, cdiag, extra = _indirect_diag(fit, F * ny)
+        var = unlift_variance(rdiag.T, cdiag.T, F)
+        if extra is not None:  # the diagonal blocks, as for P
+            var = var + unlift_frf(extra.transpose(2, 0, 1), F).real
+        _store_half(P_half, var_half, kb, unlift_frf(P.transpose(2, 0, 1), F), var, F, N)
+        lifted = (fit.G, fit.noise_cov, fit.inv_gram)
+        kept = tuple(a.transpose(2, 0, 1) for a in lifted) if keep else None
+        return fit.n_bad, fit.dof, kept
 
     done = thread_map(block, range(0, Kc + 1, step), req.workers)
     warn_rank_deficient(sum(d[0] for d in done), Kc + 1, stacklevel=4)
     if not keep:
         return PlantFit(P_half, var_half)
-    G, Cv, Ainv = (np.concatenate([d[1][i] for d in done if d[1] is not None]) for i in range(3))
-    bins = np.arange(Kc + 1)
-    return PlantFit(
-        P_half,
-        var_half,
-        LiftedFRF(
-            bins, G[:, : F * ny], Cv[:, : F * ny, : F * ny], Ainv, "frequency", F, N, req.dof
-        ),
-        LiftedFRF(
-            bins, G[:, F * ny :], Cv[:, F * ny :, F * ny :], Ainv, "frequency", F, N, req.dof
-        ),
-    )
+    G, Cv, Ainv = (np.concatenate([d[2][i] for d in done if d[2] is not None]) for i in range(3))
+    q = done[0][1]
+    return PlantFit(P_half, var_half, *_lifted_maps(G, Cv, Ainv, F * ny, "frequency", req, q))
 
 
 def _time_lifted(req: FitRequest) -> PlantFit:
@@ -251,11 +269,11 @@ def _time_lifted(req: FitRequest) -> PlantFit:
     M, half, Kc = N // F, N // 2, N // F // 2
     Rt, Ut, Yt = (dft(time_lift(x, F), workers=req.workers) for x in (req.r, req.u, req.y))
     idx = np.arange(-n, Kc + n + 1) % M
-    G, Cv, Ainv, n_bad = lpm_bins_last(
-        Rt[idx], np.concatenate([Yt[idx], Ut[idx]], axis=1), n, req.degree, req.dof, req.workers
+    fit = local_fit(
+        req.local, Rt[idx], np.concatenate([Yt[idx], Ut[idx]], axis=1), n, req.degree, req.workers
     )
-    warn_rank_deficient(n_bad, Kc + 1, stacklevel=4)
-    G, Cv, Ainv = (a.transpose(2, 0, 1) for a in (G, Cv, Ainv))
+    warn_rank_deficient(fit.n_bad, Kc + 1, stacklevel=4)
+    G, Cv, Ainv = (a.transpose(2, 0, 1) for a in (fit.G, fit.noise_cov, fit.inv_gram))
     P, row, col = _indirect_full(G, Cv, Ainv, F * ny)
     # The lifted system is real: its FRF on bins 0..M//2 gives all M bins, and unlifting
     # those gives every high-rate bin k + l M.
@@ -263,19 +281,54 @@ def _time_lifted(req: FitRequest) -> PlantFit:
     P_half = (
         unlift_frf(full[0], F, domain="time").transpose(1, 0, 2, 3).reshape(N, ny, nu)[: half + 1]
     )
-    var_half = (
-        unlift_variance(full[1], full[2], F, domain="time")
-        .transpose(1, 0, 2, 3)
-        .reshape(N, ny, nu)
-    )
+    var = unlift_variance(full[1], full[2], F, domain="time")
+    if fit.den is not None:
+        var = var + _time_den_variance(fit.den, P, G[:, F * ny :], F * ny, F, M)
+    var_half = var.transpose(1, 0, 2, 3).reshape(N, ny, nu)[: half + 1]
     if not req.keep_lifted:
-        return PlantFit(P_half, var_half[: half + 1])
-    bins = np.arange(Kc + 1)
-    return PlantFit(
-        P_half,
-        var_half[: half + 1],
-        LiftedFRF(bins, G[:, : F * ny], Cv[:, : F * ny, : F * ny], Ainv, "time", F, N, req.dof),
-        LiftedFRF(bins, G[:, F * ny :], Cv[:, F * ny :, F * ny :], Ainv, "time", F, N, req.dof),
+        return PlantFit(P_half, var_half)
+    return PlantFit(P_half, var_half, *_lifted_maps(G, Cv, Ainv, F * ny, "time", req, fit.dof))
+
+
+def _time_den_variance(
+    den: DenominatorTerm, P: ComplexArray, S: ComplexArray, n_y: int, ratio: int, M: int
+) -> FloatArray:
+    """The denominator's variance of the time-lifted P_h: (M, F, n_y, n_u) as unlift_variance.
+
+    P (K, F n_y, F n_u) and S on the lifted bins 0..M//2; each coefficient's gain g_t
+    extended to all M bins by conjugate symmetry (with S_d conjugated there, which leaves
+    the variance real and mirrored) and unlifted like P.
+    """
+    Sinv = np.asarray(np.linalg.inv(S), dtype=np.complex128)
+    g = _den_gain(den, P.transpose(1, 2, 0), Sinv.transpose(1, 2, 0), n_y)
+    g_full = half_to_full(np.moveaxis(g, -1, 0), M)  # (M, F n_y, F n_u, R_d)
+    cov = half_to_full(np.moveaxis(den.cov, -1, 0), M)  # (M, R_d, R_d)
+    h = np.stack(
+        [unlift_frf(g_full[..., t], ratio, domain="time") for t in range(g.shape[2])], axis=-1
+    )  # (M, F, n_y, n_u, R_d)
+    v: FloatArray = np.maximum(np.einsum("mlabt,mts,mlabs->mlab", h, cov, np.conj(h)).real, 0.0)
+    return v
+
+
+def _lifted_maps(
+    G: ComplexArray,
+    Cv: ComplexArray,
+    Ainv: ComplexArray,
+    n_y: int,
+    domain: str,
+    req: FitRequest,
+    dof: int,
+) -> tuple[LiftedFRF, LiftedFRF]:
+    """The lifted J (the first ``n_y`` rows of G) and S, bins-first, on bins 0..K-1.
+
+    For a rational fit their covariance is the Kronecker part only (without the
+    denominator's term).
+    """
+    bins = np.arange(G.shape[0])
+    F, N = req.ratio, req.n_samples
+    return (
+        LiftedFRF(bins, G[:, :n_y], Cv[:, :n_y, :n_y], Ainv, domain, F, N, dof),
+        LiftedFRF(bins, G[:, n_y:], Cv[:, n_y:, n_y:], Ainv, domain, F, N, dof),
     )
 
 
@@ -293,16 +346,18 @@ def _structured(req: FitRequest) -> PlantFit:
         kb = range(b0, min(b0 + step, Kc + 1))
         window = range(kb.start - 2 * n, kb.stop + 2 * n)
         Rl, Yl, Ul = (freq_lift_half(X, window, F, N) for X in (Rh, Yh, Uh))
-        G, Cv, Ainv, n_bad = structured_block(Rl, Yl, Ul, F, n, req.degree)
-        P, rdiag, cdiag = _indirect_diag(G, Cv, Ainv, ny)  # bins ordered l * B + j
+        fit = structured_block(Rl, Yl, Ul, F, n, req.degree, req.local)
+        P, rdiag, cdiag, extra = _indirect_diag(fit, ny)  # bins ordered l * B + j
         B = len(kb)
         P = P.reshape(ny, nu, F, B).transpose(3, 2, 0, 1)
         var = (
             rdiag.reshape(ny, F, B).transpose(2, 1, 0)[:, :, :, None]
             * cdiag.reshape(nu, F, B).transpose(2, 1, 0)[:, :, None, :]
         )
+        if extra is not None:
+            var = var + extra.reshape(ny, nu, F, B).transpose(3, 2, 0, 1)
         _store_half(P_half, var_half, kb, P, var, F, N)
-        return n_bad
+        return fit.n_bad
 
     n_bad = sum(thread_map(block, range(0, Kc + 1, step), req.workers))
     warn_rank_deficient(n_bad, F * (Kc + 1), stacklevel=4)

@@ -194,6 +194,8 @@ class Identification:
     n_used : ndarray of int, shape (n_freq,), or None
         The LPM window half-width used at each plant frequency (chosen per bin with
         ``n="auto"``; constant otherwise; 0 for a method without a window).
+    local : str
+        The local model of the windows: ``"polynomial"`` (LPM) or ``"rational"`` (LRM).
     """
 
     plant: FRF
@@ -203,6 +205,7 @@ class Identification:
     fs_high: float
     ratio: int
     n_used: IntArray | None = None
+    local: str = "polynomial"
 
     def __post_init__(self) -> None:
         if self.pfg is not None and self.pfg.frequency.shape != self.plant.frequency.shape:

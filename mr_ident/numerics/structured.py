@@ -35,7 +35,8 @@ from __future__ import annotations
 import numpy as np
 
 from .arrays import ComplexArray
-from .lpm import dof, lpm_bins_last
+from .local import LocalFit, local_fit
+from .lrm import DenominatorTerm
 
 
 def instrument_degree(degree: int) -> int:
@@ -76,7 +77,8 @@ def structured_block(
     ratio: int,
     n: int,
     degree: int,
-) -> tuple[ComplexArray, ComplexArray, ComplexArray, int]:
+    local: str = "polynomial",
+) -> LocalFit:
     """Both stages on one block of B consecutive low-rate bins.
 
     Parameters
@@ -88,17 +90,18 @@ def structured_block(
     ratio, n, degree : int
         F, the window half-width (both stages) and the polynomial degree R (the second
         stage; the first uses :func:`instrument_degree`).
+    local : {"polynomial", "rational"}
+        The local model of both stages (:mod:`mr_ident.numerics.local`); a rational first
+        stage keeps the order R (its denominator follows the loop's modes).
 
     Returns
     -------
-    G : ndarray, shape (n_y + n_u, n_u, F * B)
-        ``[J'; S']`` of every alias, bins ordered ``l * B + j`` (alias l of bin k0 + j).
-    noise_cov : ndarray, shape (n_y + n_u, n_y + n_u, F * B)
-    inv_gram : ndarray, shape (n_u, n_u, F * B)
-    n_bad : int
-        Bins whose estimate is NaN: a rank-deficient regressor in either stage (a bin
-        without excitation gives a zero instrument, so its second-stage windows are
-        flagged rather than fed NaN).
+    LocalFit
+        The second stage: G ``[J'; S']`` (n_y + n_u, n_u, F * B) of every alias, bins
+        ordered ``l * B + j`` (alias l of bin k0 + j), its noise covariance and inverse
+        Gram matrix (and denominator term); ``n_bad`` counts the bins whose estimate is
+        NaN: a rank-deficient regressor in either stage (a bin without excitation gives a
+        zero instrument, so its second-stage windows are flagged rather than fed NaN).
 
     Raises
     ------
@@ -106,13 +109,11 @@ def structured_block(
         From the degrees-of-freedom rule (checked by the caller, via the method's options).
     """
     F = ratio
-    nr = R_lifted.shape[1] // F
     ny, nu = Y_lifted.shape[1] // F, U_lifted.shape[1] // F
     B = R_lifted.shape[0] - 4 * n
     # Stage 1: the lifted S on the block and n bins each side; the instrument there.
-    d1 = instrument_degree(degree)
-    S, _, _, _ = lpm_bins_last(R_lifted, U_lifted, n, d1, dof(n, d1, F * nr))
-    Z = instrument(S, R_lifted[n:-n])  # (B + 2n, F nu)
+    d1 = instrument_degree(degree) if local == "polynomial" else degree
+    Z = instrument(local_fit(local, R_lifted, U_lifted, n, d1).G, R_lifted[n:-n])  # (B+2n, F nu)
     # Stage 2: the F aliases one after another along the bins, one LPM for all; the
     # windows that straddle two aliases (2n per alias) are computed and dropped.
     W = B + 2 * n
@@ -121,8 +122,13 @@ def structured_block(
     Yc = Y_lifted[ext].reshape(W, F, ny).transpose(1, 0, 2)
     Uc = U_lifted[ext].reshape(W, F, nu).transpose(1, 0, 2)
     Oc = np.concatenate([Yc, Uc], axis=2).reshape(F * W, ny + nu)
-    G, Cv, Ainv, _ = lpm_bins_last(Zc, Oc, n, degree, dof(n, degree, nu))
+    fit = local_fit(local, Zc, Oc, n, degree)
     keep = (np.arange(F)[:, None] * W + np.arange(B)[None, :]).ravel()
-    G, Cv, Ainv = G[:, :, keep], Cv[:, :, keep], Ainv[:, :, keep]
+    G = fit.G[..., keep]
+    den = fit.den
+    if den is not None:
+        den = DenominatorTerm(den.gain[..., keep], den.cov[..., keep])
     bad = ~np.isfinite(G).all(axis=(0, 1))
-    return G, Cv, Ainv, int(bad.sum())
+    return LocalFit(
+        G, fit.noise_cov[..., keep], fit.inv_gram[..., keep], int(bad.sum()), fit.dof, den
+    )

@@ -1,0 +1,87 @@
+"""The local model of every LPM method, one call: polynomial (the LPM) or rational (the LRM).
+
+``polynomial`` (:mod:`mr_ident.numerics.lpm`, the default) fits G and the transient as
+polynomials of degree R in each window; ``rational`` (:mod:`mr_ident.numerics.lrm`) adds a
+common denominator of order R, for lightly damped modes with few bins across their
+half-power band. The methods (:mod:`mr_ident.numerics.methods`,
+:mod:`mr_ident.numerics.structured`) call :func:`local_fit` and never the engines.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..errors import ConfigError
+from . import lpm, lrm
+from .arrays import ComplexArray
+from .catalog import LOCAL_MODELS
+from .lrm import DenominatorTerm
+
+
+def check_local(local: object) -> str:
+    """``local`` if it names a local model; ConfigError naming the choices otherwise."""
+    if local not in LOCAL_MODELS:
+        raise ConfigError(f"local must be one of {', '.join(LOCAL_MODELS)}; got {local!r}")
+    return str(local)
+
+
+def check_options(local: str, n: int, degree: int, n_in: int, n_out: int) -> int:
+    """Validate window and orders for ``n_in`` inputs and ``n_out`` outputs per map; the dof.
+
+    The rational check counts the denominator against the ``n_out`` outputs of one map
+    (the fits hold at least those, so their own q is no smaller).
+    """
+    if check_local(local) == "rational":  # its rule is the stricter one
+        return lrm.check_lrm_options(n, degree, n_in, n_out, n_out)
+    return lpm.check_lpm_options(n, degree, n_in, n_out)
+
+
+def smallest_n(local: str, degree: int, n_in: int, n_out: int, margin: int = 0) -> int:
+    """The smallest n whose dof exceed ``n_out + margin`` (see :func:`check_options`)."""
+    if check_local(local) == "rational":
+        return lrm.smallest_n(degree, n_in, n_out, n_out, margin)
+    return lpm.smallest_n(degree, n_in, n_out, margin)
+
+
+@dataclass(frozen=True)
+class LocalFit:
+    """A local fit at K centre bins, bins last.
+
+    Attributes
+    ----------
+    G : ndarray, shape (n_out, n_in, K), complex128
+    noise_cov : ndarray, shape (n_out, n_out, K), complex128
+    inv_gram : ndarray, shape (n_in, n_in, K), complex128
+        ``Cov(G[a, b], G[a2, b2]) = noise_cov[a, a2] inv_gram[b, b2]`` (+ ``den``).
+    n_bad : int
+        Bins with a rank-deficient regressor (NaN there).
+    dof : int
+        Residual degrees of freedom q of ``noise_cov``.
+    den : DenominatorTerm or None
+        The rational model's denominator term of the covariance; None for polynomial.
+    """
+
+    G: ComplexArray
+    noise_cov: ComplexArray
+    inv_gram: ComplexArray
+    n_bad: int
+    dof: int
+    den: DenominatorTerm | None = None
+
+
+def local_fit(
+    local: str, U: ComplexArray, Y: ComplexArray, n: int, degree: int, workers: int = 1
+) -> LocalFit:
+    """Fit ``local`` at every centre bin of padded spectra U (K+2n, n_in), Y (K+2n, n_out).
+
+    Options are checked by the caller (:func:`check_options`); every output of Y is
+    fitted in one pass (for ``rational``: with one denominator).
+    """
+    n_in, n_out = U.shape[1], Y.shape[1]
+    if local == "rational":
+        q = lrm.dof(n, degree, n_in, n_out)
+        G, Cv, Ainv, n_bad, den = lrm.lrm_bins_last(U, Y, n, degree, q, workers)
+        return LocalFit(G, Cv, Ainv, n_bad, q, den)
+    q = lpm.dof(n, degree, n_in)
+    G, Cv, Ainv, n_bad = lpm.lpm_bins_last(U, Y, n, degree, q, workers)
+    return LocalFit(G, Cv, Ainv, n_bad, q)
