@@ -7,3 +7,7 @@ against :data:`~mr_ident.numerics.methods.METHODS` by the tests.
 
 #: The identification methods, in the README's order.
 METHOD_NAMES: tuple[str, ...] = ("freq-lifted", "time-lifted", "lpm", "structured", "etfe")
+
+#: The message forms ``mr-ident excite --publish`` streams (``--as``; README, "Excitation
+#: design"): the block contract, a JointState position, a forward_command_controller command.
+EXCITATION_FORMS: tuple[str, ...] = ("block", "jointstate", "float64multiarray")
