@@ -68,6 +68,26 @@ class BLA:
     periods: int
     realizations: int
 
+    @property
+    def odd_db(self) -> FloatArray:
+        """The odd distortion level in dB above the noise on those lines, shape (n_y,).
+
+        ``10 log10((odd_level + noise) / noise)``, as :func:`distortion_by_band` counts
+        (0 dB: noise only); nan without unexcited odd lines or a noise estimate.
+        """
+        return _above_noise_db(self.odd_level, self.noise_level)
+
+    @property
+    def even_db(self) -> FloatArray:
+        """The even distortion level in dB above the noise, as :attr:`odd_db`."""
+        return _above_noise_db(self.even_level, self.noise_level)
+
+
+def _above_noise_db(level: FloatArray, noise: FloatArray) -> FloatArray:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out: FloatArray = 10.0 * np.log10((level + noise) / noise)
+    return out
+
 
 def _periods(x: FloatArray, period: int, name: str) -> ComplexArray:
     """(M, P, N//2+1) spectra of every period of x (M, P·N)."""
