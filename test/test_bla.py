@@ -62,7 +62,12 @@ def test_a_square_term_shows_as_even_distortion_only():
 
 def test_the_multirate_closed_loop_bla_is_the_plant():
     """The paper's loop (F = 3, noise-free) played a lifted odd design: y = P_h u at every
-    excited line, the BLA equals P_h to 1e-8 and no line shows distortion."""
+    excited line, the BLA equals P_h to 1e-8. With a little output noise no line shows
+    distortion when the excited lines' lifted aliases are left out of the unexcited ones
+    (ratio=3: the even lines within 3 dB of the noise; an odd design leaves no odd one);
+    taken as detection lines they carry the loop's folded linear response (ratio=1: odd
+    lines > 40 dB above the noise, which an earlier version reported as nonlinear
+    distortion of a linear loop)."""
     from mr_ident.io.modelfile import load_model
     from mr_ident.numerics.excitation import SimSource
 
@@ -78,6 +83,15 @@ def test_the_multirate_closed_loop_bla_is_the_plant():
     b = best_linear_approximation(r, u, y, 2400, ms.lines[0])
     P = model.plant_discrete().freqresp(b.lines * 240.0 / 2400)[:, 0, 0]
     assert np.max(np.abs(b.response / P - 1)) < 1e-8
+    rng = np.random.default_rng(1)
+    y_noisy = y + 1e-9 * rng.standard_normal(y.shape)
+    right = best_linear_approximation(r, u, y_noisy, 2400, ms.lines[0], ratio=3)
+    # an odd design: no odd line is left unexcited (nan), the even ones are noise only
+    assert np.isnan(right.odd_db[0]) and abs(right.even_db[0]) < 3, (right.odd_db, right.even_db)
+    for band in distortion_by_band(r, y_noisy, 2400, 240.0, ratio=3):
+        assert not abs(band.odd_db) >= 6 and abs(band.even_db) < 6, band  # nan or small
+    wrong = best_linear_approximation(r, u, y_noisy, 2400, ms.lines[0], ratio=1)
+    assert wrong.odd_db[0] > 40
 
 
 def test_bad_shapes_and_too_little_data_are_refused():

@@ -102,7 +102,7 @@ def identify_periodic(args: argparse.Namespace) -> int:
             f"{r.shape[1] // N} period(s) per realization, {args.transient_periods} dropped "
             "as transient (--transient-periods): nothing left"
         )
-    bla = best_linear_approximation(r[:, skip:], u[:, skip:], y[:, skip:], N)
+    bla = best_linear_approximation(r[:, skip:], u[:, skip:], y[:, skip:], N, ratio=F)
     write_bla(args.out, bla, fs_high=fs, ratio=F, period=N)
     if bla.realizations > 1 and bla.periods > 1:
         ratio = float(np.median(bla.nl_std) / np.median(bla.noise_std))
@@ -113,7 +113,7 @@ def identify_periodic(args: argparse.Namespace) -> int:
         f"wrote {args.out} (BLA on {bla.lines.size} lines, {bla.realizations} realization(s) "
         f"x {bla.periods} period(s); {parts})"
     )
-    bands = distortion_by_band(r[:, skip:], y[:, skip:], N, fs) if bla.periods > 1 else []
+    bands = distortion_by_band(r[:, skip:], y[:, skip:], N, fs, ratio=F) if bla.periods > 1 else []
     if bands:  # the distortion at the unexcited lines, per band
         print("band (Hz)        excited  odd lines  even lines   (dB above the noise)")
         for b in bands:

@@ -9,7 +9,7 @@ import scipy.ndimage
 import scipy.stats
 
 from ..numerics.arrays import FloatArray, IntArray
-from ..numerics.bla import excited_lines
+from ..numerics.bla import excited_lines, unexcited_lines
 from ..numerics.model import Model
 from ..numerics.results import Identification
 from ..numerics.signals import LoopData
@@ -108,7 +108,7 @@ def distortion_floor(rec: LoopData, y: FloatArray) -> FloatArray:
     Y = np.fft.rfft(y[Pn:].reshape(n_per, Pn, -1), axis=1, norm="ortho")  # (P, L, n_y)
     Ym = Y.mean(axis=0)
     var_mean = np.var(Y, axis=0, ddof=1) / n_per
-    quiet = np.setdiff1d(np.arange(1, Ym.shape[0]), excited_lines(R[None]))
+    quiet = unexcited_lines(excited_lines(R[None]), Pn, rec.ratio or 1)
     excess = np.maximum(np.abs(Ym[quiet]) ** 2 - var_mean[quiet], 0.0)  # (Q, n_y)
     D = parity_level(quiet, excess, Ym.shape[0])
     b = np.arange(0, n_bins, n_per)
