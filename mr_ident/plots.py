@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -15,6 +15,9 @@ from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
 from .numerics.results import FRF, PFG
+
+if TYPE_CHECKING:
+    from .numerics.bla import BLA, BandLevels
 
 
 def _save(fig: Figure, path: str | Path) -> Path:
@@ -172,3 +175,86 @@ def plot_windows(
     ax.legend(fontsize=8)
     fig.tight_layout()
     return _save(fig, path)
+
+
+def bla_figure(
+    frequency: NDArray,
+    bla: BLA,
+    *,
+    bands: Sequence[BandLevels] = (),
+    model: FRF | None = None,
+    title: str | None = None,
+) -> Figure:
+    """The best linear approximation with its noise and nonlinear parts, per line.
+
+    Magnitude (dB) of the BLA with its ±2σ band and, per excited line, the total std and
+    its parts from the noise and from the stochastic nonlinear distortion (σ² = σ_n² +
+    σ_NL²), as in Pintelon and Schoukens (2012, fig. 3-6); the phase; the odd and even
+    distortion at the unexcited lines in dB above the noise (the BLA's overall levels over
+    the magnitude, and per band when ``bands`` are given). ``model``: a reference drawn dashed.
+    """
+    f, g = np.asarray(frequency, float), bla.response
+    rows = 3 if bands else 2
+    fig = Figure(figsize=(7.5, 2.9 * rows + 0.6))
+    axes = fig.subplots(rows, 1, sharex=True, squeeze=False)[:, 0]
+    am, ap = axes[0], axes[1]
+    am.semilogx(f, _db(g), lw=1.0, color="C0", label="BLA")
+    if np.isfinite(bla.std).any():
+        lo = np.maximum(np.abs(g) - 2 * bla.std, np.abs(g) * 1e-3)
+        am.fill_between(f, _db(lo), _db(np.abs(g) + 2 * bla.std), color="C0", alpha=0.2, lw=0)
+    odd, even = float(bla.odd_db[0]), float(bla.even_db[0])
+    parts = (
+        (bla.std, "C7", "σ total"),
+        (bla.noise_std, "C2", "σ noise"),
+        (bla.nl_std, "C3", "σ nonlinear"),
+    )
+    for s, c, label in parts:
+        if np.isfinite(s).any():
+            am.semilogx(f, _db(s), ls="none", marker=".", ms=3, color=c, label=label)
+    ap.semilogx(f, np.degrees(np.angle(g)), lw=1.0, color="C0")
+    if model is not None:
+        am.semilogx(model.frequency, _db(model.response[:, 0, 0]), "k--", lw=1, label="model")
+        ap.semilogx(model.frequency, np.degrees(np.angle(model.response[:, 0, 0])), "k--", lw=1)
+    am.set_ylabel("|G| [dB]")
+    am.set_title(
+        f"distortion at the unexcited lines: odd {odd:.1f} dB, even {even:.1f} dB above the noise",
+        fontsize=8,
+    )
+    ap.set_ylabel("phase [deg]")
+    ap.set_yticks([-180, -90, 0, 90, 180])
+    am.legend(fontsize=7, loc="best")
+    if bands:
+        ad = axes[2]
+        edges = [b.band[0] for b in bands] + [bands[-1].band[1]]
+        for key, c, label in (
+            ("excited_db", "C0", "excited lines"),
+            ("odd_db", "C3", "unexcited odd lines"),
+            ("even_db", "C1", "unexcited even lines"),
+        ):
+            v = [getattr(b, key) for b in bands]
+            ad.stairs(v, edges, color=c, lw=1.2, label=label, baseline=None)
+        ad.axhline(0.0, color="0.5", lw=0.8, ls=":")
+        ad.set_ylabel("dB above noise")
+        ad.legend(fontsize=7, loc="best")
+    for ax in axes:
+        ax.grid(True, which="both", alpha=0.3)
+    axes[-1].set_xlabel("frequency [Hz]")
+    fig.suptitle(
+        title
+        or f"Best linear approximation ({bla.realizations} realization(s) x {bla.periods} periods)"
+    )
+    fig.tight_layout()
+    return fig
+
+
+def plot_bla(
+    frequency: NDArray,
+    bla: BLA,
+    path: str | Path,
+    *,
+    bands: Sequence[BandLevels] = (),
+    model: FRF | None = None,
+    title: str | None = None,
+) -> Path:
+    """:func:`bla_figure` saved to ``path``."""
+    return _save(bla_figure(frequency, bla, bands=bands, model=model, title=title), path)

@@ -95,7 +95,8 @@ def main(argv: list[str] | None = None) -> int:
     o = args.out_dir
     # the nonlinear distortion of the odd-odd Type B: its unexcited lines against the noise
     period = str(int(b["nrofs"]))
-    bla = ["identify", str(o / "typeB.npz"), "--period", period, "--out", str(o / "typeB_bla.npz")]
+    bla = ["identify", str(o / "typeB.npz"), "--period", period, "--out", str(o / "typeB_bla.npz"),
+           "--plot", str(o / "typeB_bla.png")]  # fmt: skip
     if cli(bla) != 0:
         return 2
     return cli(

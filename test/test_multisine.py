@@ -115,6 +115,20 @@ def test_the_command_writes_npz_and_csv(tmp_path, capsys):
     assert stop.value.code == 2 and "expected 0 <= LO < HI" in capsys.readouterr().err
 
 
+def test_the_command_says_what_a_publish_or_design_lacks(tmp_path, capsys):
+    """Nothing to do, a design file with design options beside it, no design at all: each an
+    error naming the options (exit 2), before any ROS code runs."""
+    argv = ["excite", "--fs-high", "240", "--band", "1,100", "--period", "2400"]
+    assert main(argv) == 2
+    assert "needs --out FILE.npz|FILE.csv or --publish TOPIC" in capsys.readouterr().err
+    design_file = tmp_path / "d.npz"
+    assert main([*argv, "--out", str(design_file)]) == 0
+    assert main(["excite", "--design", str(design_file), "--band", "1,10", "--out", "x.npz"]) == 2
+    assert "--design FILE gives the design; --band not with it" in capsys.readouterr().err
+    assert main(["excite", "--period", "48", "--out", str(tmp_path / "x.npz")]) == 2
+    assert "excite needs --fs-high, --band to design" in capsys.readouterr().err
+
+
 def test_the_simulated_loop_plays_an_excitation_file(tmp_path):
     """`mr-ident-sim --excitation FILE.npz`: the file's realizations in turn, looped, are the
     r of the blocks, exactly; the loop's P_h from one period of the steady state equals the

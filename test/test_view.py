@@ -358,3 +358,64 @@ def test_an_identification_as_the_reference_is_drawn_with_its_std():
     assert est["model_label"] == "reference"
     assert est["model_re"][:2] == [2.0, 2.0] and est["model_re"][2] is None  # outside: none
     assert abs(est["sigma_error"][0] - 0.5 / 0.5) < 1e-12  # |2.5 - 2| / sqrt(0.4² + 0.3²)
+
+
+def test_a_bla_reference_brings_its_noise_and_nonlinear_std_to_the_state_and_the_page(tmp_path):
+    """`view --reference BLA.npz` (identify --period): the state carries the BLA's per-line
+    |G|, σ, σ_noise and σ_NL in dB and its odd and even distortion above the noise; the
+    page's script (run under node.js with a stub document and Plotly; skipped without node)
+    draws the σ curves beside the estimate, the BLA alone before the first estimate, and
+    the levels in the table."""
+    from mr_ident.numerics.bla import BLA
+    from mr_ident.view.state import ViewState
+
+    f = np.array([1.0, 3.0, 5.0])
+    bla = BLA(
+        np.array([1, 3, 5]),
+        np.array([1.0, 0.5j, -0.1]),
+        np.array([0.1, 0.05, 0.02]),
+        np.array([0.01, 0.01, 0.01]),
+        np.array([0.1, 0.05, np.nan]),
+        np.array([9.0]),
+        np.array([0.0]),
+        np.array([1.0]),
+        4,
+        6,
+    )
+    st = ViewState(reference_bla=(bla, f))
+    ref = st.snapshot()["reference_bla"]
+    assert ref["odd_db"] == 10.0 and ref["even_db"] == 0.0  # 10 log10((9 + 1) / 1)
+    assert ref["nl_std_db"][:2] == [-20.0, 20 * np.log10(0.05)] and ref["nl_std_db"][2] is None
+    assert ref["mag_db"][1] == 20 * np.log10(0.5) and (ref["realizations"], ref["periods"]) == (
+        6,
+        4,
+    )
+    assert ViewState().snapshot()["reference_bla"] is None
+    node = shutil.which("node")
+    if node is None:
+        pytest.skip("node.js is not installed: the page's script not run")
+    app = (ROOT / "mr_ident" / "view" / "page" / "app.js").read_text()
+    before = dict(st.snapshot())
+    st.set_estimate(f, np.full((3, 1, 1), 1.0 + 0j), np.full((3, 1, 1), 0.1))
+    harness = tmp_path / "run.js"
+    harness.write_text(
+        "const drawn = {}, els = {};\n"
+        "global.document = { getElementById: (id) => els[id] || (els[id] = { style: {} }) };\n"
+        "global.Plotly = { react: (id, traces) => { drawn[id] = traces; } };\n"
+        "global.performance = { now: () => 0 };\n"
+        "global.EventSource = class { addEventListener() {} };\n"
+        + app
+        + "\nconst out = {};\n"
+        + f"draw({json.dumps(before)}); out.alone = drawn.mag.map((t) => t.name);\n"
+        + f"draw({json.dumps(st.snapshot())}); out.with = drawn.mag.map((t) => t.name);\n"
+        + "out.nl = drawn.mag.find((t) => t.name === 'reference σ nonlinear').y;\n"
+        + "out.table = els.health.innerHTML;\n"
+        + "console.log(JSON.stringify(out));\n"
+    )
+    run = subprocess.run([node, str(harness)], capture_output=True, text=True, timeout=30)
+    assert run.returncode == 0, run.stderr
+    out = json.loads(run.stdout)
+    assert out["alone"] == ["reference BLA", "reference σ noise", "reference σ nonlinear"]
+    assert "reference σ noise" in out["with"] and "P̂_h" in out["with"]
+    assert out["nl"] == ref["nl_std_db"]
+    assert "odd lines 10.000, even lines 0.000" in out["table"]

@@ -1,6 +1,7 @@
 """Command line: ``mr-ident simulate | identify | paper | diagnose | replay | record | demo``.
 
-``record``, ``replay --publish`` and ``demo`` need rclpy (imported only for them).
+``record``, ``replay --publish``, ``excite --publish`` and ``demo`` need rclpy (imported
+only for them).
 
 User errors print ``error: ...`` to stderr and exit with status 2, never a traceback.
 """
@@ -19,9 +20,11 @@ __all__ = ["build_parser", "main"]
 
 
 def _ros_program(argv: Sequence[str]) -> bool:
-    """Whether the command line runs a ROS program (record, demo, replay --publish)."""
+    """Whether the command line runs a ROS program (record, demo, replay/excite --publish)."""
     command = next((a for a in argv if not a.startswith("-")), None)
-    return command in ("record", "demo") or (command == "replay" and "--publish" in argv)
+    return command in ("record", "demo") or (
+        command in ("replay", "excite") and "--publish" in argv
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -124,14 +124,17 @@ def cmd_view(args: argparse.Namespace) -> int:
     if args.speed < 0:
         raise ConfigError(f"--speed must be >= 0, got {args.speed:g}")
     source = f"bag {args.bag}" if args.bag else f"node /{args.node.strip('/')}"
-    reference = None
+    reference, reference_bla = None, None
     if args.reference is not None:
         from ..io.datafile import read_result
+        from ..io.periodicfile import read_bla
 
         if model is not None:
             raise ConfigError("give --model or --reference, not both")
         reference = read_result(args.reference)
-    server = ViewServer(ViewState(model, source, reference), args.host, args.port).start()
+        reference_bla = read_bla(args.reference)  # a BLA: its noise and nonlinear parts too
+    state = ViewState(model, source, reference, reference_bla)
+    server = ViewServer(state, args.host, args.port).start()
     print(f"view: {server.url}  (Ctrl-C to stop)", flush=True)
     try:
         if args.bag is None:

@@ -87,7 +87,6 @@ def identify_periodic(args: argparse.Namespace) -> int:
 
     from ..io.periodicfile import read_realizations, write_bla
     from ..numerics.bla import best_linear_approximation, distortion_by_band
-    from ..numerics.results import FRF
 
     r, u, y, fs, F = read_realizations(args.data)
     fs = args.fs_high or fs
@@ -104,7 +103,7 @@ def identify_periodic(args: argparse.Namespace) -> int:
             f"{r.shape[1] // N} period(s) per realization, {args.transient_periods} dropped "
             "as transient (--transient-periods): nothing left"
         )
-    bla = best_linear_approximation(r[:, skip:], u[:, skip:], y[:, skip:], N)
+    bla = best_linear_approximation(r[:, skip:], u[:, skip:], y[:, skip:], N, ratio=F)
     write_bla(args.out, bla, fs_high=fs, ratio=F, period=N)
     if bla.realizations > 1 and bla.periods > 1:
         ratio = float(np.median(bla.nl_std) / np.median(bla.noise_std))
@@ -115,19 +114,18 @@ def identify_periodic(args: argparse.Namespace) -> int:
         f"wrote {args.out} (BLA on {bla.lines.size} lines, {bla.realizations} realization(s) "
         f"x {bla.periods} period(s); {parts})"
     )
-    if bla.periods > 1:  # the distortion at the unexcited lines, per band
+    bands = distortion_by_band(r[:, skip:], y[:, skip:], N, fs, ratio=F) if bla.periods > 1 else []
+    if bands:  # the distortion at the unexcited lines, per band
         print("band (Hz)        excited  odd lines  even lines   (dB above the noise)")
-        for b in distortion_by_band(r[:, skip:], y[:, skip:], N, fs):
+        for b in bands:
             print(
                 f"{b.band[0]:7.3g}-{b.band[1]:<7.3g}  {b.excited_db:7.1f}  {b.odd_db:9.1f}  "
                 f"{b.even_db:10.1f}"
             )
     if args.plot:
-        from ..plots import plot_bode
+        from ..plots import plot_bla
 
-        f = bla.lines * fs / N
-        frf = FRF(f, bla.response[:, None, None], bla.std[:, None, None], "bla")
-        print(f"wrote {plot_bode(frf, args.plot)}")
+        print(f"wrote {plot_bla(bla.lines * fs / N, bla, args.plot, bands=bands)}")
     return 0
 
 

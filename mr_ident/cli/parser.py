@@ -3,78 +3,15 @@
 from __future__ import annotations
 
 import argparse
-import math
 import sys
-from collections.abc import Callable
 from pathlib import Path
 
 from ..live.spans import DEFAULT_SPAN, SPANS
 from ..numerics.catalog import LOCAL_MODELS, METHOD_NAMES
+from .argtypes import frequencies, int_at_least, positive_float, window_n
+from .excite import add_excite_parser
 
 EXIT_USAGE = 2
-
-
-def _positive_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(v) or v <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return v
-
-
-def _int_at_least(low: int) -> Callable[[str], int]:
-    def parse(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if v < low:
-            raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {v}")
-        return v
-
-    return parse
-
-
-def _window_n(text: str) -> int | str:
-    """``--n``: "auto" or an integer >= 1."""
-    if text.strip().lower() == "auto":
-        return "auto"
-    try:
-        v = int(text)
-    except ValueError:
-        v = 0
-    if v < 1:
-        raise argparse.ArgumentTypeError(f'expected "auto" or an integer >= 1, got {text!r}')
-    return v
-
-
-def _band(text: str) -> tuple[float, float]:
-    """``LO,HI`` in Hz."""
-    parts = text.split(",")
-    try:
-        lo, hi = (float(x) for x in parts)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected LO,HI in Hz, got {text!r}") from None
-    if not (math.isfinite(lo) and math.isfinite(hi) and 0 <= lo < hi):
-        raise argparse.ArgumentTypeError(f"expected 0 <= LO < HI, got {text!r}")
-    return lo, hi
-
-
-def _frequencies(text: str) -> tuple[float, ...]:
-    out = []
-    for part in text.split(","):
-        try:
-            f = float(part)
-        except ValueError:
-            raise argparse.ArgumentTypeError(
-                f"expected frequencies in Hz separated by commas, got {text!r}"
-            ) from None
-        if not math.isfinite(f) or f <= 0:
-            raise argparse.ArgumentTypeError(f"frequencies must be positive, got {part!r}")
-        out.append(f)
-    return tuple(out)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -120,13 +57,13 @@ def _lpm_options(p: argparse.ArgumentParser) -> None:
     """--n and --degree: the LPM's window half-width and polynomial degree."""
     p.add_argument(
         "--n",
-        type=_window_n,
+        type=window_n,
         default="auto",
         help="LPM window half-width: auto (default: chosen per frequency from candidates "
         "8, 12, 18, 27 by least estimated mean-squared error) or an integer",
     )
     p.add_argument(
-        "--degree", type=_int_at_least(0), default=2, help="LPM polynomial degree R (default 2)"
+        "--degree", type=int_at_least(0), default=2, help="LPM polynomial degree R (default 2)"
     )
 
 
@@ -152,7 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("model", type=Path, help="model YAML")
     s.add_argument(
         "--duration",
-        type=_positive_float,
+        type=positive_float,
         required=True,
         help="seconds (rounded to whole low-rate periods)",
     )
@@ -167,10 +104,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     i.add_argument(
         "--fs-high",
-        type=_positive_float,
+        type=positive_float,
         help="high sample rate in Hz (else from the file or model)",
     )
-    i.add_argument("--ratio", type=_int_at_least(1), help="F (else from the file or model)")
+    i.add_argument("--ratio", type=int_at_least(1), help="F (else from the file or model)")
     i.add_argument(
         "--model",
         type=Path,
@@ -187,19 +124,19 @@ def build_parser() -> argparse.ArgumentParser:
     )
     i.add_argument(
         "--period",
-        type=_int_at_least(4),
+        type=int_at_least(4),
         help="periodic data (an NPZ with r, u, y of shape (M realizations, n)): the best "
         "linear approximation with its noise and nonlinear std",
     )
     i.add_argument(
         "--transient-periods",
-        type=_int_at_least(0),
+        type=int_at_least(0),
         default=1,
         help="with --period: leading periods dropped as transient (default 1)",
     )
 
     q = sub.add_parser("paper", help="the paper's example end to end: figures and an error table")
-    q.add_argument("--duration", type=_positive_float, default=600.0, help="seconds (default 600)")
+    q.add_argument("--duration", type=positive_float, default=600.0, help="seconds (default 600)")
     q.add_argument(
         "--model", type=Path, default=None, help="model YAML (default: config/paper_example.yaml)"
     )
@@ -235,20 +172,20 @@ def build_parser() -> argparse.ArgumentParser:
     )
     rp.add_argument(
         "--stop",
-        type=_int_at_least(1),
+        type=int_at_least(1),
         help="use the window ending at or before this sample index",
     )
     _sources(rp)
     _reading(rp, default_span="latest")
     rp.add_argument(
         "--fs-high",
-        type=_positive_float,
+        type=positive_float,
         help="with --r/--u/--y: high rate in Hz (default: "
         "from --params, else read off the stamps)",
     )
     rp.add_argument(
         "--ratio",
-        type=_int_at_least(1),
+        type=int_at_least(1),
         help="with --r/--u/--y: F (default: from --params, else from a .@hold source's stamps)",
     )
     rp.add_argument("--out", type=Path, help="result .npz (same form as identify)")
@@ -259,7 +196,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     rp.add_argument(
         "--rate",
-        type=_positive_float,
+        type=positive_float,
         default=1.0,
         help="with --publish: times real time (default 1)",
     )
@@ -267,7 +204,7 @@ def build_parser() -> argparse.ArgumentParser:
     rc = sub.add_parser("record", help="record topics to an MCAP file (rosbag2 form) until Ctrl-C")
     rc.add_argument("out", type=Path, help="MCAP file to write")
     rc.add_argument("topics", nargs="*", help="topics (default: reference input output)")
-    rc.add_argument("--duration", type=_positive_float, help="stop after this many seconds")
+    rc.add_argument("--duration", type=positive_float, help="stop after this many seconds")
 
     g = sub.add_parser(
         "diagnose", help="where and why a model disagrees with measured data; extended model"
@@ -290,7 +227,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--out-model", type=Path, help="extended model YAML")
     g.add_argument(
         "--period",
-        type=_int_at_least(2),
+        type=int_at_least(2),
         help="samples per period of a periodic excitation (noise from the periods; "
         "first period dropped)",
     )
@@ -306,7 +243,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     g.add_argument(
         "--max-causes",
-        type=_int_at_least(1),
+        type=int_at_least(1),
         default=3,
         help="most causes applied in turn (default 3)",
     )
@@ -331,16 +268,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     b.add_argument(
         "--at",
-        type=_frequencies,
+        type=frequencies,
         help="frequencies (Hz, comma-separated) of the table's P_h columns (default: six, "
         "log-spaced from fs_low/100 to 0.4 fs_high)",
     )
-    b.add_argument("--fs-high", type=_positive_float, help="high sample rate in Hz")
-    b.add_argument("--ratio", type=_int_at_least(1), help="F")
+    b.add_argument("--fs-high", type=positive_float, help="high sample rate in Hz")
+    b.add_argument("--ratio", type=int_at_least(1), help="F")
     b.add_argument("--method", choices=METHOD_NAMES, default="freq-lifted")
     _lpm_options(b)
     _local_option(b)
-    b.add_argument("--period", type=_int_at_least(2), help="diagnose: samples per period")
+    b.add_argument("--period", type=int_at_least(2), help="diagnose: samples per period")
     b.add_argument(
         "--topics", nargs=3, metavar=("R", "U", "Y"), help="block-contract topics of r, u, y"
     )
@@ -348,7 +285,7 @@ def build_parser() -> argparse.ArgumentParser:
     _reading(b)
     b.add_argument(
         "--workers",
-        type=_int_at_least(1),
+        type=int_at_least(1),
         help="worker processes of the local pool (default: one per CPU, at most one per file)",
     )
     b.add_argument(
@@ -367,7 +304,7 @@ def build_parser() -> argparse.ArgumentParser:
         nargs="?",
         help="replay this bag's estimates instead of listening to a running node",
     )
-    v.add_argument("--port", type=_int_at_least(0), default=8765, help="HTTP port (default 8765)")
+    v.add_argument("--port", type=int_at_least(0), default=8765, help="HTTP port (default 8765)")
     v.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
     v.add_argument("--model", type=Path, help="model YAML: its P_h and the sigma-error are shown")
     v.add_argument(
@@ -378,7 +315,7 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--node", default="mr_ident", help="the node's name (default mr_ident)")
     v.add_argument(
         "--wait",
-        type=_positive_float,
+        type=positive_float,
         default=10.0,
         help="seconds to wait for the node to appear (default 10)",
     )
@@ -388,8 +325,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _sources(v)
     _reading(v)
-    v.add_argument("--fs-high", type=_positive_float, help="bag: high sample rate in Hz")
-    v.add_argument("--ratio", type=_int_at_least(1), help="bag: F")
+    v.add_argument("--fs-high", type=positive_float, help="bag: high sample rate in Hz")
+    v.add_argument("--ratio", type=int_at_least(1), help="bag: F")
     v.add_argument(
         "--speed",
         type=float,
@@ -397,45 +334,18 @@ def build_parser() -> argparse.ArgumentParser:
         help="bag: loop time per wall time (default 1: as live; 0: as fast as possible)",
     )
 
-    x = sub.add_parser("excite", help="design a multisine excitation (NPZ or CSV)")
-    x.add_argument("--fs-high", type=_positive_float, required=True, help="sample rate in Hz")
-    x.add_argument("--band", type=_band, required=True, help="LO,HI: the excited band in Hz")
-    x.add_argument("--period", type=_int_at_least(4), required=True, help="samples per period")
-    x.add_argument("--periods", type=_int_at_least(1), default=1, help="P periods (default 1)")
-    x.add_argument(
-        "--realizations", type=_int_at_least(1), default=1, help="M random-phase realizations"
-    )
-    x.add_argument(
-        "--kind",
-        choices=("full", "odd", "odd-random"),
-        default="odd-random",
-        help="lines: every one in the band, the odd ones, or odd with one detection line "
-        "left out at random per group of 3 (default)",
-    )
-    x.add_argument("--rms", type=_positive_float, default=1.0, help="RMS of each input (1)")
-    x.add_argument("--inputs", type=_int_at_least(1), default=1, help="orthogonal inputs (1)")
-    x.add_argument("--ratio", type=_int_at_least(1), default=1, help="F (for --lifted)")
-    x.add_argument(
-        "--lifted",
-        action="store_true",
-        help="keep only lines whose F lifted aliases do not collide (needs --ratio)",
-    )
-    x.add_argument(
-        "--slope", type=float, default=0.0, help="amplitude slope in dB/decade (0: flat)"
-    )
-    x.add_argument("--seed", type=int, default=0, help="random phases' seed")
-    x.add_argument("--out", type=Path, required=True, help="FILE.npz or FILE.csv")
+    add_excite_parser(sub)
 
     d = sub.add_parser(
         "demo", help="live demo: simulated loop + node over DDS, recording, replay, plots"
     )
     d.add_argument("--out-dir", type=Path, default=Path("out/demo"))
     d.add_argument(
-        "--rate", type=_positive_float, default=20.0, help="simulation speed-up (default 20)"
+        "--rate", type=positive_float, default=20.0, help="simulation speed-up (default 20)"
     )
     d.add_argument(
         "--timeout",
-        type=_positive_float,
+        type=positive_float,
         default=120.0,
         help="give up after this many s (default 120)",
     )

@@ -146,11 +146,19 @@ class Diagnosis:
 
     @property
     def nonlinear(self) -> bool:
-        """Nonlinear distortion stands out of the noise (periodic data: :func:`distortion`)."""
+        """Nonlinear distortion stands out of the noise (periodic data: :func:`distortion`).
+
+        A band's odd or even level counts above :data:`NL_THRESHOLD_DB` and above what noise
+        alone reaches on as few lines with probability 1e-3 (its ``*_threshold_db``).
+        """
         return any(
-            max(b.odd_db, b.even_db) > NL_THRESHOLD_DB
+            level > max(NL_THRESHOLD_DB, threshold if np.isfinite(threshold) else -np.inf)
             for b in self.distortion
-            if np.isfinite(b.odd_db) or np.isfinite(b.even_db)
+            for level, threshold in (
+                (b.odd_db, b.odd_threshold_db),
+                (b.even_db, b.even_threshold_db),
+            )
+            if np.isfinite(level)
         )
 
     def distortion_text(self) -> str:
@@ -341,4 +349,6 @@ def distortion(rec: LoopData) -> list[BandLevels]:
         return []
     Pn, fs = rec.period, rec.rates()[0]
     n = (rec.n_samples // Pn - 1) * Pn  # whole periods after the first
-    return distortion_by_band(rec.r[Pn : Pn + n, 0], rec.y[Pn : Pn + n, 0], Pn, fs)
+    return distortion_by_band(
+        rec.r[Pn : Pn + n, 0], rec.y[Pn : Pn + n, 0], Pn, fs, ratio=rec.ratio or 1
+    )

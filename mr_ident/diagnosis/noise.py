@@ -8,8 +8,8 @@ import numpy as np
 import scipy.ndimage
 import scipy.stats
 
-from ..numerics.arrays import FloatArray
-from ..numerics.bla import excited_lines
+from ..numerics.arrays import FloatArray, IntArray
+from ..numerics.bla import excited_lines, unexcited_lines
 from ..numerics.model import Model
 from ..numerics.results import Identification
 from ..numerics.signals import LoopData
@@ -89,9 +89,11 @@ def distortion_floor(rec: LoopData, y: FloatArray) -> FloatArray:
     In a best linear approximation the stochastic nonlinear distortion acts as noise
     (Pintelon and Schoukens 2012, sec. 3.6), but it is periodic: the spread over periods
     does not see it. At the lines r does not excite it is measured directly, the power of
-    the period mean less its noise part; at every line it is the median of that over the
-    unexcited lines within 16 lines of it (0 with fewer than 4 there, as amid a fully
-    excited band, where it cannot be measured; noise alone gives a median of 0).
+    the period mean less its noise part; at every line it is taken from the unexcited
+    lines *of the same parity* nearby (:func:`parity_level`): with an odd design the
+    excited lines carry odd distortion, which the odd detection lines measure, and the
+    even lines, which only even distortion reaches, would say nothing about it. Amid a
+    fully excited band (no unexcited line of that parity near) it cannot be measured: 0.
     In the record's DFT (P periods, orthonormal) a periodic component lies on every P-th
     bin with P times its period-DFT power; elsewhere it adds nothing.
     """
@@ -106,21 +108,38 @@ def distortion_floor(rec: LoopData, y: FloatArray) -> FloatArray:
     Y = np.fft.rfft(y[Pn:].reshape(n_per, Pn, -1), axis=1, norm="ortho")  # (P, L, n_y)
     Ym = Y.mean(axis=0)
     var_mean = np.var(Y, axis=0, ddof=1) / n_per
-    quiet = np.setdiff1d(np.arange(1, Ym.shape[0]), excited_lines(R[None]))
-    if quiet.size == 0:
-        return out
+    quiet = unexcited_lines(excited_lines(R[None]), Pn, rec.ratio or 1)
     excess = np.maximum(np.abs(Ym[quiet]) ** 2 - var_mean[quiet], 0.0)  # (Q, n_y)
-    lines = np.arange(Ym.shape[0])
-    pos = np.clip(np.searchsorted(quiet, lines), 0, quiet.size)
-    # the unexcited lines among the 16 nearest each line (8 each side) within 16 lines of it;
-    # fewer than 4 there (a line amid a fully excited band): nothing measured, 0
-    idx = np.clip(pos[:, None] + np.arange(-8, 8)[None, :], 0, quiet.size - 1)
-    near = np.abs(quiet[idx] - lines[:, None]) <= 16  # (L, 16)
-    vals = np.where(near[:, :, None], excess[idx], np.nan)  # (L, 16, n_y)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-nan rows: no neighbour
-        D = np.nanmedian(vals, axis=1)
-    D = np.where((near.sum(axis=1) >= 4)[:, None] & np.isfinite(D), D, 0.0)  # (L, n_y)
+    D = parity_level(quiet, excess, Ym.shape[0])
     b = np.arange(0, n_bins, n_per)
     out[b] = n_per * D[: b.size]
     return out
+
+
+def parity_level(quiet: IntArray, excess: FloatArray, n_lines: int, near: int = 8) -> FloatArray:
+    """Distortion power at every line 0..n_lines-1 from the unexcited lines ``quiet``.
+
+    ``excess`` (Q, n_y): the power above the noise at each unexcited line. At line k: the
+    median of ``excess`` over the ``near`` unexcited lines of k's parity nearest to k (within
+    max(48, k/2) lines), divided by ln 2 (the power of a random-phase component at one
+    line is exponential: its median is ln 2 times its mean); fewer than 3 such lines: 0.
+    Noise alone gives 0 (the excess of an exponential over its mean is 0 at the median).
+    """
+    lines = np.arange(n_lines)
+    D = np.zeros((n_lines, excess.shape[1]))
+    for parity in (0, 1):  # odd lines from odd unexcited lines, even from even
+        q = quiet[quiet % 2 == parity]
+        at = lines[lines % 2 == parity]
+        if q.size == 0 or at.size == 0:
+            continue
+        pos = np.searchsorted(q, at)
+        idx = pos[:, None] + np.arange(-near // 2, near - near // 2)[None, :]  # (A, near)
+        ok = (idx >= 0) & (idx < q.size)
+        idx = np.clip(idx, 0, q.size - 1)
+        ok &= np.abs(q[idx] - at[:, None]) <= np.maximum(48, at[:, None] // 2)
+        vals = np.where(ok[:, :, None], excess[quiet % 2 == parity][idx], np.nan)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-nan rows: no neighbour
+            med = np.nanmedian(vals, axis=1) / np.log(2.0)
+        D[at] = np.where((ok.sum(axis=1) >= 3)[:, None] & np.isfinite(med), med, 0.0)
+    return D

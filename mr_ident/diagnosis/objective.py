@@ -92,6 +92,8 @@ class Objective:
         dst = np.arange(n_eff // 2 + 1) / n_eff
         S = np.column_stack([np.interp(dst, src, noise[:, j]) for j in range(noise.shape[1])])
         self.weight = 1.0 / np.sqrt(S)
+        if rec.period:  # a periodic r has no DC: y's is an offset, not the model's to explain
+            self.weight[0] = 0.0
         self.n_bins = int(self.weight.size)
 
     def _raw(self, model: Model) -> list[FloatArray] | None:

@@ -65,6 +65,8 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
                     "excited_db": _finite(b.excited_db),
                     "odd_db": _finite(b.odd_db),
                     "even_db": _finite(b.even_db),
+                    "odd_threshold_db": _finite(b.odd_threshold_db),
+                    "even_threshold_db": _finite(b.even_threshold_db),
                 }
                 for b in d.distortion
             ],

@@ -41,7 +41,8 @@ def write_bla(path: str | Path, bla: BLA, *, fs_high: float, ratio: int, period:
     """The BLA as a result NPZ that ``read_result`` takes.
 
     ``frequency``, ``P``, ``P_std``, with ``noise_std``, ``nl_std``, ``odd_level``,
-    ``even_level``, ``noise_level``, ``periods``, ``realizations`` beside.
+    ``even_level``, ``noise_level``, ``periods``, ``realizations``, ``lines`` and
+    ``period`` beside (:func:`read_bla` reads them back).
     """
     f = bla.lines * fs_high / period
     arrays: dict[str, Any] = {
@@ -55,8 +56,44 @@ def write_bla(path: str | Path, bla: BLA, *, fs_high: float, ratio: int, period:
         "noise_level": bla.noise_level,
         "periods": bla.periods,
         "realizations": bla.realizations,
+        "lines": bla.lines,
+        "period": int(period),
         "method": "bla",
         "fs_high": float(fs_high),
         "ratio": int(ratio),
     }
     atomic_write(Path(path), lambda fh: np.savez(fh, **arrays), binary=True)
+
+
+def read_bla(path: str | Path) -> tuple[BLA, FloatArray] | None:
+    """The BLA of a result NPZ of :func:`write_bla` and its frequencies (Hz), or None.
+
+    None when the result is another identification (no ``noise_std``/``nl_std``). One
+    output and input (the BLA's). Lines are -1 where the file does not give them.
+    DataError naming the file when it is not a result at all.
+    """
+    z = load_npz(path, ("frequency", "P", "P_std"), "an identification result")
+    if "noise_std" not in z or "nl_std" not in z:
+        return None
+    f = np.asarray(z["frequency"], float)
+
+    def col(key: str) -> Any:
+        return np.asarray(z[key]).reshape(f.size, -1)[:, 0]
+
+    def scalar(key: str) -> FloatArray:
+        return np.atleast_1d(np.asarray(z[key], float)) if key in z else np.full(1, np.nan)
+
+    lines = np.asarray(z["lines"], np.int64) if "lines" in z else np.full(f.size, -1, np.int64)
+    bla = BLA(
+        lines,
+        col("P").astype(complex),
+        col("P_std").astype(float),
+        col("noise_std").astype(float),
+        col("nl_std").astype(float),
+        scalar("odd_level"),
+        scalar("even_level"),
+        scalar("noise_level"),
+        int(z["periods"]) if "periods" in z else 0,
+        int(z["realizations"]) if "realizations" in z else 0,
+    )
+    return bla, f

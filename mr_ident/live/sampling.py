@@ -18,6 +18,9 @@ Rules (README, "How stamps become samples"), the same for the node and for repla
   out-of-order samples reach the aligner as the block contract's do.
 * Several sources for one signal (MIMO, one channel each) are joined by index
   (:class:`Joiner`); an index where a channel is missing is a hole.
+* :func:`grid_stamps` is the inverse, for a publisher: the stamp (ns) of sample index i
+  on a grid starting at t0 is ``t0 + round(i 1e9 / fs_high)``, exact in integers (no
+  drift however long it runs).
 * :func:`infer_rate` reads fs_high (or h_l for a held source) off the stamps, for the
   check against the configuration.
 """
@@ -80,6 +83,26 @@ class Sampler:
             if off.size:
                 stats.worst_offset = max(stats.worst_offset, float(off.max()))
         return idx, ok
+
+
+def grid_stamps(t0: int, first: int, n: int, fs_high: float) -> IntArray:
+    """Stamps (ns) of sample indices ``first .. first + n - 1`` on the grid from ``t0`` (ns).
+
+    ``t0 + round(i 1e9 / fs_high)`` in integer arithmetic (fs_high taken as a fraction
+    of denominator at most 1000), so a publisher's stamps come from the sample index and
+    never drift. Shape (n,), int64.
+    """
+    from fractions import Fraction
+
+    q = Fraction(fs_high).limit_denominator(1000)
+    num, den = q.numerator, q.denominator
+    scale = 1_000_000_000 * den  # stamp(i) = t0 + round(i scale / num)
+    base, rem = divmod(int(first) * scale, num)
+    j = np.arange(int(n), dtype=np.int64)
+    if n and (int(n) * scale + num) >= 2**62:
+        raise ValueError(f"n must be below {2**62 // scale} samples per call, got {n}")
+    out: IntArray = int(t0) + base + (2 * (rem + j * scale) + num) // (2 * num)
+    return out
 
 
 def runs(index: IntArray, values: FloatArray, hold: int = 1) -> list[Block]:

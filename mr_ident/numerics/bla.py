@@ -68,6 +68,26 @@ class BLA:
     periods: int
     realizations: int
 
+    @property
+    def odd_db(self) -> FloatArray:
+        """The odd distortion level in dB above the noise on those lines, shape (n_y,).
+
+        ``10 log10((odd_level + noise) / noise)``, as :func:`distortion_by_band` counts
+        (0 dB: noise only); nan without unexcited odd lines or a noise estimate.
+        """
+        return _above_noise_db(self.odd_level, self.noise_level)
+
+    @property
+    def even_db(self) -> FloatArray:
+        """The even distortion level in dB above the noise, as :attr:`odd_db`."""
+        return _above_noise_db(self.even_level, self.noise_level)
+
+
+def _above_noise_db(level: FloatArray, noise: FloatArray) -> FloatArray:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out: FloatArray = 10.0 * np.log10((level + noise) / noise)
+    return out
+
 
 def _periods(x: FloatArray, period: int, name: str) -> ComplexArray:
     """(M, P, N//2+1) spectra of every period of x (M, P·N)."""
@@ -89,21 +109,77 @@ def excited_lines(R: ComplexArray) -> IntArray:
     return k[k > 0].astype(np.int64)
 
 
+def unexcited_lines(excited: IntArray, period: int, ratio: int = 1) -> IntArray:
+    """Lines 1..N//2 that no excited line reaches: where only distortion and noise show.
+
+    With F = ``ratio`` > 1 the sampled controller folds a line k of u and y onto its lifted
+    family, the lines ``±k mod M + l M`` (M = N/F, l = 0..F-1): in a multirate closed loop
+    those carry the *linear* response to line k, so they are no detection lines. A line
+    is unexcited when no excited line's family holds it (F = 1: when it is not excited).
+
+    Raises
+    ------
+    ConfigError
+        ``period`` not a multiple of ``ratio`` (the loop is then not N-periodic).
+    """
+    if ratio < 1 or period % ratio:
+        raise ConfigError(
+            f"period must be a multiple of the ratio F = {ratio} for multirate periodic data, "
+            f"got {period}"
+        )
+    M = period // ratio
+    k = np.asarray(excited, np.int64)
+    fam = np.concatenate([k % M, (-k) % M])[:, None] + M * np.arange(ratio)[None, :]
+    reached = np.minimum(fam, period - fam).ravel()  # onto 0..N/2 (conjugate lines)
+    out: IntArray = np.setdiff1d(np.arange(1, period // 2 + 1), reached)
+    return out
+
+
 @dataclass(frozen=True)
 class BandLevels:
     """Per band (Hz): Ȳ's power over excited, unexcited odd and unexcited even lines.
 
     Each in dB above the noise power of Ȳ on those lines (nan without such lines).
+    ``odd_threshold_db``, ``even_threshold_db``: the level that noise alone exceeds with
+    probability :data:`LEVEL_ALPHA` on as many lines and periods (the ratio of the two
+    means is F(2L, 2L(P-1)) distributed); few lines give a high threshold.
     """
 
     band: tuple[float, float]
     excited_db: float
     odd_db: float
     even_db: float
+    odd_threshold_db: float = float("nan")
+    even_threshold_db: float = float("nan")
+
+
+#: False-alarm probability of a band's odd or even level under noise alone.
+LEVEL_ALPHA = 1e-3
+
+
+def noise_level_threshold_db(lines: int, periods: int, alpha: float = LEVEL_ALPHA) -> float:
+    """The level (dB above the noise) that noise alone exceeds with probability ``alpha``.
+
+    For the mean power of ``lines`` period means, the noise estimated from ``periods``
+    periods (nan without a line or with one period). Under noise alone each line's |Ȳ|²
+    is (σ²/P)·χ²₂/2 and its noise estimate (σ²/P)·χ²_{2(P-1)}/(2(P-1)): the ratio of the
+    means over L lines is F(2L, 2L(P-1)).
+    """
+    if lines < 1 or periods < 2:
+        return float("nan")
+    import scipy.stats  # not at the top: identify's start-up stays light
+
+    return float(10.0 * np.log10(scipy.stats.f.isf(alpha, 2 * lines, 2 * lines * (periods - 1))))
 
 
 def distortion_by_band(
-    r: FloatArray, y: FloatArray, period: int, fs: float, edges: FloatArray | None = None
+    r: FloatArray,
+    y: FloatArray,
+    period: int,
+    fs: float,
+    edges: FloatArray | None = None,
+    *,
+    ratio: int = 1,
 ) -> list[BandLevels]:
     """Levels above the noise per band between ``edges`` (Hz), from P >= 2 periods.
 
@@ -111,7 +187,8 @@ def distortion_by_band(
     those of :func:`excited_lines`; ``edges`` None: four log-spaced bands over them ([]
     with fewer than two). With an odd (or odd-odd) design, power at the unexcited odd lines
     is odd nonlinear distortion, at the even lines even distortion; near 0 dB it is noise
-    only.
+    only. ``ratio`` F of a multirate loop: the unexcited lines are those of
+    :func:`unexcited_lines` (no excited line's lifted alias).
     """
     R, Y = (
         _periods(np.atleast_2d(np.asarray(a, float)), period, n) for a, n in ((r, "r"), (y, "y"))
@@ -122,6 +199,7 @@ def distortion_by_band(
     Ym = Y[0].mean(axis=0)
     noise = np.sum(np.abs(Y[0] - Ym) ** 2, axis=0) / (P - 1) / P
     ex = excited_lines(R)
+    free = unexcited_lines(ex, period, ratio)
     k = np.arange(Ym.size)
     f = k * fs / period
     if edges is None:
@@ -137,26 +215,37 @@ def distortion_by_band(
 
     for lo, hi in zip(edges[:-1], edges[1:], strict=True):
         inb = k[(f >= lo) & (f < hi) & (k > 0)]
-        quiet = np.setdiff1d(inb, ex)
+        quiet = np.intersect1d(inb, free)
+        odd, even = quiet[quiet % 2 == 1], quiet[quiet % 2 == 0]
         out.append(
             BandLevels(
                 (float(lo), float(hi)),
                 db(np.intersect1d(inb, ex)),
-                db(quiet[quiet % 2 == 1]),
-                db(quiet[quiet % 2 == 0]),
+                db(odd),
+                db(even),
+                noise_level_threshold_db(odd.size, P),
+                noise_level_threshold_db(even.size, P),
             )
         )
     return out
 
 
 def best_linear_approximation(
-    r: FloatArray, u: FloatArray, y: FloatArray, period: int, lines: IntArray | None = None
+    r: FloatArray,
+    u: FloatArray,
+    y: FloatArray,
+    period: int,
+    lines: IntArray | None = None,
+    *,
+    ratio: int = 1,
 ) -> BLA:
     """The BLA of u -> y from M realizations of P periods (module docstring).
 
     ``r, u, y``: shape (M, P·N) (one channel each); ``lines``: the excited lines, else
-    :func:`excited_lines`. ConfigError/DimensionError
-    for shapes that do not fit, fewer than 2 periods and 2 realizations together.
+    :func:`excited_lines`; ``ratio`` F of a multirate loop: the odd and even levels from
+    :func:`unexcited_lines` (not the lifted aliases of the excited lines).
+    ConfigError/DimensionError for shapes that do not fit, fewer than 2 periods and 2
+    realizations together.
     """
     arrs = [np.atleast_2d(np.asarray(a, float)) for a in (r, u, y)]
     if not (arrs[0].shape == arrs[1].shape == arrs[2].shape):
@@ -198,7 +287,7 @@ def best_linear_approximation(
         total_var = noise_var + nl_var
     # the unexcited lines inside the excited band: odd (detection) and even
     band = np.arange(lines.min(), lines.max() + 1) if lines.size else np.zeros(0, np.int64)
-    quiet = np.setdiff1d(band, lines)
+    quiet = np.intersect1d(band, unexcited_lines(lines, period, ratio))
     power = np.mean(np.abs(Ym) ** 2, axis=0)  # (L,)
     noise_p = np.mean(var_y, axis=0) if P > 1 else np.full(power.shape, np.nan)
 

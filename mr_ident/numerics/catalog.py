@@ -11,3 +11,6 @@ METHOD_NAMES: tuple[str, ...] = ("freq-lifted", "time-lifted", "lpm", "structure
 #: The local models of the LPM methods' windows, the default first
 #: (:mod:`mr_ident.numerics.local`).
 LOCAL_MODELS: tuple[str, ...] = ("polynomial", "rational")
+#: The message forms ``mr-ident excite --publish`` streams (``--as``; README, "Excitation
+#: design"): the block contract, a JointState position, a forward_command_controller command.
+EXCITATION_FORMS: tuple[str, ...] = ("block", "jointstate", "float64multiarray")

@@ -4,6 +4,8 @@
 repeated period after period; :class:`SimSource` runs the loop of a model on it with
 the state carried from block to block (:class:`~mr_ident.numerics.simulate.LoopStream`),
 so consecutive blocks equal one long simulation. ``mr-ident-sim`` publishes its blocks.
+:class:`Follower` runs the loop on a reference that arrives from outside, block by block
+(``mr-ident-sim --reference-topic``).
 """
 
 from __future__ import annotations
@@ -105,3 +107,58 @@ class SimSource:
         self.next_index += b
         nu = m.n_u
         return first, out[:, :nu], out[:, nu : 2 * nu], out[:, 2 * nu :]
+
+
+class Follower:
+    """The loop driven by reference blocks: each index simulated once, u and y published.
+
+    ``offer(first, r)`` takes a block of r (n, n_u) at index ``first`` and returns the
+    (first, u, y) that became ready (whole multiples of F; the rest waits for the next
+    block). Pure numpy; ``mr-ident-sim --reference-topic`` feeds it from a
+    subscription.
+    """
+
+    def __init__(self, model: Model, seed: int = 0) -> None:
+        self.model = model
+        self.loop = LoopStream(model)
+        self.rng = np.random.default_rng(seed)
+        self.next: int | None = None  # the first index not yet simulated
+        self.start: int | None = None  # the first index simulated
+        self._pending = np.zeros((0, model.n_u))
+        self.gap_samples = 0
+        self.repeated_samples = 0
+
+    @property
+    def simulated(self) -> int:
+        """Samples simulated so far."""
+        return 0 if self.next is None or self.start is None else self.next - self.start
+
+    def offer(self, first: int, r: FloatArray) -> tuple[int, FloatArray, FloatArray] | None:
+        """Simulate what ``r`` at ``first`` completes; None when nothing is ready yet."""
+        m, F = self.model, self.model.ratio
+        r = np.asarray(r, float).reshape(-1, m.n_u)
+        if self.next is None:
+            start = -(-first // F) * F  # the loop starts on a multiple of F
+            r, first = r[start - first :], start
+            if r.shape[0] == 0:
+                return None
+            self.next = self.start = first
+        end = self.next + self._pending.shape[0]
+        if first + r.shape[0] <= end:
+            self.repeated_samples += r.shape[0]
+            return None
+        if first < end:
+            self.repeated_samples += end - first
+            r, first = r[end - first :], end
+        if first > end:  # never came: the loop ran on with r = 0
+            self.gap_samples += first - end
+            r = np.concatenate([np.zeros((first - end, m.n_u)), r])
+        r = np.concatenate([self._pending, r])
+        n = r.shape[0] // F * F
+        r, self._pending = r[:n], r[n:]
+        if n == 0:
+            return None
+        v = m.noise_std * self.rng.standard_normal((n, m.n_y)) if m.noise_std > 0 else None
+        u, y = self.loop.next(r, v)
+        out, self.next = self.next, self.next + n
+        return out, u, y

@@ -4,6 +4,13 @@ Publishes blocks of r_h, u_h, y_h on ``reference``, ``input``, ``output``
 (remappable with ``--ros-args -r``), in real time or ``--rate`` times faster,
 with white-noise or multisine excitation; the state of the simulation carries
 over from block to block (:class:`~mr_ident.simulate.LoopStream`).
+
+``--reference-topic TOPIC``: the loop takes r from TOPIC instead (the block contract,
+e.g. ``mr-ident excite --publish TOPIC``), as a machine takes a command: each block's
+samples are simulated once, when they arrive, and u and y published at the same indices
+on ``input`` and ``output`` (r is TOPIC's: the sim does not publish it again). The loop
+starts at the first index that is a multiple of F; indices that never came are run
+with r = 0 (the machine ran on without excitation), repeated ones are ignored.
 """
 
 from __future__ import annotations
@@ -13,15 +20,16 @@ import math
 import sys
 import time
 from collections.abc import Sequence
+from typing import Any
 
 from ..errors import MrIdentError
 from ..io.blocks import STREAMS
 from ..io.excitefile import read_excitation
 from ..io.modelfile import load_model
 from ..numerics.arrays import FloatArray
-from ..numerics.excitation import SimSource
+from ..numerics.excitation import Follower, SimSource
 from ..numerics.model import Model
-from .program import Stop, handle_signals, ros_context
+from .program import Stop, handle_signals, ros_context, spin_until_stopped
 
 
 def excitation_signal(path: str, model: Model) -> FloatArray:
@@ -63,6 +71,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--period", type=float, default=10.0, help="multisine period in seconds (default 10)"
     )
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--reference-topic",
+        metavar="TOPIC",
+        help="take r from TOPIC (block contract, e.g. mr-ident excite --publish TOPIC) and "
+        "publish u and y at its indices, as they arrive",
+    )
     p.add_argument(
         "--wait",
         type=float,
@@ -130,6 +144,62 @@ def run(
     return sent
 
 
+def run_driven(
+    node: object,
+    model: Model,
+    topic: str,
+    *,
+    duration: float | None,
+    seed: int = 0,
+    stop: Stop | None = None,
+) -> int:
+    """Simulate the loop on the reference blocks of ``topic`` (see the module).
+
+    Until ``duration`` s of loop time were simulated or a stop; returns blocks sent per
+    topic.
+    """
+    from rclpy.duration import Duration
+    from rclpy.executors import SingleThreadedExecutor
+    from std_msgs.msg import Float64MultiArray
+
+    from ..io.blocks import BlockError
+    from .messages import BLOCK_QOS, block_msg, decode_raw
+
+    stop = stop if stop is not None else Stop()
+    follower = Follower(model, seed)
+    n: Any = node
+    pubs = [n.create_publisher(Float64MultiArray, t, BLOCK_QOS) for t in STREAMS[1:]]
+    total = None if duration is None else int(round(duration * model.fs_high))
+    sent = 0
+
+    def on_block(raw: bytes) -> None:
+        nonlocal sent
+        block = decode_raw(raw)
+        if isinstance(block, BlockError):
+            n.get_logger().warning(f"reference block dropped: {block}")
+            return
+        ready = follower.offer(block.first, block.samples)
+        if ready is None:
+            return
+        first, u, y = ready
+        for pub, x in zip(pubs, (u, y), strict=True):
+            pub.publish(block_msg(first, x))
+        sent += 1
+        if total is not None and follower.simulated >= total:
+            stop.request()
+
+    n.create_subscription(Float64MultiArray, topic, on_block, BLOCK_QOS, raw=True)
+    executor = SingleThreadedExecutor(context=n.context)
+    executor.add_node(n)
+    try:
+        spin_until_stopped(executor, n, stop)
+    finally:
+        executor.remove_node(n)
+    for pub in pubs:
+        pub.wait_for_all_acked(Duration(seconds=1 if stop.signal is not None else 5))
+    return sent
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Console script ``mr-ident-sim``.
 
@@ -165,6 +235,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     with ros_context(args_all) as rclpy:
         node = rclpy.create_node("mr_ident_sim")
         try:
+            if args.reference_topic:
+                sent = run_driven(
+                    node,
+                    model,
+                    args.reference_topic,
+                    duration=args.duration,
+                    seed=args.seed,
+                    stop=stop,
+                )
+                node.get_logger().info(
+                    f"published {sent} blocks of u and y for the reference on "
+                    f"{args.reference_topic}"
+                )
+                return 0
             sent = run(
                 node,
                 source,

@@ -15,12 +15,43 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..diagnosis.drift import Reference
+from ..numerics.arrays import FloatArray
+from ..numerics.bla import BLA
 from ..numerics.model import Model
 from ..numerics.results import FRF
 
 
 def _list(a: ArrayLike) -> list[float | None]:
     return [None if not math.isfinite(v) else float(v) for v in np.asarray(a, float).ravel()]
+
+
+def bla_parts(bla: BLA, frequency: FloatArray) -> dict[str, Any]:
+    """A BLA reference as the page draws it: per line |G| and its std parts in dB, levels.
+
+    ``frequency``, ``mag_db``, ``std_db``, ``noise_std_db``, ``nl_std_db`` (lists, nan as
+    null), ``odd_db``, ``even_db`` (the distortion at the unexcited lines above the noise),
+    ``realizations``, ``periods``.
+    """
+
+    def db(x: ArrayLike) -> list[float | None]:
+        with np.errstate(divide="ignore"):
+            return _list(20.0 * np.log10(np.abs(x)))
+
+    def level(x: FloatArray) -> float | None:
+        v = float(x[0])
+        return v if math.isfinite(v) else None
+
+    return {
+        "frequency": _list(frequency),
+        "mag_db": db(bla.response),
+        "std_db": db(bla.std),
+        "noise_std_db": db(bla.noise_std),
+        "nl_std_db": db(bla.nl_std),
+        "odd_db": level(bla.odd_db),
+        "even_db": level(bla.even_db),
+        "realizations": bla.realizations,
+        "periods": bla.periods,
+    }
 
 
 class ViewState:
@@ -33,10 +64,15 @@ class ViewState:
     HISTORY = 32
 
     def __init__(
-        self, model: Model | None = None, source: str = "", reference: FRF | None = None
+        self,
+        model: Model | None = None,
+        source: str = "",
+        reference: FRF | None = None,
+        reference_bla: tuple[BLA, FloatArray] | None = None,
     ) -> None:
         self.model = model
         self.reference = reference  # an identification to draw instead of a model
+        self._reference_bla = None if reference_bla is None else bla_parts(*reference_bla)
         self.source = source
         self._cond = threading.Condition()
         self._estimate: dict[str, Any] | None = None
@@ -134,7 +170,8 @@ class ViewState:
 
         Keys: version, source, estimate (None before the first), health, plant (the
         monitoring status and its drift ``bands``; empty without monitoring),
-        estimate_age_s.
+        estimate_age_s, reference_bla (a BLA reference's parts, :func:`bla_parts`; None
+        without).
         """
         with self._cond:
             age = time.time() - self._received if self._estimate is not None else None
@@ -145,6 +182,7 @@ class ViewState:
                 "health": dict(self._health),
                 "plant": dict(self._plant),
                 "estimate_age_s": age,
+                "reference_bla": self._reference_bla,
             }
 
     def estimate(self, version: int | None = None) -> dict[str, Any] | None:

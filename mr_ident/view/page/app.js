@@ -56,6 +56,17 @@ function bodeTraces(est) {
   return { mag, phase, plotted };
 }
 
+// a BLA reference (identify --period): its noise and nonlinear std per line, in dB
+function referenceTraces(ref, withMag) {
+  if (!ref) return [];
+  const f = ref.frequency, out = [];
+  if (withMag) out.push({ x: f, y: ref.mag_db, mode: "lines", name: "reference BLA", line: { color: "#000", width: 1, dash: "dash" } });
+  const dots = (y, color, name) => ({ x: f, y, mode: "markers", name, marker: { color, size: 3 } });
+  out.push(dots(ref.noise_std_db, "#2ca02c", "reference σ noise"));
+  out.push(dots(ref.nl_std_db, "#d62728", "reference σ nonlinear"));
+  return out;
+}
+
 function pfgTraces(est) {
   if (!est.pfg) return null;
   const f = est.frequency, g = est.pfg, s = est.pfg_std || g.map(() => 0);
@@ -107,6 +118,9 @@ function drawHealth(state) {
     if (plant.bands && plant.bands.length)
       rows.push(["drift bands (Hz)", plant.bands.map(([a, b]) => `${fmt(a)}–${fmt(b)}`).join(", ")]);
   }
+  const ref = state.reference_bla;
+  if (ref) rows.push([`reference BLA (${ref.realizations} realizations x ${ref.periods} periods): distortion above noise (dB)`,
+    `odd lines ${fmt(ref.odd_db)}, even lines ${fmt(ref.even_db)}`]);
   if (est && est.sigma_error_median !== undefined) rows.push(["σ-error vs model (median)", fmt(est.sigma_error_median)]);
   if (est && est.window) for (const [k, v] of Object.entries(est.window)) rows.push([`window ${k}`, fmt(v)]);
   for (const [k, label] of SHOWN) if (k in h) rows.push([label, fmt(h[k])]);
@@ -123,9 +137,16 @@ function drawHealth(state) {
 function draw(state) {
   drawHealth(state);
   const est = state.estimate, waiting = document.getElementById("waiting");
-  if (!est) { waiting.style.display = ""; return; }
+  const ref = state.reference_bla;
+  if (!est) {  // nothing estimated yet: a BLA reference is drawn alone
+    waiting.style.display = "";
+    if (ref) Plotly.react("mag", referenceTraces(ref, true), LAYOUT("magnitude (reference)", "|G| (dB)"));
+    return;
+  }
   waiting.style.display = "none";
   const { mag, phase, plotted } = bodeTraces(est);
+  mag.push(...referenceTraces(ref, false));
+  plotted.reference_nl_std_db = ref ? ref.nl_std_db : null;
   // the monitoring's significant drift bands, shaded behind the Bode plots
   const bands = (state.plant && state.plant.bands) || [];
   const shade = bands.map(([lo, hi]) => ({

@@ -1,0 +1,280 @@
+"""``mr-ident excite --publish TOPIC``: stream an excitation design on a topic at fs_high.
+
+The design (M realizations of P periods of N samples, ``mr-ident excite``) is played
+realization after realization and looped (:class:`~mr_ident.numerics.schedule.Schedule`),
+on a timer: each tick publishes the samples that are due by then, so the stream keeps
+fs_high × ``rate`` on average whatever the timer's jitter. Sample index i counts from
+the first sample published; its stamp is ``t0 + round(i / fs_high)`` (t0 the node's
+clock at the start), computed from the index, never read off the wall clock per message
+(:func:`~mr_ident.live.sampling.grid_stamps`). Three forms (``--as``):
+
+``block``
+    The block contract (``std_msgs/Float64MultiArray``, data[0] the index): one message
+    per tick. What ``mr-ident-node`` and ``mr-ident-sim --reference-topic`` read.
+``jointstate``
+    ``sensor_msgs/JointState``, one message per sample: ``header.stamp`` the sample's
+    stamp, ``name`` the joints (``--joint``, one per input), ``position`` the values.
+``float64multiarray``
+    ``std_msgs/Float64MultiArray``, one message per sample, ``data`` one value per joint:
+    the command of ros2_control's ``forward_command_controller`` (``~/commands``). It has
+    no stamp: the controller applies the latest command at its update, so publish at
+    ``--tick`` one sample (the default for this form).
+
+Beside the signal, on ``TOPIC/excitation_index``, the same form carries each sample's
+labels (realization, period, sample of the period; :data:`~mr_ident.numerics.schedule.LABELS`):
+a block of 3 channels at the same index; a JointState with the same stamp, names
+``realization``, ``period``, ``sample`` in ``position``; a Float64MultiArray
+``[realization, period, sample]`` after each command. A recording of both topics can be
+cut back into realizations and periods
+(:func:`~mr_ident.numerics.schedule.realizations_of`) with the sources the signal itself
+is read with (e.g. ``TOPIC/excitation_index.position{name=="realization"}``).
+
+Per-sample forms are serialized many at once: one message of the layout is serialized
+by rclpy, the bytes of its stamp and values located, and every message of a tick is that
+template with its numbers written in (numpy), published as raw bytes.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..live.sampling import grid_stamps
+from ..numerics.arrays import FloatArray, IntArray
+from ..numerics.catalog import EXCITATION_FORMS
+from ..numerics.schedule import LABELS, Schedule
+from .program import Stop, spin_until_stopped
+
+#: The message forms of ``--as``.
+FORMS = EXCITATION_FORMS
+#: The labels' topic, under the signal's topic.
+INDEX_TOPIC = "excitation_index"
+
+
+def index_topic(topic: str) -> str:
+    """The topic of the labels of the samples published on ``topic``."""
+    return f"{topic.rstrip('/')}/{INDEX_TOPIC}"
+
+
+class RawTemplate:
+    """Serialized messages of one layout, many at once, with their numbers patched in.
+
+    ``msg`` is a message of the layout (arrays already of their final length) whose
+    ``n_values`` doubles (``values_of(msg)``'s list) and, if ``stamped``,
+    ``header.stamp`` are written per message; everything else is copied.
+    """
+
+    def __init__(self, msg: Any, n_values: int, set_values: Any, stamped: bool) -> None:
+        from rclpy.serialization import serialize_message
+
+        marks = [-(1.0 + i) * 2.0**-1000 for i in range(n_values)]  # unlikely bytes
+        set_values(msg, marks)
+        if stamped:
+            msg.header.stamp.sec, msg.header.stamp.nanosec = 0x5EC05EC0, 0x3A5EC0DE
+        raw = bytes(serialize_message(msg))
+        self.template = np.frombuffer(raw, np.uint8)
+        self.values = [self._find(raw, struct.pack("<d", v)) for v in marks]
+        self.sec = self._find(raw, struct.pack("<i", 0x5EC05EC0)) if stamped else -1
+        self.nanosec = self._find(raw, struct.pack("<I", 0x3A5EC0DE)) if stamped else -1
+
+    @staticmethod
+    def _find(raw: bytes, mark: bytes) -> int:
+        at = raw.find(mark)
+        if at < 0 or raw.find(mark, at + 1) >= 0:
+            raise ConfigError(f"cannot place a value in the serialized message ({mark.hex()})")
+        return at
+
+    def encode(self, values: FloatArray, stamps: IntArray | None = None) -> list[bytes]:
+        """One payload per row of ``values`` (n, n_values), with ``stamps`` (n,) in ns."""
+        n = values.shape[0]
+        L = self.template.size
+        buf = np.empty((n, L), np.uint8)
+        buf[:] = self.template
+        v = np.ascontiguousarray(values, dtype="<f8").view(np.uint8).reshape(n, -1, 8)
+        for j, at in enumerate(self.values):
+            buf[:, at : at + 8] = v[:, j]
+        if stamps is not None and self.sec >= 0:
+            sec, ns = np.divmod(np.asarray(stamps, np.int64), 1_000_000_000)
+            buf[:, self.sec : self.sec + 4] = sec.astype("<i4").view(np.uint8).reshape(n, 4)
+            buf[:, self.nanosec : self.nanosec + 4] = ns.astype("<u4").view(np.uint8).reshape(n, 4)
+        raw = buf.tobytes()
+        return [raw[i * L : (i + 1) * L] for i in range(n)]
+
+
+@dataclass(frozen=True)
+class Form:
+    """How one tick's samples become messages of a form, on the signal and index topics."""
+
+    name: str
+    msg_type: Any
+    per_sample: bool
+    signal: RawTemplate | None = None
+    index: RawTemplate | None = None
+
+    def messages(
+        self, first: int, r: FloatArray, labels: IntArray, stamps: IntArray
+    ) -> tuple[list[Any], list[Any]]:
+        """(signal messages, index messages) of samples ``first ..`` (r (n, n_in))."""
+        if self.signal is None or self.index is None:
+            from .messages import block_msg
+
+            return [block_msg(first, r)], [block_msg(first, labels.astype(float))]
+        return (
+            self.signal.encode(r, stamps),
+            self.index.encode(labels.astype(float), stamps),
+        )
+
+
+def make_form(name: str, joints: list[str]) -> Form:
+    """The :class:`Form` ``name`` for inputs named ``joints``."""
+    if name == "block":
+        from std_msgs.msg import Float64MultiArray
+
+        return Form(name, Float64MultiArray, per_sample=False)
+    if name == "jointstate":
+        from sensor_msgs.msg import JointState
+
+        def js(names: list[str]) -> RawTemplate:
+            def put(m: Any, v: list[float]) -> None:
+                m.position = v
+
+            return RawTemplate(JointState(name=list(names)), len(names), put, stamped=True)
+
+        return Form(name, JointState, True, js(joints), js(list(LABELS)))
+    if name == "float64multiarray":
+        from std_msgs.msg import Float64MultiArray
+
+        def fa(n: int) -> RawTemplate:
+            def put(m: Any, v: list[float]) -> None:
+                m.data = v
+
+            return RawTemplate(Float64MultiArray(), n, put, stamped=False)
+
+        return Form(name, Float64MultiArray, True, fa(len(joints)), fa(len(LABELS)))
+    raise ConfigError(f"--as must be one of {', '.join(FORMS)}, got {name!r}")
+
+
+@dataclass(frozen=True)
+class Played:
+    """What a run published: samples, messages per topic, ticks, its stamp origin (ns)."""
+
+    samples: int
+    messages: int
+    ticks: int
+    t0: int
+    late_ticks: int
+
+
+def publish(
+    node: Any,
+    topic: str,
+    r: FloatArray,
+    *,
+    fs_high: float,
+    period: int,
+    form: str = "block",
+    joints: list[str] | None = None,
+    rate: float = 1.0,
+    loops: int = 1,
+    tick: float | None = None,
+    block: int = 1000,
+    wait: float = 5.0,
+    subscribers: int = 1,
+    stop: Stop | None = None,
+) -> Played:
+    """Stream the design ``r`` (M, P·N, n_in) on ``topic`` (module docstring) from ``node``.
+
+    Parameters
+    ----------
+    rate : float
+        Times real time (stamps stay on the fs_high grid: loop time).
+    loops : int
+        Times through every realization and period; 0: until ``stop``.
+    tick : float or None
+        Timer period in s of wall time; default one sample for the per-sample forms (at
+        least 1 ms), else 10 ms.
+    block : int
+        Most samples per block message (``form`` "block").
+    wait, subscribers :
+        Wait up to ``wait`` s for ``subscribers`` on the signal topic before the first
+        sample (then 0.5 s more: matching is not symmetric).
+    """
+    from rclpy.duration import Duration
+    from rclpy.executors import SingleThreadedExecutor
+
+    from .messages import BLOCK_QOS
+
+    sched = Schedule.of(r, period)
+    n_in = r.shape[2]
+    joints = list(joints) if joints else [f"j{i}" for i in range(n_in)]
+    if len(joints) != n_in:
+        raise ConfigError(f"--joint must name {n_in} joint(s), one per input, got {joints}")
+    for name, value, ok in (
+        ("--rate", rate, rate > 0 and math.isfinite(rate)),
+        ("--loops", loops, loops >= 0),
+        ("--block", block, block >= 1),
+        ("--tick", tick, tick is None or (tick > 0 and math.isfinite(tick))),
+    ):
+        if not ok:
+            raise ConfigError(f"{name} must be positive, got {value!r}")
+    fm = make_form(form, joints)
+    if tick is None:
+        tick = max(1.0 / (fs_high * rate), 1e-3) if fm.per_sample else 0.01
+    stop = stop if stop is not None else Stop()
+    sig = node.create_publisher(fm.msg_type, topic, BLOCK_QOS)
+    idx = node.create_publisher(fm.msg_type, index_topic(topic), BLOCK_QOS)
+    deadline = time.monotonic() + wait
+    while (
+        time.monotonic() < deadline
+        and not stop.requested
+        and sig.get_subscription_count() < subscribers
+    ):
+        stop.wait(0.02)
+    if wait > 0:
+        stop.wait(min(wait, 0.5))
+    total = None if loops == 0 else loops * sched.cycle
+    t0 = node.get_clock().now().nanoseconds
+    start = time.monotonic()
+    state = {"next": 0, "messages": 0, "ticks": 0, "late": 0}
+
+    def on_tick() -> None:
+        due = int((time.monotonic() - start) * fs_high * rate) + 1
+        if total is not None:
+            due = min(due, total)
+        first = state["next"]
+        state["ticks"] += 1
+        if due - first > max(2, int(2 * tick * fs_high * rate)):
+            state["late"] += 1  # the timer fell behind by more than a tick: a burst
+        while first < due:
+            n = min(due - first, block) if not fm.per_sample else due - first
+            x = sched.take(r, first, n)
+            labels = sched.labels(first, n)
+            stamps = grid_stamps(t0, first, n, fs_high)
+            msgs, index = fm.messages(first, x, labels, stamps)
+            for m, k in zip(msgs, index, strict=True):
+                sig.publish(m)
+                idx.publish(k)
+            state["messages"] += len(msgs)
+            first += n
+        state["next"] = first
+        if total is not None and first >= total:
+            stop.request()
+
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    timer = node.create_timer(tick, on_tick)
+    try:
+        spin_until_stopped(executor, node, stop)
+    finally:
+        timer.cancel()
+        node.destroy_timer(timer)
+        executor.remove_node(node)
+    for pub in (sig, idx):  # reliable delivery: do not exit before the readers have it
+        pub.wait_for_all_acked(Duration(seconds=1 if stop.signal is not None else 5))
+    return Played(state["next"], state["messages"], state["ticks"], t0, state["late"])
