@@ -10,7 +10,14 @@ import math
 from typing import TYPE_CHECKING, Any
 
 from ..errors import ConfigError, DataError
-from .common import read_loop, reading, resolve_rates, source_specs, write_plots
+from .common import (
+    describe_pfgs,
+    read_loop,
+    reading,
+    resolve_rates,
+    source_specs,
+    write_plots,
+)
 
 if TYPE_CHECKING:
     pass
@@ -75,6 +82,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
     )  # the result holds P_h and the PFG
     write_result(args.out, ident)
     print(f"wrote {args.out} ({ident.plant.frequency.size} bins, method {args.method})")
+    for line in describe_pfgs(ident):
+        print(line)
     if args.plot:
         write_plots(ident, args.plot, fs, F, N, model)
     return 0

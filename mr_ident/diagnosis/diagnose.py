@@ -36,6 +36,7 @@ from ..numerics.identify import default_n, min_samples
 from ..numerics.model import Model
 from ..numerics.signals import LoopData
 from .causes import CauseFit, PlantData
+from .controller_check import ControllerCheck, check_controller
 from .evidence import Evidence, frf_evidence, identify_record
 from .noise import noise_spectrum
 from .objective import Objective, settle_samples
@@ -126,6 +127,10 @@ class Diagnosis:
         On the validation data.
     estimation, validation : str
         Which data were used for what.
+    controller : ControllerCheck or None
+        The PFG from data against the PFG of the model's controller, on the estimation data
+        (:mod:`~mr_ident.diagnosis.controller_check`); None in open loop or for periodic
+        data.
     """
 
     cause: str
@@ -142,6 +147,7 @@ class Diagnosis:
     validation: str
     traces: dict[str, Any] = field(default_factory=dict)
     distortion: list[BandLevels] = field(default_factory=list)
+    controller: ControllerCheck | None = None
 
     @property
     def nonlinear(self) -> bool:
@@ -323,6 +329,7 @@ def diagnose(
         val_desc,
         traces,
         distortion(est),
+        None if ident is None else check_controller(ident, n),
     )
 
 

@@ -10,6 +10,7 @@ shared with the node's configuration.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -22,6 +23,7 @@ from .lifting import check_ratio
 from .lpm import check_lpm_options, smallest_n
 from .methods import METHODS, FitRequest, Method, PlantFit
 from .pfg import pfg_from_plant
+from .pfg_data import fit_data_pfg
 from .results import FRF, PFG, Identification
 from .threads import one_blas_thread, resolve_workers
 
@@ -169,7 +171,9 @@ def identify(
     Returns
     -------
     Identification
-        ``plant``: P_h on the bins (0, fs_high/2], shape (N//2, n_y, n_u), with its std.
+        ``plant``: P_h on the bins (0, fs_high/2], shape (N//2, n_y, n_u), with its std;
+        ``pfg_data``: the PFG from data alone (the lifted r -> y fit at the base window,
+        whatever the method), ``pfg``: the PFG from P_h and ``controller_low`` when given.
 
     Raises
     ------
@@ -223,12 +227,13 @@ def identify(
     if auto and m.uses_lpm:
         ns = candidates(n0, (N // (2 * m.lift(F)) - 1) // 2)
 
-    def fit_with(nj: int, keep: bool) -> PlantFit:
+    def fit_with(nj: int, keep: bool, data_pfg: bool) -> PlantFit:
         qj = check_options(method, nj, degree, F, ra.shape[1], max(ny, nu))
-        return m.fit(FitRequest(ra, ua, ya, F, nj, degree, qj, keep, n_workers))
+        return m.fit(FitRequest(ra, ua, ya, F, nj, degree, qj, keep, n_workers, data_pfg))
 
     with one_blas_thread():
-        fits = [fit_with(nj, keep_lifted and j == 0) for j, nj in enumerate(ns)]
+        fits = [fit_with(nj, keep_lifted and j == 0, j == 0) for j, nj in enumerate(ns)]
+        pfg_data = _data_pfg(fits[0], ra, ya, F, n0, degree, n_workers, float(fs_high))
     fit = fits[0]
     n_used = np.full(N // 2 + 1, ns[0] if m.uses_lpm else 0, dtype=np.int64)
     if len(ns) > 1:
@@ -271,4 +276,43 @@ def identify(
         fs_high=float(fs_high),
         ratio=F,
         n_used=n_used[1:],
+        pfg_data=pfg_data,
     )
+
+
+#: The source of the PFG identified from data alone (:attr:`Identification.pfg_data`).
+DATA_PFG_SOURCE = "data:lifted r->y"
+
+
+def _data_pfg(
+    fit: PlantFit,
+    r: FloatArray,
+    y: FloatArray,
+    ratio: int,
+    n: int,
+    degree: int,
+    workers: int,
+    fs_high: float,
+) -> PFG | None:
+    """The PFG from the lifted fit r -> y: the method's own, else one more lifted fit.
+
+    The extra fit takes the larger of the method's window ``n`` (the base window with
+    ``n="auto"``) and the lifted default (:func:`default_n`); None (with a warning) when the
+    record is too short for it.
+    """
+    N, nr, ny = r.shape[0], r.shape[1], y.shape[1]
+    gain, var = fit.pfg_half, fit.pfg_var_half
+    if gain is None or var is None:
+        lifted = METHODS["freq-lifted"]
+        n_pfg = max(n, default_n("freq-lifted", degree, ratio, nr, ny))
+        if N < lifted.min_samples(n_pfg, ratio):
+            warnings.warn(
+                f"no PFG from data: the lifted fit r -> y needs N >= "
+                f"{lifted.min_samples(n_pfg, ratio)} samples (n = {n_pfg}), got {N}",
+                stacklevel=3,
+            )
+            return None
+        q = check_options("freq-lifted", n_pfg, degree, ratio, nr, ny)
+        gain, var = fit_data_pfg(r, y, ratio, n_pfg, degree, q, workers)
+    freq = np.arange(1, N // 2 + 1) * fs_high / N
+    return PFG(freq, gain[1:], np.sqrt(np.maximum(var[1:], 0.0)), DATA_PFG_SOURCE)

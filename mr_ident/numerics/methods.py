@@ -46,6 +46,7 @@ from .lifting import (
     unlift_variance,
 )
 from .lpm import lpm_bins_last, warn_rank_deficient
+from .pfg_data import empty_pfg, store_lifted_pfg
 from .results import LiftedFRF
 from .structured import structured_block
 from .threads import thread_map
@@ -53,7 +54,11 @@ from .threads import thread_map
 
 @dataclass(frozen=True)
 class FitRequest:
-    """Checked input of a method: r, u, y (N, channels), F, LPM options and threads."""
+    """Checked input of a method: r, u, y (N, channels), F, LPM options and threads.
+
+    ``data_pfg``: a lifted method that fits r -> y also returns the PFG of that fit
+    (:mod:`mr_ident.numerics.pfg_data`).
+    """
 
     r: FloatArray
     u: FloatArray
@@ -64,6 +69,7 @@ class FitRequest:
     dof: int
     keep_lifted: bool
     workers: int
+    data_pfg: bool = False
 
     @property
     def n_samples(self) -> int:
@@ -76,13 +82,16 @@ class PlantFit:
     """What a method returns.
 
     P_h (N//2+1, n_y, n_u) and its variance ``E|dP|^2`` on bins 0..N//2 (NaN where it has no
-    noise model), and the lifted maps when kept.
+    noise model), the lifted maps when kept, and the PFG of the lifted r -> y fit with its
+    variance (N//2+1,) when asked for and the method has that fit.
     """
 
     P_half: ComplexArray
     var_half: FloatArray
     lifted_J: LiftedFRF | None = None
     lifted_S: LiftedFRF | None = None
+    pfg_half: FloatArray | None = None
+    pfg_var_half: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -196,6 +205,7 @@ def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
     P_half = np.full((half + 1, ny, nu), np.nan + 0j)
     var_half = np.full((half + 1, ny, nu), np.nan)
     keep = req.keep_lifted and ratio is None
+    pfg = empty_pfg(N) if req.data_pfg and ratio is None else None
 
     step = block_bins(F, req.r.shape[1], max(ny, nu))
 
@@ -225,12 +235,15 @@ def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
             F,
             N,
         )
+        if pfg is not None:
+            store_lifted_pfg(*pfg, kb, G[: F * ny], Cv[: F * ny, : F * ny], Ainv, F, N)
         return nb, (tuple(a.transpose(2, 0, 1) for a in (G, Cv, Ainv)) if keep else None)
 
     done = thread_map(block, range(0, Kc + 1, step), req.workers)
     warn_rank_deficient(sum(d[0] for d in done), Kc + 1, stacklevel=4)
+    pfg_half, pfg_var = (None, None) if pfg is None else pfg
     if not keep:
-        return PlantFit(P_half, var_half)
+        return PlantFit(P_half, var_half, pfg_half=pfg_half, pfg_var_half=pfg_var)
     G, Cv, Ainv = (np.concatenate([d[1][i] for d in done if d[1] is not None]) for i in range(3))
     bins = np.arange(Kc + 1)
     return PlantFit(
@@ -242,6 +255,8 @@ def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
         LiftedFRF(
             bins, G[:, F * ny :], Cv[:, F * ny :, F * ny :], Ainv, "frequency", F, N, req.dof
         ),
+        pfg_half,
+        pfg_var,
     )
 
 
