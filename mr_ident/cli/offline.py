@@ -60,6 +60,11 @@ def cmd_identify(args: argparse.Namespace) -> int:
     )
     fs, F = resolve_rates(args, data, model)
     N = data.n_samples
+    if data.y_step != 1:
+        print(
+            f"note: y has {data.y.shape[0]} samples, r and u {N}: y is taken as the output at "
+            f"the low rate (y_h at samples 0, F, 2F, ...; F = {F})"
+        )
     loop: dict[str, Any] = {}
     if model is not None:
         if model.n_y != data.y.shape[1] or model.n_u != data.u.shape[1]:

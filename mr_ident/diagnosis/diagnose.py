@@ -71,6 +71,11 @@ def check_record(model: Model, rec: LoopData, *, n: int = 8, what: str = "data")
         )
     if rec.ratio != model.ratio:
         raise DataError(f"{what}: the ratio F is {rec.ratio} but the model says {model.ratio}")
+    if rec.y_step != 1:
+        raise DataError(
+            f"{what}: y has {rec.y.shape[0]} samples, the low rate; diagnose simulates y at the "
+            f"high rate and needs all N = {rec.n_samples} (identify takes a low-rate y)"
+        )
     if rec.u.shape[1] != model.n_u or rec.y.shape[1] != model.n_y:
         raise DataError(
             f"{what} has {rec.u.shape[1]} input and {rec.y.shape[1]} output channels; "

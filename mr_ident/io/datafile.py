@@ -6,7 +6,9 @@ CSV
     fs_high is taken from ``t`` (uniform spacing required); F from the caller.
 NPZ (data)
     Arrays ``r``, ``u``, ``y`` of shape (N,) or (N, channels), and scalars
-    ``fs_high`` (Hz) and ``ratio`` (F).
+    ``fs_high`` (Hz) and ``ratio`` (F). ``y`` may hold N/F rows instead: the output measured
+    at the low rate only, y_h at samples 0, F, 2F, ... (exactly N/F; another length is an
+    error naming the lengths).
 NPZ (result, written by ``mr-ident identify``)
     ``frequency`` (K,), ``P`` (K, n_y, n_u) complex, ``P_std`` (K, n_y, n_u);
     ``pfg_data``, ``pfg_data_std`` (K,), the PFG identified from data alone (the lifted
@@ -27,11 +29,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..errors import DataError
+from ..errors import DataError, DimensionError
 from ..numerics.arrays import FloatArray
 from ..numerics.identify import DATA_PFG_SOURCE
 from ..numerics.results import FRF, PFG, Identification
-from ..numerics.signals import LoopData
+from ..numerics.signals import LoopData, y_at_low_rate
 from .atomic import atomic_write
 
 _SIGNALS = ("r", "u", "y")
@@ -193,8 +195,12 @@ def read_npz(path: str | Path) -> LoopData:
             raise DataError(f"{p}: ratio must be one integer >= 1, got {v.tolist()!r}")
         ratio = int(v)
     lens = {s: arrays[s].shape[0] for s in _SIGNALS}
-    if len(set(lens.values())) != 1:
+    if lens["u"] != lens["r"]:
         raise DataError(f"{p}: r, u, y have unequal lengths {lens}")
+    try:
+        y_at_low_rate(lens["r"], lens["y"], ratio)
+    except DimensionError as err:
+        raise DataError(f"{p}: {err}") from None
     return LoopData(arrays["r"], arrays["u"], arrays["y"], fs, ratio)
 
 

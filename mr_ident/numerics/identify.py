@@ -25,6 +25,7 @@ from .methods import METHODS, FitRequest, Method, PlantFit
 from .pfg import pfg_from_plant
 from .pfg_data import fit_data_pfg
 from .results import FRF, PFG, Identification
+from .signals import y_at_low_rate
 from .threads import one_blas_thread, resolve_workers
 
 __all__ = ["AUTO", "METHODS", "check_options", "default_n", "identify", "min_samples"]
@@ -103,10 +104,11 @@ def _check_signals(
             )
         arrays.append(a)
     ra, ua, ya = arrays
-    if not ra.shape[0] == ua.shape[0] == ya.shape[0]:
+    if ra.shape[0] != ua.shape[0]:
         raise DimensionError(
-            f"r, u, y must have equal lengths, got {ra.shape[0]}, {ua.shape[0]}, {ya.shape[0]}"
+            f"r and u must have equal lengths (the high rate), got {ra.shape[0]}, {ua.shape[0]}"
         )
+    y_at_low_rate(ra.shape[0], ya.shape[0], ratio)
     if ra.shape[1] != ua.shape[1]:
         raise DimensionError(
             f"r and u must have the same number of channels (r excites u), got {ra.shape[1]} "
@@ -135,13 +137,17 @@ def identify(
     delay: int = 0,
     keep_lifted: bool = True,
     workers: int | None = None,
+    y_phase: int = 0,
 ) -> Identification:
     """Identify the high-rate plant P_h (and the PFG) from closed-loop data.
 
     Parameters
     ----------
     r, u, y : array_like, shape (N,) or (N, channels)
-        Reference, plant input and plant output at the high rate; N a multiple of F.
+        Reference, plant input and plant output at the high rate; N a multiple of F. ``y``
+        may instead hold N/F samples: the output at the low rate only, ``y_h[m F + q]``
+        (``freq-lifted`` only; P_h still on every bin: see the README, "Outputs at the low
+        rate").
     fs_high : float
         High sample rate in Hz.
     ratio : int
@@ -167,13 +173,17 @@ def identify(
         Threads over blocks of bins (default: every CPU available to the process;
         1 runs serially). The result does not depend on it; while they run,
         OpenBLAS is limited to one thread per caller.
+    y_phase : int, default 0
+        q: the high-rate sample (0..F-1) of each low-rate period at which a low-rate ``y``
+        was taken.
 
     Returns
     -------
     Identification
         ``plant``: P_h on the bins (0, fs_high/2], shape (N//2, n_y, n_u), with its std;
         ``pfg_data``: the PFG from data alone (the lifted r -> y fit at the base window,
-        whatever the method), ``pfg``: the PFG from P_h and ``controller_low`` when given.
+        whatever the method; None for a low-rate y), ``pfg``: the PFG from P_h and
+        ``controller_low`` when given.
 
     Raises
     ------
@@ -210,6 +220,18 @@ def identify(
     ra, ua, ya = _check_signals(r, u, y, F)
     N = ra.shape[0]
     ny, nu = ya.shape[1], ua.shape[1]
+    slow = ya.shape[0] != N  # y at the low rate
+    if slow and method != "freq-lifted":
+        raise ConfigError(
+            f"y at the low rate ({ya.shape[0]} = N/F samples) is identified by freq-lifted "
+            f"only; got method {method!r}"
+        )
+    if (
+        isinstance(y_phase, bool)
+        or not isinstance(y_phase, (int, np.integer))
+        or not (0 <= y_phase < F)
+    ):
+        raise ConfigError(f"y_phase must be an integer in 0..F-1 = 0..{F - 1}, got {y_phase!r}")
     n_min = default_n(method, degree, F, ra.shape[1], max(ny, nu))
     auto = isinstance(n, str)
     if auto and n != AUTO:
@@ -229,11 +251,15 @@ def identify(
 
     def fit_with(nj: int, keep: bool, data_pfg: bool) -> PlantFit:
         qj = check_options(method, nj, degree, F, ra.shape[1], max(ny, nu))
-        return m.fit(FitRequest(ra, ua, ya, F, nj, degree, qj, keep, n_workers, data_pfg))
+        return m.fit(
+            FitRequest(ra, ua, ya, F, nj, degree, qj, keep, n_workers, data_pfg, int(y_phase))
+        )
 
     with one_blas_thread():
         fits = [fit_with(nj, keep_lifted and j == 0, j == 0) for j, nj in enumerate(ns)]
-        pfg_data = _data_pfg(fits[0], ra, ya, F, n0, degree, n_workers, float(fs_high))
+        pfg_data = (
+            None if slow else _data_pfg(fits[0], ra, ya, F, n0, degree, n_workers, float(fs_high))
+        )
     fit = fits[0]
     n_used = np.full(N // 2 + 1, ns[0] if m.uses_lpm else 0, dtype=np.int64)
     if len(ns) > 1:

@@ -8,7 +8,9 @@ function and one more row.
 
 ``freq-lifted`` (default)
     Frequency-lift R, U, Y (stack the F aliases), LPM on r -> [y; u] giving the
-    lifted J and S, indirect step ``P = J S^-1``, P_h from the diagonal blocks.
+    lifted J and S, indirect step ``P = J S^-1``, P_h from the diagonal blocks. With y at
+    the low rate (N/F samples) its spectrum sums the aliases: J and P are one block row,
+    whose blocks are P_h at the F aliases (:func:`~mr_ident.numerics.lifting.unlift_row`).
 ``time-lifted``
     Time-lift r, u, y (stack F samples), LPM on their M-point DFTs, indirect step,
     P_h from the first block column (polyphase components).
@@ -40,9 +42,12 @@ from .lifting import (
     freq_lift_half,
     half_spectrum,
     half_to_full,
+    low_rate_lift_half,
     time_lift,
     unlift_bins,
     unlift_frf,
+    unlift_row,
+    unlift_row_variance,
     unlift_variance,
 )
 from .lpm import lpm_bins_last, warn_rank_deficient
@@ -57,7 +62,8 @@ class FitRequest:
     """Checked input of a method: r, u, y (N, channels), F, LPM options and threads.
 
     ``data_pfg``: a lifted method that fits r -> y also returns the PFG of that fit
-    (:mod:`mr_ident.numerics.pfg_data`).
+    (:mod:`mr_ident.numerics.pfg_data`). ``y`` may have N/F rows: the output at the low
+    rate, ``y_h[m F + y_phase]`` (``freq-lifted`` only).
     """
 
     r: FloatArray
@@ -70,6 +76,7 @@ class FitRequest:
     keep_lifted: bool
     workers: int
     data_pfg: bool = False
+    y_phase: int = 0
 
     @property
     def n_samples(self) -> int:
@@ -204,8 +211,10 @@ def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
     Kc = M // 2
     P_half = np.full((half + 1, ny, nu), np.nan + 0j)
     var_half = np.full((half + 1, ny, nu), np.nan)
-    keep = req.keep_lifted and ratio is None
-    pfg = empty_pfg(N) if req.data_pfg and ratio is None else None
+    slow = req.y.shape[0] != N  # y at the low rate: r -> y is one lifted block row
+    n_row = ny if slow else F * ny  # rows of the r -> y part of the fit
+    keep = req.keep_lifted and ratio is None and not slow
+    pfg = empty_pfg(N) if req.data_pfg and ratio is None and not slow else None
 
     step = block_bins(F, req.r.shape[1], max(ny, nu))
 
@@ -216,25 +225,21 @@ def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
         """
         kb = range(b0, min(b0 + step, Kc + 1))
         window = range(kb.start - n, kb.stop + n)
+        Yl = low_rate_lift_half(Yh, window, F, M) if slow else freq_lift_half(Yh, window, F, N)
         G, Cv, Ainv, nb = lpm_bins_last(
             freq_lift_half(Rh, window, F, N),
-            np.concatenate(
-                [freq_lift_half(Yh, window, F, N), freq_lift_half(Uh, window, F, N)], axis=1
-            ),
+            np.concatenate([Yl, freq_lift_half(Uh, window, F, N)], axis=1),
             n,
             req.degree,
             req.dof,
         )  # bins-last
-        P, rdiag, cdiag = _indirect_diag(G, Cv, Ainv, F * ny)
-        _store_half(
-            P_half,
-            var_half,
-            kb,
-            unlift_frf(P.transpose(2, 0, 1), F),
-            unlift_variance(rdiag.T, cdiag.T, F),
-            F,
-            N,
-        )
+        P, rdiag, cdiag = _indirect_diag(G, Cv, Ainv, n_row)
+        if slow:
+            Pk = unlift_row(P.transpose(2, 0, 1), F, np.arange(kb.start, kb.stop), N, req.y_phase)
+            var = unlift_row_variance(rdiag.T, cdiag.T, F)
+        else:
+            Pk, var = unlift_frf(P.transpose(2, 0, 1), F), unlift_variance(rdiag.T, cdiag.T, F)
+        _store_half(P_half, var_half, kb, Pk, var, F, N)
         if pfg is not None:
             store_lifted_pfg(*pfg, kb, G[: F * ny], Cv[: F * ny, : F * ny], Ainv, F, N)
         return nb, (tuple(a.transpose(2, 0, 1) for a in (G, Cv, Ainv)) if keep else None)

@@ -14,12 +14,14 @@ whole.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from .arrays import ComplexArray, FloatArray
 from .budget import block_bins
 from .lifting import fold_half, freq_lift_half, half_spectrum, unlift_bins
-from .lpm import lpm_bins_last, warn_rank_deficient
+from .lpm import lpm_bins_last
 from .pfg import lifted_gains
 from .threads import thread_map
 
@@ -110,5 +112,12 @@ def fit_data_pfg(
         return n_bad
 
     n_bad = sum(thread_map(block, range(0, M // 2 + 1, step), workers))
-    warn_rank_deficient(n_bad, M // 2 + 1, stacklevel=4)
+    if n_bad:
+        warnings.warn(
+            f"PFG from data: {n_bad} of {M // 2 + 1} lifted bins have a rank-deficient "
+            "regressor (r does not excite its F aliases independently there, e.g. a held r); "
+            "the PFG is NaN at their bins",
+            RuntimeWarning,
+            stacklevel=4,
+        )
     return gain_half, var_half
