@@ -201,3 +201,22 @@ def test_diagnose_refuses_a_low_rate_y(paper_model):
     sim = simulate(paper_model, duration=30.0, rng=np.random.default_rng(0))
     with pytest.raises(DataError, match="the low rate; diagnose simulates y at the high rate"):
         diagnose(paper_model, LoopData(sim.r, sim.u, sim.y[::3], 240.0, 3))
+
+
+@pytest.mark.parametrize("first,q", [(0, 0), (0, 2), (7, 1)])
+def test_a_held_low_rate_y_on_the_grid_gives_its_samples_and_phase(first, q):
+    """The live/bag path: a low-rate y source held over F samples (.@hold) from its own
+    index; its samples come back where it changes, with y_phase relative to the record."""
+    from mr_ident.live.estimate import low_rate_output
+
+    F, M = 3, 50
+    rng = np.random.default_rng(q)
+    y_l = rng.standard_normal(M + 1)
+    idx = np.arange(first, first + F * M)  # absolute indices of the record
+    y = y_l[(idx - q) // F - (first - q) // F][:, None]  # held from each index = q (mod F)
+    got, phase = low_rate_output(first, y, F)
+    assert phase == (q - first) % F and got.shape == (M, 1)
+    np.testing.assert_array_equal(got[:, 0], y[phase::F, 0])
+    assert np.all(np.diff(idx[phase::F] % F) == 0) and idx[phase] % F == q
+    white, phase = low_rate_output(first, rng.standard_normal((F * M, 1)), F)
+    assert phase == 0 and white.shape == (M, 1)  # not held: every F-th sample

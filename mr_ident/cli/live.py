@@ -33,6 +33,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if args.out.suffix.lower() != ".npz":
         raise ConfigError(f"--out must be a .npz file, got {str(args.out)!r}")
     cfg = load_params(args.params) if args.params else IdentConfig()
+    if args.y_rate:
+        cfg = cfg.replace(y_rate=args.y_rate)
     specs = source_specs(args)
     if specs is not None:
         from ..live.replay import replay_bag
