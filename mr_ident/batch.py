@@ -5,7 +5,8 @@ the workers of an existing Dask cluster through its ``concurrent.futures`` execu
 job reads its recording, writes its own result file (``<name>.npz`` for identify, the
 diagnose report ``<name>.json`` for diagnose) and returns one row of the table: the
 window used, P_h and its standard deviation at the chosen frequencies, the drift against
-a reference estimate or the model, and for diagnose the cause. A job that fails returns a
+a reference estimate or the model, for identify the PFG from data there, and for
+diagnose the cause. A job that fails returns a
 row with its error; the batch goes on.
 
 Memory: a pool worker serves one recording and is then replaced (``max_tasks_per_child``),
@@ -167,6 +168,9 @@ def columns(opts: BatchOptions, n_y: int = 1, n_u: int = 1) -> list[str]:
                     cols.append(f"drift{e}@{f:g}Hz")
     if opts.reference is not None or opts.model is not None:
         cols.append("drift_max")
+    if opts.task == "identify":
+        for f in opts.frequencies:
+            cols += [f"pfg_data@{f:g}Hz", f"pfg_data_std@{f:g}Hz"]
     if opts.task == "diagnose":
         cols += ["cause", "parameters", "fit_y_before", "fit_y_after"]
     return cols
@@ -277,8 +281,12 @@ def _run(job: Job, opts: BatchOptions) -> dict[str, str]:
             **loop,
         )  # fmt: skip
         write_result(job.result, ident)
-        pl = ident.plant
+        pl, pd = ident.plant, ident.pfg_data
         row.update(_frf_columns(opts, pl.frequency, pl.response, pl.std))
+        if pd is not None:  # the PFG from data alone, no controller needed
+            for f in opts.frequencies:
+                row[f"pfg_data@{f:g}Hz"] = _fmt(float(_at(pd.frequency, pd.gain, f)))
+                row[f"pfg_data_std@{f:g}Hz"] = _fmt(float(_at(pd.frequency, pd.std, f)))
         return row
     import json
 

@@ -100,23 +100,29 @@ def plot_bode(
 
 
 def plot_pfg(
-    pfg: PFG, path: str | Path, *, model: PFG | None = None, title: str | None = None
+    pfg: PFG,
+    path: str | Path,
+    *,
+    model: PFG | None = None,
+    title: str | None = None,
+    also: Sequence[PFG] = (),
 ) -> Path:
-    """PFG of the multirate loop with a +-2 sigma band, and the model's."""
+    """PFG of the multirate loop with a +-2 sigma band, ``also`` the same, and the model's."""
     fig = Figure(figsize=(7, 4))
     ax = fig.subplots()
-    f, g, s = pfg.frequency, pfg.gain, pfg.std
-    ax.semilogx(f, _db(g), lw=0.8, color="C0", label=f"PFG from {pfg.source}")
-    if np.isfinite(s).any():
-        ax.fill_between(
-            f,
-            _db(np.maximum(g - 2 * s, g * 1e-3)),
-            _db(g + 2 * s),
-            color="C0",
-            alpha=0.25,
-            lw=0,
-            label="±2σ",
-        )
+    for j, p in enumerate((pfg, *also)):
+        f, g, s = p.frequency, p.gain, p.std
+        ax.semilogx(f, _db(g), lw=0.8, color=f"C{j}", label=f"PFG from {p.source}")
+        if np.isfinite(s).any():
+            ax.fill_between(
+                f,
+                _db(np.maximum(g - 2 * s, g * 1e-3)),
+                _db(g + 2 * s),
+                color=f"C{j}",
+                alpha=0.25,
+                lw=0,
+                label="±2σ",
+            )
     if model is not None:
         ax.semilogx(model.frequency, _db(model.gain), "k--", lw=1, label="model")
     ax.set_xlabel("frequency [Hz]")

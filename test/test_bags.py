@@ -215,6 +215,33 @@ def test_a_held_low_rate_source_spreads_over_F_samples_and_gives_F(tmp_path):
     assert np.median(err[away]) < 1e-3
 
 
+def test_a_camera_at_the_low_rate_gives_the_exact_plant(loop, tmp_path, capsys):
+    """y from a camera at the controller's rate (one message per low-rate period, at the
+    high-rate sample 1 of each, read with .@hold), r and u at the high rate: identify and
+    replay with --y-rate low give P_h on (0, 120] Hz (README, "Outputs at the low rate")."""
+    model, sim = loop
+    t = stamps(sim.n_samples, 240.0)
+    with BagWriter(tmp_path / "cam") as bw:
+        for k in range(sim.n_samples):
+            tk = int(t[k])
+            js = bw.joint_state(tk, ["j1"], position=[sim.r[k, 0]], effort=[sim.u[k, 0]])
+            bw.write("/joint_states", "sensor_msgs/msg/JointState", js, tk)
+            if k % 3 == 1:
+                cam = bw.joint_state(tk, ["j1"], position=[sim.y[k, 0]])
+                bw.write("/camera/pose", "sensor_msgs/msg/JointState", cam, tk)
+    spec = ["--r", "/joint_states.position[0]", "--u", "/joint_states.effort[0]"]
+    spec += ["--y", "/camera/pose.position[0].@hold", "--ratio", "3", "--fs-high", "240"]
+    out = tmp_path / "r.npz"
+    for cmd in ("identify", "replay"):
+        code = main([cmd, str(tmp_path / "cam"), *spec, "--y-rate", "low", "--out", str(out)])
+        assert code == 0, capsys.readouterr().err
+        z = np.load(out)
+        P = model.plant_discrete().freqresp(z["frequency"])
+        assert z["frequency"][-1] > 119.9  # every bin up to fs_high / 2
+        assert float(np.median(np.abs(z["P"] - P) / np.abs(P))) < 1e-4, cmd
+    assert "y at the low rate: its samples at sample" in capsys.readouterr().out
+
+
 def test_replay_and_identify_cli_on_a_bag_directory(loop, tmp_path, capsys):
     model, sim = loop
     bag = joint_state_bag(tmp_path / "js", sim, stamps(sim.n_samples, 240.0))

@@ -19,7 +19,7 @@ from bagmaker import joint_state_bag, stamps
 
 from mr_ident import batch
 from mr_ident.cli import main
-from mr_ident.io.datafile import read_result, write_data
+from mr_ident.io.datafile import read_identification, read_result, write_data
 from mr_ident.io.modelfile import load_model
 from mr_ident.numerics.simulate import simulate
 
@@ -88,6 +88,8 @@ def test_a_batch_gives_a_row_per_recording_with_the_drift_and_a_result_each(
         res = read_result(row["result"])  # the table's values are the result file's
         k = int(np.argmin(np.abs(res.frequency - 10.0)))
         assert float(row["mag@10Hz"]) == pytest.approx(abs(res.response[k, 0, 0]), rel=1e-5)
+        pfg = read_identification(row["result"]).pfg_data  # the PFG from data, no model needed
+        assert float(row["pfg_data@10Hz"]) == pytest.approx(pfg.gain[k], rel=1e-5)
     assert rows["robot_bag"]["n_samples"] == "14400"
 
 

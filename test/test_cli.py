@@ -49,8 +49,28 @@ def test_simulate_then_identify_round_trips_with_the_pfg(tmp_path, capsys, suffi
         and z["P_std"].shape == (K, 1, 1)
     )
     assert z["pfg"].shape == (K,) and z["pfg_std"].shape == (K,)
+    assert z["pfg_data"].shape == (K,) and z["pfg_data_std"].shape == (K,)
     assert z["frequency"][0] > 0 and z["frequency"][-1] == pytest.approx(120.0)
     assert (tmp_path / "bode.png").stat().st_size > 10_000
+    assert (tmp_path / "bode_pfg.png").stat().st_size > 10_000
+    assert "PFG from data" in out and "PFG from P_h and K_l" in out
+    assert "the two PFGs differ by more than 3 std over" in out
+    assert "controller on the machine differs" not in out
+
+
+def test_identify_without_a_model_gives_the_pfg_from_data(tmp_path, capsys):
+    """No controller model: the result still holds the PFG (from the lifted r -> y map),
+    marked as from data, and the plot draws it."""
+    data = tmp_path / "d.npz"
+    assert run(capsys, "simulate", PAPER, "--duration", 30, "--seed", 1, "--out", data)[0] == 0
+    res = tmp_path / "r.npz"
+    code, out, err = run(capsys, "identify", data, "--out", res, "--plot", tmp_path / "bode.png")
+    assert code == 0, err
+    z = np.load(res)
+    assert "pfg" not in z and z["pfg_data"].shape == (3600,)
+    assert str(z["pfg_data_source"]).startswith("data")
+    assert np.all(np.isfinite(z["pfg_data"])) and np.all(z["pfg_data_std"] > 0)
+    assert "PFG from data (lifted r->y): peak" in out
     assert (tmp_path / "bode_pfg.png").stat().st_size > 10_000
 
 

@@ -110,7 +110,8 @@ class Listener:
         self.node = g.node("listener")
         self.msgs: dict[str, Float64MultiArray] = {}
         self.diag = []
-        for name in ("frequencies", "plant_frf", "plant_frf_std", "pfg", "pfg_std", *BODE_TOPICS):
+        names = ("frequencies", "plant_frf", "plant_frf_std", "pfg", "pfg_std", "pfg_data")
+        for name in (*names, "pfg_data_std", *BODE_TOPICS):
             self.node.create_subscription(
                 Float64MultiArray,
                 f"/mr_ident/{name}",
@@ -220,6 +221,7 @@ def test_sim_to_node_estimate_matches_the_exact_plant(graph):
         lambda: (
             node.last_estimate is not None
             and "pfg" in lis.msgs
+            and "pfg_data_std" in lis.msgs
             and "plant_frf" in lis.msgs
             and lis.msgs["plant_frf"].layout.dim[3].size > 0
         ),
@@ -233,6 +235,8 @@ def test_sim_to_node_estimate_matches_the_exact_plant(graph):
     Ptrue = model.plant_discrete().freqresp(f)
     rel = np.abs(P - Ptrue) / np.abs(Ptrue)
     assert np.median(rel) < 1e-4 and rel.max() < 1e-2
+    pfg_data = np.frombuffer(lis.msgs["pfg_data"].data)  # published beside the model's PFG
+    assert pfg_data.size == f.size and np.all(np.isfinite(pfg_data))
 
     def plot_topics_match_plant_frf() -> bool:
         """The plot topics equal the plant_frf they came with: log10 f (1e-12), dB (1e-9

@@ -177,6 +177,23 @@ def test_noise_alone_gives_none_and_no_significant_bin(nominal):
     assert d.cause == "none" and d.applied == []
     assert not d.evidence_before.significant.any()
     assert not d.evidence_before.loop_significant.any()
+    assert d.controller is not None and not d.controller.differs, d.controller.fraction
+
+
+def test_a_controller_on_the_machine_that_is_not_its_model_is_a_finding(nominal):
+    """The machine runs the lead controller at 1.3 times the model's gain: the PFG from data
+    and the PFG of the model's controller disagree, reported in the JSON's findings."""
+    from mr_ident.diagnosis.report import report_dict
+
+    K = nominal.controller
+    true = replace(
+        nominal, controller=TransferMatrix.siso([1.3 * c for c in K.num[0][0]], K.den[0][0], K.dt)
+    )
+    d = diagnose(nominal, _data(true, nominal, 61))
+    assert d.controller is not None and d.controller.differs, d.controller.fraction
+    rep = report_dict(d, extended_model=None, alpha=0.01)
+    assert rep["controller_check"]["differs"] and rep["controller_check"]["bands_hz"]
+    assert any("controller on the machine differs" in f for f in rep["findings"])
 
 
 def test_the_extended_model_diagnosed_again_gives_none(nominal):

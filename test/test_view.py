@@ -293,6 +293,7 @@ def test_a_bag_replays_its_estimates_into_the_view(tmp_path):
     P = ref.identification.plant.response[k, 0, 0]
     np.testing.assert_allclose(np.array(est["P_re"]) + 1j * np.array(est["P_im"]), P, rtol=1e-12)
     np.testing.assert_allclose(est["pfg"], ref.identification.pfg.gain[k], rtol=1e-12)
+    np.testing.assert_allclose(est["pfg_data"], ref.identification.pfg_data.gain[k], rtol=1e-12)
 
 
 def test_bad_input_is_one_line_and_exit_2(tmp_path):

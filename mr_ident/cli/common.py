@@ -68,19 +68,51 @@ def read_loop(
 def write_plots(
     ident: Identification, path: Path, fs: float, F: int, N: int, model: Model | None
 ) -> None:
-    """Bode plot of P_h at ``path`` (model drawn when given); with a PFG, ``<path>_pfg``."""
+    """Bode plot of P_h at ``path`` (model drawn when given); with a PFG, ``<path>_pfg``.
+
+    The PFG plot shows the PFG from data and, with a controller, the one from P_h and it.
+    """
     from ..numerics.pfg import pfg_of_model
     from ..plots import plot_bode, plot_pfg
 
     nyq = fs / F / 2 if F > 1 else None
     mfrf = model.plant_result(N) if model is not None else None
     print(f"wrote {plot_bode(ident.plant, path, model=mfrf, nyquist_low=nyq)}")
-    if ident.pfg is not None:
+    shown = [g for g in (ident.pfg_data, ident.pfg) if g is not None]
+    if shown:
         ref = (
             pfg_of_model(model, N) if model is not None and model.controller is not None else None
         )
         pfg_path = path.with_name(path.stem + "_pfg" + path.suffix)
-        print(f"wrote {plot_pfg(ident.pfg, pfg_path, model=ref)}")
+        print(f"wrote {plot_pfg(shown[0], pfg_path, model=ref, also=shown[1:])}")
+
+
+def describe_pfgs(ident: Identification) -> list[str]:
+    """Lines on the PFGs of a result: each one's peak and std; with both, their agreement."""
+    import numpy as np
+
+    from ..diagnosis.controller_check import check_controller
+    from ..diagnosis.scenarios import COVERAGE
+
+    lines = []
+    for g, what in ((ident.pfg_data, "from data (lifted r->y)"), (ident.pfg, "from P_h and K_l")):
+        if g is None or not np.isfinite(g.gain).any():
+            continue
+        k = int(np.nanargmax(g.gain))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rel = float(np.nanmedian(g.std / g.gain))
+        lines.append(
+            f"PFG {what}: peak {20 * np.log10(g.gain[k]):.1f} dB at {g.frequency[k]:.4g} Hz, "
+            f"median std {100 * rel:.2g} % of the gain"
+        )
+    n = 0 if ident.n_used is None else int(np.min(ident.n_used))
+    check = check_controller(ident, n)
+    if check is not None:
+        lines.append(
+            f"the two PFGs differ by more than {COVERAGE:g} std over {100 * check.fraction:.2g} % "
+            "of the band (log axis)" + ("; " + check.text().split(":")[0] if check.differs else "")
+        )
+    return lines
 
 
 def read_for_diagnosis(

@@ -10,7 +10,7 @@ import sys
 from typing import TYPE_CHECKING
 
 from ..errors import ConfigError
-from .common import reading, source_specs, write_plots
+from .common import describe_pfgs, reading, source_specs, write_plots
 
 if TYPE_CHECKING:
     from ..io.config import IdentConfig
@@ -33,6 +33,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if args.out.suffix.lower() != ".npz":
         raise ConfigError(f"--out must be a .npz file, got {str(args.out)!r}")
     cfg = load_params(args.params) if args.params else IdentConfig()
+    if args.y_rate:
+        cfg = cfg.replace(y_rate=args.y_rate)
     specs = source_specs(args)
     if specs is not None:
         from ..live.replay import replay_bag
@@ -67,6 +69,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     print(
         f"wrote {args.out} ({est.identification.plant.frequency.size} bins, method {cfg.method})"
     )
+    for line in describe_pfgs(est.identification):
+        print(line)
     if args.plot:
         from ..io.modelfile import load_model
 
@@ -163,7 +167,7 @@ def cmd_view(args: argparse.Namespace) -> int:
             if stop.requested:
                 return 0
             ident = est.identification
-            pfg = ident.pfg
+            pfg, pfd = ident.pfg, ident.pfg_data
             k = publish_grid(ident.plant.frequency.size, cfg.publish_points)  # as the node
             server.state.set_estimate(
                 ident.plant.frequency[k],
@@ -176,6 +180,8 @@ def cmd_view(args: argparse.Namespace) -> int:
                     "estimate_samples": est.n_samples,
                     "loop_time_s": t_loop,
                 },
+                pfg_data=None if pfd is None else pfd.gain[k],
+                pfg_data_std=None if pfd is None else pfd.std[k],
             )
             n += 1
         print(

@@ -10,7 +10,14 @@ import math
 from typing import TYPE_CHECKING, Any
 
 from ..errors import ConfigError, DataError
-from .common import read_loop, reading, resolve_rates, source_specs, write_plots
+from .common import (
+    describe_pfgs,
+    read_loop,
+    reading,
+    resolve_rates,
+    source_specs,
+    write_plots,
+)
 
 if TYPE_CHECKING:
     pass
@@ -38,6 +45,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
     from ..io.datafile import write_result
     from ..io.modelfile import load_model
     from ..numerics.identify import identify
+    from ..numerics.signals import LoopData
 
     if args.out.suffix.lower() != ".npz":
         raise ConfigError(f"--out must be a .npz file, got {str(args.out)!r}")
@@ -53,6 +61,20 @@ def cmd_identify(args: argparse.Namespace) -> int:
     )
     fs, F = resolve_rates(args, data, model)
     N = data.n_samples
+    y_phase = 0
+    if args.y_rate == "low" and data.y_step == 1:  # a bag's low-rate y, held on the grid
+        from ..live.estimate import low_rate_output
+
+        y_low, y_phase = low_rate_output(data.first, data.y, F)
+        data = LoopData(data.r, data.u, y_low, data.fs_high, data.ratio, data.first)
+        print(f"note: y at the low rate: its samples at sample {y_phase} of each period (F = {F})")
+    elif args.y_rate == "high" and data.y_step != 1:
+        raise ConfigError(f"--y-rate high, but y has N/F = {data.y.shape[0]} samples")
+    elif data.y_step != 1:
+        print(
+            f"note: y has {data.y.shape[0]} samples, r and u {N}: y is taken as the output at "
+            f"the low rate (y_h at samples 0, F, 2F, ...; F = {F})"
+        )
     loop: dict[str, Any] = {}
     if model is not None:
         if model.n_y != data.y.shape[1] or model.n_u != data.u.shape[1]:
@@ -72,10 +94,13 @@ def cmd_identify(args: argparse.Namespace) -> int:
         degree=args.degree,
         local=args.local,
         keep_lifted=False,
+        y_phase=y_phase,
         **loop,
     )  # the result holds P_h and the PFG
     write_result(args.out, ident)
     print(f"wrote {args.out} ({ident.plant.frequency.size} bins, method {args.method})")
+    for line in describe_pfgs(ident):
+        print(line)
     if args.plot:
         write_plots(ident, args.plot, fs, F, N, model)
     return 0

@@ -34,6 +34,16 @@ def _sources(p: argparse.ArgumentParser) -> None:
         )
 
 
+def _y_rate(p: argparse.ArgumentParser, default: str) -> None:
+    """--y-rate: y measured at the controller's rate (README, "Outputs at the low rate")."""
+    p.add_argument(
+        "--y-rate",
+        choices=("high", "low"),
+        help="low: y is measured at the low rate (a bag's y source read with .@hold: its "
+        f"samples are where it changes); default: {default}",
+    )
+
+
 def _reading(p: argparse.ArgumentParser, default_span: str = DEFAULT_SPAN) -> None:
     """--span and --msg-path: how a recording is read (README, "Bags")."""
     p.add_argument(
@@ -117,6 +127,7 @@ def build_parser() -> argparse.ArgumentParser:
     _lpm_options(i)
     _local_option(i)
     _sources(i)
+    _y_rate(i, "high, or low for an NPZ whose y has N/F samples")
     _reading(i)
     i.add_argument("--out", type=Path, required=True, help="result .npz")
     i.add_argument(
@@ -176,6 +187,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="use the window ending at or before this sample index",
     )
     _sources(rp)
+    _y_rate(rp, "y_rate of --params (high)")
     _reading(rp, default_span="latest")
     rp.add_argument(
         "--fs-high",

@@ -36,6 +36,7 @@ from ..numerics.identify import default_n, min_samples
 from ..numerics.model import Model
 from ..numerics.signals import LoopData
 from .causes import CauseFit, PlantData
+from .controller_check import ControllerCheck, check_controller
 from .equivalence import with_equivalents
 from .evidence import Evidence, frf_evidence, identify_record
 from .noise import noise_spectrum
@@ -71,6 +72,11 @@ def check_record(model: Model, rec: LoopData, *, n: int = 8, what: str = "data")
         )
     if rec.ratio != model.ratio:
         raise DataError(f"{what}: the ratio F is {rec.ratio} but the model says {model.ratio}")
+    if rec.y_step != 1:
+        raise DataError(
+            f"{what}: y has {rec.y.shape[0]} samples, the low rate; diagnose simulates y at the "
+            f"high rate and needs all N = {rec.n_samples} (identify takes a low-rate y)"
+        )
     if rec.u.shape[1] != model.n_u or rec.y.shape[1] != model.n_y:
         raise DataError(
             f"{what} has {rec.u.shape[1]} input and {rec.y.shape[1]} output channels; "
@@ -127,6 +133,10 @@ class Diagnosis:
         On the validation data.
     estimation, validation : str
         Which data were used for what.
+    controller : ControllerCheck or None
+        The PFG from data against the PFG of the model's controller, on the estimation data
+        (:mod:`~mr_ident.diagnosis.controller_check`); None in open loop or for periodic
+        data.
     """
 
     cause: str
@@ -143,6 +153,7 @@ class Diagnosis:
     validation: str
     traces: dict[str, Any] = field(default_factory=dict)
     distortion: list[BandLevels] = field(default_factory=list)
+    controller: ControllerCheck | None = None
 
     @property
     def nonlinear(self) -> bool:
@@ -333,6 +344,7 @@ def diagnose(
         val_desc,
         traces,
         distortion(est),
+        None if ident is None else check_controller(ident, n),
     )
 
 

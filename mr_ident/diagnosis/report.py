@@ -9,7 +9,9 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from .controller_check import MIN_FRACTION
 from .diagnose import NL_THRESHOLD_DB, Diagnosis
+from .scenarios import COVERAGE
 from .selection import ACCEPT_MARGIN
 
 
@@ -55,6 +57,7 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
             for c in d.applied
         ],
         "findings": ([d.distortion_text()] if d.nonlinear else [])
+        + ([d.controller.text()] if d.controller is not None and d.controller.differs else [])
         + [c.description for c in d.applied],
         "nonlinear_distortion": {
             "detected": d.nonlinear,
@@ -70,6 +73,18 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
                 }
                 for b in d.distortion
             ],
+        },
+        "controller_check": None
+        if d.controller is None
+        else {
+            "differs": d.controller.differs,
+            "fraction": d.controller.fraction,
+            "min_fraction": MIN_FRACTION,
+            "coverage_std": COVERAGE,
+            "median_relative": d.controller.relative,
+            "bands_hz": [list(b) for b in d.controller.bands],
+            "statistic": "|PFG_data - PFG_model_K| / sqrt(std_data^2 + std_model_K^2) per bin; "
+            "fraction: share of the band beyond coverage_std, bins weighed by 1/f",
         },
         "criterion": "BIC = 2 sum_k |E(k)|^2/S_noise(k) + p ln(n_bins) of the residual y - y_sim; "
         "lower is better; forward selection with joint re-fits: a cause (set) is accepted when "

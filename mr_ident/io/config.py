@@ -125,6 +125,10 @@ PARAMETERS: dict[str, Param] = {
     "monitor_hold": Param(
         "consecutive estimates that must agree before the plant status changes", 1, 1000
     ),
+    "y_rate": Param(
+        'rate at which y is measured: "high", or "low" (a y source at the controller\'s '
+        "rate, read with .@hold: identified from its samples, freq-lifted only)"
+    ),
 }
 
 
@@ -161,6 +165,7 @@ class IdentConfig:
     monitor_alpha: float = 0.01
     monitor_error_db: float = 6.0
     monitor_hold: int = 3
+    y_rate: str = "high"
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
@@ -203,6 +208,12 @@ class IdentConfig:
                 raise ConfigError(f"{f.name} must be in [{spec.low:g}, {spec.high:g}], got {v!r}")
         if self.method not in METHODS:
             raise ConfigError(f"method must be one of {', '.join(METHODS)}; got {self.method!r}")
+        if self.y_rate not in ("high", "low"):
+            raise ConfigError(f'y_rate must be "high" or "low", got {self.y_rate!r}')
+        if self.y_rate == "low" and self.method != "freq-lifted":
+            raise ConfigError(
+                f'y_rate "low" is identified by freq-lifted only; got method {self.method!r}'
+            )
         if self.lifting_phase != "auto":
             try:
                 p = int(self.lifting_phase)

@@ -6,12 +6,15 @@ CSV
     fs_high is taken from ``t`` (uniform spacing required); F from the caller.
 NPZ (data)
     Arrays ``r``, ``u``, ``y`` of shape (N,) or (N, channels), and scalars
-    ``fs_high`` (Hz) and ``ratio`` (F).
+    ``fs_high`` (Hz) and ``ratio`` (F). ``y`` may hold N/F rows instead: the output measured
+    at the low rate only, y_h at samples 0, F, 2F, ... (exactly N/F; another length is an
+    error naming the lengths).
 NPZ (result, written by ``mr-ident identify``)
-    ``frequency`` (K,), ``P`` (K, n_y, n_u) complex, ``P_std`` (K, n_y, n_u) and,
-    with a controller, ``pfg``, ``pfg_std`` (K,); plus ``method``, ``fs_high``, ``ratio``
-    and ``n`` (K,), the LPM window half-width used per bin (0: none; files written before
-    it read the same).
+    ``frequency`` (K,), ``P`` (K, n_y, n_u) complex, ``P_std`` (K, n_y, n_u);
+    ``pfg_data``, ``pfg_data_std`` (K,), the PFG identified from data alone (the lifted
+    r -> y map), where the data give it; with a controller ``pfg``, ``pfg_std`` (K,), the
+    PFG of P_h under that controller; plus ``method``, ``fs_high``, ``ratio`` and ``n`` (K,),
+    the LPM window half-width used per bin (0: none; files written before it read the same).
 
 Writers go through a temporary file and a rename: a failed write leaves nothing.
 """
@@ -26,10 +29,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..errors import DataError
+from ..errors import DataError, DimensionError
 from ..numerics.arrays import FloatArray
-from ..numerics.results import FRF, Identification
-from ..numerics.signals import LoopData
+from ..numerics.identify import DATA_PFG_SOURCE
+from ..numerics.results import FRF, PFG, Identification
+from ..numerics.signals import LoopData, y_at_low_rate
 from .atomic import atomic_write
 
 _SIGNALS = ("r", "u", "y")
@@ -191,8 +195,12 @@ def read_npz(path: str | Path) -> LoopData:
             raise DataError(f"{p}: ratio must be one integer >= 1, got {v.tolist()!r}")
         ratio = int(v)
     lens = {s: arrays[s].shape[0] for s in _SIGNALS}
-    if len(set(lens.values())) != 1:
+    if lens["u"] != lens["r"]:
         raise DataError(f"{p}: r, u, y have unequal lengths {lens}")
+    try:
+        y_at_low_rate(lens["r"], lens["y"], ratio)
+    except DimensionError as err:
+        raise DataError(f"{p}: {err}") from None
     return LoopData(arrays["r"], arrays["u"], arrays["y"], fs, ratio)
 
 
@@ -260,9 +268,11 @@ def write_result(path: str | Path, ident: Identification) -> None:
         "fs_high": ident.fs_high,
         "ratio": ident.ratio,
     }
-    if ident.pfg is not None:
-        arrays["pfg"] = ident.pfg.gain
-        arrays["pfg_std"] = ident.pfg.std
+    for key, g in (("pfg", ident.pfg), ("pfg_data", ident.pfg_data)):
+        if g is not None:
+            arrays[key] = g.gain
+            arrays[f"{key}_std"] = g.std
+            arrays[f"{key}_source"] = np.array(g.source)
     atomic_write(p, lambda fh: np.savez(fh, **arrays), binary=True)
 
 
@@ -272,3 +282,31 @@ def read_result(path: str | Path) -> FRF:
     z = load_npz(path, ("frequency", "P", "P_std"), what)
     method = str(z["method"]) if "method" in z else "reference"
     return FRF(z["frequency"], z["P"], z["P_std"], method)
+
+
+def read_identification(path: str | Path) -> Identification:
+    """A result NPZ as written by :func:`write_result`: P_h, both PFGs where present, n.
+
+    The lifted maps are not stored (``lifted_J``, ``lifted_S`` None).
+    """
+    what = "an identification result (written by mr-ident identify)"
+    z = load_npz(path, ("frequency", "P", "P_std", "fs_high", "ratio"), what)
+    plant = FRF(
+        z["frequency"], z["P"], z["P_std"], str(z["method"]) if "method" in z else "reference"
+    )
+    pfgs: dict[str, PFG | None] = {}
+    for key, source in (("pfg", "plant"), ("pfg_data", DATA_PFG_SOURCE)):
+        pfgs[key] = None
+        if key in z:
+            src = str(z[f"{key}_source"]) if f"{key}_source" in z else source
+            pfgs[key] = PFG(z["frequency"], z[key], z[f"{key}_std"], src)
+    return Identification(
+        plant=plant,
+        pfg=pfgs["pfg"],
+        lifted_J=None,
+        lifted_S=None,
+        fs_high=float(z["fs_high"]),
+        ratio=int(z["ratio"]),
+        n_used=z["n"] if "n" in z else None,
+        pfg_data=pfgs["pfg_data"],
+    )

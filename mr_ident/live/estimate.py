@@ -56,19 +56,43 @@ def detect_phase(
     intervals starting at indices = h (mod F) is summed; the true h gives (nearly) 0.
     """
     F = int(ratio)
+    hold, contrast = held_phase(first, np.asarray(u, dtype=float) - np.asarray(r, dtype=float), F)
+    return PhaseDetection((hold - control_delay) % F, hold, contrast)
+
+
+def held_phase(first: int, x: NDArray, ratio: int) -> tuple[int, float]:
+    """The index (mod F) at which a signal held over F samples changes, and the contrast.
+
+    ``x`` (N,) or (N, c), its first sample at absolute index ``first``. For each candidate h
+    the variation between consecutive samples *inside* the hold intervals starting at
+    indices = h (mod F) is summed; the true h gives (nearly) 0. The contrast is that sum
+    relative to the next best candidate's (below 0.1: clear; near 1: not held, or F = 1).
+    """
+    F = int(ratio)
     if F == 1:
-        return PhaseDetection(0, 0, 1.0)
-    d = np.asarray(u, dtype=float) - np.asarray(r, dtype=float)
-    step = np.abs(np.diff(d, axis=0)).sum(axis=1) if d.ndim == 2 else np.abs(np.diff(d))
+        return 0, 1.0
+    step = np.abs(np.diff(x, axis=0)).sum(axis=1) if x.ndim == 2 else np.abs(np.diff(x))
     idx = (first + 1 + np.arange(step.shape[0])) % F  # index of the later sample
     per_class = np.bincount(idx, weights=step, minlength=F)  # variation entering index = c (mod F)
-    total = per_class.sum()
-    inside = total - per_class  # hold at h: changes only allowed at h
+    inside = per_class.sum() - per_class  # hold at h: changes only allowed at h
     order = np.argsort(inside)
     best, second = float(inside[order[0]]), float(inside[order[1]])
-    contrast = best / second if second > 0 else 1.0
-    hold = int(order[0])
-    return PhaseDetection((hold - control_delay) % F, hold, contrast)
+    return int(order[0]), (best / second if second > 0 else 1.0)
+
+
+def low_rate_output(first: int, y: NDArray, ratio: int) -> tuple[NDArray, int]:
+    """The output measured at the low rate, from its samples on the high-rate grid: (y_l, q).
+
+    A low-rate y source reaches the grid held (``.@hold``: each sample covers F indices
+    from its own), so the samples are taken where the held y changes (:func:`held_phase`;
+    q = 0 when that is not clear, e.g. a y at the high rate: then every F-th sample).
+    Returns y_l (N/F, n_y), its first sample at the record's sample q (0..F-1): the
+    ``y_phase`` of :func:`~mr_ident.numerics.identify.identify`.
+    """
+    F = int(ratio)
+    hold, contrast = held_phase(first, y, F)
+    q = (hold - first) % F if contrast < 0.1 else 0
+    return y[q::F], q
 
 
 @dataclass(frozen=True)
@@ -111,10 +135,13 @@ def estimate(window: LoopData, config: IdentConfig) -> Estimate:
             phase, source = 0, "auto (undetermined: 0 assumed)"
     controller = config.controller
     K_low = None if controller is None else controller.dft_response(window.n_samples // F)
+    y, y_phase = window.y, 0
+    if config.y_rate == "low":
+        y, y_phase = low_rate_output(window.first, window.y, F)
     ident = identify(
         window.r,
         window.u,
-        window.y,
+        y,
         fs_high=config.fs_high,
         ratio=F,
         method=config.method,
@@ -126,6 +153,7 @@ def estimate(window: LoopData, config: IdentConfig) -> Estimate:
         delay=config.control_delay,
         keep_lifted=False,
         workers=config.workers,
+        y_phase=y_phase,
     )
     # The result does not depend on the number of threads (bit-identical).
     return Estimate(window.first, window.n_samples, ident, phase, source, time.perf_counter() - t0)

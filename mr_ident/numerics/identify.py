@@ -10,6 +10,7 @@ shared with the node's configuration.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -23,7 +24,9 @@ from .local import check_local, smallest_n
 from .local import check_options as check_local_options
 from .methods import METHODS, FitRequest, Method, PlantFit
 from .pfg import pfg_from_plant
+from .pfg_data import fit_data_pfg
 from .results import FRF, PFG, Identification
+from .signals import y_at_low_rate
 from .threads import one_blas_thread, resolve_workers
 
 __all__ = ["AUTO", "METHODS", "check_options", "default_n", "identify", "min_samples"]
@@ -124,10 +127,11 @@ def _check_signals(
             )
         arrays.append(a)
     ra, ua, ya = arrays
-    if not ra.shape[0] == ua.shape[0] == ya.shape[0]:
+    if ra.shape[0] != ua.shape[0]:
         raise DimensionError(
-            f"r, u, y must have equal lengths, got {ra.shape[0]}, {ua.shape[0]}, {ya.shape[0]}"
+            f"r and u must have equal lengths (the high rate), got {ra.shape[0]}, {ua.shape[0]}"
         )
+    y_at_low_rate(ra.shape[0], ya.shape[0], ratio)
     if ra.shape[1] != ua.shape[1]:
         raise DimensionError(
             f"r and u must have the same number of channels (r excites u), got {ra.shape[1]} "
@@ -157,13 +161,17 @@ def identify(
     delay: int = 0,
     keep_lifted: bool = True,
     workers: int | None = None,
+    y_phase: int = 0,
 ) -> Identification:
     """Identify the high-rate plant P_h (and the PFG) from closed-loop data.
 
     Parameters
     ----------
     r, u, y : array_like, shape (N,) or (N, channels)
-        Reference, plant input and plant output at the high rate; N a multiple of F.
+        Reference, plant input and plant output at the high rate; N a multiple of F. ``y``
+        may instead hold N/F samples: the output at the low rate only, ``y_h[m F + q]``
+        (``freq-lifted`` only; P_h still on every bin: see the README, "Outputs at the low
+        rate").
     fs_high : float
         High sample rate in Hz.
     ratio : int
@@ -195,11 +203,17 @@ def identify(
         Threads over blocks of bins (default: every CPU available to the process;
         1 runs serially). The result does not depend on it; while they run,
         OpenBLAS is limited to one thread per caller.
+    y_phase : int, default 0
+        q: the high-rate sample (0..F-1) of each low-rate period at which a low-rate ``y``
+        was taken.
 
     Returns
     -------
     Identification
-        ``plant``: P_h on the bins (0, fs_high/2], shape (N//2, n_y, n_u), with its std.
+        ``plant``: P_h on the bins (0, fs_high/2], shape (N//2, n_y, n_u), with its std;
+        ``pfg_data``: the PFG from data alone (the lifted r -> y fit at the base window,
+        whatever the method; None for a low-rate y), ``pfg``: the PFG from P_h and
+        ``controller_low`` when given.
 
     Raises
     ------
@@ -236,6 +250,18 @@ def identify(
     ra, ua, ya = _check_signals(r, u, y, F)
     N = ra.shape[0]
     ny, nu = ya.shape[1], ua.shape[1]
+    slow = ya.shape[0] != N  # y at the low rate
+    if slow and method != "freq-lifted":
+        raise ConfigError(
+            f"y at the low rate ({ya.shape[0]} = N/F samples) is identified by freq-lifted "
+            f"only; got method {method!r}"
+        )
+    if (
+        isinstance(y_phase, bool)
+        or not isinstance(y_phase, (int, np.integer))
+        or not (0 <= y_phase < F)
+    ):
+        raise ConfigError(f"y_phase must be an integer in 0..F-1 = 0..{F - 1}, got {y_phase!r}")
     n_min = default_n(method, degree, F, ra.shape[1], max(ny, nu), local)
     auto = isinstance(n, str)
     if auto and n != AUTO:
@@ -253,12 +279,19 @@ def identify(
     if auto and m.uses_lpm:
         ns = candidates(n0, (N // (2 * m.lift(F)) - 1) // 2)
 
-    def fit_with(nj: int, keep: bool) -> PlantFit:
+    def fit_with(nj: int, keep: bool, data_pfg: bool) -> PlantFit:
         qj = check_options(method, nj, degree, F, ra.shape[1], max(ny, nu), local)
-        return m.fit(FitRequest(ra, ua, ya, F, nj, degree, qj, keep, n_workers, local))
+        return m.fit(
+            FitRequest(
+                ra, ua, ya, F, nj, degree, qj, keep, n_workers, local, data_pfg, int(y_phase)
+            )
+        )
 
     with one_blas_thread():
-        fits = [fit_with(nj, keep_lifted and j == 0) for j, nj in enumerate(ns)]
+        fits = [fit_with(nj, keep_lifted and j == 0, j == 0) for j, nj in enumerate(ns)]
+        pfg_data = (
+            None if slow else _data_pfg(fits[0], ra, ya, F, n0, degree, n_workers, float(fs_high))
+        )
     fit = fits[0]
     n_used = np.full(N // 2 + 1, ns[0] if m.uses_lpm else 0, dtype=np.int64)
     if len(ns) > 1:
@@ -302,4 +335,43 @@ def identify(
         ratio=F,
         n_used=n_used[1:],
         local=local,
+        pfg_data=pfg_data,
     )
+
+
+#: The source of the PFG identified from data alone (:attr:`Identification.pfg_data`).
+DATA_PFG_SOURCE = "data:lifted r->y"
+
+
+def _data_pfg(
+    fit: PlantFit,
+    r: FloatArray,
+    y: FloatArray,
+    ratio: int,
+    n: int,
+    degree: int,
+    workers: int,
+    fs_high: float,
+) -> PFG | None:
+    """The PFG from the lifted fit r -> y: the method's own, else one more lifted fit.
+
+    The extra fit takes the larger of the method's window ``n`` (the base window with
+    ``n="auto"``) and the lifted default (:func:`default_n`); None (with a warning) when the
+    record is too short for it.
+    """
+    N, nr, ny = r.shape[0], r.shape[1], y.shape[1]
+    gain, var = fit.pfg_half, fit.pfg_var_half
+    if gain is None or var is None:
+        lifted = METHODS["freq-lifted"]
+        n_pfg = max(n, default_n("freq-lifted", degree, ratio, nr, ny))
+        if N < lifted.min_samples(n_pfg, ratio):
+            warnings.warn(
+                f"no PFG from data: the lifted fit r -> y needs N >= "
+                f"{lifted.min_samples(n_pfg, ratio)} samples (n = {n_pfg}), got {N}",
+                stacklevel=3,
+            )
+            return None
+        q = check_options("freq-lifted", n_pfg, degree, ratio, nr, ny)
+        gain, var = fit_data_pfg(r, y, ratio, n_pfg, degree, q, workers)
+    freq = np.arange(1, N // 2 + 1) * fs_high / N
+    return PFG(freq, gain[1:], np.sqrt(np.maximum(var[1:], 0.0)), DATA_PFG_SOURCE)

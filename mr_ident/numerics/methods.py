@@ -8,7 +8,9 @@ function and one more row.
 
 ``freq-lifted`` (default)
     Frequency-lift R, U, Y (stack the F aliases), LPM on r -> [y; u] giving the
-    lifted J and S, indirect step ``P = J S^-1``, P_h from the diagonal blocks.
+    lifted J and S, indirect step ``P = J S^-1``, P_h from the diagonal blocks. With y at
+    the low rate (N/F samples) its spectrum sums the aliases: J and P are one block row,
+    whose blocks are P_h at the F aliases (:func:`~mr_ident.numerics.lifting.unlift_row`).
 ``time-lifted``
     Time-lift r, u, y (stack F samples), LPM on their M-point DFTs, indirect step,
     P_h from the first block column (polyphase components).
@@ -40,14 +42,18 @@ from .lifting import (
     freq_lift_half,
     half_spectrum,
     half_to_full,
+    low_rate_lift_half,
     time_lift,
     unlift_bins,
     unlift_frf,
+    unlift_row,
+    unlift_row_variance,
     unlift_variance,
 )
 from .local import LocalFit, local_fit
 from .lpm import warn_rank_deficient
 from .lrm import DenominatorTerm
+from .pfg_data import empty_pfg, store_lifted_pfg
 from .results import LiftedFRF
 from .structured import structured_block
 from .threads import thread_map
@@ -58,7 +64,9 @@ class FitRequest:
     """Checked input of a method: r, u, y (N, channels), F, LPM options and threads.
 
     ``local``: the local model of the fits, "polynomial" (LPM) or "rational" (LRM),
-    :mod:`mr_ident.numerics.local`.
+    :mod:`mr_ident.numerics.local`. ``data_pfg``: a lifted method that fits r -> y also
+    returns the PFG of that fit (:mod:`mr_ident.numerics.pfg_data`). ``y`` may have N/F
+    rows: the output at the low rate, ``y_h[m F + y_phase]`` (``freq-lifted`` only).
     """
 
     r: FloatArray
@@ -71,6 +79,8 @@ class FitRequest:
     keep_lifted: bool
     workers: int
     local: str = "polynomial"
+    data_pfg: bool = False
+    y_phase: int = 0
 
     @property
     def n_samples(self) -> int:
@@ -83,13 +93,16 @@ class PlantFit:
     """What a method returns.
 
     P_h (N//2+1, n_y, n_u) and its variance ``E|dP|^2`` on bins 0..N//2 (NaN where it has no
-    noise model), and the lifted maps when kept.
+    noise model), the lifted maps when kept, and the PFG of the lifted r -> y fit with its
+    variance (N//2+1,) when asked for and the method has that fit.
     """
 
     P_half: ComplexArray
     var_half: FloatArray
     lifted_J: LiftedFRF | None = None
     lifted_S: LiftedFRF | None = None
+    pfg_half: FloatArray | None = None
+    pfg_var_half: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -225,7 +238,10 @@ def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
     Kc = M // 2
     P_half = np.full((half + 1, ny, nu), np.nan + 0j)
     var_half = np.full((half + 1, ny, nu), np.nan)
-    keep = req.keep_lifted and ratio is None
+    slow = req.y.shape[0] != N  # y at the low rate: r -> y is one lifted block row
+    n_row = ny if slow else F * ny  # rows of the r -> y part of the fit
+    keep = req.keep_lifted and ratio is None and not slow
+    pfg = empty_pfg(N) if req.data_pfg and ratio is None and not slow else None
 
     step = block_bins(F, req.r.shape[1], max(ny, nu))
 
@@ -236,31 +252,43 @@ def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
         """
         kb = range(b0, min(b0 + step, Kc + 1))
         window = range(kb.start - n, kb.stop + n)
+        Yl = low_rate_lift_half(Yh, window, F, M) if slow else freq_lift_half(Yh, window, F, N)
         fit = local_fit(
             req.local,
             freq_lift_half(Rh, window, F, N),
-            np.concatenate(
-                [freq_lift_half(Yh, window, F, N), freq_lift_half(Uh, window, F, N)], axis=1
-            ),
+            np.concatenate([Yl, freq_lift_half(Uh, window, F, N)], axis=1),
             n,
             req.degree,
         )  # bins-last
-        P, rdiag, cdiag, extra = _indirect_diag(fit, F * ny)
-        var = unlift_variance(rdiag.T, cdiag.T, F)
-        if extra is not None:  # the diagonal blocks, as for P
-            var = var + unlift_frf(extra.transpose(2, 0, 1), F).real
-        _store_half(P_half, var_half, kb, unlift_frf(P.transpose(2, 0, 1), F), var, F, N)
+        P, rdiag, cdiag, extra = _indirect_diag(fit, n_row)
+        if slow:
+            Pk = unlift_row(P.transpose(2, 0, 1), F, np.arange(kb.start, kb.stop), N, req.y_phase)
+            var = unlift_row_variance(rdiag.T, cdiag.T, F)
+            if extra is not None:  # (n_y, F n_u, K): entry (a, l n_u + b) is alias l's
+                var = var + extra.transpose(2, 0, 1).reshape(len(kb), ny, F, nu).transpose(
+                    0, 2, 1, 3
+                )
+        else:
+            Pk, var = unlift_frf(P.transpose(2, 0, 1), F), unlift_variance(rdiag.T, cdiag.T, F)
+            if extra is not None:  # the diagonal blocks, as for P
+                var = var + unlift_frf(extra.transpose(2, 0, 1), F).real
+        _store_half(P_half, var_half, kb, Pk, var, F, N)
+        if pfg is not None:
+            G, Cv = fit.G, fit.noise_cov
+            store_lifted_pfg(*pfg, kb, G[: F * ny], Cv[: F * ny, : F * ny], fit.inv_gram, F, N)
         lifted = (fit.G, fit.noise_cov, fit.inv_gram)
         kept = tuple(a.transpose(2, 0, 1) for a in lifted) if keep else None
         return fit.n_bad, fit.dof, kept
 
     done = thread_map(block, range(0, Kc + 1, step), req.workers)
     warn_rank_deficient(sum(d[0] for d in done), Kc + 1, stacklevel=4)
+    pfg_half, pfg_var = (None, None) if pfg is None else pfg
     if not keep:
-        return PlantFit(P_half, var_half)
+        return PlantFit(P_half, var_half, pfg_half=pfg_half, pfg_var_half=pfg_var)
     G, Cv, Ainv = (np.concatenate([d[2][i] for d in done if d[2] is not None]) for i in range(3))
     q = done[0][1]
-    return PlantFit(P_half, var_half, *_lifted_maps(G, Cv, Ainv, F * ny, "frequency", req, q))
+    maps = _lifted_maps(G, Cv, Ainv, F * ny, "frequency", req, q)
+    return PlantFit(P_half, var_half, *maps, pfg_half, pfg_var)
 
 
 def _time_lifted(req: FitRequest) -> PlantFit:

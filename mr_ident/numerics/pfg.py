@@ -261,8 +261,44 @@ def pfg_from_lifted(
     F = check_ratio(ratio)
     N = int(n_samples)
     M = check_multiple(N, F, "n_samples")
-    Ja = np.asarray(J, dtype=complex)
     k = np.asarray(bins, dtype=np.int64)
+    gain, std = lifted_gains(J, F, row_cov=row_cov, col_cov=col_cov)
+    kappa = (k[:, None] + M * np.arange(F)[None, :]).ravel()
+    kappa = np.where(kappa > N // 2, N - kappa, kappa)
+    order = np.argsort(kappa, kind="stable")
+    return PFG(kappa[order] * (fs_high / N), gain.ravel()[order], std.ravel()[order], "lifted J")
+
+
+def lifted_gains(
+    J: ArrayLike,
+    ratio: int,
+    *,
+    row_cov: ArrayLike | None = None,
+    col_cov: ArrayLike | None = None,
+) -> tuple[FloatArray, FloatArray]:
+    """The PFG of every block column of a frequency-lifted closed-loop map, with its std.
+
+    Block column l of ``J(k)`` is the response at the F aliases to an input at high-rate
+    bin ``k + l M``; its 2-norm (largest singular value for MIMO) is the PFG there. The
+    first-order std: ``dg = Re(u^H dJ_l v)`` with u, v the singular vectors, so
+    ``E dg^2 = (u^H R u)(v^T C_ll conj(v)) / 2`` for the Kronecker covariance
+    ``R (x) C`` of the LPM (circular errors).
+
+    Parameters
+    ----------
+    J : array_like, shape (K, F*n_y, F*n_r)
+    ratio : int
+    row_cov : array_like, shape (K, F*n_y, F*n_y), optional
+    col_cov : array_like, shape (K, F*n_r, F*n_r), optional
+        Kronecker covariance factors of J (:class:`~mr_ident.numerics.results.LiftedFRF`).
+
+    Returns
+    -------
+    gain, std : ndarray, shape (K, F)
+        Entry ``[j, l]`` at high-rate bin ``k_j + l M``; std NaN without the covariance.
+    """
+    F = check_ratio(ratio)
+    Ja = np.asarray(J, dtype=complex)
     K, fy, fr = Ja.shape
     nr = fr // F
     cols = Ja.reshape(K, fy, F, nr).transpose(0, 2, 1, 3)  # (K, l, F ny, nr)
@@ -275,7 +311,4 @@ def pfg_from_lifted(
         qr = np.real(np.einsum("klr,krs,kls->kl", np.conj(uvec), Rc, uvec))
         qc = np.real(np.einsum("klu,kluv,klv->kl", vvec, Cd, np.conj(vvec)))
         std = np.sqrt(np.maximum(0.5 * qr * qc, 0.0))
-    kappa = (k[:, None] + M * np.arange(F)[None, :]).ravel()
-    kappa = np.where(kappa > N // 2, N - kappa, kappa)
-    order = np.argsort(kappa, kind="stable")
-    return PFG(kappa[order] * (fs_high / N), gain.ravel()[order], std.ravel()[order], "lifted J")
+    return gain, std

@@ -187,6 +187,9 @@ class Identification:
         High-rate plant estimate on (0, fs_high/2], shape (N//2, n_y, n_u).
     pfg : PFG or None
         PFG from the plant estimate and the known controller, when one was given.
+    pfg_data : PFG or None
+        PFG identified from data alone (the lifted closed-loop map r -> y; source
+        ``"data:..."``), no controller needed; None where the data cannot give it.
     lifted_J, lifted_S : LiftedFRF or None
         The lifted closed-loop maps r->y and r->u (lifted methods only).
     fs_high : float
@@ -206,13 +209,15 @@ class Identification:
     ratio: int
     n_used: IntArray | None = None
     local: str = "polynomial"
+    pfg_data: PFG | None = None
 
     def __post_init__(self) -> None:
-        if self.pfg is not None and self.pfg.frequency.shape != self.plant.frequency.shape:
-            raise DimensionError(
-                f"pfg must be on the plant's {self.plant.frequency.size} frequencies, "
-                f"got {self.pfg.frequency.size}"
-            )
+        for name, g in (("pfg", self.pfg), ("pfg_data", self.pfg_data)):
+            if g is not None and g.frequency.shape != self.plant.frequency.shape:
+                raise DimensionError(
+                    f"{name} must be on the plant's {self.plant.frequency.size} frequencies, "
+                    f"got {g.frequency.size}"
+                )
         if self.n_used is not None:
             object.__setattr__(self, "n_used", readonly(self.n_used, np.int64))
             if self.n_used.shape != self.plant.frequency.shape:

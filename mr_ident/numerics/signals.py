@@ -25,6 +25,29 @@ def _column(x: object, name: str) -> FloatArray:
     return a
 
 
+def y_at_low_rate(n_samples: int, n_y: int, ratio: int | None) -> bool:
+    """Whether a y of ``n_y`` samples is the low-rate output of an N-sample record.
+
+    N samples: the high rate (False); N/F: the low rate, y_h at samples q, q + F, ... (True;
+    with F unknown, any N/n_y > 1 that divides N passes here and is checked once F is known).
+    DimensionError naming the lengths otherwise.
+    """
+    N = int(n_samples)
+    if n_y == N:
+        return False
+    if ratio is None:
+        if 0 < n_y < N and N % n_y == 0:
+            return True
+        low = "N/F (the low rate)"
+    else:
+        if ratio > 1 and n_y * ratio == N:
+            return True
+        low = f"N/F = {N / ratio:g} (the low rate, F = {ratio})"
+    raise DimensionError(
+        f"y has {n_y} samples: neither N = {N} (the high rate, as r and u) nor {low}"
+    )
+
+
 @dataclass(frozen=True)
 class LoopData:
     """r_h (excitation), u_h (plant input), y_h (plant output) of one loop.
@@ -32,7 +55,9 @@ class LoopData:
     Attributes
     ----------
     r, u, y : ndarray, shape (N, channels), float64
-        1-D input becomes one column; arrays are not copied.
+        1-D input becomes one column; arrays are not copied. ``y`` may hold N/F rows: the
+        output measured at the low rate only (``y_h`` at samples 0, F, 2F, ...; see
+        :attr:`y_step`).
     fs_high : float or None
         High sample rate in Hz, where known.
     ratio : int or None
@@ -54,8 +79,9 @@ class LoopData:
     def __post_init__(self) -> None:
         arrays = {name: _column(getattr(self, name), name) for name in ("r", "u", "y")}
         lengths = {name: a.shape[0] for name, a in arrays.items()}
-        if len(set(lengths.values())) != 1:
+        if lengths["u"] != lengths["r"]:
             raise DimensionError(f"r, u, y must have equal lengths, got {lengths}")
+        y_at_low_rate(lengths["r"], lengths["y"], self.ratio)
         for name, a in arrays.items():
             object.__setattr__(self, name, a)
 
@@ -63,6 +89,11 @@ class LoopData:
     def n_samples(self) -> int:
         """N, the number of samples."""
         return int(self.r.shape[0])
+
+    @property
+    def y_step(self) -> int:
+        """High-rate samples per sample of y: 1, or F for an output at the low rate."""
+        return self.n_samples // int(self.y.shape[0])
 
     @property
     def end(self) -> int:
@@ -78,11 +109,20 @@ class LoopData:
         return float(self.fs_high), int(self.ratio)
 
     def part(self, start: int, stop: int) -> LoopData:
-        """Samples ``start:stop`` (relative to this record), ``first`` moved with them."""
+        """Samples ``start:stop`` (relative to this record), ``first`` moved with them.
+
+        With y at the low rate, ``start`` and ``stop`` must be multiples of F.
+        """
+        s = self.y_step
+        if s > 1 and (start % s or stop % s):
+            raise DimensionError(
+                f"with y at the low rate (F = {s}) a part must start and stop at multiples of "
+                f"F, got {start}:{stop}"
+            )
         return replace(
             self,
             r=self.r[start:stop],
             u=self.u[start:stop],
-            y=self.y[start:stop],
+            y=self.y[start // s : stop // s],
             first=self.first + start,
         )

@@ -207,16 +207,19 @@ class ResultPublishers:
 
         self._frf = [pub(t) for t in ("frequencies", "plant_frf", "plant_frf_std")]
         self._bode = [pub(t) for t in BODE_TOPICS]
-        self._pfg = [pub(t) for t in ("pfg", "pfg_std")]
+        self._pfg = {
+            key: [pub(key), pub(f"{key}_std")] for key in ("pfg", "pfg_data")
+        }  # ~/pfg: from P_h and the controller; ~/pfg_data: from data alone
 
     def publish(self, ident: Any, picks: NDArray[np.intp]) -> None:
-        """An identification on the bins ``picks``: FRF, plot topics, then the PFG if any."""
+        """An identification on the bins ``picks``: FRF, plot topics, then the PFGs it has."""
         plant = ident.plant
         f, P = plant.frequency[picks], plant.response[picks]
         for p, m in zip(self._frf, frf_msgs(f, P, plant.std[picks]), strict=True):
             p.publish(m)
         for p, m in zip(self._bode, bode_msgs(f, P), strict=True):
             p.publish(m)
-        if ident.pfg is not None:
-            self._pfg[0].publish(vector_msg(ident.pfg.gain[picks]))
-            self._pfg[1].publish(vector_msg(ident.pfg.std[picks]))
+        for key, g in (("pfg", ident.pfg), ("pfg_data", ident.pfg_data)):
+            if g is not None:
+                self._pfg[key][0].publish(vector_msg(g.gain[picks]))
+                self._pfg[key][1].publish(vector_msg(g.std[picks]))

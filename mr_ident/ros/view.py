@@ -18,7 +18,7 @@ from .program import Stop, ros_context
 
 
 class _Collector:
-    """The node's five result topics joined into one estimate (same K), then the state."""
+    """The node's result topics joined into one estimate (same K), then the state."""
 
     def __init__(self, state: ViewState) -> None:
         self.state = state
@@ -27,14 +27,26 @@ class _Collector:
 
     def put(self, name: str, value: Any) -> None:
         self.parts[name] = value
-        if name not in ("P_std", "pfg_std"):
-            return  # the node publishes f, P, std, then pfg, pfg_std: show at std and pfg_std
+        if name not in ("P_std", "pfg_std", "pfg_data_std"):
+            return  # the node publishes f, P, std, then the PFGs, each value before its std
         f, P, S = (self.parts.get(k) for k in ("freq", "P", "P_std"))
         if f is None or P is None or S is None or not (f.size == P.shape[0] == S.shape[0]):
             return
-        g, gs = self.parts.get("pfg"), self.parts.get("pfg_std")
-        ok = g is not None and gs is not None and g.size == gs.size == f.size
-        self.state.set_estimate(f, P, S, g if ok else None, gs if ok else None, self.window)
+        pfgs = {}
+        for key in ("pfg", "pfg_data"):
+            g, gs = self.parts.get(key), self.parts.get(f"{key}_std")
+            ok = g is not None and gs is not None and g.size == gs.size == f.size
+            pfgs[key], pfgs[f"{key}_std"] = (g, gs) if ok else (None, None)
+        self.state.set_estimate(
+            f,
+            P,
+            S,
+            pfgs["pfg"],
+            pfgs["pfg_std"],
+            self.window,
+            pfg_data=pfgs["pfg_data"],
+            pfg_data_std=pfgs["pfg_data_std"],
+        )
 
 
 def _listen(rclpy: Any, node_name: str, collector: _Collector) -> Any:
@@ -73,6 +85,8 @@ def _listen(rclpy: Any, node_name: str, collector: _Collector) -> Any:
         "plant_frf_std": lambda m: collector.put("P_std", std_of(m)),
         "pfg": vec("pfg"),
         "pfg_std": vec("pfg_std"),
+        "pfg_data": vec("pfg_data"),
+        "pfg_data_std": vec("pfg_data_std"),
     }
     for topic, cb in subs.items():
         n.create_subscription(Float64MultiArray, f"{base}/{topic}", cb, RESULT_QOS)

@@ -90,8 +90,14 @@ class ViewState:
         pfg: ArrayLike | None = None,
         pfg_std: ArrayLike | None = None,
         window: dict[str, Any] | None = None,
+        *,
+        pfg_data: ArrayLike | None = None,
+        pfg_data_std: ArrayLike | None = None,
     ) -> None:
-        """A new estimate: frequency (K,), P and P_std (K, n_y, n_u), the PFG (K,)."""
+        """A new estimate: frequency (K,), P and P_std (K, n_y, n_u), the PFGs (K,).
+
+        ``pfg``: from P_h and the controller; ``pfg_data``: identified from data alone.
+        """
         f = np.asarray(frequency, float)
         Pa = np.asarray(P, complex)
         Sa = np.asarray(P_std, float)
@@ -107,6 +113,8 @@ class ViewState:
             "P_std": _list(np.transpose(Sa, (1, 2, 0))),
             "pfg": None if pfg is None else _list(pfg),
             "pfg_std": None if pfg_std is None else _list(pfg_std),
+            "pfg_data": None if pfg_data is None else _list(pfg_data),
+            "pfg_data_std": None if pfg_data_std is None else _list(pfg_data_std),
             "window": window or {},
         }
         ref: tuple[Any, Any, str] | None = None

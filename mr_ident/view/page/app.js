@@ -67,15 +67,22 @@ function referenceTraces(ref, withMag) {
   return out;
 }
 
+// The PFGs: identified from data alone (pfg_data) and from P_h and the controller (pfg).
 function pfgTraces(est) {
-  if (!est.pfg) return null;
-  const f = est.frequency, g = est.pfg, s = est.pfg_std || g.map(() => 0);
-  const band = { line: { width: 0 }, fillcolor: "#1f77b433", hoverinfo: "skip" };
-  return [
-    { x: f, y: g.map((x, k) => x - 2 * s[k]), mode: "lines", ...band, showlegend: false },
-    { x: f, y: g.map((x, k) => x + 2 * s[k]), mode: "lines", fill: "tonexty", ...band, name: "±2σ" },
-    { x: f, y: g, mode: "lines", name: "PFG", line: { color: "#1f77b4", width: 1.5 } },
-  ];
+  const f = est.frequency, traces = [];
+  const shown = [["pfg_data", "PFG from data", "#ff7f0e"], ["pfg", "PFG from P̂ and K", "#1f77b4"]];
+  for (const [key, name, color] of shown) {
+    const g = est[key];
+    if (!g) continue;
+    const s = est[key + "_std"] || g.map(() => 0);
+    const band = { line: { width: 0 }, fillcolor: color + "33", hoverinfo: "skip" };
+    traces.push(
+      { x: f, y: g.map((x, k) => x - 2 * s[k]), mode: "lines", ...band, showlegend: false },
+      { x: f, y: g.map((x, k) => x + 2 * s[k]), mode: "lines", fill: "tonexty", ...band, name: "±2σ" },
+      { x: f, y: g, mode: "lines", name, line: { color, width: 1.5 } },
+    );
+  }
+  return traces.length ? traces : null;
 }
 
 function fmt(v) {
@@ -171,7 +178,8 @@ function draw(state) {
     layout.yaxis.type = "log";
     Plotly.react("sigma", traces, layout);
   }
-  plotted.frequency = est.frequency; plotted.pfg = est.pfg; plotted.version = state.version;
+  plotted.frequency = est.frequency; plotted.pfg = est.pfg; plotted.pfg_data = est.pfg_data;
+  plotted.version = state.version;
   document.getElementById("plotted").textContent = JSON.stringify(plotted);
 }
 
