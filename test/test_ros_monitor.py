@@ -97,8 +97,11 @@ def test_node_reports_ok_then_the_drift_and_its_cause(graph, tmp_path: Path, cap
         "five checked estimates",
     )
     checked = [p for p in lis.plant if p[2].get("estimates_checked", "0") != "0"]
-    assert checked and all(level == 0 for level, _, _ in checked), checked[-1]
-    assert checked[-1][1] == "matches the reference"
+    # STALE (3): no estimate within the stale time, which a loaded machine's slow estimates
+    # can cause between two of them; it is not a drift alarm. No WARN or ERROR, though.
+    fresh = [p for p in checked if p[0] != 3]
+    assert fresh and all(level == 0 for level, _, _ in fresh), fresh[-1]
+    assert fresh[-1][1] == "matches the reference"
     assert lis.drift and [d.label for d in lis.drift[-1].layout.dim] == ["quantity", "frequency"]
 
     drifted = SimSource(replace(nominal, plant_gain=1.3), block=240, seed=6)
@@ -192,7 +195,8 @@ def test_node_names_a_moved_mode_and_a_delay(graph, tmp_path: Path, change, caus
     wait_for(
         lambda: lis.plant and lis.plant[-1][2].get("estimates_checked", "0") != "0", 60, "a check"
     )
-    assert all(level == 0 for level, _, v in lis.plant if v.get("estimates_checked", "0") != "0")
+    checked = [level for level, _, v in lis.plant if v.get("estimates_checked", "0") != "0"]
+    assert all(level in (0, 3) for level in checked), checked  # no WARN/ERROR (3: STALE)
     drifted = SimSource(replace(nominal, **change), block=240, seed=8)
     drifted.next_index = src.next_index
     stop = threading.Event()
