@@ -125,6 +125,18 @@ PARAMETERS: dict[str, Param] = {
     "monitor_hold": Param(
         "consecutive estimates that must agree before the plant status changes", 1, 1000
     ),
+    "excitation_index_topic": Param(
+        "topic of the labels of a periodic excitation (mr-ident excite --publish TOPIC puts "
+        "them on TOPIC/excitation_index), aligned with r, u, y; a window holding whole "
+        "periods is identified as the best linear approximation from the period means "
+        "(README 'Excitation'); empty: off"
+    ),
+    "transient_periods": Param(
+        "with excitation_index_topic: leading whole periods of every run of one realization "
+        "in the window dropped as the loop's transient",
+        0,
+        1000,
+    ),
 }
 
 
@@ -161,6 +173,8 @@ class IdentConfig:
     monitor_alpha: float = 0.01
     monitor_error_db: float = 6.0
     monitor_hold: int = 3
+    excitation_index_topic: str = ""
+    transient_periods: int = 1
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
