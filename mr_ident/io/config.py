@@ -84,7 +84,9 @@ PARAMETERS: dict[str, Param] = {
     "publish_points": Param(
         "at most this many log-spaced bins published per estimate", 2, 1_000_000
     ),
-    "record_path": Param("MCAP file the node records its three input topics to; empty: off"),
+    "record_path": Param(
+        "MCAP file the node records its input topics (and the labels' topic) to; empty: off"
+    ),
     "reorder_blocks": Param(
         "blocks held per stream waiting for a missing one before it is a gap", 0, 10_000
     ),
