@@ -122,6 +122,19 @@ class BagWriter:
         ]
         return M(header=self.header(t), dof_states=full)
 
+    def block(self, first: int, x):
+        """A block-contract message (std_msgs/Float64MultiArray) of samples ``x`` (n, c)."""
+        from mr_ident.io.blocks import encode_fields
+
+        A = self.ts.types["std_msgs/msg/Float64MultiArray"]
+        L = self.ts.types["std_msgs/msg/MultiArrayLayout"]
+        D = self.ts.types["std_msgs/msg/MultiArrayDimension"]
+        dims, offset, data = encode_fields(first, x)
+        return A(
+            layout=L(dim=[D(label=a, size=b, stride=c) for a, b, c in dims], data_offset=offset),
+            data=data,
+        )
+
     def stats_names(self, t: int, names, version: int):
         N = self.ts.types["pal_statistics_msgs/msg/StatisticsNames"]
         return N(header=self.header(t), names=list(names), names_version=version)

@@ -61,12 +61,39 @@ def test_published_multisine_drives_the_sim_and_the_node_estimates_the_exact_pla
     (one steady-state period) equals the exact P_h: median relative error < 2e-4, max < 2e-2
     (measured offline on the same data: 5.8e-5 and 8.0e-3, the LPM's smoothing at the
     resonances). Every sample's labels are the schedule's, r is the design's, and the BLA of
-    the record cut by its labels (first period of each realization dropped) is P_h to 1e-9."""
+    the record cut by its labels (first period of each realization dropped) is P_h to 1e-9.
+    A second node with excitation_index_topic = reference/excitation_index (window 30 s)
+    aligns the labels with r, u, y and identifies its last window, realization 1's three
+    periods, as the BLA from the two after the transient: P_h to 1e-9 at every line, the
+    same numbers as the record's BLA above, published on its plant_frf topics (on the
+    publish grid of its lines) and described on /diagnostics."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from mr_ident.live.estimate import publish_grid
+    from mr_ident.ros.messages import RESULT_QOS, frf_of
+    from mr_ident.ros.node import IdentNode
+
     N, P, M, fs = 2400, 3, 2, 240.0
     total = N * P * M
     model = load_model(PAPER)
     node = graph.ident(fast_params(window_s=10.0))
+    periodic = fast_params(window_s=30.0, excitation_index_topic=index_topic("reference"))
+    bla_node = graph.add(
+        IdentNode("mr_ident_bla", context=graph.ctx, parameter_overrides=periodic)
+    )
     lis = graph.node("listener")
+    got: dict[str, object] = {}
+    for name in ("frequencies", "plant_frf"):
+        lis.create_subscription(
+            Float64MultiArray, f"/mr_ident_bla/{name}",
+            lambda m, name=name: got.__setitem__(name, m), RESULT_QOS,
+        )  # fmt: skip
+    status: list = []
+    lis.create_subscription(
+        DiagnosticArray, "/diagnostics",
+        lambda m: status.extend(s for s in m.status if s.name == "mr_ident_bla: identification"),
+        10,
+    )  # fmt: skip
     streams = {
         t: Blocks(lis, t)
         for t in ("reference", index_topic("reference"), "input", "output")  # r, labels, u, y
@@ -87,7 +114,7 @@ def test_published_multisine_drives_the_sim_and_the_node_estimates_the_exact_pla
                 "excite",
                 *("--fs-high", "240", "--band", "0,120", "--kind", "full", "--seed", "1"),
                 *("--period", str(N), "--periods", str(P), "--realizations", str(M)),
-                *("--publish", "reference", "--rate", "10", "--subscribers", "3", "--wait", "20"),
+                *("--publish", "reference", "--rate", "10", "--subscribers", "4", "--wait", "20"),
             ],
             env=_env(graph.domain),
             capture_output=True,
@@ -104,6 +131,14 @@ def test_published_multisine_drives_the_sim_and_the_node_estimates_the_exact_pla
             ),
             30,
             "the estimate of the final window",
+        )
+        wait_for(
+            lambda: (
+                bla_node.last_estimate is not None
+                and bla_node.last_estimate.first + bla_node.last_estimate.n_samples == total
+            ),
+            30,
+            "the periodic node's estimate of the final window",
         )
         assert sim.poll() is None, sim.stdout.read() if sim.stdout else ""
     est = node.last_estimate
@@ -126,6 +161,64 @@ def test_published_multisine_drives_the_sim_and_the_node_estimates_the_exact_pla
     Pl = model.plant_discrete().freqresp(bla.lines * fs / N)[:, 0, 0]
     assert np.max(np.abs(bla.response - Pl) / np.abs(Pl)) < 1e-9
 
+    live = bla_node.last_estimate  # the node's BLA of its last window
+    assert live.bla is not None and live.n_samples == P * N, live.periodic
+    assert live.periodic.startswith(f"BLA from 1 realization(s) x {P - 1} period(s) of {N}")
+    assert all(st.gaps == 0 for st in bla_node._aligner.stats.values())
+    assert "excitation_index" in bla_node._aligner.stats
+    Pb = model.plant_discrete().freqresp(live.bla.lines * fs / N)[:, 0, 0]
+    assert np.max(np.abs(live.bla.response - Pb) / np.abs(Pb)) < 1e-9
+    last = slice(-(P - 1) * N, None)  # realization 1 after its transient: the record's too
+    want = best_linear_approximation(r[last, 0], u[last, 0], y[last, 0], N)
+    np.testing.assert_allclose(live.bla.response, want.response, rtol=1e-12)
+    picks = publish_grid(live.bla.lines.size, bla_node.config.publish_points)
+
+    def published() -> bool:
+        if "plant_frf" not in got or "frequencies" not in got:
+            return False
+        P_pub = frf_of(got["plant_frf"])[:, 0, 0]
+        f_pub = np.frombuffer(got["frequencies"].data)
+        return (
+            P_pub.shape == f_pub.shape == picks.shape
+            and np.allclose(P_pub, live.bla.response[picks], rtol=1e-12, atol=0)
+            and np.allclose(f_pub, live.bla.lines[picks] * fs / N, rtol=1e-12, atol=0)
+        )
+
+    wait_for(published, 10, "the published BLA of the final window")
+    wait_for(
+        lambda: any(
+            kv.key == "bla_periods" and kv.value == str(P - 1) for s in status for kv in s.values
+        ),
+        10,
+        "the BLA on /diagnostics",
+    )
+
+
+def _play(pub_node, r, fs, period, form, loops=1):
+    """Stream ``r`` on /cmd (joints a, b) from ``pub_node`` at twice real time; what went out."""
+    played = []
+    th = threading.Thread(
+        target=lambda: played.append(
+            publish(
+                pub_node,
+                "/cmd",
+                r,
+                fs_high=fs,
+                period=period,
+                form=form,
+                joints=["a", "b"],
+                rate=2.0,
+                loops=loops,
+                wait=10.0,
+            )  # fmt: skip
+        ),
+        daemon=True,
+    )
+    th.start()
+    th.join(30)
+    assert not th.is_alive(), "the publisher did not finish"
+    return played[0]
+
 
 @pytest.mark.parametrize("form", ["jointstate", "float64multiarray"])
 def test_per_sample_forms_carry_the_values_stamps_from_the_index_and_the_labels(graph, form):
@@ -146,27 +239,8 @@ def test_per_sample_forms_carry_the_values_stamps_from_the_index_and_the_labels(
             cls, topic, lambda m, key=key: got[key].append(m), BLOCK_QOS, raw=True
         )
     pub_node = rclpy.create_node("excite", context=graph.ctx)
-    played = []
-    th = threading.Thread(
-        target=lambda: played.append(
-            publish(
-                pub_node,
-                "/cmd",
-                r,
-                fs_high=fs,
-                period=N,
-                form=form,
-                joints=["a", "b"],
-                rate=2.0,
-                wait=10.0,
-            )
-        ),
-        daemon=True,
-    )
     try:
-        th.start()
-        th.join(30)
-        assert not th.is_alive(), "the publisher did not finish"
+        played = [_play(pub_node, r, fs, N, form)]
         wait_for(
             lambda: len(got["sig"]) >= total and len(got["idx"]) >= total, 10, "every message"
         )
@@ -203,3 +277,45 @@ def test_per_sample_forms_carry_the_values_stamps_from_the_index_and_the_labels(
     else:
         ref.data = [float(v) for v in values[5]]
     assert one == bytes(serialize_message(ref))
+
+
+def test_the_node_reads_the_labels_in_the_joint_state_form_with_its_sources(graph):
+    """Per-sample sources: the publisher streams two joints (a, and b = -a) as JointState
+    with the labels as JointState on /cmd/excitation_index (the same stamps); a node with
+    r and u from joint a, y from joint b and excitation_index_topic /cmd/excitation_index
+    reads the labels in that form (three sources by name), aligns them by stamp and
+    identifies its last window (2 realizations x 2 periods; each run's first dropped) as the
+    BLA of y = -u: -1 at every line, exactly."""
+    from rclpy.parameter import Parameter
+
+    from mr_ident.ros.node import IdentNode
+
+    fs, N, P, M = 240.0, 24, 2, 2
+    ms = design(fs_high=fs, period=N, band=(1, 100), kind="full", periods=P, realizations=M)
+    r = np.concatenate([ms.r, -ms.r], axis=2)
+    cycle = N * P * M
+    params = [
+        Parameter(k, value=v)
+        for k, v in dict(
+            fs_high=fs, ratio=1, method="etfe", window_s=cycle / fs, min_window_s=cycle / fs,
+            update_period_s=0.2, r_source=['/cmd.position{name=="a"}'],
+            u_source=['/cmd.position{name=="a"}'], y_source=['/cmd.position{name=="b"}'],
+            excitation_index_topic="/cmd/excitation_index",
+        ).items()
+    ]  # fmt: skip
+    node = graph.add(IdentNode(context=graph.ctx, parameter_overrides=params))
+    pub_node = rclpy.create_node("excite", context=graph.ctx)
+    try:
+        assert _play(pub_node, r, fs, N, "jointstate", loops=2).samples == 2 * cycle
+
+        def final():
+            est = node.last_estimate
+            return est is not None and est.first + est.n_samples == 2 * cycle and est
+
+        est = wait_for(final, 15, "the node's estimate of the last window")
+    finally:
+        pub_node.destroy_node()
+    assert est.bla is not None, est.periodic
+    assert (est.bla.realizations, est.bla.periods) == (M, P - 1), est.periodic
+    np.testing.assert_allclose(est.bla.response, -1.0, rtol=0, atol=1e-12)
+    assert set(node._aligner.stats) == {"reference", "input", "output", "excitation_index"}

@@ -33,17 +33,29 @@ def int_at_least(low: int) -> Callable[[str], int]:
     return parse
 
 
-def window_n(text: str) -> int | str:
-    """``--n``: "auto" or an integer >= 1."""
-    if text.strip().lower() == "auto":
-        return "auto"
-    try:
-        v = int(text)
-    except ValueError:
-        v = 0
-    if v < 1:
-        raise argparse.ArgumentTypeError(f'expected "auto" or an integer >= 1, got {text!r}')
-    return v
+def auto_or_int(low: int) -> Callable[[str], int | str]:
+    """The parser of "auto" or an integer >= ``low``."""
+
+    def parse(text: str) -> int | str:
+        if text.strip().lower() == "auto":
+            return "auto"
+        try:
+            v = int(text)
+        except ValueError:
+            v = low - 1
+        if v < low:
+            raise argparse.ArgumentTypeError(
+                f'expected "auto" or an integer >= {low}, got {text!r}'
+            )
+        return v
+
+    return parse
+
+
+#: ``--n``: "auto" or an integer >= 1.
+window_n = auto_or_int(1)
+#: ``identify --period``: "auto" (from the excitation's labels) or an integer >= 4.
+period_or_auto = auto_or_int(4)
 
 
 def band(text: str) -> tuple[float, float]:

@@ -166,7 +166,8 @@ def _design(args: argparse.Namespace) -> tuple[Any, float, int]:
 
 def _publish(args: argparse.Namespace, r: Any, fs: float, period: int) -> int:
     """Stream on ``--publish`` until the loops are done or a signal; say what went out."""
-    from ..ros.excite_pub import index_topic, publish
+    from ..io.labels import index_topic
+    from ..ros.excite_pub import publish
     from ..ros.program import handle_signals, ros_context
 
     stop = handle_signals()

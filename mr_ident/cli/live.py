@@ -35,6 +35,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     cfg = load_params(args.params) if args.params else IdentConfig()
     if args.y_rate:
         cfg = cfg.replace(y_rate=args.y_rate)
+    if args.excitation_index:
+        cfg = cfg.replace(excitation_index_topic=args.excitation_index)
     specs = source_specs(args)
     if specs is not None:
         from ..live.replay import replay_bag
@@ -59,13 +61,20 @@ def cmd_replay(args: argparse.Namespace) -> int:
         )
     for note in res.anomalies[:20]:
         print(f"note: {note}", file=sys.stderr)
-    write_result(args.out, est.identification)
     counts = ", ".join(f"{k} {v}" for k, v in info.messages.items())
     print(
         f"read {counts} messages; window [{est.first}, {est.first + est.n_samples}) "
         f"({est.n_samples / cfg.fs_high:g} s), lifting phase {est.phase} ({est.phase_source}), "
         f"{est.compute_s:.3f} s"
     )
+    if est.periodic:
+        print(f"periodic: {est.periodic}")
+    if est.bla is not None:
+        from .periodic import write_bla_report
+
+        write_bla_report(args.out, est.bla, est.period, cfg.fs_high, cfg.ratio, plot=args.plot)
+        return 0
+    write_result(args.out, est.identification)
     print(
         f"wrote {args.out} ({est.identification.plant.frequency.size} bins, method {cfg.method})"
     )

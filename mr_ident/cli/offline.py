@@ -50,7 +50,11 @@ def cmd_identify(args: argparse.Namespace) -> int:
     if args.out.suffix.lower() != ".npz":
         raise ConfigError(f"--out must be a .npz file, got {str(args.out)!r}")
     if args.period is not None:
+        from .periodic import identify_periodic
+
         return identify_periodic(args)
+    if args.excitation_index:
+        raise ConfigError("--excitation-index goes with --period (the BLA of periodic data)")
     model = load_model(args.model) if args.model else None
     data = read_loop(
         args.data,
@@ -103,54 +107,6 @@ def cmd_identify(args: argparse.Namespace) -> int:
         print(line)
     if args.plot:
         write_plots(ident, args.plot, fs, F, N, model)
-    return 0
-
-
-def identify_periodic(args: argparse.Namespace) -> int:
-    """``identify --period``: the BLA of periodic multi-realization data (numerics.bla)."""
-    import numpy as np
-
-    from ..io.periodicfile import read_realizations, write_bla
-    from ..numerics.bla import best_linear_approximation, distortion_by_band
-
-    r, u, y, fs, F = read_realizations(args.data)
-    fs = args.fs_high or fs
-    F = args.ratio or F or 1
-    if fs is None:
-        raise ConfigError(f"{args.data} has no fs_high: pass --fs-high")
-    N, skip = args.period, args.transient_periods * args.period
-    if r.shape[1] % N:
-        raise ConfigError(
-            f"--period {N} does not divide the {r.shape[1]} samples of each realization"
-        )
-    if r.shape[1] - skip < N:
-        raise ConfigError(
-            f"{r.shape[1] // N} period(s) per realization, {args.transient_periods} dropped "
-            "as transient (--transient-periods): nothing left"
-        )
-    bla = best_linear_approximation(r[:, skip:], u[:, skip:], y[:, skip:], N, ratio=F)
-    write_bla(args.out, bla, fs_high=fs, ratio=F, period=N)
-    if bla.realizations > 1 and bla.periods > 1:
-        ratio = float(np.median(bla.nl_std) / np.median(bla.noise_std))
-        parts = f"nonlinear/noise std {ratio:.2g} (median over the lines)"
-    else:
-        parts = "one realization or period: no nonlinear/noise split (the lines still tell)"
-    print(
-        f"wrote {args.out} (BLA on {bla.lines.size} lines, {bla.realizations} realization(s) "
-        f"x {bla.periods} period(s); {parts})"
-    )
-    bands = distortion_by_band(r[:, skip:], y[:, skip:], N, fs, ratio=F) if bla.periods > 1 else []
-    if bands:  # the distortion at the unexcited lines, per band
-        print("band (Hz)        excited  odd lines  even lines   (dB above the noise)")
-        for b in bands:
-            print(
-                f"{b.band[0]:7.3g}-{b.band[1]:<7.3g}  {b.excited_db:7.1f}  {b.odd_db:9.1f}  "
-                f"{b.even_db:10.1f}"
-            )
-    if args.plot:
-        from ..plots import plot_bla
-
-        print(f"wrote {plot_bla(bla.lines * fs / N, bla, args.plot, bands=bands)}")
     return 0
 
 

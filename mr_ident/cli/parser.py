@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..live.spans import DEFAULT_SPAN, SPANS
 from ..numerics.catalog import LOCAL_MODELS, METHOD_NAMES
-from .argtypes import frequencies, int_at_least, positive_float, window_n
+from .argtypes import frequencies, int_at_least, period_or_auto, positive_float, window_n
 from .excite import add_excite_parser
 
 EXIT_USAGE = 2
@@ -60,6 +60,17 @@ def _reading(p: argparse.ArgumentParser, default_span: str = DEFAULT_SPAN) -> No
         metavar="DIR",
         help="directory of .msg files (DIR/pkg/msg/Type.msg) for types a bag does not define "
         "and that are not installed (repeatable)",
+    )
+
+
+def _labels_option(p: argparse.ArgumentParser, when: str) -> None:
+    """--excitation-index: the topic of an excitation's labels in a bag."""
+    p.add_argument(
+        "--excitation-index",
+        metavar="TOPIC",
+        help=f"{when}topic of the excitation's labels (mr-ident excite --publish TOPIC: "
+        "TOPIC/excitation_index), read in the form of the signals and aligned with them; "
+        "windows of whole periods give the best linear approximation",
     )
 
 
@@ -135,16 +146,19 @@ def build_parser() -> argparse.ArgumentParser:
     )
     i.add_argument(
         "--period",
-        type=int_at_least(4),
-        help="periodic data (an NPZ with r, u, y of shape (M realizations, n)): the best "
-        "linear approximation with its noise and nonlinear std",
+        type=period_or_auto,
+        help="periodic data: the best linear approximation with its noise and nonlinear std. "
+        "N samples per period, or auto (a bag: from the excitation's labels). An NPZ holds r, "
+        "u, y of shape (M realizations, n); a bag is cut by the labels beside r "
+        "(--excitation-index), else counted from its first sample",
     )
     i.add_argument(
         "--transient-periods",
         type=int_at_least(0),
         default=1,
-        help="with --period: leading periods dropped as transient (default 1)",
+        help="with --period: leading periods of each realization dropped as transient (default 1)",
     )
+    _labels_option(i, "with --period on a bag: ")
 
     q = sub.add_parser("paper", help="the paper's example end to end: figures and an error table")
     q.add_argument("--duration", type=positive_float, default=600.0, help="seconds (default 600)")
@@ -200,6 +214,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=int_at_least(1),
         help="with --r/--u/--y: F (default: from --params, else from a .@hold source's stamps)",
     )
+    _labels_option(rp, "(the node's excitation_index_topic) ")
     rp.add_argument("--out", type=Path, help="result .npz (same form as identify)")
     rp.add_argument("--plot", type=Path, help="Bode plot PNG (PFG next to it as *_pfg.png)")
     rp.add_argument("--model", type=Path, help="model YAML: reference curve in the plot")

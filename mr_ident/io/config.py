@@ -84,7 +84,9 @@ PARAMETERS: dict[str, Param] = {
     "publish_points": Param(
         "at most this many log-spaced bins published per estimate", 2, 1_000_000
     ),
-    "record_path": Param("MCAP file the node records its three input topics to; empty: off"),
+    "record_path": Param(
+        "MCAP file the node records its input topics (and the labels' topic) to; empty: off"
+    ),
     "reorder_blocks": Param(
         "blocks held per stream waiting for a missing one before it is a gap", 0, 10_000
     ),
@@ -129,6 +131,18 @@ PARAMETERS: dict[str, Param] = {
         'rate at which y is measured: "high", or "low" (a y source at the controller\'s '
         "rate, read with .@hold: identified from its samples, freq-lifted only)"
     ),
+    "excitation_index_topic": Param(
+        "topic of the labels of a periodic excitation (mr-ident excite --publish TOPIC puts "
+        "them on TOPIC/excitation_index), aligned with r, u, y; a window holding whole "
+        "periods is identified as the best linear approximation from the period means "
+        "(README 'Excitation'); empty: off"
+    ),
+    "transient_periods": Param(
+        "with excitation_index_topic: leading whole periods of every run of one realization "
+        "in the window dropped as the loop's transient",
+        0,
+        1000,
+    ),
 }
 
 
@@ -166,6 +180,8 @@ class IdentConfig:
     monitor_error_db: float = 6.0
     monitor_hold: int = 3
     y_rate: str = "high"
+    excitation_index_topic: str = ""
+    transient_periods: int = 1
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):

@@ -189,17 +189,30 @@ class RecordingInfo:
     broken: str = ""  # recorded_signals: why earlier samples were left out ("" if none)
 
 
-def _stream_of_topic(topic: str, topics: Sequence[str] | None) -> int | None:
-    """Stream number (0 r, 1 u, 2 y) of a recorded topic, or None.
+def _stream_names(topics: Sequence[str] | None, labels: str = "") -> list[str]:
+    """The names of the streams' topics: r, u, y (``topics`` or the default), the labels."""
+    return list(topics or STREAMS) + ([labels] if labels else [])
 
-    With ``topics`` given, names must match exactly (leading "/" ignored);
-    otherwise a topic matches by its last name component (``/loop/reference``).
+
+def matches_topic(topic: str, want: str, exact: bool) -> bool:
+    """Whether recorded ``topic`` is the stream topic ``want`` (leading "/" ignored).
+
+    ``exact``: the names are equal; else ``topic`` ends in ``want``'s name components
+    (``/loop/reference`` is ``reference``; ``/loop/reference/excitation_index`` is
+    ``reference/excitation_index``).
     """
-    for s, want in enumerate(topics or STREAMS):
-        if topics:
-            if topic.strip("/") == want.strip("/"):
-                return s
-        elif topic.strip("/").split("/")[-1] == want:
+    name, want = topic.strip("/"), want.strip("/")
+    return name == want or (not exact and name.endswith("/" + want))
+
+
+def _stream_of_topic(topic: str, topics: Sequence[str] | None, labels: str = "") -> int | None:
+    """Stream number (0 r, 1 u, 2 y, 3 the labels) of a recorded topic, or None.
+
+    With ``topics`` given, names must match exactly; otherwise by their last name
+    components (:func:`matches_topic`).
+    """
+    for s, want in enumerate(_stream_names(topics, labels)):
+        if matches_topic(topic, want, exact=bool(topics)):
             return s
     return None
 
@@ -209,13 +222,13 @@ def _plain_mcap(path: Path) -> bool:
 
 
 def _bag_blocks(
-    bag: Bag, topics: Sequence[str] | None
+    bag: Bag, topics: Sequence[str] | None, labels: str = ""
 ) -> tuple[list[tuple[int, int, Block | BlockError]], RecordingInfo, list[str]]:
     """:func:`read_blocks` for an SQLite3 or zstd-compressed bag: through :class:`Bag`."""
     types = bag.scanned_topics()
     stream_of: dict[str, int] = {}
     for name, t in types.items():
-        s = _stream_of_topic(name, topics)
+        s = _stream_of_topic(name, topics, labels)
         if s is None:
             continue
         if t.type != BLOCK_TYPE:
@@ -224,7 +237,9 @@ def _bag_blocks(
             )
         stream_of[name] = s
     found = sorted(types)
-    missing = [n for s, n in enumerate(topics or STREAMS) if s not in set(stream_of.values())]
+    missing = [
+        n for s, n in enumerate(_stream_names(topics, labels)) if s not in set(stream_of.values())
+    ]
     if missing:
         raise DataError(f"{bag.path}: topic(s) {missing} not in the recording; it holds {found}")
     items: list[tuple[int, int, Block | BlockError]] = []
@@ -251,13 +266,14 @@ def _bag_blocks(
 
 
 def read_blocks(
-    path: str | Path, topics: Sequence[str] | None = None
+    path: str | Path, topics: Sequence[str] | None = None, labels: str = ""
 ) -> tuple[list[tuple[int, int, Block | BlockError]], RecordingInfo, list[str]]:
     """Decode the block messages of an MCAP recording, in file order.
 
     Returns ``(items, info, topics_found)``; each item is ``(stream, log_time_ns,
     Block or BlockError)``. ``topics`` names the r, u, y topics (default: the
-    topics whose last name component is reference, input, output).
+    topics whose last name component is reference, input, output); ``labels`` the topic
+    of an excitation's labels, stream 3 (matched as ``topics``; "": none).
 
     Raises
     ------
@@ -271,9 +287,9 @@ def read_blocks(
 
         bag = Bag.open(p)
         if not all(_plain_mcap(f) for f in bag.files):
-            return _bag_blocks(bag, topics)
+            return _bag_blocks(bag, topics, labels)
         files = bag.files  # a rosbag2 directory of MCAP files: each in order
-        parts = [read_blocks(f, topics) for f in files]
+        parts = [read_blocks(f, topics, labels) for f in files]
         info = RecordingInfo(
             file_bytes=sum(x[1].file_bytes for x in parts),
             bytes_read=sum(x[1].bytes_read for x in parts),
@@ -314,7 +330,7 @@ def read_blocks(
                     schemas[rec.id] = rec
                 elif isinstance(rec, Channel):
                     channels[rec.id] = rec
-                    s = _stream_of_topic(rec.topic, topics)
+                    s = _stream_of_topic(rec.topic, topics, labels)
                     if s is not None:
                         schema = schemas.get(rec.schema_id)
                         if schema is None or schema.name != BLOCK_TYPE:
@@ -364,7 +380,9 @@ def read_blocks(
             f"file of {info.file_bytes} bytes): nothing to recover"
         )
     missing = [
-        name for s, name in enumerate(topics or STREAMS) if s not in set(stream_of.values())
+        name
+        for s, name in enumerate(_stream_names(topics, labels))
+        if s not in set(stream_of.values())
     ]
     if missing:
         raise DataError(f"{p}: topic(s) {missing} not in the recording; it holds {found}")

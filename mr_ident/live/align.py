@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from ..io.blocks import STREAMS, Block
+from ..io.blocks import LABELS_STREAM, STREAMS, Block
 from ..numerics.arrays import FloatArray
 from ..numerics.signals import LoopData
 
@@ -94,6 +94,10 @@ class Aligner:
     history : bool
         Keep every contiguous run of each stream, not only the latest (for a recording,
         whose gap-free spans are all wanted: :meth:`spans`, :meth:`extract`).
+    labels : bool
+        A fourth stream, 3 (``LABELS_STREAM``): an excitation's labels (realization,
+        period, sample) at the same indices, aligned as the others; windows then carry them
+        (:attr:`~mr_ident.numerics.signals.LoopData.labels`).
 
     Policy: a hole restarts the stream after it (so the window restarts). A block
     that starts before the stream's end must repeat the samples held for the
@@ -114,20 +118,30 @@ class Aligner:
         reorder_blocks: int = 8,
         channels: Sequence[int] | None = None,
         history: bool = False,
+        labels: bool = False,
     ):
         self.capacity = int(capacity)
         self.ratio = int(ratio)
         self.reorder_blocks = int(reorder_blocks)
-        self._s = [_Stream(past=[] if history else None) for _ in STREAMS]
+        #: The streams' names: r, u, y (and the labels).
+        self.names = STREAMS + ((LABELS_STREAM,) if labels else ())
+        self._s = [_Stream(past=[] if history else None) for _ in self.names]
         if channels is not None:
-            for s, c in zip(self._s, channels, strict=True):
+            for s, c in zip(self._s, channels, strict=False):
                 s.channels = int(c)
+        if labels:
+            self._s[3].channels = 3
         self.restarts = 0  # times the aligned window had to start again
 
     @property
     def stats(self) -> dict[str, StreamStats]:
-        """Counters per stream, by name (reference, input, output)."""
-        return {name: s.stats for name, s in zip(STREAMS, self._s, strict=True)}
+        """Counters per stream, by name (reference, input, output, and excitation_index)."""
+        return {name: s.stats for name, s in zip(self.names, self._s, strict=True)}
+
+    @property
+    def labels(self) -> bool:
+        """Whether the labels are a fourth stream."""
+        return len(self._s) > len(STREAMS)
 
     def count(self, stream: int, kind: str) -> None:
         """Count a rejected block (kind "malformed" or "nonfinite") of ``stream``."""
@@ -146,7 +160,7 @@ class Aligner:
         if s.channels and x.shape[1] != s.channels:
             s.stats.malformed += 1
             return (
-                f"{STREAMS[stream]}: block at {first} has {x.shape[1]} channels, "
+                f"{self.names[stream]}: block at {first} has {x.shape[1]} channels, "
                 f"expected {s.channels}"
             )
         s.channels = x.shape[1]
@@ -169,7 +183,7 @@ class Aligner:
             note = self._drain(stream)
         elif first + n <= s.end and self._agrees(s, first, x):
             s.stats.duplicates += 1
-            return f"{STREAMS[stream]}: block [{first}, {first + n}) received twice; ignored"
+            return f"{self.names[stream]}: block [{first}, {first + n}) received twice; ignored"
         elif (
             first < s.start and s.end - first <= self.capacity + self.ratio and s.start == s.origin
         ):
@@ -189,7 +203,7 @@ class Aligner:
         elif first < s.start and s.end - first <= self.capacity + self.ratio:
             s.stats.late += 1  # before the retained start: too late to use
             return (
-                f"{STREAMS[stream]}: block at {first} arrived too late "
+                f"{self.names[stream]}: block at {first} arrived too late "
                 f"(stream starts at {s.start}); dropped"
             )
         else:
@@ -215,7 +229,7 @@ class Aligner:
         s.stats.restarts += 1
         end = first + x.shape[0]
         note = (
-            f"{STREAMS[stream]}: index went back from {s.end} to {first} with other samples; "
+            f"{self.names[stream]}: index went back from {s.end} to {first} with other samples; "
             f"stream restarts at {end}"
         )
         s.pending.clear()
@@ -249,7 +263,7 @@ class Aligner:
         s.stats.gaps += 1
         s.stats.gap_samples += k - s.end
         note = (
-            f"{STREAMS[stream]}: gap of {k - s.end} samples at [{s.end}, {k}); "
+            f"{self.names[stream]}: gap of {k - s.end} samples at [{s.end}, {k}); "
             f"window restarts at {k}"
         )
         s.reset(k)
@@ -284,7 +298,7 @@ class Aligner:
             s.stats.end = s.end
             self.restarts += 1
         return (
-            f"{STREAMS[stream]}: samples [{first}, {first + n}) lost; "
+            f"{self.names[stream]}: samples [{first}, {first + n}) lost; "
             f"window restarts at {first + n}"
         )
 
@@ -319,8 +333,12 @@ class Aligner:
         lo, hi = self.span(stop)
         if hi - lo < max(min_samples, 1):
             return None
-        r, u, y = (self._extract(s, lo, hi) for s in self._s)
-        return LoopData(r, u, y, ratio=self.ratio, first=lo)
+        return self._data([self._extract(s, lo, hi) for s in self._s], lo)
+
+    def _data(self, x: list[FloatArray], first: int) -> LoopData:
+        """r, u, y (and the labels, as integers) of one span."""
+        labels = np.rint(x[3]).astype(np.int64) if len(x) > 3 else None
+        return LoopData(x[0], x[1], x[2], ratio=self.ratio, first=first, labels=labels)
 
     def _runs(self, s: _Stream) -> list[tuple[int, int, list[tuple[int, FloatArray]]]]:
         """A stream's contiguous runs (start, end, chunks), earlier and current.
@@ -364,7 +382,7 @@ class Aligner:
         for s in self._s:
             run = next(c for a, b, c in reversed(self._runs(s)) if a <= lo and hi <= b)
             out.append(self._extract(_Stream(chunks=deque(run)), lo, hi))
-        return LoopData(out[0], out[1], out[2], ratio=self.ratio, first=lo)
+        return self._data(out, lo)
 
     @staticmethod
     def _extract(s: _Stream, lo: int, hi: int) -> FloatArray:

@@ -5,6 +5,11 @@
 phase (parameter or detected), runs :func:`~mr_ident.numerics.identify.identify` and returns an
 :class:`Estimate`. The node and ``mr-ident replay`` call exactly this, so the
 same window gives the same numbers in both.
+
+A window that carries an excitation's labels (``excitation_index_topic``) and holds whole
+periods of it is identified as the best linear approximation instead
+(:mod:`mr_ident.live.periodic`: the period means give P_h at the excited lines, their
+spread over the periods the noise std); with too few whole periods, as any window.
 """
 
 from __future__ import annotations
@@ -15,10 +20,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from ..errors import DataError
 from ..io.config import IdentConfig
+from ..numerics.bla import BLA
 from ..numerics.identify import identify
 from ..numerics.results import Identification
 from ..numerics.signals import LoopData
+from .periodic import bla_identification, cut_by_labels, periodic_bla
 
 
 @dataclass(frozen=True)
@@ -111,6 +119,14 @@ class Estimate:
         "parameter", "auto", or "auto (undetermined: 0 assumed)".
     compute_s : float
         Wall time of the identification.
+    bla : BLA or None
+        The best linear approximation, when the window's labels gave whole periods (then
+        ``identification`` is it on the excited lines).
+    periodic : str
+        What the window's labels gave ("" without labels): the periods used, or why the
+        window was identified as any other.
+    period : int
+        Samples per period of the BLA (0 without one).
     """
 
     first: int
@@ -119,20 +135,39 @@ class Estimate:
     phase: int
     phase_source: str
     compute_s: float
+    bla: BLA | None = None
+    periodic: str = ""
+    period: int = 0
+
+
+def _phase(window: LoopData, config: IdentConfig) -> tuple[int, str]:
+    """The lifting phase of ``window``: the parameter, else detected."""
+    if config.phase is not None:
+        return config.phase, "parameter"
+    det = detect_phase(window.first, window.r, window.u, config.ratio, config.control_delay)
+    if det.determined:
+        return det.phase, "auto"
+    return 0, "auto (undetermined: 0 assumed)"
 
 
 def estimate(window: LoopData, config: IdentConfig) -> Estimate:
     """Identify P_h (and the PFG) from one aligned window; see the module docstring."""
     t0 = time.perf_counter()
     F = config.ratio
-    if config.phase is not None:
-        phase, source = config.phase, "parameter"
-    else:
-        det = detect_phase(window.first, window.r, window.u, F, config.control_delay)
-        if det.determined:
-            phase, source = det.phase, "auto"
+    phase, source = _phase(window, config)
+    periodic = ""
+    if window.labels is not None:
+        try:
+            cut = cut_by_labels(window, None, config.transient_periods)
+        except DataError as err:
+            periodic = f"no BLA ({err}): identified with {config.method}"
         else:
-            phase, source = 0, "auto (undetermined: 0 assumed)"
+            bla = periodic_bla(cut, F)
+            ident = bla_identification(bla, cut.period, config.fs_high, F)
+            return Estimate(
+                window.first, window.n_samples, ident, phase, source,
+                time.perf_counter() - t0, bla, f"BLA from {cut.describe()}", cut.period,
+            )  # fmt: skip
     controller = config.controller
     K_low = None if controller is None else controller.dft_response(window.n_samples // F)
     y, y_phase = window.y, 0
@@ -156,7 +191,8 @@ def estimate(window: LoopData, config: IdentConfig) -> Estimate:
         y_phase=y_phase,
     )
     # The result does not depend on the number of threads (bit-identical).
-    return Estimate(window.first, window.n_samples, ident, phase, source, time.perf_counter() - t0)
+    dt = time.perf_counter() - t0
+    return Estimate(window.first, window.n_samples, ident, phase, source, dt, None, periodic)
 
 
 def warm_up(config: IdentConfig, n_samples: int | None = None) -> float:

@@ -18,28 +18,42 @@ import numpy as np
 
 from ..errors import ConfigError, DataError
 from ..io.bags import Bag
-from ..io.blocks import STREAMS
+from ..io.blocks import LABELS_STREAM, STREAMS
 from ..io.sources import Resolved, Samples
 from .ingest import Ingest
 from .sampling import TOLERANCE, Joiner, Sampler, SourceStats, infer_rate, runs
 
+#: The signals by stream number (the labels: an excitation's, :mod:`mr_ident.io.labels`).
+SIGNALS = ("r", "u", "y", "labels")
+
 
 @dataclass(frozen=True)
 class SignalSources:
-    """The resolved sources of r, u and y (one or more each: one channel per source)."""
+    """The resolved sources of r, u and y (one or more each: one channel per source).
+
+    ``labels``: none, or the three sources of an excitation's labels (realization, period,
+    sample), stream 3.
+    """
 
     r: tuple[Resolved, ...]
     u: tuple[Resolved, ...]
     y: tuple[Resolved, ...]
+    labels: tuple[Resolved, ...] = ()
+
+    @property
+    def groups(self) -> tuple[tuple[Resolved, ...], ...]:
+        """The sources per stream: r, u, y (and the labels, where given)."""
+        return (self.r, self.u, self.y) + ((self.labels,) if self.labels else ())
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The streams' names, as the aligner's."""
+        return STREAMS + ((LABELS_STREAM,) if self.labels else ())
 
     @property
     def all(self) -> list[tuple[int, int, Resolved]]:
-        """``(stream, channel, source)`` for every source, stream 0 r, 1 u, 2 y."""
-        return [
-            (s, c, src)
-            for s, group in enumerate((self.r, self.u, self.y))
-            for c, src in enumerate(group)
-        ]
+        """``(stream, channel, source)`` for every source, stream 0 r, 1 u, 2 y, 3 labels."""
+        return [(s, c, src) for s, group in enumerate(self.groups) for c, src in enumerate(group)]
 
     @property
     def topics(self) -> set[str]:
@@ -64,6 +78,11 @@ class SignalSources:
                 f"r and u need the same number of sources (r excites u): {len(self.r)} and "
                 f"{len(self.u)}"
             )
+        if self.labels and len(self.labels) != 3:
+            raise ConfigError(
+                f"the excitation's labels need 3 sources (realization, period, sample), got "
+                f"{len(self.labels)}"
+            )
 
 
 class SourceFeed:
@@ -84,7 +103,7 @@ class SourceFeed:
         self.ratio = int(ratio)
         self.sampler = Sampler(fs_high, tolerance)
         self.stats = [SourceStats() for _ in sources.all]
-        groups = (sources.r, sources.u, sources.y)
+        groups = sources.groups
         self._joiners = [Joiner(len(g)) if len(g) > 1 else None for g in groups]
 
     def push(self, samples: Sequence[Samples | None], now: float = 0.0) -> list[str]:
@@ -141,13 +160,15 @@ class SourceFeed:
         for (stream, _, src), st in zip(self.sources.all, self.stats, strict=True):
             if st.backwards:
                 out.append(
-                    f"{STREAMS[stream]} source {src.spec.text} (topic {src.topic}): stamps go "
+                    f"{self.sources.names[stream]} source {src.spec.text} (topic {src.topic}): "
+                    "stamps go "
                     "back "
                     f"{st.backwards} times"
                 )
             if st.off_grid or st.unmatched:
                 out.append(
-                    f"{STREAMS[stream]} source {src.spec.text}: {st.off_grid} stamps off the "
+                    f"{self.sources.names[stream]} source {src.spec.text}: {st.off_grid} stamps "
+                    "off the "
                     "grid by more "
                     f"than {self.sampler.tolerance:g} sample times (worst {st.worst_offset:.2f}), "
                     f"{st.unmatched} messages without a value"

@@ -10,7 +10,7 @@ is counted and dropped. The node adds only wall-clock timing (``now`` and
 
 from __future__ import annotations
 
-from ..io.blocks import STREAMS, Block, BlockError
+from ..io.blocks import Block, BlockError
 from .align import Aligner
 
 
@@ -21,7 +21,9 @@ class Ingest:
         self.aligner = aligner
 
     def offer(self, stream: int, item: Block | BlockError, now: float = 0.0) -> str | None:
-        """Take one decoded item of stream 0 (r), 1 (u) or 2 (y); ``now`` is the caller's clock.
+        """Take one decoded item of stream 0 (r), 1 (u), 2 (y) or 3 (the labels, if any).
+
+        ``now`` is the caller's clock.
 
         Returns None, or what happened for a log line.
         """
@@ -31,7 +33,7 @@ class Ingest:
         al.count(stream, item.kind)
         if item.kind == "nonfinite" and item.span is not None:
             return al.hole(stream, *item.span) + f" ({item})"
-        return f"{STREAMS[stream]}: malformed block dropped: {item}"
+        return f"{al.names[stream]}: malformed block dropped: {item}"
 
     def expire(self, now: float, max_wait: float) -> list[str]:
         """Declare the blocks that waited longer than ``max_wait`` for a missing one a gap."""

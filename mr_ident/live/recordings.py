@@ -94,6 +94,7 @@ def load_recording(
     ratio: int | None = None,
     span: str = DEFAULT_SPAN,
     msg_path: Sequence[str | Path] = (),
+    labels: str = "",
 ) -> Loaded:
     """r, u, y of a recording.
 
@@ -107,10 +108,17 @@ def load_recording(
         the caller settles them with :func:`settle_rates`)
     span : which gap-free span of a bag with gaps (:mod:`mr_ident.live.spans`)
     msg_path : directories of ``.msg`` files for types a bag does not define
+    labels : the topic of an excitation's labels in a bag, read in the signals' form and
+        aligned with them (the data's ``labels``; "": none)
     """
     check_span(span)
     p = Path(path)
     if not is_bag(p):
+        if labels:
+            raise ConfigError(
+                f"excitation labels are read from a bag; {str(p)!r} is a data file (an NPZ "
+                "of r, u, y of shape (M realizations, n) is cut by --period N)"
+            )
         if specs is not None:
             raise ConfigError(
                 f"--r/--u/--y name sources in a bag; {str(p)!r} is a data file (give it "
@@ -127,16 +135,35 @@ def load_recording(
             raise ConfigError("ratio F unknown: pass --ratio or --model")
         if fs_high is None:
             raise ConfigError("fs_high unknown: pass --fs-high or --model")
-        data, info = recorded_signals(p, ratio, topics=topics, span=span)
+        data, info = recorded_signals(p, ratio, topics=topics, span=span, labels=labels)
         data = replace(data, fs_high=fs_high, ratio=ratio)
     else:
         from .replay import bag_signals
 
         data, info = bag_signals(
-            p, specs, fs_high=fs_high, ratio=ratio, span=span, msg_path=msg_path
+            p, specs, fs_high=fs_high, ratio=ratio, span=span, msg_path=msg_path, labels=labels
         )
     if info.truncated:
         notes.append(f"{p} is truncated ({info.reason}); using the {data.n_samples} samples read")
     if info.broken:
         notes.append(f"{p}: {info.broken}")
     return Loaded(data, tuple(notes))
+
+
+def find_topic(
+    path: str | Path,
+    topic: str,
+    *,
+    exact: bool,
+    msg_path: Sequence[str | Path] = (),
+) -> tuple[str | None, list[str]]:
+    """The bag's topic that is ``topic`` (or None), and every topic of the bag (sorted).
+
+    ``exact``: names equal (sources); else matched as the block contract's topics
+    (:func:`~mr_ident.io.recording.matches_topic`).
+    """
+    from ..io.bags import Bag
+    from ..io.recording import matches_topic
+
+    names = sorted(Bag.open(path, msg_path=msg_path).scanned_topics())
+    return next((t for t in names if matches_topic(t, topic, exact)), None), names

@@ -11,7 +11,7 @@ gap-free span as data (for ``identify`` and ``diagnose``; :mod:`mr_ident.live.sp
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -19,9 +19,10 @@ from ..errors import DataError
 from ..io.bags import Bag
 from ..io.blocks import Block, BlockError
 from ..io.config import IdentConfig
+from ..io.labels import label_sources
 from ..io.paths import parse_sources
 from ..io.recording import RecordingInfo, read_blocks
-from ..io.sources import Samples, bag_types, describe, extract, resolve
+from ..io.sources import Resolved, Samples, bag_types, describe, extract, resolve
 from ..numerics.signals import LoopData
 from .align import Aligner, StreamStats
 from .estimate import Estimate, estimate
@@ -80,18 +81,23 @@ def replay(
     instead.
     """
     check_span(span)
-    items, info, _ = read_blocks(path, topics)
-    al = Aligner(config.window_samples, config.ratio, config.reorder_blocks)
+    labels = config.excitation_index_topic
+    items, info, _ = read_blocks(path, topics, labels)
+    al = Aligner(config.window_samples, config.ratio, config.reorder_blocks, labels=bool(labels))
     if span == "latest":
         notes = _feed(al, items, stop)
     else:
-        every = Aligner(1 << 62, config.ratio, config.reorder_blocks, history=True)
+        every = Aligner(
+            1 << 62, config.ratio, config.reorder_blocks, history=True, labels=bool(labels)
+        )
         notes = _feed(every, items, stop)
         notes = _span_into(al, every, span, notes, info, str(path))
     w = al.window(config.min_samples, stop=stop)
     if w is None:
         lo, hi = al.span(stop)
-        every = Aligner(1 << 62, config.ratio, config.reorder_blocks, history=True)
+        every = Aligner(
+            1 << 62, config.ratio, config.reorder_blocks, history=True, labels=bool(labels)
+        )
         _feed(every, items, stop)  # every span, for the message
         raise DataError(
             f"{path}: the recording holds no gap-free aligned window of at least "
@@ -106,10 +112,19 @@ def _span_into(
     al: Aligner, every: Aligner, span: str, notes: list[str], info: RecordingInfo, what: str
 ) -> list[str]:
     """Push the gap-free span ``span`` of ``every`` (with history) into ``al``; the notes."""
-    w = _chosen(every, span, notes, info, what)
-    for s, x in enumerate((w.r, w.u, w.y)):
-        al.push(s, Block(w.first, x))
+    _push(al, _chosen(every, span, notes, info, what))
     return [info.broken, *notes] if info.broken else notes
+
+
+def _push(al: Aligner, w: LoopData) -> None:
+    """The span ``w`` into ``al``: r, u, y and, where ``al`` aligns them, the labels."""
+    streams = [w.r, w.u, w.y]
+    if al.labels:
+        if w.labels is None:
+            raise DataError("the window has no labels for an aligner that aligns them")
+        streams.append(w.labels.astype(float))
+    for s, x in enumerate(streams):
+        al.push(s, Block(w.first, x))
 
 
 def _what_broke(al: Aligner, notes: Sequence[str], info: RecordingInfo | None = None) -> str:
@@ -139,12 +154,14 @@ def recorded_signals(
     *,
     topics: Sequence[str] | None = None,
     span: str = DEFAULT_SPAN,
+    labels: str = "",
 ) -> tuple[LoopData, RecordingInfo]:
     """r, u, y of a gap-free aligned span of a recording (all of it when clean).
 
     ``span``: which one where there are gaps (:mod:`mr_ident.live.spans`; default the
     longest); ``first`` is the span's first sample index, ``info.broken`` says which span
-    was used and why.
+    was used and why. ``labels``: the topic of an excitation's labels, aligned as a fourth
+    block stream (the data's ``labels``; "": none).
 
     Raises
     ------
@@ -152,9 +169,9 @@ def recorded_signals(
         As :func:`read_blocks`, when no aligned sample exists, or ``span`` "all" with gaps.
     """
     check_span(span)
-    items, info, _ = read_blocks(path, topics)
+    items, info, _ = read_blocks(path, topics, labels)
     total = sum(item.samples.shape[0] for _, _, item in items if isinstance(item, Block))
-    al = Aligner(max(total, ratio), ratio, reorder_blocks=8, history=True)
+    al = Aligner(max(total, ratio), ratio, reorder_blocks=8, history=True, labels=bool(labels))
     notes = _feed(al, items)
     return _chosen(al, span, notes, info, str(path)), info
 
@@ -175,17 +192,34 @@ def _chosen(
 
 # -- bags with per-sample sources ---------------------------------------------------------
 def resolve_sources(
-    types: Mapping[str, tuple[str, str]], specs: Mapping[str, Sequence[str]]
+    types: Mapping[str, tuple[str, str]], specs: Mapping[str, Sequence[str]], labels: str = ""
 ) -> SignalSources:
-    """Parse and resolve the ``r``, ``u``.
+    """Parse and resolve the ``r``, ``u``, ``y`` source specs against ``types``.
 
-    ``y`` source specs against ``types`` (topic -> (type, schema)).
+    ``types``: topic -> (type, schema). ``labels``: the topic of an excitation's labels
+    (read in its form, :func:`mr_ident.io.labels.label_sources`; "": none).
+
+    Raises
+    ------
+    DataError
+        As :func:`~mr_ident.io.sources.resolve`; the labels' topic missing or of a type
+        they do not come in.
     """
     groups = []
     for signal in ("r", "u", "y"):
         parsed = parse_sources(list(specs.get(signal, ())), signal)
         groups.append(tuple(resolve(p, types) for p in parsed))
-    out = SignalSources(*groups)
+    found: tuple[Resolved, ...] = ()
+    if labels:
+        topic = "/" + labels.strip("/")
+        if topic not in types:
+            raise DataError(
+                f"excitation labels: topic {topic} not found (excitation_index_topic); "
+                f"there are: {', '.join(sorted(types)) or 'none'}"
+            )
+        specs_l = parse_sources(list(label_sources(topic, types[topic][0])), "labels")
+        found = tuple(resolve(p, types) for p in specs_l)
+    out = SignalSources(groups[0], groups[1], groups[2], found)
     out.check()
     return out
 
@@ -213,16 +247,18 @@ def read_bag(
     stop: int | None = None,
     history: bool = False,
     msg_path: Sequence[str | Path] = (),
+    labels: str = "",
 ) -> BagRead:
     """Every sample of the sources through the node's own steps into an aligner.
 
     Through :class:`SourceFeed`, into an aligner of ``capacity`` samples (default: all of
     them; ``history``: keeping every gap-free span); rates read off the stamps where not
     given, and checked where given. ``msg_path``: directories of ``.msg`` files for types
-    the bag does not define.
+    the bag does not define. ``labels``: the topic of an excitation's labels, a fourth
+    aligned stream ("": none).
     """
     bag = Bag.open(path, msg_path=msg_path)
-    sources = resolve_sources(bag_types(bag), specs)
+    sources = resolve_sources(bag_types(bag), specs, labels)
     if sources.r[0].kind == "blocks":
         raise DataError(
             f"{path}: bare topics follow the block contract; give them as --topics, not "
@@ -232,7 +268,9 @@ def read_bag(
     enough_messages(bag, sources, samples, what=str(path))
     fs, F = check_rate(samples, sources, fs_high, ratio, what=str(path))
     total = max((s.stamps.size for s in samples), default=0) * F
-    al = Aligner(capacity or max(total, F), F, reorder_blocks, history=history)
+    al = Aligner(
+        capacity or max(total, F), F, reorder_blocks, history=history, labels=bool(labels)
+    )
     feed = SourceFeed(sources, Ingest(al), fs_high=fs, ratio=F)
     if stop is not None:
         feed.sampler.t0 = min(
@@ -271,18 +309,25 @@ def replay_bag(
     them).
     """
     check_span(span)
+    labels = config.excitation_index_topic
     read = read_bag(
-        path, specs, fs_high=fs_high, ratio=ratio, stop=stop, history=True, msg_path=msg_path
+        path,
+        specs,
+        fs_high=fs_high,
+        ratio=ratio,
+        stop=stop,
+        history=True,
+        msg_path=msg_path,
+        labels=labels,
     )
     cfg = config.replace(fs_high=read.fs_high, ratio=read.ratio)
-    al = Aligner(cfg.window_samples, cfg.ratio, cfg.reorder_blocks)
+    al = Aligner(cfg.window_samples, cfg.ratio, cfg.reorder_blocks, labels=bool(labels))
     lo, hi = read.aligner.span(stop)
     notes = list(read.notes)
     if span == "latest":
         w = read.aligner.window(1, stop=stop)
         if w is not None:
-            for s, x in enumerate((w.r, w.u, w.y)):
-                al.push(s, Block(w.first, x))
+            _push(al, w)
     else:
         notes = _span_into(al, read.aligner, span, notes, read.info, str(path))
     win = al.window(cfg.min_samples, stop=stop)
@@ -306,15 +351,19 @@ def bag_signals(
     ratio: int | None = None,
     span: str = DEFAULT_SPAN,
     msg_path: Sequence[str | Path] = (),
+    labels: str = "",
 ) -> tuple[LoopData, RecordingInfo]:
     """r, u, y of a gap-free aligned span of a bag's sources (``span``: which one).
 
-    With the rates (``identify`` and ``diagnose`` on a bag); as :func:`recorded_signals`.
+    With the rates (``identify`` and ``diagnose`` on a bag); as :func:`recorded_signals`
+    (``labels`` too).
     """
     check_span(span)
-    read = read_bag(path, specs, fs_high=fs_high, ratio=ratio, history=True, msg_path=msg_path)
+    read = read_bag(
+        path, specs, fs_high=fs_high, ratio=ratio, history=True, msg_path=msg_path, labels=labels
+    )
     w = _chosen(read.aligner, span, read.notes, read.info, f"{path}: sources {read.sources}")
-    return LoopData(w.r, w.u, w.y, read.fs_high, read.ratio, first=w.first), read.info
+    return replace(w, fs_high=read.fs_high, ratio=read.ratio), read.info
 
 
 def bag_windows(
@@ -337,13 +386,14 @@ def bag_windows(
     :func:`bag_signals`. The gap-free span ``span`` of the bag is replayed (default the
     longest).
     """
+    labels = config.excitation_index_topic
     if specs is None:
         F = ratio or config.ratio
-        data, _ = recorded_signals(path, F, topics=topics, span=span)
+        data, _ = recorded_signals(path, F, topics=topics, span=span, labels=labels)
         cfg = config.replace(fs_high=fs_high or config.fs_high, ratio=F)
     else:
         data, _ = bag_signals(
-            path, specs, fs_high=fs_high, ratio=ratio, span=span, msg_path=msg_path
+            path, specs, fs_high=fs_high, ratio=ratio, span=span, msg_path=msg_path, labels=labels
         )
         cfg = config.replace(fs_high=data.fs_high, ratio=data.ratio)
     F, N = cfg.ratio, data.n_samples
@@ -355,10 +405,7 @@ def bag_windows(
         )
     for end in range(cfg.min_samples, N + 1, step):
         start = max(0, end - cfg.window_samples)
-        w = LoopData(
-            data.r[start:end], data.u[start:end], data.y[start:end], ratio=F,
-            first=data.first + start,
-        )  # fmt: skip
+        w = replace(data.part(start, end), fs_high=None, ratio=F)
         yield end / cfg.fs_high, w, cfg
 
 

@@ -73,7 +73,8 @@ def choose(al: Aligner, span: str, *, what: str) -> tuple[LoopData, str]:
     check_span(span)
     spans = al.spans()
     if not spans:
-        raise DataError(f"{what}: the recording holds no aligned samples of r, u and y")
+        which = "r, u, y and the excitation's labels" if al.labels else "r, u and y"
+        raise DataError(f"{what}: the recording holds no aligned samples of {which}")
     if len(spans) == 1:
         return al.extract(*spans[0]), ""
     if span == "all":

@@ -136,3 +136,40 @@ def realizations_of(labels: IntArray, period: int, transient: int = 1) -> IntArr
     rows = np.stack([s[:P] for s in per])  # (M', P') period starts
     out: IntArray = (rows[:, :, None] + np.arange(period)).reshape(found.size, P * period)
     return out
+
+
+def labelled_period(labels: IntArray, period: int | None = None) -> int:
+    """N as the labels tell it: one more than the largest sample-of-period label.
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (n, 3)
+        As :func:`realizations_of`; a record holding a whole period holds every sample
+        label 0 .. N-1.
+    period : int or None
+        The period the caller expects: checked against the labels.
+
+    Raises
+    ------
+    DataError
+        No labels, negative ones, or ``period`` disagreeing with them: a sample label at
+        or past ``period``, or sample labels that start again from 0 before reaching
+        ``period - 1`` (a shorter period).
+    """
+    lab = np.asarray(labels, dtype=np.int64)
+    if lab.ndim != 2 or lab.shape[1] != 3 or lab.shape[0] == 0:
+        raise DataError(
+            f"labels must be (n >= 1, 3) (realization, period, sample), got {lab.shape}"
+        )
+    if lab.min() < 0:
+        raise DataError(f"labels must be >= 0, got {int(lab.min())} ({', '.join(LABELS)})")
+    n = int(lab[:, 2].max()) + 1
+    if period is None:
+        return n
+    wraps = bool(np.any(np.diff(lab[:, 2]) < 0))
+    if n > period or (n < period and wraps):
+        raise DataError(
+            f"period = {period} disagrees with the labels: their periods have {n} samples "
+            f"(sample labels 0..{n - 1})"
+        )
+    return int(period)

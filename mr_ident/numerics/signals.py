@@ -11,7 +11,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..errors import DataError, DimensionError
-from .arrays import FloatArray
+from .arrays import FloatArray, IntArray
 
 
 def _column(x: object, name: str) -> FloatArray:
@@ -66,6 +66,9 @@ class LoopData:
         Absolute index of the first sample (a live window's position in its stream).
     period : int or None
         Samples per period of a periodic excitation, where the data are periodic.
+    labels : ndarray of int, shape (N, 3), or None
+        Each sample's labels (realization, period, sample of the period) where an
+        excitation's labels came with the record (:mod:`mr_ident.numerics.schedule`).
     """
 
     r: FloatArray
@@ -75,6 +78,7 @@ class LoopData:
     ratio: int | None = None
     first: int = 0
     period: int | None = None
+    labels: IntArray | None = None
 
     def __post_init__(self) -> None:
         arrays = {name: _column(getattr(self, name), name) for name in ("r", "u", "y")}
@@ -84,6 +88,13 @@ class LoopData:
         y_at_low_rate(lengths["r"], lengths["y"], self.ratio)
         for name, a in arrays.items():
             object.__setattr__(self, name, a)
+        if self.labels is not None:
+            lab = np.asarray(self.labels)
+            if lab.shape != (lengths["r"], 3):
+                raise DimensionError(
+                    f"labels must have shape (n_samples={lengths['r']}, 3), got {lab.shape}"
+                )
+            object.__setattr__(self, "labels", lab.astype(np.int64, copy=False))
 
     @property
     def n_samples(self) -> int:
@@ -125,4 +136,5 @@ class LoopData:
             u=self.u[start:stop],
             y=self.y[start // s : stop // s],
             first=self.first + start,
+            labels=None if self.labels is None else self.labels[start:stop],
         )

@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError
+from ..io.labels import index_topic
 from ..live.sampling import grid_stamps
 from ..numerics.arrays import FloatArray, IntArray
 from ..numerics.catalog import EXCITATION_FORMS
@@ -53,13 +54,6 @@ from .program import Stop, spin_until_stopped
 
 #: The message forms of ``--as``.
 FORMS = EXCITATION_FORMS
-#: The labels' topic, under the signal's topic.
-INDEX_TOPIC = "excitation_index"
-
-
-def index_topic(topic: str) -> str:
-    """The topic of the labels of the samples published on ``topic``."""
-    return f"{topic.rstrip('/')}/{INDEX_TOPIC}"
 
 
 class RawTemplate:

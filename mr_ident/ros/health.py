@@ -14,10 +14,10 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
-from ..io.blocks import STREAMS
 from ..io.config import IdentConfig
 from ..live.align import StreamStats
 from ..live.estimate import Estimate
+from .excitation import bla_values
 from .sources import SourceSubscriber
 
 WARN_HOLD_S = 10.0  # an anomaly keeps the level at WARN this long
@@ -50,8 +50,9 @@ class Health:
 def _level(h: Health) -> tuple[Any, str, list[str]]:
     cfg, now, src = h.config, h.now, h.sources
     recent = list(dict.fromkeys(text for t, text in h.notes if now - t < WARN_HOLD_S))
-    stalled = [STREAMS[i] for i, t in enumerate(h.arrivals) if t and now - t > cfg.stall_timeout_s]
-    silent = [STREAMS[i] for i, t in enumerate(h.arrivals) if not t]
+    names = list(h.stats)  # reference, input, output (and excitation_index)
+    stalled = [names[i] for i, t in enumerate(h.arrivals) if t and now - t > cfg.stall_timeout_s]
+    silent = [names[i] for i, t in enumerate(h.arrivals) if not t]
     src_problem = (src.error or src.rate_problem()) if src is not None else ""
     lo, hi = h.span
     fill = max(0, hi - lo) / cfg.window_samples
@@ -114,6 +115,7 @@ def identification_status(h: Health, name: str, hardware_id: str) -> DiagnosticS
                 "estimate_samples": est.n_samples,
             }
         )
+        values.update(bla_values(est))
     else:
         values["lifting_phase"] = cfg.lifting_phase
     for stream, st in h.stats.items():

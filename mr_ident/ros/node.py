@@ -58,7 +58,7 @@ class IdentNode(Node):
         self._aligner = self._new_aligner(self.config)
         self._ingest = Ingest(self._aligner)
         self._notes: list[tuple[float, str]] = []
-        self._arrivals = [0.0, 0.0, 0.0]
+        self._arrivals = [0.0] * len(self._aligner.names)
         self._samples_in = 0
         self._started = time.monotonic()
         self._last_estimate: Estimate | None = None
@@ -76,7 +76,8 @@ class IdentNode(Node):
         self._subs = []
         self._sources: SourceSubscriber | None = None
         if self.config.sources is None:  # the block contract on reference, input, output
-            for s, topic in enumerate(STREAMS):
+            labels = self.config.excitation_index_topic  # and the excitation's labels
+            for s, topic in enumerate(STREAMS + ((labels,) if labels else ())):
                 self._subs.append(
                     self.create_subscription(
                         Float64MultiArray,
@@ -93,6 +94,7 @@ class IdentNode(Node):
                 self._new_feed,
                 self._recording.source,
                 self.config.fs_high,
+                labels=self.config.excitation_index_topic,
             )
             self._sources.poll()
             self.create_timer(0.5, self._sources.poll)
@@ -119,10 +121,13 @@ class IdentNode(Node):
             new = self.config.replace(**changes)
         except MrIdentError as err:
             return SetParametersResult(successful=False, reason=str(err))
-        if new.sources != self.config.sources:
+        if (new.sources, new.excitation_index_topic) != (
+            self.config.sources,
+            self.config.excitation_index_topic,
+        ):
             return SetParametersResult(
                 successful=False,
-                reason="r_source, u_source and y_source are read at "
+                reason="r_source, u_source, y_source and excitation_index_topic are read at "
                 "start; restart the node to change them",
             )
         try:
@@ -156,7 +161,9 @@ class IdentNode(Node):
 
     @staticmethod
     def _new_aligner(c: IdentConfig) -> Aligner:
-        return Aligner(c.window_samples, c.ratio, c.reorder_blocks)
+        return Aligner(
+            c.window_samples, c.ratio, c.reorder_blocks, labels=bool(c.excitation_index_topic)
+        )
 
     # -- ingestion (executor thread) ----------------------------------------------------
     def _note(self, text: str) -> None:

@@ -29,7 +29,7 @@ from ..io.sources import (
     names_by_version,
     stamps_of,
 )
-from ..live.feed import SignalSources, SourceFeed
+from ..live.feed import SIGNALS, SignalSources, SourceFeed
 from ..live.replay import resolve_sources
 from ..live.sampling import infer_rate
 
@@ -46,7 +46,9 @@ class SourceSubscriber:
 
     ``make_feed(sources)`` builds the :class:`SourceFeed` into the node's aligner;
     ``record(topic, type, raw, info)`` records a raw message (or is None). A message without
-    header is placed by its DDS source timestamp (when the publisher wrote it).
+    header is placed by its DDS source timestamp (when the publisher wrote it). ``labels``:
+    the topic of an excitation's labels, read in its form (:mod:`mr_ident.io.labels`) as a
+    fourth stream ("": none).
     """
 
     def __init__(
@@ -56,9 +58,12 @@ class SourceSubscriber:
         make_feed: Callable[[SignalSources], SourceFeed],
         record: Callable[[str, str, bytes, dict[str, Any]], None] | None = None,
         fs_high: float = 0.0,
+        *,
+        labels: str = "",
     ):
         self.node = node
         self.specs = specs
+        self.labels = "/" + labels.strip("/") if labels else ""
         self.make_feed = make_feed
         self.record = record
         self.fs_high = fs_high
@@ -84,7 +89,7 @@ class SourceSubscriber:
             spec.split(".")[0].split("{")[0].split("[")[0]
             for group in self.specs.values()
             for spec in group
-        }
+        } | ({self.labels} if self.labels else set())
         candidates = set(wanted) | {
             f"{t}/{s}" for t in wanted for s in ("full", "values", "names")
         }
@@ -100,7 +105,7 @@ class SourceSubscriber:
                     )
                     return
         try:
-            sources = resolve_sources(types, self.specs)
+            sources = resolve_sources(types, self.specs, self.labels)
         except DataError as err:
             missing = [
                 t
@@ -221,7 +226,7 @@ class SourceSubscriber:
         out: dict[str, str] = {"sources": self.status}
         if self.feed is not None and self.sources is not None:
             for (stream, channel, src), st in zip(self.sources.all, self.feed.stats, strict=True):
-                key = f"source.{'ruy'[stream]}{channel}"
+                key = f"source.{SIGNALS[stream]}{channel}"
                 out[key] = (
                     f"{src.spec.text}: {st.messages} messages, {st.samples} samples, "
                     f"{st.off_grid} off grid, {st.unmatched} without value"
