@@ -174,7 +174,8 @@ def _cell_or_nan(cell: str) -> float:
 def _low_rate_y(y: FloatArray, where: str) -> tuple[FloatArray, int]:
     """A CSV's y with empty (NaN) cells: its rows q, q + s, ... to the end, and q.
 
-    DataError naming the first line that breaks that pattern (header = line 1).
+    DataError naming the first line that breaks that pattern (header = line 1); y as it is
+    when its first two given rows are adjacent (a high-rate y with holes).
     """
     N = y.shape[0]
     given = ~np.isnan(y)
@@ -184,6 +185,8 @@ def _low_rate_y(y: FloatArray, where: str) -> tuple[FloatArray, int]:
         "y at the low rate must be given on one row of every low-rate period (rows q, q + F, "
         "q + 2F, ... to the end) and left empty on the others"
     )
+    if rows.size >= 2 and rows[1] == rows[0] + 1:  # a high-rate y with holes: named after
+        return y, 0
     if mixed.size:
         raise DataError(f"{where}: line {mixed[0] + 2}: y is empty in some columns only; {rule}")
     if rows.size < 2:
