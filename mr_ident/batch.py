@@ -278,7 +278,7 @@ def _run(job: Job, opts: BatchOptions) -> dict[str, str]:
         ident = identify(
             data.r, data.u, data.y, fs_high=fs, ratio=F, method=opts.method, n=opts.n,
             degree=opts.degree, local=opts.local, keep_lifted=False, workers=opts.threads,
-            **loop,
+            y_phase=data.y_phase, **loop,
         )  # fmt: skip
         write_result(job.result, ident)
         pl, pd = ident.plant, ident.pfg_data

@@ -75,9 +75,10 @@ def cmd_identify(args: argparse.Namespace) -> int:
     elif args.y_rate == "high" and data.y_step != 1:
         raise ConfigError(f"--y-rate high, but y has N/F = {data.y.shape[0]} samples")
     elif data.y_step != 1:
+        y_phase = data.y_phase
         print(
             f"note: y has {data.y.shape[0]} samples, r and u {N}: y is taken as the output at "
-            f"the low rate (y_h at samples 0, F, 2F, ...; F = {F})"
+            f"the low rate (y_h at samples {y_phase}, {y_phase} + F, ...; F = {F})"
         )
     loop: dict[str, Any] = {}
     if model is not None:

@@ -3,12 +3,15 @@
 CSV
     A header line naming the columns ``t,r,u,y`` (t in s), or for several
     channels ``t,r0,r1,...,u0,u1,...,y0,...``; one row per high-rate sample.
-    fs_high is taken from ``t`` (uniform spacing required); F from the caller.
+    fs_high is taken from ``t`` (uniform spacing required); F from the caller. An output
+    measured at the low rate leaves its y cells empty (or ``nan``) but on the rows q,
+    q + F, q + 2F, ... to the end: y is then those N/F rows, taken at sample q of each
+    period (the caller checks that the step is F).
 NPZ (data)
     Arrays ``r``, ``u``, ``y`` of shape (N,) or (N, channels), and scalars
     ``fs_high`` (Hz) and ``ratio`` (F). ``y`` may hold N/F rows instead: the output measured
-    at the low rate only, y_h at samples 0, F, 2F, ... (exactly N/F; another length is an
-    error naming the lengths).
+    at the low rate only, y_h at samples q, q + F, ... (exactly N/F; another length is an
+    error naming the lengths), q the optional scalar ``y_phase`` (default 0).
 NPZ (result, written by ``mr-ident identify``)
     ``frequency`` (K,), ``P`` (K, n_y, n_u) complex, ``P_std`` (K, n_y, n_u);
     ``pfg_data``, ``pfg_data_std`` (K,), the PFG identified from data alone (the lifted
@@ -23,6 +26,7 @@ from __future__ import annotations
 
 import re
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -30,24 +34,30 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import DataError, DimensionError
-from ..numerics.arrays import FloatArray
+from ..numerics.arrays import FloatArray, IntArray
 from ..numerics.identify import DATA_PFG_SOURCE
 from ..numerics.results import FRF, PFG, Identification
-from ..numerics.signals import LoopData, y_at_low_rate
+from ..numerics.signals import LoopData
 from .atomic import atomic_write
 
 _SIGNALS = ("r", "u", "y")
 
 
-def _check_finite(name: str, a: FloatArray, where: str, csv: bool = False) -> None:
-    """Raise at the first NaN/inf: a CSV's line number (header = line 1), else the array index."""
+def _check_finite(
+    name: str, a: FloatArray, where: str, csv: bool = False, rows: IntArray | None = None
+) -> None:
+    """Raise at the first NaN/inf: a CSV's line number (header = line 1), else the array index.
+
+    ``rows``: the CSV row of each row of ``a`` (a low-rate y's), default 0, 1, ...
+    """
     bad = ~np.isfinite(a)
     if bad.any():
         row, col = np.argwhere(bad)[0]
         value = a[row, col]
         if csv:
+            line = (row if rows is None else int(rows[row])) + 2
             raise DataError(
-                f"{where}: line {row + 2}, column {name!r}: {value} (need a finite number)"
+                f"{where}: line {line}, column {name!r}: {value} (need a finite number)"
             )
         at = f"[{row}]" if a.shape[1] == 1 else f"[{row}, {col}]"
         raise DataError(f"{where}: array {name!r} at index {at}: {value} (need a finite number)")
@@ -116,10 +126,14 @@ def read_csv(path: str | Path) -> LoopData:
     if header == [""]:
         raise DataError(f"{p}: empty file (expected a header line t,r,u,y)")
     cols = _columns(header, str(p))
+    empty_is_nan: dict[int | str, Callable[[str], Any]] = dict.fromkeys(cols["y"], _cell_or_nan)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)  # "no data": reported below
-            table = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
+            try:
+                table = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
+            except ValueError:  # empty y cells parse per cell, the rest as before
+                table = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2, converters=empty_is_nan)
     except ValueError:
         raise DataError(f"{p}: {_first_bad_line(p, header)}") from None
     if table.shape[0] == 0:
@@ -131,10 +145,17 @@ def read_csv(path: str | Path) -> LoopData:
     t = table[:, header.index("t")]
     _check_finite("t", t[:, None], str(p), csv=True)
     arrays = {}
+    y_phase = 0
     for s in _SIGNALS:
         arrays[s] = table[:, cols[s]]
+        rows = None
+        if s == "y" and np.isnan(arrays[s]).any():
+            arrays[s], y_phase = _low_rate_y(arrays[s], str(p))
+            step = table.shape[0] // arrays[s].shape[0]
+            rows = y_phase + step * np.arange(arrays[s].shape[0])
         for c, j in enumerate(cols[s]):
-            _check_finite(header[j].strip(), arrays[s][:, c : c + 1], str(p), csv=True)
+            name = header[j].strip()
+            _check_finite(name, arrays[s][:, c : c + 1], str(p), csv=True, rows=rows)
     fs = None
     if t.size >= 2:
         dt = np.diff(t)
@@ -142,7 +163,52 @@ def read_csv(path: str | Path) -> LoopData:
         if h <= 0 or np.max(np.abs(dt - h)) > 1e-6 * max(h, 1e-12) + 1e-9:
             raise DataError(f"{p}: column 't' is not uniformly increasing (median step {h:g} s)")
         fs = 1.0 / h
-    return LoopData(arrays["r"], arrays["u"], arrays["y"], fs, None)
+    return LoopData(arrays["r"], arrays["u"], arrays["y"], fs, None, y_phase=y_phase)
+
+
+def _cell_or_nan(cell: str) -> float:
+    """A CSV cell as a number, an empty one as NaN (a y not measured at that sample)."""
+    return float(cell) if cell.strip() else np.nan
+
+
+def _low_rate_y(y: FloatArray, where: str) -> tuple[FloatArray, int]:
+    """A CSV's y with empty (NaN) cells: its rows q, q + s, ... to the end, and q.
+
+    DataError naming the first line that breaks that pattern (header = line 1); y as it is
+    when its first two given rows are adjacent (a high-rate y with holes).
+    """
+    N = y.shape[0]
+    given = ~np.isnan(y)
+    rows = np.flatnonzero(given.any(axis=1))
+    mixed = np.flatnonzero(given.any(axis=1) & ~given.all(axis=1))
+    rule = (
+        "y at the low rate must be given on one row of every low-rate period (rows q, q + F, "
+        "q + 2F, ... to the end) and left empty on the others"
+    )
+    if rows.size >= 2 and rows[1] == rows[0] + 1:  # a high-rate y with holes: named after
+        return y, 0
+    if mixed.size:
+        raise DataError(f"{where}: line {mixed[0] + 2}: y is empty in some columns only; {rule}")
+    if rows.size < 2:
+        raise DataError(f"{where}: y is given on {rows.size} row(s) of {N}; {rule}")
+    q, step = int(rows[0]), int(rows[1] - rows[0])
+    if q >= step:
+        raise DataError(f"{where}: y is empty on lines 2..{q + 1}, more than a period; {rule}")
+    want = np.zeros(N, dtype=bool)
+    want[q::step] = True
+    off = np.flatnonzero(want != given.any(axis=1))
+    if off.size:
+        state = "empty" if want[off[0]] else "given"
+        raise DataError(
+            f"{where}: line {off[0] + 2}: y is {state} there, but given every {step} rows from "
+            f"line {q + 2} before it; {rule}"
+        )
+    if N % step:
+        raise DataError(
+            f"{where}: y is given every {step} rows but the {N} rows are no whole number of "
+            f"periods; {rule}"
+        )
+    return y[rows], q
 
 
 def load_npz(path: str | Path, required: tuple[str, ...], what: str) -> dict[str, Any]:
@@ -197,11 +263,16 @@ def read_npz(path: str | Path) -> LoopData:
     lens = {s: arrays[s].shape[0] for s in _SIGNALS}
     if lens["u"] != lens["r"]:
         raise DataError(f"{p}: r, u, y have unequal lengths {lens}")
+    y_phase = 0
+    if "y_phase" in z:
+        v = np.asarray(z["y_phase"])
+        if v.size != 1 or v.dtype.kind not in "iu" or int(v) < 0:
+            raise DataError(f"{p}: y_phase must be one integer >= 0, got {v.tolist()!r}")
+        y_phase = int(v)
     try:
-        y_at_low_rate(lens["r"], lens["y"], ratio)
+        return LoopData(arrays["r"], arrays["u"], arrays["y"], fs, ratio, y_phase=y_phase)
     except DimensionError as err:
         raise DataError(f"{p}: {err}") from None
-    return LoopData(arrays["r"], arrays["u"], arrays["y"], fs, ratio)
 
 
 def read_data(path: str | Path) -> LoopData:
@@ -215,23 +286,37 @@ def read_data(path: str | Path) -> LoopData:
 
 
 def write_data(
-    path: str | Path, r: ArrayLike, u: ArrayLike, y: ArrayLike, *, fs_high: float, ratio: int
+    path: str | Path,
+    r: ArrayLike,
+    u: ArrayLike,
+    y: ArrayLike,
+    *,
+    fs_high: float,
+    ratio: int,
+    y_phase: int = 0,
 ) -> None:
-    """Write r, u, y as CSV or NPZ (by suffix)."""
+    """Write r, u, y as CSV or NPZ (by suffix).
+
+    A y of N/F rows is the output at the low rate, taken at sample ``y_phase`` of each
+    period: the NPZ holds it with ``y_phase``, the CSV on those rows (``nan`` elsewhere).
+    """
     p = Path(path)
     r2, u2, y2 = (np.atleast_2d(np.asarray(a, float).T).T for a in (r, u, y))
+    data = LoopData(r2, u2, y2, fs_high, ratio, y_phase=y_phase)  # checks the lengths
     suffix = p.suffix.lower()
     if suffix == ".npz":
+        arrays: dict[str, Any] = {
+            "r": r2.squeeze(1) if r2.shape[1] == 1 else r2,
+            "u": u2.squeeze(1) if u2.shape[1] == 1 else u2,
+            "y": y2.squeeze(1) if y2.shape[1] == 1 else y2,
+            "fs_high": float(fs_high),
+            "ratio": int(ratio),
+        }
+        if data.y_step > 1:
+            arrays["y_phase"] = int(y_phase)
 
         def w(fh: Any) -> None:
-            np.savez(
-                fh,
-                r=r2.squeeze(1) if r2.shape[1] == 1 else r2,
-                u=u2.squeeze(1) if u2.shape[1] == 1 else u2,
-                y=y2.squeeze(1) if y2.shape[1] == 1 else y2,
-                fs_high=float(fs_high),
-                ratio=int(ratio),
-            )
+            np.savez(fh, **arrays)
 
         atomic_write(p, w, binary=True)
     elif suffix == ".csv":
@@ -239,6 +324,9 @@ def write_data(
         for s, a in (("r", r2), ("u", u2), ("y", y2)):
             names += [s] if a.shape[1] == 1 else [f"{s}{i}" for i in range(a.shape[1])]
         t = np.arange(r2.shape[0]) / fs_high
+        if data.y_step > 1:  # the low-rate samples on their rows
+            y2 = np.full((r2.shape[0], y2.shape[1]), np.nan)
+            y2[y_phase :: data.y_step] = data.y
         table = np.column_stack([t, r2, u2, y2])
         atomic_write(
             p,

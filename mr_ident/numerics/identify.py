@@ -290,7 +290,9 @@ def identify(
     with one_blas_thread():
         fits = [fit_with(nj, keep_lifted and j == 0, j == 0) for j, nj in enumerate(ns)]
         pfg_data = (
-            None if slow else _data_pfg(fits[0], ra, ya, F, n0, degree, n_workers, float(fs_high))
+            None
+            if slow
+            else _data_pfg(fits[0], ra, ua, ya, F, n0, degree, local, n_workers, float(fs_high))
         )
     fit = fits[0]
     n_used = np.full(N // 2 + 1, ns[0] if m.uses_lpm else 0, dtype=np.int64)
@@ -346,24 +348,27 @@ DATA_PFG_SOURCE = "data:lifted r->y"
 def _data_pfg(
     fit: PlantFit,
     r: FloatArray,
+    u: FloatArray,
     y: FloatArray,
     ratio: int,
     n: int,
     degree: int,
+    local: str,
     workers: int,
     fs_high: float,
 ) -> PFG | None:
-    """The PFG from the lifted fit r -> y: the method's own, else one more lifted fit.
+    """The PFG from freq-lifted's fit r -> [y; u]: the method's own, else that fit once more.
 
-    The extra fit takes the larger of the method's window ``n`` (the base window with
-    ``n="auto"``) and the lifted default (:func:`default_n`); None (with a warning) when the
-    record is too short for it.
+    The extra fit has the method's local model and takes the larger of the method's window
+    ``n`` (the base window with ``n="auto"``) and freq-lifted's default for that model
+    (:func:`default_n`), so every method gives freq-lifted's PFG from data; None (with a
+    warning) when the record is too short for it.
     """
-    N, nr, ny = r.shape[0], r.shape[1], y.shape[1]
+    N, nr, n_out = r.shape[0], r.shape[1], max(y.shape[1], u.shape[1])
     gain, var = fit.pfg_half, fit.pfg_var_half
     if gain is None or var is None:
         lifted = METHODS["freq-lifted"]
-        n_pfg = max(n, default_n("freq-lifted", degree, ratio, nr, ny))
+        n_pfg = max(n, default_n("freq-lifted", degree, ratio, nr, n_out, local))
         if N < lifted.min_samples(n_pfg, ratio):
             warnings.warn(
                 f"no PFG from data: the lifted fit r -> y needs N >= "
@@ -371,7 +376,7 @@ def _data_pfg(
                 stacklevel=3,
             )
             return None
-        q = check_options("freq-lifted", n_pfg, degree, ratio, nr, ny)
-        gain, var = fit_data_pfg(r, y, ratio, n_pfg, degree, q, workers)
+        check_options("freq-lifted", n_pfg, degree, ratio, nr, n_out, local)
+        gain, var = fit_data_pfg(r, u, y, ratio, n_pfg, degree, local, workers)
     freq = np.arange(1, N // 2 + 1) * fs_high / N
     return PFG(freq, gain[1:], np.sqrt(np.maximum(var[1:], 0.0)), DATA_PFG_SOURCE)

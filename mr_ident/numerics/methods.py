@@ -274,8 +274,11 @@ def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
                 var = var + unlift_frf(extra.transpose(2, 0, 1), F).real
         _store_half(P_half, var_half, kb, Pk, var, F, N)
         if pfg is not None:
-            G, Cv = fit.G, fit.noise_cov
-            store_lifted_pfg(*pfg, kb, G[: F * ny], Cv[: F * ny, : F * ny], fit.inv_gram, F, N)
+            G, Cv, d = fit.G, fit.noise_cov, fit.den
+            den = None if d is None else DenominatorTerm(d.gain[: F * ny], d.cov)
+            store_lifted_pfg(
+                *pfg, kb, G[: F * ny], Cv[: F * ny, : F * ny], fit.inv_gram, F, N, den
+            )
         lifted = (fit.G, fit.noise_cov, fit.inv_gram)
         kept = tuple(a.transpose(2, 0, 1) for a in lifted) if keep else None
         return fit.n_bad, fit.dof, kept

@@ -23,6 +23,7 @@ from .results import PFG
 from .threads import resolve_workers, thread_map
 
 if TYPE_CHECKING:
+    from .lrm import DenominatorTerm
     from .model import Model
 
 
@@ -275,6 +276,7 @@ def lifted_gains(
     *,
     row_cov: ArrayLike | None = None,
     col_cov: ArrayLike | None = None,
+    den: DenominatorTerm | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """The PFG of every block column of a frequency-lifted closed-loop map, with its std.
 
@@ -291,6 +293,10 @@ def lifted_gains(
     row_cov : array_like, shape (K, F*n_y, F*n_y), optional
     col_cov : array_like, shape (K, F*n_r, F*n_r), optional
         Kronecker covariance factors of J (:class:`~mr_ident.numerics.results.LiftedFRF`).
+    den : DenominatorTerm, optional
+        A local rational fit's denominator share of the covariance, bins last (gain
+        (F*n_y, F*n_r, R_d, K)): adds ``E dg^2 = h S_d h^H / 2`` with
+        ``h_t = u^H C0_t[:, block l] v`` (:mod:`mr_ident.numerics.lrm`).
 
     Returns
     -------
@@ -310,5 +316,10 @@ def lifted_gains(
         Cd = Cc[:, np.arange(F), :, np.arange(F), :].transpose(1, 0, 2, 3)  # (K, l, nr, nr)
         qr = np.real(np.einsum("klr,krs,kls->kl", np.conj(uvec), Rc, uvec))
         qc = np.real(np.einsum("klu,kluv,klv->kl", vvec, Cd, np.conj(vvec)))
-        std = np.sqrt(np.maximum(0.5 * qr * qc, 0.0))
+        var = 0.5 * qr * qc
+        if den is not None:
+            C0 = den.gain.reshape(fy, F, nr, *den.gain.shape[2:])  # (F ny, l, nr, R_d, K)
+            h = np.einsum("klr,rlstk,kls->klt", np.conj(uvec), C0, vvec)
+            var = var + 0.5 * np.einsum("klt,tsk,kls->kl", h, den.cov, np.conj(h)).real
+        std = np.sqrt(np.maximum(var, 0.0))
     return gain, std

@@ -56,8 +56,8 @@ class LoopData:
     ----------
     r, u, y : ndarray, shape (N, channels), float64
         1-D input becomes one column; arrays are not copied. ``y`` may hold N/F rows: the
-        output measured at the low rate only (``y_h`` at samples 0, F, 2F, ...; see
-        :attr:`y_step`).
+        output measured at the low rate only (``y_h`` at samples q, q + F, ...; see
+        :attr:`y_step` and ``y_phase``).
     fs_high : float or None
         High sample rate in Hz, where known.
     ratio : int or None
@@ -69,6 +69,9 @@ class LoopData:
     labels : ndarray of int, shape (N, 3), or None
         Each sample's labels (realization, period, sample of the period) where an
         excitation's labels came with the record (:mod:`mr_ident.numerics.schedule`).
+    y_phase : int
+        q: with y at the low rate, the high-rate sample (0..F-1) of each period at which it
+        was taken, ``y[m] = y_h[m F + q]`` (0 otherwise).
     """
 
     r: FloatArray
@@ -79,6 +82,7 @@ class LoopData:
     first: int = 0
     period: int | None = None
     labels: IntArray | None = None
+    y_phase: int = 0
 
     def __post_init__(self) -> None:
         arrays = {name: _column(getattr(self, name), name) for name in ("r", "u", "y")}
@@ -86,6 +90,11 @@ class LoopData:
         if lengths["u"] != lengths["r"]:
             raise DimensionError(f"r, u, y must have equal lengths, got {lengths}")
         y_at_low_rate(lengths["r"], lengths["y"], self.ratio)
+        step = lengths["r"] // max(lengths["y"], 1)
+        if not 0 <= self.y_phase < step and self.y_phase:
+            raise DimensionError(
+                f"y_phase must be in 0..{step - 1} (y every {step} samples), got {self.y_phase}"
+            )
         for name, a in arrays.items():
             object.__setattr__(self, name, a)
         if self.labels is not None:
