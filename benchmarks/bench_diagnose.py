@@ -69,8 +69,13 @@ def known_causes() -> tuple[set[str] | None, str]:
         return None, f"{type(err).__name__}: {err}"
 
 
-def plan(causes: list[str], per_cause: int, pairs: int, none: int, seed: int) -> list[dict]:
-    """Every case: group ("none", a cause name or "pairs"), hidden causes and seed."""
+def plan(
+    causes: list[str], per_cause: int, pairs: int, none: int, seed: int, skip: int = 0
+) -> list[dict]:
+    """Every case: group ("none", a cause name or "pairs"), hidden causes and seed.
+
+    ``skip``: each group's first cases left out (a plan run in pieces keeps its seeds).
+    """
     base = seed * 10**6
     cases = [{"group": "none", "causes": [], "seed": base + k} for k in range(none)]
     for c in causes:
@@ -84,7 +89,13 @@ def plan(causes: list[str], per_cause: int, pairs: int, none: int, seed: int) ->
     for k in range(pairs if all_pairs else 0):
         pair = all_pairs[int(rng.integers(len(all_pairs)))]
         cases.append({"group": "pairs", "causes": list(pair), "seed": base + 900000 + k})
-    return cases
+    seen: dict[str, int] = {}
+    kept = []
+    for case in cases:
+        seen[case["group"]] = seen.get(case["group"], 0) + 1
+        if seen[case["group"]] > skip:
+            kept.append(case)
+    return kept
 
 
 def describe(sc: Scenario) -> str:
@@ -332,6 +343,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--none", type=int, default=100, help="cases with nothing hidden (100)")
     ap.add_argument("--causes", default="", help="comma-separated subset (default: all known)")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument(
+        "--skip",
+        type=int,
+        default=0,
+        help="leave out each group's first K cases (--per-cause 100 --skip 50: cases 50-99)",
+    )
     ap.add_argument("--duration", type=float, default=30.0, help="record seconds (30)")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (2)")
     ap.add_argument("--json", type=Path, help="write every case to this JSON file")
@@ -382,7 +399,7 @@ def main(argv: list[str] | None = None) -> int:
     skipped = [c for c in wanted if c not in known]
     if skipped:
         print(f"not run (the diagnosis does not know them yet): {', '.join(skipped)}")
-    cases = plan(causes, args.per_cause, args.pairs, args.none, args.seed)
+    cases = plan(causes, args.per_cause, args.pairs, args.none, args.seed, args.skip)
     groups = [*causes, "pairs", "none"]
     t0 = time.perf_counter()
     records: list[dict] = []
