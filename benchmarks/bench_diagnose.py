@@ -17,8 +17,8 @@ pairs, >= 95 % of the "none" loops without a false cause, zero tracebacks.
     .venv/bin/python benchmarks/bench_diagnose.py --case gain_error+control_delay:1900003
     .venv/bin/python benchmarks/bench_diagnose.py --report A.json B.json C.json  # merged
 
-The whole plan (1200 cases) takes about 80 min on 2 cores; ``make bench-diagnose`` runs it
-in three parts of about 30 min (``PART=A``: nothing hidden and the first five causes,
+The whole plan (1200 cases) takes 80-150 min on 2 cores; ``make bench-diagnose`` runs it
+in three parts (``PART=A``: nothing hidden and the first five causes,
 ``B``: the other five, ``C``: the pairs), each its own JSON, and prints them merged.
 
 Case seeds: ``seed * 10**6 + 10**4 * (1 + index of the cause) + k`` for single causes,
