@@ -144,19 +144,16 @@ def plot_errors(
     nyquist_low: float | None = None,
 ) -> Path:
     """One error curve per method (log-log), as in the paper's figures."""
-    fig = Figure(figsize=(7.5, 4.2))
-    ax = fig.subplots()
-    for j, (name, e) in enumerate(errors.items()):
-        ax.loglog(frequency, np.maximum(e, 1e-300), lw=0.7, color=f"C{j}", label=name)
-    if nyquist_low:
-        ax.axvline(nyquist_low, color="0.5", ls=":", lw=1)
-    ax.set_xlabel("frequency [Hz]")
-    ax.set_ylabel(ylabel)
-    ax.set_title(title)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    return _save(fig, path)
+    return _per_method(
+        frequency,
+        {name: np.maximum(e, 1e-300) for name, e in errors.items()},
+        path,
+        ylabel=ylabel,
+        title=title,
+        nyquist_low=nyquist_low,
+        height=4.2,
+        loglog=True,
+    )
 
 
 def plot_windows(
@@ -168,14 +165,41 @@ def plot_windows(
     nyquist_low: float | None = None,
 ) -> Path:
     """The LPM window half-width n used per frequency, one step curve per method."""
-    fig = Figure(figsize=(7.5, 3.2))
+    return _per_method(
+        frequency,
+        windows,
+        path,
+        ylabel="window half-width n",
+        title=title,
+        nyquist_low=nyquist_low,
+        height=3.2,
+        loglog=False,
+    )
+
+
+def _per_method(
+    frequency: NDArray,
+    curves: Mapping[str, NDArray],
+    path: str | Path,
+    *,
+    ylabel: str,
+    title: str,
+    nyquist_low: float | None,
+    height: float,
+    loglog: bool,
+) -> Path:
+    """One curve per method against frequency (log-log, or steps on a log frequency axis)."""
+    fig = Figure(figsize=(7.5, height))
     ax = fig.subplots()
-    for j, (name, n) in enumerate(windows.items()):
-        ax.semilogx(frequency, n, lw=0.8, color=f"C{j}", label=name, drawstyle="steps-mid")
+    for j, (name, c) in enumerate(curves.items()):
+        if loglog:
+            ax.loglog(frequency, c, lw=0.7, color=f"C{j}", label=name)
+        else:
+            ax.semilogx(frequency, c, lw=0.8, color=f"C{j}", label=name, drawstyle="steps-mid")
     if nyquist_low:
         ax.axvline(nyquist_low, color="0.5", ls=":", lw=1)
     ax.set_xlabel("frequency [Hz]")
-    ax.set_ylabel("window half-width n")
+    ax.set_ylabel(ylabel)
     ax.set_title(title)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
