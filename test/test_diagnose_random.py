@@ -6,8 +6,8 @@ stated fraction of the critical gain, the stated SNR, hidden causes that keep th
 stable and change it, and the same scenario for the same seed.
 
 The diagnosis cases: 30 s records at 240 Hz. Expectations are the benchmark's
-(scenarios.judge): the hidden cause named first (a pair: both applied and nothing
-else; nothing hidden: nothing applied), every parameter within scenarios.TOLERANCES
+(verdict.judge): the hidden cause named first (a pair: both applied and nothing
+else; nothing hidden: nothing applied), every parameter within verdict.TOLERANCES
 (gain 2 %, delay 0.1 sample, frequency 2 %, damping 25 %, modal gain 15 %, residue
 scale 10 %, notch depth 0.05, integers exact, disturbance frequency 0.5 % and
 amplitude 15 %) and a validation fit of y within 1 point of the true model's. Causes
@@ -23,19 +23,15 @@ import numpy as np
 import pytest
 
 from mr_ident.diagnosis.scenarios import (
-    CAUSE_NAMES,
-    MAX_FIT_GAP,
     MIN_CHANGE,
     RATIOS,
-    TOLERANCES,
     HiddenCause,
-    Tolerance,
     critical_gain,
     draw_loop,
     draw_scenario,
-    judge,
     relative_change,
 )
+from mr_ident.diagnosis.verdict import CAUSE_NAMES, MAX_FIT_GAP, TOLERANCES, Tolerance, judge
 from mr_ident.errors import ConfigError
 from mr_ident.numerics.model import Model
 from mr_ident.numerics.simulate import loop_poles, simulate

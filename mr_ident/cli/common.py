@@ -92,7 +92,7 @@ def describe_pfgs(ident: Identification) -> list[str]:
     import numpy as np
 
     from ..diagnosis.controller_check import check_controller
-    from ..diagnosis.scenarios import COVERAGE
+    from ..diagnosis.verdict import COVERAGE
 
     lines = []
     for g, what in ((ident.pfg_data, "from data (lifted r->y)"), (ident.pfg, "from P_h and K_l")):

@@ -137,6 +137,10 @@ class Diagnosis:
         The PFG from data against the PFG of the model's controller, on the estimation data
         (:mod:`~mr_ident.diagnosis.controller_check`); None in open loop or for periodic
         data.
+    criterion : Objective or None
+        The estimation criterion every cause was fitted on (the whitened time-domain
+        residual of the estimation data), to score another model on the same footing
+        (:func:`~mr_ident.diagnosis.verdict.likelihood_ratio`).
     """
 
     cause: str
@@ -154,6 +158,7 @@ class Diagnosis:
     traces: dict[str, Any] = field(default_factory=dict)
     distortion: list[BandLevels] = field(default_factory=list)
     controller: ControllerCheck | None = None
+    criterion: Objective | None = field(default=None, repr=False, compare=False)
 
     @property
     def nonlinear(self) -> bool:
@@ -345,6 +350,7 @@ def diagnose(
         traces,
         distortion(est),
         None if ident is None else check_controller(ident, n),
+        full,
     )
 
 

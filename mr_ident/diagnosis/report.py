@@ -11,8 +11,8 @@ from typing import Any
 
 from .controller_check import MIN_FRACTION
 from .diagnose import NL_THRESHOLD_DB, Diagnosis
-from .scenarios import COVERAGE
 from .selection import ACCEPT_MARGIN
+from .verdict import COVERAGE
 
 
 def _finite(x: float | None) -> float | None:

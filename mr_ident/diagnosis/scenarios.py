@@ -2,25 +2,24 @@
 
 :func:`draw_scenario` draws a loop (:func:`draw_loop`), hides none, one or two causes in
 it (:func:`draw_cause`, through :class:`~mr_ident.numerics.model.Model` fields) and
-simulates the true loop; :func:`judge` tells whether a diagnosis named them with their
-parameters within :data:`TOLERANCES`. Draws (U uniform, log-U log-uniform): fs_high in
-{240, 500, 1000} Hz, F in {1, 2, 3, 5}; a continuous plant of order 2-6, with no
-integrator (one in two), 1/s or 1/s², in modal form (modes ``g w²/(s²+2ζws+w²)`` added,
-a rigid body ``1/s²`` or ``a/(s(s+a))`` with integrators, an actuator low-pass for odd
-orders) or cascaded form (low-passes and resonances multiplied, half with an
-anti-resonance below), modes log-U in fs_high/100..0.4 fs_high and 30 % apart, damping
-U(0.01, 0.2), polynomials from roots as users write model files, |P| = 1 at fb log-U in
-0.01..0.1 fs_low; a lead, PI or PID with roll-off at fs_low, its gain U(0.2, 0.5) times
-the critical gain; r white of std 1; output noise for an SNR U(20, 60) dB. Each hidden
-cause keeps the loop stable and alone moves the noise-free y by :data:`MIN_CHANGE` of
-its rms at least (else it is drawn again).
+simulates the true loop; :func:`~mr_ident.diagnosis.verdict.judge` tells whether a
+diagnosis named them with their parameters within its tolerances. Draws (U uniform,
+log-U log-uniform): fs_high in {240, 500, 1000} Hz, F in {1, 2, 3, 5}; a continuous
+plant of order 2-6, with no integrator (one in two), 1/s or 1/s², in modal form (modes
+``g w²/(s²+2ζws+w²)`` added, a rigid body ``1/s²`` or ``a/(s(s+a))`` with integrators,
+an actuator low-pass for odd orders) or cascaded form (low-passes and resonances
+multiplied, half with an anti-resonance below), modes log-U in fs_high/100..0.4 fs_high
+and 30 % apart, damping U(0.01, 0.2), polynomials from roots as users write model files,
+|P| = 1 at fb log-U in 0.01..0.1 fs_low; a lead, PI or PID with roll-off at fs_low, its
+gain U(0.2, 0.5) times the critical gain; r white of std 1; output noise for an SNR
+U(20, 60) dB. Each hidden cause keeps the loop stable and alone moves the noise-free y
+by :data:`MIN_CHANGE` of its rms at least (else it is drawn again).
 """
 
 from __future__ import annotations
 
-import itertools
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -32,59 +31,12 @@ from ..numerics.model import Model
 from ..numerics.signals import LoopData
 from ..numerics.simulate import loop_poles, simulate
 from ..numerics.systems import TransferMatrix
+from .verdict import CAUSE_NAMES
 
 FS_HIGH: tuple[float, ...] = (240.0, 500.0, 1000.0)
 RATIOS: tuple[int, ...] = (1, 2, 3, 5)
 #: Least change of the noise-free y (rms, relative to y's) a hidden cause must make.
 MIN_CHANGE = 0.03
-#: Largest fit gap (the true model's validation fit % minus the extended model's).
-MAX_FIT_GAP = 1.0
-#: Standard deviations within which a loosely determined parameter counts as consistent.
-COVERAGE = 3.0
-
-
-@dataclass(frozen=True)
-class Tolerance:
-    """How close an estimate must come to the hidden value.
-
-    ``kind`` "relative" (to |true|), "absolute", "samples" (absolute, in high-rate sample
-    times) or "exact"; ``value`` the bound.
-    """
-
-    kind: str
-    value: float = 0.0
-
-    def within(self, estimate: float, true: float, fs_high: float) -> bool:
-        """Whether ``estimate`` is within the tolerance of ``true``."""
-        err = abs(estimate - true) if math.isfinite(estimate) else math.inf
-        scale = {"relative": abs(true), "samples": 1 / fs_high, "absolute": 1.0}
-        return err <= self.value * scale[self.kind] if self.kind in scale else err < 1e-6
-
-    def __str__(self) -> str:
-        unit = {"relative": " %", "samples": " sample", "absolute": ""}
-        k = 100 if self.kind == "relative" else 1
-        return f"{k * self.value:g}{unit[self.kind]}" if self.kind in unit else "exact"
-
-
-_F, _Z, _X = Tolerance("relative", 0.02), Tolerance("relative", 0.25), Tolerance("exact")
-#: Per cause and parameter: how close the diagnosis must come.
-TOLERANCES: dict[str, dict[str, Tolerance]] = {
-    "gain_error": {"gain": Tolerance("relative", 0.02)},
-    "input_delay": {"delay_s": Tolerance("samples", 0.1)},
-    "additive_mode": {"frequency_hz": _F, "damping": _Z, "gain": Tolerance("relative", 0.15)},
-    "mode_shift": {"frequency_hz": _F, "damping": _Z, "residue_scale": Tolerance("relative", 0.1)},
-    "series_lowpass": {"frequency_hz": _F},
-    "series_resonance": {"frequency_hz": _F, "damping": _Z},
-    "controller_notch": {"frequency_hz": _F, "damping": _Z, "depth": Tolerance("absolute", 0.05)},
-    "control_delay": {"delay_samples": _X},
-    "sampling_offset": {"offset_samples": _X},
-    "periodic_disturbance": {
-        "frequency_hz": Tolerance("relative", 0.005),
-        "amplitude": Tolerance("relative", 0.15),
-    },
-}
-#: The causes the generator hides.
-CAUSE_NAMES: tuple[str, ...] = tuple(TOLERANCES)
 
 
 @dataclass(frozen=True, eq=False)
@@ -135,32 +87,6 @@ class Scenario:
     def nominal(self) -> Model:
         """The model handed to the diagnosis."""
         return self.loop.nominal
-
-
-@dataclass(frozen=True)
-class Verdict:
-    """How a diagnosis did on a scenario (:func:`judge`).
-
-    ``named``: the one hidden cause named first, a hidden pair applied and nothing else,
-    or nothing applied when nothing was hidden. ``parameters_ok``: named, and every
-    hidden parameter within :data:`TOLERANCES` (``misses`` lists the others as text).
-    ``fit_gap``: the true model's validation fit % of y minus the extended model's.
-    ``success``: ``parameters_ok`` and ``fit_gap < MAX_FIT_GAP`` (nothing hidden: named).
-    ``consistent``: as ``success``, but a parameter outside its tolerance counts as found
-    when it lies within :data:`COVERAGE` of the diagnosis's own standard deviations of the
-    truth (a value the data determine only loosely, reported honestly). ``stated``: as
-    ``consistent``, but a hidden cause also counts as named when the diagnosis stated it
-    among a chosen cause's equivalent explanations (the data cannot tell them apart; the
-    diagnosis says so and gives both).
-    """
-
-    named: bool
-    parameters_ok: bool
-    fit_gap: float
-    success: bool
-    misses: tuple[str, ...]
-    consistent: bool = False
-    stated: bool = False
 
 
 def _logu(rng: np.random.Generator, lo: float, hi: float) -> float:
@@ -436,62 +362,3 @@ def draw_scenario(
         sim = simulate(true, reference=loop.reference, noise=noise)
         return Scenario(loop, tuple(hidden), true, sim, tuple(changes))
     raise ConfigError(f"no loop in {max_loops} draws can hide {list(causes)}")
-
-
-def judge(
-    scenario: Scenario,
-    applied: Sequence[tuple[str, Mapping[str, float]]],
-    fit_gap: float,
-    stds: Sequence[Mapping[str, float]] | None = None,
-    equivalents: Sequence[Sequence[tuple[str, Mapping[str, float], Mapping[str, float]]]]
-    | None = None,
-) -> Verdict:
-    """Whether a diagnosis found what ``scenario`` hides (the rules: :class:`Verdict`).
-
-    ``applied``: the causes the diagnosis applied, in order, with their parameters;
-    ``fit_gap``: the true model's validation fit % of y minus the extended model's;
-    ``stds``: per applied cause, its parameters' standard deviations (for ``consistent``);
-    ``equivalents``: per applied cause, the (cause, parameters, std) it stated as explaining
-    the data as well (for ``stated``).
-    """
-    spreads = list(stds) if stds is not None else [{} for _ in applied]
-    v = _verdict(scenario, applied, fit_gap, spreads)
-    options = [
-        [(c, p, sd)] + list(equivalents[j] if equivalents is not None else ())
-        for j, ((c, p), sd) in enumerate(zip(applied, spreads, strict=True))
-    ]
-    stated = any(
-        (
-            w := _verdict(
-                scenario, [(c, p) for c, p, _ in combo], fit_gap, [sd for *_, sd in combo]
-            )
-        ).success
-        or w.consistent
-        for combo in itertools.product(*options)
-    )
-    return replace(v, stated=stated)
-
-
-def _verdict(
-    scenario: Scenario,
-    applied: Sequence[tuple[str, Mapping[str, float]]],
-    fit_gap: float,
-    stds: Sequence[Mapping[str, float]],
-) -> Verdict:
-    names, hidden = [c for c, _ in applied], [h.cause for h in scenario.hidden]
-    one = len(hidden) == 1
-    named = names[:1] == hidden if one else sorted(names) == sorted(hidden)
-    misses, loose = [], []
-    for h in scenario.hidden if named else ():
-        j = names.index(h.cause)
-        got, spread = applied[j][1], stds[j]
-        for key, true in h.parameters.items():
-            tol, est = TOLERANCES[h.cause][key], float(got.get(key, math.nan))
-            if not tol.within(est, true, scenario.nominal.fs_high):
-                sd = float(spread.get(key, 0.0) or 0.0)
-                pm = f" ± {sd:.2g}" if sd else ""
-                misses.append(f"{h.cause}.{key} {est:.4g}{pm} (true {true:.4g}, tol {tol})")
-                loose.append(abs(est - true) <= COVERAGE * sd if math.isfinite(sd) else False)
-    ok, gap = named and not misses, float(fit_gap)
-    fits = not hidden or gap < MAX_FIT_GAP
-    return Verdict(named, ok, gap, ok and fits, tuple(misses), named and all(loose) and fits)
