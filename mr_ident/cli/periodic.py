@@ -110,6 +110,8 @@ def write_bla_report(
     bands: list | None = None,
 ) -> None:
     """Write the BLA result ``out``; say what it holds; the band table and the plot."""
+    import numpy as np
+
     from ..io.periodicfile import write_bla
     from ..live.periodic import nl_to_noise
 
@@ -123,6 +125,13 @@ def write_bla_report(
         f"x {bla.periods} period(s); {parts}; odd {bla.odd_db[0]:.1f} dB, even "
         f"{bla.even_db[0]:.1f} dB above the noise)"
     )
+    if bla.pfg is not None and np.isfinite(bla.pfg).any():
+        ok = np.isfinite(bla.pfg)
+        k = int(np.nanargmax(bla.pfg))
+        print(
+            f"PFG from data at {int(ok.sum())} of {ok.size} lines (each alone in its lifted "
+            f"bin): peak {20 * np.log10(bla.pfg[k]):.1f} dB at {bla.lines[k] * fs / period:.4g} Hz"
+        )
     if bands:  # the distortion at the unexcited lines, per band
         print("band (Hz)        excited  odd lines  even lines   (dB above the noise)")
         for b in bands:

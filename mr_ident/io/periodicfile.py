@@ -9,7 +9,7 @@ import numpy as np
 
 from ..errors import DataError
 from ..numerics.arrays import FloatArray
-from ..numerics.bla import BLA
+from ..numerics.bla import BLA, LINE_PFG_SOURCE
 from .atomic import atomic_write
 from .datafile import load_npz
 
@@ -42,7 +42,8 @@ def write_bla(path: str | Path, bla: BLA, *, fs_high: float, ratio: int, period:
 
     ``frequency``, ``P``, ``P_std``, with ``noise_std``, ``nl_std``, ``odd_level``,
     ``even_level``, ``noise_level``, ``periods``, ``realizations``, ``lines`` and
-    ``period`` beside (:func:`read_bla` reads them back).
+    ``period`` beside (:func:`read_bla` reads them back); ``pfg_data``, ``pfg_data_std``
+    where a lifted design measured the PFG from data at some lines (nan at the others).
     """
     f = bla.lines * fs_high / period
     arrays: dict[str, Any] = {
@@ -62,6 +63,12 @@ def write_bla(path: str | Path, bla: BLA, *, fs_high: float, ratio: int, period:
         "fs_high": float(fs_high),
         "ratio": int(ratio),
     }
+    if bla.pfg is not None and bla.pfg_std is not None and np.isfinite(bla.pfg).any():
+        arrays |= {
+            "pfg_data": bla.pfg,
+            "pfg_data_std": bla.pfg_std,
+            "pfg_data_source": np.array(LINE_PFG_SOURCE),
+        }
     atomic_write(Path(path), lambda fh: np.savez(fh, **arrays), binary=True)
 
 
@@ -95,5 +102,7 @@ def read_bla(path: str | Path) -> tuple[BLA, FloatArray] | None:
         scalar("noise_level"),
         int(z["periods"]) if "periods" in z else 0,
         int(z["realizations"]) if "realizations" in z else 0,
+        col("pfg_data").astype(float) if "pfg_data" in z else None,
+        col("pfg_data_std").astype(float) if "pfg_data_std" in z else None,
     )
     return bla, f

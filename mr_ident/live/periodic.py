@@ -25,8 +25,8 @@ import numpy as np
 
 from ..errors import ConfigError, DataError
 from ..numerics.arrays import FloatArray
-from ..numerics.bla import BLA, best_linear_approximation
-from ..numerics.results import FRF, Identification
+from ..numerics.bla import BLA, LINE_PFG_SOURCE, best_linear_approximation
+from ..numerics.results import FRF, PFG, Identification
 from ..numerics.schedule import labelled_period, realizations_of
 from ..numerics.signals import LoopData
 
@@ -167,10 +167,17 @@ def periodic_bla(cut: Periods, ratio: int = 1) -> BLA:
 
 
 def bla_identification(bla: BLA, period: int, fs_high: float, ratio: int) -> Identification:
-    """The BLA as an identification: P_h at the excited lines (Hz), its total std; no PFG."""
+    """The BLA as an identification: P_h at the excited lines (Hz), its total std.
+
+    With the PFG from data where the design measured it (a lifted design's lines,
+    :func:`~mr_ident.numerics.bla.lifted_line_pfg`; nan at the others), no model PFG.
+    """
     f = bla.lines * fs_high / period
     plant = FRF(f, bla.response[:, None, None], bla.std[:, None, None], "bla")
-    return Identification(plant, None, None, None, float(fs_high), int(ratio))
+    pfg = None
+    if bla.pfg is not None and bla.pfg_std is not None and np.isfinite(bla.pfg).any():
+        pfg = PFG(f, bla.pfg, bla.pfg_std, LINE_PFG_SOURCE)
+    return Identification(plant, None, None, None, float(fs_high), int(ratio), pfg_data=pfg)
 
 
 def nl_to_noise(bla: BLA) -> float:

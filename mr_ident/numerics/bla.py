@@ -55,6 +55,9 @@ class BLA:
     noise_level : ndarray, shape (n_y,)
         Mean noise power of Ȳ over the same lines.
     periods, realizations : int
+    pfg, pfg_std : ndarray, shape (K,), optional
+        The PFG from data at each excited line and its std (:func:`lifted_line_pfg`): nan
+        at a line whose lifted bin holds another excited line.
     """
 
     lines: IntArray
@@ -67,6 +70,8 @@ class BLA:
     noise_level: FloatArray
     periods: int
     realizations: int
+    pfg: FloatArray | None = None
+    pfg_std: FloatArray | None = None
 
     @property
     def odd_db(self) -> FloatArray:
@@ -297,9 +302,13 @@ def best_linear_approximation(
         nz = float(np.mean(noise_p[which]))
         return max(float(np.mean(power[which])) - nz, 0.0), nz
 
+    pfg, pfg_std = lifted_line_pfg(
+        R.mean(axis=1), Ym, var_y if P > 1 else None, lines, period, ratio
+    )
     odd_l, nz_odd = level(quiet[quiet % 2 == 1])
     even_l, nz_even = level(quiet[quiet % 2 == 0])
-    noise_level = np.nanmean([nz_odd, nz_even]) if quiet.size else float("nan")
+    known = [v for v in (nz_odd, nz_even) if np.isfinite(v)]
+    noise_level = float(np.mean(known)) if known else float("nan")
     return BLA(
         lines,
         bla,
@@ -311,4 +320,67 @@ def best_linear_approximation(
         np.array([noise_level]),
         int(P),
         int(M),
+        pfg,
+        pfg_std,
     )
+
+
+#: The source of a PFG measured at the lines of a lifted design (:func:`lifted_line_pfg`).
+LINE_PFG_SOURCE = "data:lifted lines"
+
+
+def lifted_line_pfg(
+    R: ComplexArray,
+    Y: ComplexArray,
+    var_y: FloatArray | None,
+    lines: IntArray,
+    period: int,
+    ratio: int,
+) -> tuple[FloatArray, FloatArray]:
+    """The PFG from data at each excited line of a lifted design, and its std.
+
+    The PFG at line kappa is the 2-norm of block column l of the lifted closed-loop map
+    J(k), k = kappa mod M, M = period / F (:mod:`~mr_ident.numerics.pfg`). Where kappa is
+    the only excited line in its lifted bin (and in its conjugate's: ``mr-ident excite
+    --lifted``), r excites that column alone, so in periodic steady state it is measured
+    exactly: the output's F aliases over r at kappa,
+    ``J(k)[:, l] = [Y(k + i M)]_i / R(kappa)``, averaged over realizations; no local model
+    and no alias range (:mod:`~mr_ident.numerics.alias_range`) enter. Elsewhere nan.
+
+    ``R, Y``: (M_r, period//2+1) period-mean spectra of r and y per realization;
+    ``var_y``: the noise variance of Y (same shape) or None; the std is first order in the
+    variance of the column's entries (the larger of the noise's and the spread over
+    realizations), ``var |c| = sum |c_i|² v_i / (2 |c|²)``.
+    """
+    K = lines.size
+    nan = np.full(K, np.nan)
+    if K == 0 or ratio < 1 or period % ratio:
+        return nan, nan.copy()
+    F, Ml = int(ratio), period // int(ratio)
+    a, b = lines % Ml, (-lines) % Ml
+    count = np.bincount(np.concatenate([a, b]), minlength=Ml)
+    alone = (count[a] == 1) & (count[b] == 1)  # a == b counts twice: never alone
+    alias = a[:, None] + Ml * np.arange(F)[None, :]  # (K, F) lines on the whole circle
+    half = np.minimum(alias, period - alias)
+    flip = alias > period // 2
+
+    def full(X: ComplexArray) -> ComplexArray:
+        Xa = X[:, half]
+        return np.where(flip[None], np.conj(Xa), Xa)
+
+    Rk = R[:, lines][:, :, None]  # (M_r, K, 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cols = full(Y) / Rk  # (M_r, K, F)
+        c = cols.mean(axis=0)
+        n_real = cols.shape[0]
+        v = np.zeros(c.shape)
+        if n_real > 1:
+            v = np.var(cols, axis=0, ddof=1) / n_real
+        if var_y is not None:
+            noise = np.mean(var_y[:, half] / np.abs(Rk) ** 2, axis=0) / n_real
+            v = np.maximum(v, noise)
+        gain = np.linalg.norm(c, axis=1)
+        std = np.sqrt(np.sum(np.abs(c) ** 2 * v, axis=1) / (2 * gain**2))
+    if n_real < 2 and var_y is None:
+        std = nan.copy()
+    return np.where(alone, gain, np.nan), np.where(alone, std, np.nan)

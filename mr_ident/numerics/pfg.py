@@ -197,12 +197,13 @@ def _pfg_siso(
     Pl, a, b, sd have shape (F, K) (aliases first, so sums over them are vector adds;
     ``b`` None means all ones), Kk (K,).
     """
-    aPK = a * (Pl * Kk)  # a_l P_l K
-    minv = 1.0 / (1.0 + np.sum(aPK if b is None else aPK * b, axis=0))
-    mbp0 = minv * Pl[0] if b is None else minv * b[0] * Pl[0]
-    col = aPK * -mbp0
-    col[0] += Pl[0]
-    gain = np.sqrt(np.sum(col.real**2 + col.imag**2, axis=0))
+    with np.errstate(invalid="ignore", divide="ignore"):  # an integrator's P(0) = inf: nan
+        aPK = a * (Pl * Kk)  # a_l P_l K
+        minv = 1.0 / (1.0 + np.sum(aPK if b is None else aPK * b, axis=0))
+        mbp0 = minv * Pl[0] if b is None else minv * b[0] * Pl[0]
+        col = aPK * -mbp0
+        col[0] += Pl[0]
+        gain = np.sqrt(np.sum(col.real**2 + col.imag**2, axis=0))
     if sd is None:
         return gain, np.full(gain.shape, np.nan)
     with np.errstate(invalid="ignore", divide="ignore"):
