@@ -53,10 +53,18 @@ class Objective:
     """Whitened residuals of a model family on the estimation record.
 
     In closed loop the simulation starts at rest while the measured loop was running: the
-    first samples are skipped (:func:`settle_samples`) and what the loop's slow modes
-    still carry of the unknown initial state is eliminated by least squares (variable
+    first samples are skipped (:func:`settle_samples`) and what the loop's modes still
+    carry of the unknown initial state is eliminated by least squares (variable
     projection onto their free responses, whitened like the residual), so that neither
-    the start-up transient nor a slow mode's tail counts as a model error.
+    the start-up transient nor a slow mode's tail counts as a model error. Every mode
+    takes part, not only those still alive at the skip: the DFT of a finite record of
+    the noise as the loop shapes it is ``S_o(k) V(k)`` plus a leakage term from the
+    loop's state at the record's ends, a smooth sum over the loop's modes that the LPM
+    noise spectrum leaves out (it is the LPM's transient term). Where the loop suppresses
+    the noise (integral action: ``|S_o|`` tiny at low frequency) that term outweighs the
+    noise there by orders of magnitude, and a cause that merely adds a mode to the loop
+    bought its basis for free (measured: loops with nothing hidden where an extra mode
+    lowered the cost by 12 600; with every mode projected, 2 of 3 such false causes go).
 
     The spectrum ``E(k)`` of y - ŷ (``rfft``, orthonormal) is divided by the noise std
     of :func:`~mr_ident.diagnosis.noise.noise_spectrum`, so that the bins are independent

@@ -134,13 +134,13 @@ class StateRecursion:
                 self._Cm = ss.C @ V  # (n_out, n)
         self._z = np.zeros(self._lam.shape[0] if self._modal else 0, dtype=complex)
 
-    def free(self, n_steps: int, rows: slice, start: int, floor: float = 1e-8) -> FloatArray:
-        """Free responses of the slow modes: a real basis, shape (n_steps - start, rows, k).
+    def free(self, n_steps: int, rows: slice, start: int, floor: float = 0.0) -> FloatArray:
+        """Free responses of the modes: a real basis, shape (n_steps - start, rows, k).
 
         The outputs ``rows`` from step ``start`` on of the response to an initial state
         (zero input), one column per real mode and two per complex pair (real and
-        imaginary part), for the modes with ``|λ|^start > floor`` only: the others have
-        died out by ``start``. Empty (k = 0) when nothing is that slow.
+        imaginary part), for the modes with ``|λ|^start > floor`` only (default: every
+        mode that is not deadbeat). Empty (k = 0) when there is none.
         """
         n_rows = len(range(*rows.indices(self.ss.C.shape[0])))
         m = np.arange(start, n_steps)
