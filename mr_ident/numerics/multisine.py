@@ -19,7 +19,13 @@ time-frequency domain swapping algorithm", IEEE Trans. Instrum. Meas. 37(1), 198
 bins, and lifted bin κ collects the high-rate lines κ + l M (l = 0..F-1), negative
 frequencies included (line N - k is the conjugate of line k). ``lifted=True`` keeps, in
 increasing frequency, only lines whose alias family and its conjugate's are still free, so
-that each lifted bin sees at most one excited alias.
+that each lifted bin sees at most one excited alias. ``rotate=True`` (with ``lifted``)
+moves, in realization m, every line m places along its *alias family* (the F lines in
+(0, N/2] whose lifted bin is its own or its conjugate's), so that F realizations excite
+every alias of every lifted bin once: the lifted input then has full rank F over the
+realizations, which an output measured at the low rate needs
+(:mod:`~mr_ident.numerics.slow_periodic`); the family reaches beyond the band, up to
+fs/2.
 
 **Several inputs**: the excited lines are dealt out in turn (input i gets lines i, i + n_u,
 ...): the inputs' spectra never share a line, so they are orthogonal over every period.
@@ -58,6 +64,9 @@ class Multisine:
     kind : str
     crest_factor : ndarray, shape (M, n_in)
         ``max |r| / rms(r)`` over one period.
+    realization_lines : ndarray of int, shape (M, n_in, L), optional
+        A rotated design's lines per realization (``lines`` is the first's); None when
+        every realization excites ``lines``.
     """
 
     r: FloatArray
@@ -67,6 +76,7 @@ class Multisine:
     detection: IntArray
     kind: str
     crest_factor: FloatArray
+    realization_lines: IntArray | None = None
 
     @property
     def frequencies(self) -> FloatArray:
@@ -143,6 +153,28 @@ def unaliased(lines: IntArray, period: int, ratio: int) -> IntArray:
     return np.asarray(keep, np.int64)
 
 
+def alias_family(line: int, period: int, ratio: int) -> IntArray:
+    """The lines in (0, N/2] whose lifted bin is ``line``'s or its conjugate's, increasing.
+
+    F of them (a line at a multiple of fs_low/2 is its own conjugate's: fewer).
+    """
+    M = period // ratio
+    k = np.arange(1, period // 2 + 1)
+    a = line % M
+    out: IntArray = k[(k % M == a) | ((-k) % M == a)]
+    return out
+
+
+def rotated(lines: IntArray, period: int, ratio: int, shift: int) -> IntArray:
+    """Every line moved ``shift`` places (cyclically) along its :func:`alias_family`."""
+    out = np.empty_like(lines)
+    for i, k in enumerate(lines):  # a loop over a design's lines, not per sample or bin
+        fam = alias_family(int(k), period, ratio)
+        j = int(np.searchsorted(fam, k))
+        out[i] = fam[(j + shift) % fam.size]
+    return out
+
+
 def _synth(amp: FloatArray, lines: IntArray, phase: FloatArray, period: int) -> FloatArray:
     X = np.zeros(period // 2 + 1, complex)
     X[lines] = amp * np.exp(1j * phase)
@@ -197,11 +229,14 @@ def design(
     slope_db_per_decade: float = 0.0,
     group: int = 3,
     seed: int = 0,
+    rotate: bool = False,
 ) -> Multisine:
     """A multisine (module docstring); every argument is checked with a clear error.
 
     ``slope_db_per_decade``: the amplitude spectrum, 0 flat, -20 falling as 1/f; ``rms``
-    each input's RMS; ``lifted`` with ``ratio`` F: lines whose lifted aliases do not collide.
+    each input's RMS; ``lifted`` with ``ratio`` F: lines whose lifted aliases do not collide;
+    ``rotate`` (lifted, ``kind="full"``, realizations a multiple of F): realization m's
+    lines moved m places along their alias families.
     """
     checks: list[tuple[str, float, bool, str]] = [
         ("fs_high", fs_high, fs_high > 0 and math.isfinite(fs_high), "> 0"),
@@ -215,6 +250,14 @@ def design(
     for name, value, ok, want in checks:
         if not ok:
             raise ConfigError(f"{name} must be {want}, got {value!r}")
+    if rotate and not (
+        lifted and ratio > 1 and kind == "full" and realizations % ratio == 0 and period % 2 == 0
+    ):
+        raise ConfigError(
+            "rotate needs lifted=True, ratio F > 1, kind full, realizations a multiple of F "
+            f"and an even period; got lifted={lifted}, ratio={ratio}, kind={kind!r}, "
+            f"realizations={realizations}, period={period}"
+        )
     rng = np.random.default_rng(seed)
     cand = band_lines(fs_high, period, band)
     if lifted and ratio > 1:
@@ -231,15 +274,18 @@ def design(
         )
     per_input = [lines[i::inputs] for i in range(inputs)]
     width = max(p.size for p in per_input)
-    table = np.full((inputs, width), -1, np.int64)
+    table = np.full((realizations, inputs, width), -1, np.int64)
     r = np.zeros((realizations, periods * period, inputs))
     cf = np.zeros((realizations, inputs))
-    for i, ks in enumerate(per_input):
-        table[i, : ks.size] = ks
-        f = ks * fs_high / period
-        amp = (f / f[0]) ** (slope_db_per_decade / 20.0)
+    f0 = lines[0] * fs_high / period
+    for i, base in enumerate(per_input):
         for m in range(realizations):
+            ks = rotated(base, period, ratio, m % ratio) if rotate else base
+            table[m, i, : ks.size] = ks
+            amp = (ks * fs_high / period / f0) ** (slope_db_per_decade / 20.0)
             x, cf[m, i] = low_crest(amp, ks, period, rng)
             x *= rms / np.sqrt(np.mean(x**2))
             r[m, :, i] = np.tile(x, periods)
-    return Multisine(r, float(fs_high), int(period), table, detection, kind, cf)
+    return Multisine(
+        r, float(fs_high), int(period), table[0], detection, kind, cf, table if rotate else None
+    )

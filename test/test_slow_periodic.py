@@ -1,0 +1,87 @@
+"""P_h from a low-rate output on a rotated lifted multisine (mr_ident.numerics.slow_periodic).
+
+Loops drawn at random (``scenarios.draw_loop``: plants of order 2-6, lead/PI/PID, F in
+{2, 3, 5}) played a rotated lifted design (``design(rotate=True)``, F realizations), in
+steady state, y kept at samples q, q + F, ... only. Noise-free, P_h is exact at every line
+of every excited alias family (to 1e-8 relative), beyond the design's band up to fs/2,
+where a white r and a local model reach 1e-4 only where the alias range allows
+(test_slow_output.py). One realization (or an unrotated design) cannot give it: refused
+bins, no line. With output noise the std covers the error.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from mr_ident.diagnosis.scenarios import draw_loop
+from mr_ident.errors import ConfigError, DimensionError
+from mr_ident.numerics.excitation import SimSource
+from mr_ident.numerics.multisine import alias_family, design
+from mr_ident.numerics.simulate import loop_poles
+from mr_ident.numerics.slow_periodic import slow_output_plant
+
+
+def _run(model, r, period, periods, skip):
+    src = SimSource(model, block=period, excitation="signal", signal=r)
+    blocks = [src.next() for _ in range(periods)]
+    return [np.concatenate([b[i] for b in blocks])[skip * period :, 0] for i in (1, 2, 3)]
+
+
+def _record(seed, noise=0.0, kept=3, rotate=True):
+    """A drawn loop's rotated-design record in steady state: the first periods dropped
+    until its slowest closed-loop pole has decayed to 1e-12."""
+    loop = draw_loop(np.random.default_rng(seed), duration=5.0, ratios=(2, 3, 5))
+    model = replace(loop.nominal, noise_std=noise)
+    F, fs = model.ratio, model.fs_high
+    period = 120 * F
+    rho = float(np.max(np.abs(loop_poles(model))))
+    skip = int(np.ceil(np.log(1e-12) / np.log(rho) * F / period)) + 1
+    assert skip * period < 30_000, "a loop that settles within the test's budget"
+    ms = design(fs_high=fs, period=period, band=(fs / period, 0.2 * fs), kind="full",
+                periods=skip + kept, realizations=F, ratio=F, lifted=True, rotate=rotate,
+                seed=seed)  # fmt: skip
+    runs = [_run(model, ms.r[m], period, skip + kept, skip) for m in range(F)]
+    r, u, y = (np.stack([run[i] for run in runs]) for i in (0, 1, 2))
+    return model, ms, period, (r, u), y
+
+
+@pytest.mark.parametrize("seed", [4601, 4603, 4604, 4608])  # F = 2, 2 (PID), 3, 5
+def test_noise_free_a_rotated_design_gives_p_h_exactly_from_a_slow_y(seed):
+    model, ms, period, ru, y = _record(seed)
+    F, q = model.ratio, seed % model.ratio
+    lines, P, _ = slow_output_plant(*ru, y[:, q::F], period, F, phase=q)
+    truth = model.plant_frf(period)[lines, 0, 0]
+    assert np.max(np.abs(P / truth - 1)) < 1e-8
+    # every line of every excited family, beyond the band (0.2 fs) up to fs/2
+    fams = np.unique(np.concatenate([alias_family(k, period, F) for k in ms.lines[0]]))
+    assert np.array_equal(np.sort(lines), fams)
+    assert lines.max() * model.fs_high / period > 0.4 * model.fs_high
+
+
+def test_without_rotation_the_lifted_bins_are_not_identifiable():
+    model, _, period, ru, y = _record(4604, rotate=False)
+    lines, _, _ = slow_output_plant(*ru, y[:, ::3], period, 3)
+    assert lines.size == 0
+
+
+def test_with_noise_the_std_covers_the_error():
+    model, _, period, ru, y = _record(4601, kept=12)
+    rng = np.random.default_rng(7)
+    y = y + 1e-3 * float(np.std(y)) * rng.standard_normal(y.shape)
+    lines, P, sd = slow_output_plant(*ru, y[:, ::2], period, 2)
+    z = np.abs(P - model.plant_frf(period)[lines, 0, 0]) / sd
+    assert np.all(np.isfinite(z)) and np.mean(z < 3) > 0.95, np.sort(z)[-5:]
+
+
+def test_bad_arguments_are_refused():
+    u = np.zeros((2, 240))
+    with pytest.raises(ConfigError, match="multiple of ratio"):
+        slow_output_plant(u, u, np.zeros((2, 120)), 25, 2)
+    with pytest.raises(DimensionError, match="y_low"):
+        slow_output_plant(u, u, np.zeros((2, 100)), 24, 2)
+    with pytest.raises(ConfigError, match="rotate needs"):
+        design(fs_high=100.0, period=24, band=(1, 40), kind="odd", ratio=2, lifted=True,
+               rotate=True, realizations=2)  # fmt: skip
