@@ -85,3 +85,44 @@ def test_bad_arguments_are_refused():
     with pytest.raises(ConfigError, match="rotate needs"):
         design(fs_high=100.0, period=24, band=(1, 40), kind="odd", ratio=2, lifted=True,
                rotate=True, realizations=2)  # fmt: skip
+
+
+def test_excite_rotate_then_identify_period_on_a_slow_y(tmp_path, capsys):
+    """`mr-ident excite --lifted --rotate` designs it; the loop played it, y kept at the low
+    rate (NPZ y of n/F samples per realization, y_phase 1): `identify --period N` writes
+    P_h on every line of the excited families, equal to the plant's to 1e-8; an unrotated
+    design is refused with the remedy named."""
+    from mr_ident.cli import main
+    from mr_ident.io.datafile import read_result
+
+    loop = draw_loop(np.random.default_rng(4601), duration=5.0, ratios=(2, 3, 5))
+    model = replace(loop.nominal, noise_std=0.0)
+    F, fs, period = model.ratio, model.fs_high, 120 * model.ratio
+    rho = float(np.max(np.abs(loop_poles(model))))
+    skip = int(np.ceil(np.log(1e-12) / np.log(rho) * F / period)) + 1
+    design_file = tmp_path / "design.npz"
+    args = ["excite", "--fs-high", str(fs), "--band", f"1,{0.2 * fs}", "--period", str(period),
+            "--periods", str(skip + 3), "--realizations", str(F), "--kind", "full",
+            "--ratio", str(F), "--lifted", "--out", str(design_file)]  # fmt: skip
+    assert main([*args, "--rotate"]) == 0
+    d = np.load(design_file)
+    assert d["realization_lines"].shape[0] == F
+    runs = [_run(model, d["r"][m][:, None], period, skip + 3, 0) for m in range(F)]
+    r, u, y = (np.stack([run[i] for run in runs]) for i in (0, 1, 2))
+    data, out = tmp_path / "slow.npz", tmp_path / "P.npz"
+    np.savez(data, r=r, u=u, y=y[:, 1::F], y_phase=1, fs_high=fs, ratio=F)
+    argv = ["identify", str(data), "--period", str(period), "--transient-periods", str(skip),
+            "--out", str(out)]  # fmt: skip
+    assert main(argv) == 0
+    assert "P_h from y at the low rate" in capsys.readouterr().out
+    frf = read_result(out)
+    lines = np.rint(frf.frequency * period / fs).astype(int)
+    truth = model.plant_frf(period)[lines, 0, 0]
+    assert np.max(np.abs(frf.response[:, 0, 0] / truth - 1)) < 1e-8
+    assert main([*args]) == 0  # the same without --rotate
+    d = np.load(design_file)
+    runs = [_run(model, d["r"][m][:, None], period, skip + 3, 0) for m in range(F)]
+    r, u, y = (np.stack([run[i] for run in runs]) for i in (0, 1, 2))
+    np.savez(data, r=r, u=u, y=y[:, ::F], fs_high=fs, ratio=F)
+    assert main(argv) == 2
+    assert "--rotate" in capsys.readouterr().err

@@ -47,6 +47,13 @@ def add_excite_parser(sub: Any) -> None:
         help="keep only lines whose F lifted aliases do not collide (needs --ratio)",
     )
     x.add_argument(
+        "--rotate",
+        action="store_true",
+        help="with --lifted: realization m's lines moved m places along their alias "
+        "families, so F realizations excite every alias of every lifted bin (for a y "
+        "measured at the low rate; --kind full, --realizations a multiple of F)",
+    )
+    x.add_argument(
         "--slope", type=float, default=0.0, help="amplitude slope in dB/decade (0: flat)"
     )
     x.add_argument("--seed", type=int, default=0, help="random phases' seed")
@@ -134,6 +141,10 @@ def _design(args: argparse.Namespace) -> tuple[Any, float, int]:
 
     if args.lifted and args.ratio == 1:
         raise ConfigError("--lifted needs --ratio F > 1 (the lifted aliases it keeps apart)")
+    if args.rotate and not (args.lifted and args.kind == "full"):
+        raise ConfigError(
+            "--rotate needs --lifted and --kind full (and --realizations a multiple of F)"
+        )
     ms = design(
         fs_high=args.fs_high,
         period=args.period,
@@ -147,6 +158,7 @@ def _design(args: argparse.Namespace) -> tuple[Any, float, int]:
         lifted=args.lifted,
         slope_db_per_decade=args.slope,
         seed=args.seed,
+        rotate=args.rotate,
     )
     f = ms.frequencies
     M, n, n_in = ms.r.shape

@@ -29,6 +29,10 @@ def identify_periodic(args: argparse.Namespace) -> int:
     from ..live.recordings import is_bag
     from ..numerics.bla import distortion_by_band
 
+    if not is_bag(args.data):
+        slow = _npz_slow(args)
+        if slow is not None:
+            return slow
     cut, fs, F = _bag_periods(args) if is_bag(args.data) else _npz_periods(args)
     bla = periodic_bla(cut, F)
     print(f"periods: {cut.describe()}")
@@ -37,10 +41,63 @@ def identify_periodic(args: argparse.Namespace) -> int:
     return 0
 
 
-def _npz_periods(args: argparse.Namespace) -> tuple[Periods, float, int]:
-    from ..io.periodicfile import read_realizations
-    from ..live.periodic import cut_by_count
+def _npz_slow(args: argparse.Namespace) -> int | None:
+    """P_h from an NPZ whose y holds the low-rate samples only; None: y is fast.
 
+    Through :func:`~mr_ident.numerics.slow_periodic.slow_output_plant` (a rotated lifted
+    design: ``mr-ident excite --lifted --rotate``), written as an identification result.
+    """
+    import numpy as np
+
+    from ..io.datafile import load_npz, write_result
+    from ..io.periodicfile import read_realizations
+    from ..numerics.results import FRF, Identification
+    from ..numerics.slow_periodic import slow_output_plant
+
+    _check_npz_args(args)
+    r, u, y, fs, F_file = read_realizations(args.data, args.ratio)
+    F = args.ratio or F_file or 1
+    if y.shape[1] == r.shape[1]:
+        return None
+    fs = args.fs_high or fs
+    if fs is None:
+        raise ConfigError(f"{args.data} has no fs_high: pass --fs-high")
+    N, T = int(args.period), int(args.transient_periods)
+    if N % F or r.shape[1] % N or r.shape[1] // N <= T:
+        raise DataError(
+            f"{args.data}: --period {N} must be a multiple of F = {F} and divide the "
+            f"{r.shape[1]} samples per realization into more than the {T} transient period(s)"
+        )
+    z = load_npz(args.data, (), "periodic data")
+    q = int(z["y_phase"]) if "y_phase" in z else 0
+    lines, P, sd = slow_output_plant(
+        r[:, T * N :], u[:, T * N :], y[:, T * N // F :], N, F, phase=q
+    )
+    if lines.size == 0:
+        raise DataError(
+            f"{args.data}: y holds the low-rate samples only, and no lifted bin has all its "
+            f"F = {F} aliases excited over the {r.shape[0]} realization(s): P_h needs a "
+            "rotated lifted design (mr-ident excite --lifted --rotate --kind full "
+            f"--ratio {F} --realizations {F})"
+        )
+    f = lines * fs / N
+    ident = Identification(
+        FRF(f, P[:, None, None], sd[:, None, None], "periodic:slow y"), None, None, None, fs, F
+    )
+    write_result(args.out, ident)
+    print(
+        f"wrote {args.out} (P_h from y at the low rate on {lines.size} lines, "
+        f"{f.min():.4g}-{f.max():.4g} Hz; {r.shape[0]} realizations x "
+        f"{r.shape[1] // N - T} periods; median std {np.nanmedian(sd / np.abs(P)):.2g} of |P|)"
+    )
+    if args.plot:
+        from ..plots import plot_bode
+
+        print(f"wrote {plot_bode(ident.plant, args.plot)}")
+    return 0
+
+
+def _check_npz_args(args: argparse.Namespace) -> None:
     if args.period == "auto":
         raise ConfigError(
             "--period auto reads the period off the excitation's labels in a bag; "
@@ -48,6 +105,13 @@ def _npz_periods(args: argparse.Namespace) -> tuple[Periods, float, int]:
         )
     if args.excitation_index:
         raise ConfigError(f"--excitation-index names a topic of a bag; {args.data} is an NPZ")
+
+
+def _npz_periods(args: argparse.Namespace) -> tuple[Periods, float, int]:
+    from ..io.periodicfile import read_realizations
+    from ..live.periodic import cut_by_count
+
+    _check_npz_args(args)
     r, u, y, fs, F = read_realizations(args.data)
     fs = args.fs_high or fs
     if fs is None:

@@ -19,26 +19,29 @@ def write_excitation(path: str | Path, ms: Multisine, *, ratio: int = 1) -> None
 
     NPZ: ``r`` (M, P·N) for one input, (M, P·N, n_in) for several; ``fs_high``, ``ratio``,
     ``period``, ``lines`` (n_in, L; -1 pads), ``detection``, ``kind``, ``crest_factor``
-    (M, n_in). CSV: a column ``t`` (s), then ``r`` per realization (``r_m<k>``; with several
-    inputs ``r_m<k>_u<i>``), one row per sample; the design in a ``#`` header line.
+    (M, n_in), and a rotated design's ``realization_lines`` (M, n_in, L). CSV: a column
+    ``t`` (s), then ``r`` per realization (``r_m<k>``; with several inputs ``r_m<k>_u<i>``),
+    one row per sample; the design in a ``#`` header line.
     """
     p = Path(path)
     M, n, n_in = ms.r.shape
     suffix = p.suffix.lower()
     if suffix == ".npz":
+        arrays: dict[str, Any] = {
+            "r": ms.r[:, :, 0] if n_in == 1 else ms.r,
+            "fs_high": ms.fs_high,
+            "ratio": int(ratio),
+            "period": ms.period,
+            "lines": ms.lines,
+            "detection": ms.detection,
+            "kind": ms.kind,
+            "crest_factor": ms.crest_factor,
+        }
+        if ms.realization_lines is not None:
+            arrays["realization_lines"] = ms.realization_lines
 
         def w(fh: Any) -> None:
-            np.savez(
-                fh,
-                r=ms.r[:, :, 0] if n_in == 1 else ms.r,
-                fs_high=ms.fs_high,
-                ratio=int(ratio),
-                period=ms.period,
-                lines=ms.lines,
-                detection=ms.detection,
-                kind=ms.kind,
-                crest_factor=ms.crest_factor,
-            )
+            np.savez(fh, **arrays)
 
         atomic_write(p, w, binary=True)
     elif suffix == ".csv":

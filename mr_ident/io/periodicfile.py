@@ -15,12 +15,13 @@ from .datafile import load_npz
 
 
 def read_realizations(
-    path: str | Path,
+    path: str | Path, ratio: int | None = None
 ) -> tuple[FloatArray, FloatArray, FloatArray, float | None, int | None]:
     """r, u, y of an NPZ as (M, n) each, with ``fs_high`` and ``ratio`` where given.
 
-    One channel; a 1-D array is one realization. DataError naming the file and what does
-    not fit.
+    One channel; a 1-D array is one realization. ``y`` may hold n/F samples per row (the
+    output at the low rate, samples q, q + F, ...; F the file's ``ratio`` or ``ratio``
+    here). DataError naming the file and what does not fit.
     """
     p = Path(path)
     if p.suffix.lower() != ".npz":
@@ -29,9 +30,17 @@ def read_realizations(
     arrs = [np.atleast_2d(np.asarray(z[k], float)) for k in "ruy"]
     fs = float(z["fs_high"]) if "fs_high" in z else None
     F = int(z["ratio"]) if "ratio" in z else None
-    if not (arrs[0].shape == arrs[1].shape == arrs[2].shape) or arrs[0].ndim != 2:
+    slow = ratio or F
+    low_y = (
+        slow is not None
+        and slow > 1
+        and arrs[2].shape[0] == arrs[0].shape[0]
+        and arrs[2].shape[1] * slow == arrs[0].shape[1]
+    )
+    if arrs[0].shape != arrs[1].shape or (arrs[2].shape != arrs[0].shape and not low_y):
         raise DataError(
-            f"{p}: r, u, y must each be (M realizations, n samples) of one channel; got "
+            f"{p}: r, u, y must each be (M realizations, n samples) of one channel (y may "
+            f"hold n/F samples, the output at the low rate, with F given); got "
             f"{', '.join(str(a.shape) for a in arrs)}"
         )
     return arrs[0], arrs[1], arrs[2], fs, F
