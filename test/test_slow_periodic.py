@@ -5,7 +5,8 @@ Loops drawn at random (``scenarios.draw_loop``: plants of order 2-6, lead/PI/PID
 steady state, y kept at samples q, q + F, ... only. Noise-free, P_h is exact at every line
 of every excited alias family (to 1e-8 relative), beyond the design's band up to fs/2,
 where a white r and a local model reach 1e-4 only where the alias range allows
-(test_slow_output.py). One realization (or an unrotated design) cannot give it: refused
+(test_slow_output.py); so is the PFG from data, J = diag(P_h) S from the measured u,
+without the controller. One realization (or an unrotated design) cannot give it: refused
 bins, no line. With output noise the std covers the error.
 """
 
@@ -20,6 +21,7 @@ from mr_ident.diagnosis.scenarios import draw_loop
 from mr_ident.errors import ConfigError, DimensionError
 from mr_ident.numerics.excitation import SimSource
 from mr_ident.numerics.multisine import alias_family, design
+from mr_ident.numerics.pfg import pfg_of_model
 from mr_ident.numerics.simulate import loop_poles
 from mr_ident.numerics.slow_periodic import slow_output_plant
 
@@ -52,9 +54,13 @@ def _record(seed, noise=0.0, kept=3, rotate=True):
 def test_noise_free_a_rotated_design_gives_p_h_exactly_from_a_slow_y(seed):
     model, ms, period, ru, y = _record(seed)
     F, q = model.ratio, seed % model.ratio
-    lines, P, _ = slow_output_plant(*ru, y[:, q::F], period, F, phase=q)
+    sp = slow_output_plant(*ru, y[:, q::F], period, F, phase=q)
+    lines = sp.lines
     truth = model.plant_frf(period)[lines, 0, 0]
-    assert np.max(np.abs(P / truth - 1)) < 1e-8
+    assert np.max(np.abs(sp.response / truth - 1)) < 1e-8
+    # the PFG from data, J = diag(P_h) S, without the controller: the model's to 1e-8
+    pfg = pfg_of_model(model, period).gain[lines - 1]
+    assert np.max(np.abs(sp.pfg / pfg - 1)) < 1e-8
     # every line of every excited family, beyond the band (0.2 fs) up to fs/2
     fams = np.unique(np.concatenate([alias_family(k, period, F) for k in ms.lines[0]]))
     assert np.array_equal(np.sort(lines), fams)
@@ -63,17 +69,18 @@ def test_noise_free_a_rotated_design_gives_p_h_exactly_from_a_slow_y(seed):
 
 def test_without_rotation_the_lifted_bins_are_not_identifiable():
     model, _, period, ru, y = _record(4604, rotate=False)
-    lines, _, _ = slow_output_plant(*ru, y[:, ::3], period, 3)
-    assert lines.size == 0
+    assert slow_output_plant(*ru, y[:, ::3], period, 3).lines.size == 0
 
 
 def test_with_noise_the_std_covers_the_error():
     model, _, period, ru, y = _record(4601, kept=12)
     rng = np.random.default_rng(7)
     y = y + 1e-3 * float(np.std(y)) * rng.standard_normal(y.shape)
-    lines, P, sd = slow_output_plant(*ru, y[:, ::2], period, 2)
-    z = np.abs(P - model.plant_frf(period)[lines, 0, 0]) / sd
+    sp = slow_output_plant(*ru, y[:, ::2], period, 2)
+    z = np.abs(sp.response - model.plant_frf(period)[sp.lines, 0, 0]) / sp.std
     assert np.all(np.isfinite(z)) and np.mean(z < 3) > 0.95, np.sort(z)[-5:]
+    zg = np.abs(sp.pfg - pfg_of_model(model, period).gain[sp.lines - 1]) / sp.pfg_std
+    assert np.all(np.isfinite(zg)) and np.mean(zg < 3) > 0.95, np.sort(zg)[-5:]
 
 
 def test_bad_arguments_are_refused():
@@ -93,7 +100,7 @@ def test_excite_rotate_then_identify_period_on_a_slow_y(tmp_path, capsys):
     P_h on every line of the excited families, equal to the plant's to 1e-8; an unrotated
     design is refused with the remedy named."""
     from mr_ident.cli import main
-    from mr_ident.io.datafile import read_result
+    from mr_ident.io.datafile import read_identification, read_result
 
     loop = draw_loop(np.random.default_rng(4601), duration=5.0, ratios=(2, 3, 5))
     model = replace(loop.nominal, noise_std=0.0)
@@ -119,6 +126,9 @@ def test_excite_rotate_then_identify_period_on_a_slow_y(tmp_path, capsys):
     lines = np.rint(frf.frequency * period / fs).astype(int)
     truth = model.plant_frf(period)[lines, 0, 0]
     assert np.max(np.abs(frf.response[:, 0, 0] / truth - 1)) < 1e-8
+    got = read_identification(out).pfg_data
+    assert got is not None
+    assert np.max(np.abs(got.gain / pfg_of_model(model, period).gain[lines - 1] - 1)) < 1e-8
     assert main([*args]) == 0  # the same without --rotate
     d = np.load(design_file)
     runs = [_run(model, d["r"][m][:, None], period, skip + 3, 0) for m in range(F)]

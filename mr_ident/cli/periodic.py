@@ -51,8 +51,8 @@ def _npz_slow(args: argparse.Namespace) -> int | None:
 
     from ..io.datafile import load_npz, write_result
     from ..io.periodicfile import read_realizations
-    from ..numerics.results import FRF, Identification
-    from ..numerics.slow_periodic import slow_output_plant
+    from ..numerics.results import FRF, PFG, Identification
+    from ..numerics.slow_periodic import SLOW_PFG_SOURCE, slow_output_plant
 
     _check_npz_args(args)
     r, u, y, fs, F_file = read_realizations(args.data, args.ratio)
@@ -70,9 +70,8 @@ def _npz_slow(args: argparse.Namespace) -> int | None:
         )
     z = load_npz(args.data, (), "periodic data")
     q = int(z["y_phase"]) if "y_phase" in z else 0
-    lines, P, sd = slow_output_plant(
-        r[:, T * N :], u[:, T * N :], y[:, T * N // F :], N, F, phase=q
-    )
+    sp = slow_output_plant(r[:, T * N :], u[:, T * N :], y[:, T * N // F :], N, F, phase=q)
+    lines, P, sd = sp.lines, sp.response, sp.std
     if lines.size == 0:
         raise DataError(
             f"{args.data}: y holds the low-rate samples only, and no lifted bin has all its "
@@ -82,13 +81,20 @@ def _npz_slow(args: argparse.Namespace) -> int | None:
         )
     f = lines * fs / N
     ident = Identification(
-        FRF(f, P[:, None, None], sd[:, None, None], "periodic:slow y"), None, None, None, fs, F
+        FRF(f, P[:, None, None], sd[:, None, None], "periodic:slow y"),
+        None,
+        None,
+        None,
+        fs,
+        F,
+        pfg_data=PFG(f, sp.pfg, sp.pfg_std, SLOW_PFG_SOURCE),
     )
     write_result(args.out, ident)
     print(
         f"wrote {args.out} (P_h from y at the low rate on {lines.size} lines, "
         f"{f.min():.4g}-{f.max():.4g} Hz; {r.shape[0]} realizations x "
-        f"{r.shape[1] // N - T} periods; median std {np.nanmedian(sd / np.abs(P)):.2g} of |P|)"
+        f"{r.shape[1] // N - T} periods; median std {np.nanmedian(sd / np.abs(P)):.2g} of |P|; "
+        "with the PFG from data, J = diag(P_h) S measured)"
     )
     if args.plot:
         from ..plots import plot_bode

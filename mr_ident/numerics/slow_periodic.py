@@ -16,14 +16,48 @@ bin gives P_h at every line of every excited family, up to fs_high/2, with no lo
 (no alias range, :mod:`~mr_ident.numerics.alias_range`, no leakage). The std is first
 order in the period-mean noise of Y_low (the spread over periods); u is the recorded
 plant input, taken as exact.
+
+The same design measures the lifted r -> u map: ``Ũ_m(k) = S̃(k) R̃_m(k)`` over the F
+realizations gives ``S̃(k)`` whole, so the lifted closed loop r -> y follows as
+``J̃(k) = diag(P_h(k + lM)) S̃(k)`` (y = P_h u at every line), and with it the PFG from data
+(the 2-norm of block column l, :mod:`~mr_ident.numerics.pfg`), no controller model: the
+fast output's response is not measured, but the plant and u determine it.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import ConfigError, DimensionError
 from .arrays import ComplexArray, FloatArray, IntArray
+
+#: The source of the PFG from data of a rotated design (:attr:`SlowPlant.pfg`).
+SLOW_PFG_SOURCE = "data:rotated lifted design"
+
+
+@dataclass(frozen=True)
+class SlowPlant:
+    """P_h and the PFG from data at the lines of the excited alias families.
+
+    Attributes
+    ----------
+    lines : ndarray of int, shape (K,)
+        Lines in (0, N/2] (frequency ``lines fs / N``).
+    response, std : ndarray, shape (K,)
+        P_h and its first-order std (from the spread of Y_low over periods; nan with one
+        period).
+    pfg, pfg_std : ndarray, shape (K,)
+        The PFG from data (``J̃ = diag(P_h) S̃``) and its std from P_h's (S̃ taken as
+        exact).
+    """
+
+    lines: IntArray
+    response: ComplexArray
+    std: FloatArray
+    pfg: FloatArray
+    pfg_std: FloatArray
 
 
 def slow_output_plant(
@@ -35,8 +69,8 @@ def slow_output_plant(
     *,
     phase: int = 0,
     rcond: float = 1e-6,
-) -> tuple[IntArray, ComplexArray, FloatArray]:
-    """P_h at every line of a lifted bin whose aliases r excited all (module docstring).
+) -> SlowPlant:
+    """P_h and the PFG at every line of a lifted bin whose aliases r excited all.
 
     A lifted bin counts when the reference's spectra at its F aliases over the
     realizations have rank F (entries below 1e-3 of r's peak line taken as zero, as
@@ -60,11 +94,7 @@ def slow_output_plant(
 
     Returns
     -------
-    lines : ndarray of int, shape (K,)
-        Lines in (0, N/2] (frequency ``lines fs / N``).
-    P : ndarray, shape (K,)
-    std : ndarray, shape (K,)
-        First order, from the spread of Y_low over periods (nan with one period).
+    SlowPlant
     """
     ra = np.atleast_2d(np.asarray(r, float))
     ua = np.atleast_2d(np.asarray(u, float))
@@ -107,7 +137,18 @@ def slow_output_plant(
     cov = np.einsum("afr,ra,agr->afg", pinv, var, np.conj(pinv))
     sd = np.sqrt(np.real(np.einsum("aff->af", cov)))
     X[~full], sd[~full] = np.nan, np.nan
+    # the lifted r -> u map over the realizations, then J = diag(P_h) S and its columns' norms
+    Rk = Rf[:, kappa].transpose(1, 2, 0)  # (M, F, R)
+    S = np.einsum("afr,arg->afg", U[:, kappa].transpose(1, 2, 0), np.linalg.pinv(Rk))
+    J = X[:, :, None] * S  # (M, F, F): rows output aliases, columns input aliases
+    gain = np.linalg.norm(J, axis=1)  # (M, F)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a_ = np.conj(J) * S  # d gain_l = Re(sum_i a_il dX_i) / gain_l
+        gvar = 0.5 * np.real(np.einsum("afl,afg,agl->al", a_, cov, np.conj(a_))) / gain**2
+    gsd = np.sqrt(np.maximum(gvar, 0.0))
+    gain[~full], gsd[~full] = np.nan, np.nan
     lines = np.arange(1, N // 2 + 1)
     a, l_ = lines % M, lines // M
     keep = np.isfinite(X[a, l_])
-    return lines[keep], X[a, l_][keep], sd[a, l_][keep]
+    pick = (a[keep], l_[keep])
+    return SlowPlant(lines[keep], X[pick], sd[pick], gain[pick], gsd[pick])
