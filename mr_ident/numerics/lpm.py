@@ -34,7 +34,6 @@ whose regressor is rank deficient (no excitation) come out as NaN with a warning
 
 from __future__ import annotations
 
-import functools
 import warnings
 from dataclasses import dataclass
 
@@ -45,6 +44,7 @@ from ..errors import ConfigError, DataError, DimensionError
 from .arrays import ComplexArray, readonly
 from .budget import chunk_bins
 from .threads import resolve_workers, thread_map
+from .window_sums import kernels, moment_index, moving_sum, window_sums
 
 
 @dataclass(frozen=True)
@@ -131,126 +131,6 @@ def check_lpm_options(n: int, degree: int, n_in: int, n_out: int) -> int:
     return q
 
 
-@dataclass(frozen=True)
-class _Kernel:
-    """Weights ``w[q, r]`` (r = -n..n) of :func:`_window_sums` as a banded Toeplitz matrix.
-
-    For blocks of B >= 2n bins, output i of a block draws on inputs t = 0..B+2n-1
-    counted from the block's first bin (the block and the first 2n bins of the
-    next): ``taps[t, (q, i)] = w[q, t - i]``, shape (B + 2n, n_q * B).
-    """
-
-    taps: NDArray[np.float64]
-    n_out: int
-    B: int
-
-    @classmethod
-    def of(cls, w: NDArray[np.float64]) -> _Kernel:
-        nq, L = w.shape
-        n = (L - 1) // 2
-        B = max(2 * n, 16)
-        T = np.zeros((B + 2 * n, nq, B))
-        for i in range(B):
-            T[i : i + L, :, i] = w.T
-        T = T.reshape(B + 2 * n, nq * B)
-        T.flags.writeable = False
-        return cls(T, nq, B)
-
-
-@functools.lru_cache(maxsize=16)
-def _kernels(
-    n: int, degree: int
-) -> tuple[NDArray[np.float64], _Kernel, _Kernel, _Kernel, _Kernel]:
-    """The constant transient factor ``L_TT`` and the window kernels of :func:`lpm_bins_last`.
-
-    For half-width n and degree R.
-
-    With ``x = r/n`` and ``phi_u`` the polynomials orthonormal on the window
-    (``phi = V L_TT^-T``, ``V[r, t] = x^t``, ``L_TT L_TT^T = V^T V``):
-
-    * ``x^q``, q = 0..2R, for the products ``conj(U_i) U_j`` (the G-G block);
-    * ``phi_u(r) x^s``, u = 0..R, s = R..0, for ``conj(U_i)``: the G-transient block of
-      the Cholesky factor, ``L_GT = A_GT L_TT^-T``, directly;
-    * ``x^s``, s = 0..R, for ``conj(U_i) Y_o`` (the right-hand side of G);
-    * ``phi_u``, u = 0..R, for ``Y_o``: the transient rows of the forward solve directly.
-    """
-    x = np.arange(-n, n + 1) / n
-    T = degree + 1
-    V = x[:, None] ** np.arange(T)[None, :]
-    L_TT = np.linalg.cholesky(V.T @ V)
-    L_TT.flags.writeable = False
-    phi = V @ np.linalg.inv(L_TT).T  # (2n+1, T)
-    powers = x[None, :] ** np.arange(2 * degree + 1)[:, None]  # (2R+1, 2n+1)
-    s_desc = np.arange(degree, -1, -1)
-    phi_x = (phi.T[:, None, :] * powers[s_desc][None, :, :]).reshape(T * T, -1)
-    return (
-        L_TT,
-        _Kernel.of(powers),
-        _Kernel.of(phi_x),
-        _Kernel.of(powers[:T]),
-        _Kernel.of(phi.T.copy()),
-    )
-
-
-def _window_sums(Z: NDArray[np.complex128], kernel: _Kernel, K: int) -> NDArray[np.complex128]:
-    """Windowed sums ``S[q, c, k] = sum_{r=-n}^{n} w[q, r] Z[c, k+n+r]``.
-
-    Z has shape (C, K+2n); the result (n_q, C, K). The sums are a correlation with
-    2n+1 taps, done as one real matrix product (BLAS) per block of B bins against a
-    banded Toeplitz matrix (:class:`_Kernel`): the real and imaginary parts of every
-    signal over the block and the 2n bins after it are rows.
-    """
-    C = Z.shape[0]
-    B, nq = kernel.B, kernel.n_out
-    span = kernel.taps.shape[0]  # B + 2n
-    nb = -(-K // B)
-    need = (nb - 1) * B + span  # = K + 2n when B divides K (full chunks)
-    if Z.shape[1] < need:
-        Zp = np.zeros((C, need), dtype=np.complex128)
-        Zp[:, : Z.shape[1]] = Z
-        Z = Zp
-    c_st, k_st = Z.strides
-    blocks = np.lib.stride_tricks.as_strided(
-        Z, (C, nb, span), (c_st, B * k_st, k_st), writeable=False
-    )  # overlapping: block b = Z[:, bB : bB + span]
-    X = np.empty((2, C, nb, span))
-    X[0] = blocks.real
-    X[1] = blocks.imag
-    o = (X.reshape(2 * C, nb, span) @ kernel.taps).reshape(2, C, nb, nq, B)
-    out = np.empty((nq, C, nb, B), dtype=np.complex128)
-    out.real = o[0].transpose(2, 0, 1, 3)
-    out.imag = o[1].transpose(2, 0, 1, 3)
-    return out.reshape(nq, C, nb * B)[:, :, :K]
-
-
-def _moment_index(n_in: int) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]:
-    iu, ju = np.triu_indices(n_in)
-    pair = np.empty((n_in, n_in), dtype=np.intp)
-    pair[iu, ju] = np.arange(iu.size)
-    pair[ju, iu] = np.arange(iu.size)
-    return iu, ju, pair
-
-
-def _moving_sum(Z: NDArray[np.complex128], n: int, K: int) -> NDArray[np.complex128]:
-    """``S[c, k] = sum_{r=-n}^{n} Z[c, k+n+r]`` by doubling: O(log n) adds, no cumsum drift."""
-    L = 2 * n + 1
-    out: NDArray[np.complex128] | None = None
-    offset = 0
-    block = Z  # block[c, j] = sum of `width` samples starting at j
-    width = 1
-    while True:
-        if L & width:
-            part = block[:, offset : offset + K]
-            out = part.copy() if out is None else out + part
-            offset += width
-        if 2 * width > L:
-            break
-        block = block[:, :-width] + block[:, width:]
-        width *= 2
-    assert out is not None
-    return out
-
-
 def lpm_bins_last(
     Ua: NDArray[np.complex128],
     Ya: NDArray[np.complex128],
@@ -274,8 +154,8 @@ def lpm_bins_last(
     T = R + 1  # transient unknowns
     P = T * n_in  # G unknowns, ordered s = R..0 so that G_0 trails
     Q = T + P  # all unknowns: transient first, its Cholesky factor is constant
-    L_TT, k_uu, k_u, k_uy, k_y = _kernels(n, degree)
-    iu, ju, pair = _moment_index(n_in)
+    L_TT, k_uu, k_u, k_uy, k_y = kernels(n, degree)
+    iu, ju, pair = moment_index(n_in)
     s_of = np.repeat(np.arange(R, -1, -1), n_in)
     i_of = np.tile(np.arange(n_in), R + 1)
     mom_ab = s_of[:, None] + s_of[None, :]
@@ -294,14 +174,14 @@ def lpm_bins_last(
         Uc = Ua[k0 : k0 + width].T  # (n_in, width)
         Yc = Ya[k0 : k0 + width].T  # (n_out, width)
         Ucj = np.conj(Uc)
-        # Product signals and their windowed sums (see _kernels).
+        # Product signals and their windowed sums (see kernels).
         UU = np.multiply(Ucj[iu], Uc[ju])  # conj(U_i) U_j, i <= j
         UY = np.multiply(Ucj[:, None, :], Yc[None, :, :]).reshape(nio, width)  # conj(U_i) Y_o
-        mUU = _window_sums(UU, k_uu, Kc)  # (2R+1, npair, Kc)
-        mUY = _window_sums(UY, k_uy, Kc).reshape(R + 1, n_in, n_out, Kc)
-        L_GT = _window_sums(Ucj, k_u, Kc).reshape(T, P, Kc)  # L_GT[u, (s, i)]
-        W_T = _window_sums(Yc, k_y, Kc)  # (T, n_out, Kc)
-        mYY = _moving_sum(np.conj(Yc[ou]) * Yc[ov], n, Kc)  # (npair_o, Kc)
+        mUU = window_sums(UU, k_uu, Kc)  # (2R+1, npair, Kc)
+        mUY = window_sums(UY, k_uy, Kc).reshape(R + 1, n_in, n_out, Kc)
+        L_GT = window_sums(Ucj, k_u, Kc).reshape(T, P, Kc)  # L_GT[u, (s, i)]
+        W_T = window_sums(Yc, k_y, Kc)  # (T, n_out, Kc)
+        mYY = moving_sum(np.conj(Yc[ou]) * Yc[ov], n, Kc)  # (npair_o, Kc)
 
         # Cholesky L L^H of the normal matrix [[A_TT, A_TG], [A_GT, A_GG]] and forward
         # solve L W = K^H Y, left-looking, vectorised over bins. The transient columns
