@@ -19,6 +19,42 @@ from .prediction import centred
 #: A bin of the LPM noise above this many times its far neighbours' median is a plateau
 #: (a sinusoid that r does not explain), not noise.
 PLATEAU_CAP = 3.0
+#: Least noise gain kept, relative to its median (where integral action rejects the
+#: noise at DC the gain is 0: the weight there stays finite).
+GAIN_FLOOR = 1e-4
+
+
+def loop_noise_gain(model: Model, n_samples: int) -> FloatArray:
+    """Power gain from white output noise to the measured y, bins 0..N//2, (N//2+1, n_y).
+
+    In closed loop the noise reaches y through the loop: lifted, ``ỹ = T̃ ṽ`` with
+    ``T̃ = I - J̃ C̃`` (J̃ the lifted r -> y map, C̃ the lifted controller), so white noise of
+    unit variance per sample gives at alias i of lifted bin k the power
+    ``sum_j |T̃(k)[i, j]|²`` (F = 1: ``|1/(1 + P K)|²``). Its narrow peaks are the loop's
+    lightly damped poles, which no window of bins resolves (a pole 1 % damped is a bin
+    wide in a 30 s record). Ones in open loop; at least :data:`GAIN_FLOOR` of its median.
+    """
+    from ..numerics.loop import closed_loop_maps, lifted_controller
+
+    N = int(n_samples)
+    if model.controller is None or N % model.ratio:
+        return np.ones((N // 2 + 1, model.n_y))
+    F, M, ny = model.ratio, N // model.ratio, model.n_y
+    P = model.plant_discrete().freqresp(np.arange(N) * model.fs_high / N)
+    K = model.controller_frf(M)
+    bins = np.arange(M)
+    kw = {"phase": model.sample_phase, "delay": model.control_delay}
+    with np.errstate(all="ignore"):
+        J, _ = closed_loop_maps(P, K, bins, F, **kw)
+        C = lifted_controller(K, bins, F, N, **kw)
+        T = np.eye(F * ny)[None] - J @ C
+        g = np.sum(np.abs(T) ** 2, axis=2).reshape(M, F, ny)  # (k, alias, output)
+    full = np.empty((N, ny))
+    full[bins[:, None] + M * np.arange(F)[None, :]] = g
+    out = full[: N // 2 + 1]
+    med = np.nanmedian(out, axis=0)
+    out = np.where(np.isfinite(out), out, med)
+    return np.maximum(out, GAIN_FLOOR * med)
 
 
 def _ring_median(S: FloatArray, inner: int, width: int) -> FloatArray:
@@ -36,11 +72,16 @@ def noise_spectrum(
     degree: int = 2,
     ident: Identification | None = None,
 ) -> FloatArray:
-    """Noise variance of y on the bins of ``rfft(y[skip:], norm="ortho")``, shape (n_bins, n_y).
+    """The noise level of y on the bins of ``rfft(y[skip:], norm="ortho")``, (n_bins, n_y).
 
-    Independent of any model: from the LPM noise covariance of the r -> y fit (the part of
-    y that r does not explain: in closed loop the noise as the loop shapes it), or, for
-    periodic data, from the spread of y over periods (interpolated to the record's bins).
+    From the LPM noise covariance of the r -> y fit (the part of y that r does not
+    explain: in closed loop the noise as the loop shapes it), divided by the nominal loop's
+    :func:`loop_noise_gain` (the shaping, whose lightly damped peaks are narrower than any
+    window of bins: a 1 %-damped closed-loop pole is one bin wide in 30 s), so that what is
+    smoothed is smooth; the criterion multiplies the gain back on its own bins
+    (:class:`~mr_ident.diagnosis.objective.Objective`). Open loop and periodic data: the
+    spectrum itself, for periodic data from the spread of y over periods (interpolated to
+    the record's bins).
     Smoothed by a running median over 33 bins, corrected to a mean. A sinusoid that r does
     not explain enters the LPM noise of every window that holds it, a plateau of 2n + 1
     bins at each of its aliases, which a 33-bin median keeps; so each bin is first capped
@@ -72,6 +113,8 @@ def noise_spectrum(
         S[kappa.ravel()] = cv.reshape(-1, ny)
         dof = 2 * J.dof
     S = np.where(np.isfinite(S) & (S > 0), S, np.nan)
+    gain = np.ones(S.shape) if rec.period is not None else loop_noise_gain(model, rec.n_samples)
+    S = S / gain  # the level: the loop's sharp shaping divided out
     fill = np.nanmedian(S, axis=0) if np.any(np.isfinite(S)) else np.ones(S.shape[1])
     S = np.where(np.isnan(S), fill, S)
     if rec.period is None:
