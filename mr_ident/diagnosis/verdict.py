@@ -6,8 +6,9 @@
 fixed tolerance asks more than some records can give (a shallow notch where r excites the
 loop little determines its frequency to 5 %, not 2 %); so the verdict also says whether the
 truth lies within the data's own confidence region around the fit (:func:`likelihood_ratio`,
-:data:`CONFIDENCE`): a miss there is the estimator's, a miss only outside the tolerance is
-the record's.
+:data:`CONFIDENCE`): a miss with the truth outside that region is the diagnosis's (its
+search or its criterion); a miss with the truth inside it is the record's, which cannot
+tell the truth from the fit.
 """
 
 from __future__ import annotations

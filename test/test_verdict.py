@@ -1,0 +1,50 @@
+"""The judge of the diagnosis benchmark (mr_ident.diagnosis.verdict).
+
+A parameter outside its fixed tolerance counts as *credible* only when the truth's
+likelihood ratio against the fit is within the chi-square quantile at CONFIDENCE for the
+hidden causes' continuous values (the record cannot tell them apart), never when the cause
+was not named. likelihood_ratio on a diagnosis of a 30 % gain error: the true model scores
+within that region (Wilks: about chi-square with 1 dof), the nominal far outside it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import scipy.stats
+
+from mr_ident import simulate
+from mr_ident.diagnosis import diagnose
+from mr_ident.diagnosis.scenarios import draw_scenario
+from mr_ident.diagnosis.verdict import CONFIDENCE, hidden_dof, in_region, judge, likelihood_ratio
+from mr_ident.io.modelfile import model_from_dict
+
+
+def test_a_miss_is_credible_only_with_the_truth_in_the_region_and_the_cause_named():
+    sc = draw_scenario(["controller_notch"], np.random.default_rng(1070003), duration=30.0)
+    true = sc.hidden[0].parameters
+    off = dict(true, frequency_hz=1.1 * true["frequency_hz"])  # 10 % off: out of tolerance
+    limit = scipy.stats.chi2.ppf(CONFIDENCE, 3)
+    assert hidden_dof(sc) == 3
+    inside = judge(sc, [("controller_notch", off)], 0.0, lr=0.5 * limit)
+    outside = judge(sc, [("controller_notch", off)], 0.0, lr=1.5 * limit)
+    unnamed = judge(sc, [("control_delay", {"delay_samples": 1.0})], 0.0, lr=0.0)
+    exact = judge(sc, [("controller_notch", true)], 0.0)
+    assert not inside.success and inside.credible
+    assert not outside.success and not outside.credible
+    assert not unnamed.credible
+    assert exact.success and exact.credible
+    assert in_region(sc, 0.99 * limit) and not in_region(sc, 1.01 * limit)
+
+
+def test_the_likelihood_ratio_of_the_truth_is_small_and_of_the_nominal_large():
+    model = model_from_dict({"fs_high": 100.0, "ratio": 2,
+                             "plant": {"num": [10.0], "den": [1.0, 10.0]},
+                             "controller": {"num": [0.5], "den": [1.0]}})  # fmt: skip
+    true = dataclasses.replace(model, plant_gain=1.3, noise_std=0.01)
+    data = simulate(true, duration=20.0, rng=np.random.default_rng(0))
+    d = diagnose(model, data)
+    assert d.criterion is not None and d.cause == "gain_error"
+    assert -1.0 < likelihood_ratio(d, true) < scipy.stats.chi2.ppf(CONFIDENCE, 1)
+    assert likelihood_ratio(d, model) > 100
