@@ -19,21 +19,24 @@ from ..errors import ConfigError, DataError
 from .common import read_loop, reading, source_specs
 
 if TYPE_CHECKING:
+    from ..io.periodicfile import Realizations
     from ..live.periodic import Periods
     from ..numerics.bla import BLA
 
 
 def identify_periodic(args: argparse.Namespace) -> int:
     """``identify --period``: the BLA of an NPZ of realizations or of a bag."""
-    from ..live.periodic import periodic_bla
+    from ..live.periodic import cut_by_count, periodic_bla
     from ..live.recordings import is_bag
     from ..numerics.bla import distortion_by_band
 
-    if not is_bag(args.data):
-        slow = _npz_slow(args)
-        if slow is not None:
-            return slow
-    cut, fs, F = _bag_periods(args) if is_bag(args.data) else _npz_periods(args)
+    if is_bag(args.data):
+        cut, fs, F = _bag_periods(args)
+    else:
+        data, fs, F = _read_npz(args)
+        if data.low_rate_y:
+            return _npz_slow(args, data, fs, F)
+        cut = cut_by_count(data.r, data.u, data.y, args.period, args.transient_periods)
     bla = periodic_bla(cut, F)
     print(f"periods: {cut.describe()}")
     bands = distortion_by_band(cut.r, cut.y, cut.period, fs, ratio=F) if bla.periods > 1 else []
@@ -41,35 +44,25 @@ def identify_periodic(args: argparse.Namespace) -> int:
     return 0
 
 
-def _npz_slow(args: argparse.Namespace) -> int | None:
-    """P_h from an NPZ whose y holds the low-rate samples only; None: y is fast.
+def _npz_slow(args: argparse.Namespace, data: Realizations, fs: float, F: int) -> int:
+    """P_h from an NPZ whose y holds the low-rate samples only.
 
     Through :func:`~mr_ident.numerics.slow_periodic.slow_output_plant` (a rotated lifted
     design: ``mr-ident excite --lifted --rotate``), written as an identification result.
     """
     import numpy as np
 
-    from ..io.datafile import load_npz, write_result
-    from ..io.periodicfile import read_realizations
+    from ..io.datafile import write_result
     from ..numerics.results import FRF, PFG, Identification
     from ..numerics.slow_periodic import SLOW_PFG_SOURCE, slow_output_plant
 
-    _check_npz_args(args)
-    r, u, y, fs, F_file = read_realizations(args.data, args.ratio)
-    F = args.ratio or F_file or 1
-    if y.shape[1] == r.shape[1]:
-        return None
-    fs = args.fs_high or fs
-    if fs is None:
-        raise ConfigError(f"{args.data} has no fs_high: pass --fs-high")
+    r, u, y, q = data.r, data.u, data.y, data.y_phase
     N, T = int(args.period), int(args.transient_periods)
     if N % F or r.shape[1] % N or r.shape[1] // N <= T:
         raise DataError(
             f"{args.data}: --period {N} must be a multiple of F = {F} and divide the "
             f"{r.shape[1]} samples per realization into more than the {T} transient period(s)"
         )
-    z = load_npz(args.data, (), "periodic data")
-    q = int(z["y_phase"]) if "y_phase" in z else 0
     sp = slow_output_plant(r[:, T * N :], u[:, T * N :], y[:, T * N // F :], N, F, phase=q)
     lines, P, sd = sp.lines, sp.response, sp.std
     if lines.size == 0:
@@ -103,7 +96,10 @@ def _npz_slow(args: argparse.Namespace) -> int | None:
     return 0
 
 
-def _check_npz_args(args: argparse.Namespace) -> None:
+def _read_npz(args: argparse.Namespace) -> tuple[Realizations, float, int]:
+    """The NPZ of realizations, read once, with fs_high and F settled (the flags first)."""
+    from ..io.periodicfile import read_realizations
+
     if args.period == "auto":
         raise ConfigError(
             "--period auto reads the period off the excitation's labels in a bag; "
@@ -111,18 +107,11 @@ def _check_npz_args(args: argparse.Namespace) -> None:
         )
     if args.excitation_index:
         raise ConfigError(f"--excitation-index names a topic of a bag; {args.data} is an NPZ")
-
-
-def _npz_periods(args: argparse.Namespace) -> tuple[Periods, float, int]:
-    from ..io.periodicfile import read_realizations
-    from ..live.periodic import cut_by_count
-
-    _check_npz_args(args)
-    r, u, y, fs, F = read_realizations(args.data)
-    fs = args.fs_high or fs
+    data = read_realizations(args.data, args.ratio)
+    fs = args.fs_high or data.fs_high
     if fs is None:
         raise ConfigError(f"{args.data} has no fs_high: pass --fs-high")
-    return cut_by_count(r, u, y, args.period, args.transient_periods), fs, args.ratio or F or 1
+    return data, fs, args.ratio or data.ratio or 1
 
 
 def _default_labels(specs: dict[str, list[str]] | None) -> str:

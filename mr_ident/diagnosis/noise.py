@@ -34,6 +34,7 @@ def loop_noise_gain(model: Model, n_samples: int) -> FloatArray:
     lightly damped poles, which no window of bins resolves (a pole 1 % damped is a bin
     wide in a 30 s record). Ones in open loop; at least :data:`GAIN_FLOOR` of its median.
     """
+    from ..numerics.lifting import unlift_bins
     from ..numerics.loop import closed_loop_maps, lifted_controller
 
     N = int(n_samples)
@@ -50,7 +51,7 @@ def loop_noise_gain(model: Model, n_samples: int) -> FloatArray:
         T = np.eye(F * ny)[None] - J @ C
         g = np.sum(np.abs(T) ** 2, axis=2).reshape(M, F, ny)  # (k, alias, output)
     full = np.empty((N, ny))
-    full[bins[:, None] + M * np.arange(F)[None, :]] = g
+    full[unlift_bins(bins, F, N)] = g
     out = full[: N // 2 + 1]
     med = np.nanmedian(out, axis=0)
     out = np.where(np.isfinite(out), out, med)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -14,14 +14,32 @@ from .atomic import atomic_write
 from .datafile import load_npz
 
 
-def read_realizations(
-    path: str | Path, ratio: int | None = None
-) -> tuple[FloatArray, FloatArray, FloatArray, float | None, int | None]:
-    """r, u, y of an NPZ as (M, n) each, with ``fs_high`` and ``ratio`` where given.
+class Realizations(NamedTuple):
+    """A periodic NPZ's realizations (:func:`read_realizations`).
+
+    r, u, y of shape (M, n) each (y (M, n/F) when measured at the low rate), with the
+    file's ``fs_high`` and ``ratio`` where given and ``y_phase`` q (0 when not given).
+    """
+
+    r: FloatArray
+    u: FloatArray
+    y: FloatArray
+    fs_high: float | None
+    ratio: int | None
+    y_phase: int
+
+    @property
+    def low_rate_y(self) -> bool:
+        """Whether y holds the low-rate samples only."""
+        return bool(self.y.shape[1] != self.r.shape[1])
+
+
+def read_realizations(path: str | Path, ratio: int | None = None) -> Realizations:
+    """r, u, y of an NPZ as (M, n) each, with ``fs_high``, ``ratio`` and ``y_phase``.
 
     One channel; a 1-D array is one realization. ``y`` may hold n/F samples per row (the
     output at the low rate, samples q, q + F, ...; F the file's ``ratio`` or ``ratio``
-    here). DataError naming the file and what does not fit.
+    here, q its ``y_phase``). DataError naming the file and what does not fit.
     """
     p = Path(path)
     if p.suffix.lower() != ".npz":
@@ -37,13 +55,18 @@ def read_realizations(
         and arrs[2].shape[0] == arrs[0].shape[0]
         and arrs[2].shape[1] * slow == arrs[0].shape[1]
     )
-    if arrs[0].shape != arrs[1].shape or (arrs[2].shape != arrs[0].shape and not low_y):
+    if (
+        any(a.ndim != 2 for a in arrs)
+        or arrs[0].shape != arrs[1].shape
+        or (arrs[2].shape != arrs[0].shape and not low_y)
+    ):
         raise DataError(
             f"{p}: r, u, y must each be (M realizations, n samples) of one channel (y may "
             f"hold n/F samples, the output at the low rate, with F given); got "
             f"{', '.join(str(a.shape) for a in arrs)}"
         )
-    return arrs[0], arrs[1], arrs[2], fs, F
+    q = int(z["y_phase"]) if "y_phase" in z else 0
+    return Realizations(arrs[0], arrs[1], arrs[2], fs, F, q)
 
 
 def write_bla(path: str | Path, bla: BLA, *, fs_high: float, ratio: int, period: int) -> None:

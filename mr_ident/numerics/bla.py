@@ -33,6 +33,7 @@ import numpy as np
 
 from ..errors import ConfigError, DimensionError
 from .arrays import ComplexArray, FloatArray, IntArray
+from .lifting import fold_half, unlift_bins
 
 
 @dataclass(frozen=True)
@@ -360,9 +361,7 @@ def lifted_line_pfg(
     a, b = lines % Ml, (-lines) % Ml
     count = np.bincount(np.concatenate([a, b]), minlength=Ml)
     alone = (count[a] == 1) & (count[b] == 1)  # a == b counts twice: never alone
-    alias = a[:, None] + Ml * np.arange(F)[None, :]  # (K, F) lines on the whole circle
-    half = np.minimum(alias, period - alias)
-    flip = alias > period // 2
+    half, flip = fold_half(unlift_bins(a, F, period), period)  # (K, F) aliases, in 0..N//2
 
     def full(X: ComplexArray) -> ComplexArray:
         Xa = X[:, half]

@@ -32,6 +32,7 @@ import numpy as np
 
 from ..errors import ConfigError, DimensionError
 from .arrays import ComplexArray, FloatArray, IntArray
+from .lifting import unlift_bins
 
 #: The source of the PFG from data of a rotated design (:attr:`SlowPlant.pfg`).
 SLOW_PFG_SOURCE = "data:rotated lifted design"
@@ -125,7 +126,7 @@ def slow_output_plant(
         if P > 1
         else np.full(Y.shape, np.nan)
     )
-    kappa = np.arange(M)[:, None] + M * np.arange(F)[None, :]  # (M, F) aliases of each bin
+    kappa = unlift_bins(np.arange(M), F, N)  # (M, F) aliases of each bin
     w = np.exp(2j * np.pi * kappa * phase / N) / F
     A = U[:, kappa].transpose(1, 0, 2) * w[:, None, :]  # (M, R, F)
     Rf = np.fft.fft(ra.reshape(R, P, N).mean(axis=1), axis=1)
