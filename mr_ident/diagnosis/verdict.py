@@ -175,8 +175,9 @@ def judge(
         or w.consistent
         for combo in itertools.product(*options)
     )
-    fits = not scenario.hidden or v.fit_gap < MAX_FIT_GAP
-    credible = v.success or (v.named and fits and lr is not None and in_region(scenario, lr))
+    credible = v.success or (
+        v.named and _fits(scenario, v.fit_gap) and lr is not None and in_region(scenario, lr)
+    )
     return replace(v, stated=stated, credible=credible)
 
 
@@ -201,5 +202,10 @@ def _verdict(
                 misses.append(f"{h.cause}.{key} {est:.4g}{pm} (true {true:.4g}, tol {tol})")
                 loose.append(abs(est - true) <= COVERAGE * sd if math.isfinite(sd) else False)
     ok, gap = named and not misses, float(fit_gap)
-    fits = not hidden or gap < MAX_FIT_GAP
+    fits = _fits(scenario, gap)
     return Verdict(named, ok, gap, ok and fits, tuple(misses), named and all(loose) and fits)
+
+
+def _fits(scenario: Scenario, fit_gap: float) -> bool:
+    """The validation fit is the true model's within :data:`MAX_FIT_GAP` (or nothing hid)."""
+    return not scenario.hidden or fit_gap < MAX_FIT_GAP
