@@ -35,6 +35,7 @@ from ..numerics.bla import BandLevels, distortion_by_band
 from ..numerics.identify import default_n, min_samples
 from ..numerics.model import Model
 from ..numerics.signals import LoopData
+from ..numerics.threads import one_blas_thread
 from .causes import CauseFit, PlantData
 from .controller_check import ControllerCheck, check_controller
 from .equivalence import with_equivalents
@@ -197,13 +198,16 @@ _P = ParamSpec("_P")
 def _numeric_trouble_reported(fn: Callable[_P, Diagnosis]) -> Callable[_P, Diagnosis]:
     """Numeric trouble in the simulation or the fits becomes a DataError.
 
-    A reported ``error:``, never a traceback.
+    A reported ``error:``, never a traceback. OpenBLAS on one thread meanwhile: its threads
+    on the fits' small products cost more than they give (measured at 300 s of 240 Hz: the
+    slowest case of ``benchmarks/bench_diagnose_speed.py`` 18.7 s with them, 14.5 s without).
     """
 
     @functools.wraps(fn)
     def wrapper(*args: _P.args, **kwargs: _P.kwargs) -> Diagnosis:
         try:
-            return fn(*args, **kwargs)
+            with one_blas_thread():
+                return fn(*args, **kwargs)
         except (ArithmeticError, np.linalg.LinAlgError, Warning) as err:
             raise DataError(
                 f"diagnose failed on a numeric problem ({type(err).__name__}: {err}); the "

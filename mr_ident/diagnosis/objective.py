@@ -112,7 +112,8 @@ class Objective:
             self.weight[0] = 0.0
         self.n_bins = int(self.weight.size)
 
-    def _raw(self, model: Model) -> list[FloatArray] | None:
+    def _raw(self, model: Model) -> tuple[FloatArray, FloatArray, ComplexArray | None] | None:
+        """Residuals y - ŷ and u - û from the skip on; the free responses' spectrum or None."""
         with warnings.catch_warnings():
             warnings.simplefilter("error")  # unstable or defective candidates are rejected
             try:
@@ -120,14 +121,13 @@ class Objective:
             except (ArithmeticError, ValueError, Warning, np.linalg.LinAlgError):
                 return None  # any warning, a library's own (scipy's BadCoefficients) included
         s = self.skip
-        parts = [self.y[s:] - pred.y[s:], self.u[s:] - pred.u[s:]]
-        if not all(np.all(np.isfinite(p_)) for p_ in parts):
+        ey, eu = self.y[s:] - pred.y[s:], self.u[s:] - pred.u[s:]
+        if not (np.all(np.isfinite(ey)) and np.all(np.isfinite(eu))):
             return None
-        if pred.free is not None and pred.free.shape[-1]:
-            if not np.all(np.isfinite(pred.free)):
-                return None
-            parts.append(pred.free)
-        return parts
+        free = pred.free if pred.free is not None and pred.free.shape[-1] else None
+        if free is not None and not np.all(np.isfinite(free)):
+            return None
+        return ey, eu, free
 
     def residuals(self, model: Model) -> FloatArray:
         """The whitened residual spectrum (real and imaginary parts) of ``model``."""
@@ -138,14 +138,16 @@ class Objective:
         with np.errstate(over="ignore"):
             return float(np.sum(self.residuals(model) ** 2))
 
-    def _whiten(self, raw: list[FloatArray] | None) -> FloatArray:
+    def _whiten(
+        self, raw: tuple[FloatArray, FloatArray, ComplexArray | None] | None
+    ) -> FloatArray:
         if raw is None:
             return np.full(2 * self.n_bins, 1e3)
         with np.errstate(all="ignore"):
             E = np.fft.rfft(raw[0], axis=0, norm="ortho") * self.weight
             res = np.concatenate([E.real.ravel(), E.imag.ravel()])
-            if len(raw) > 2:  # the unknown state at the start, eliminated by least squares
-                T = np.fft.rfft(raw[2], axis=0, norm="ortho") * self.weight[:, :, None]
+            if raw[2] is not None:  # the unknown state at the start, eliminated by lstsq
+                T = raw[2] * self.weight[:, :, None]  # the free responses' spectrum
                 T = T.reshape(-1, T.shape[-1])
                 A = np.concatenate([T.real, T.imag])
                 if np.all(np.isfinite(A)):

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..numerics.arrays import FloatArray
+from ..numerics.arrays import ComplexArray, FloatArray
 from ..numerics.model import Model
 from ..numerics.signals import LoopData
 from ..numerics.simulate import LoopStream
@@ -22,14 +22,15 @@ from ..numerics.simulate import LoopStream
 class Prediction:
     """Simulated (u, y) for a record, and the samples compared (from ``skip`` on).
 
-    ``free``: in closed loop when asked for, the free responses of y from sample ``start``
-    on, shape (N - start, n_y, k) (:meth:`~mr_ident.numerics.simulate.LoopStream.free_y`).
+    ``free``: in closed loop when asked for, the DFT of the free responses of y from sample
+    ``start`` on, shape ((N - start) // 2 + 1, n_y, k)
+    (:meth:`~mr_ident.numerics.simulate.LoopStream.free_y_spectrum`).
     """
 
     u: FloatArray
     y: FloatArray
     skip: int
-    free: FloatArray | None = None
+    free: ComplexArray | None = None
 
 
 def centred(rec: LoopData, model: Model) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -42,7 +43,8 @@ def centred(rec: LoopData, model: Model) -> tuple[FloatArray, FloatArray, FloatA
 def predict(model: Model, rec: LoopData, *, free_from: int | None = None) -> Prediction:
     """Simulate ``model`` on the measured excitation of ``rec`` (see the module docstring).
 
-    ``free_from``: also the closed loop's free responses of y from that sample on.
+    ``free_from``: also the spectrum of the closed loop's free responses of y from that
+    sample on.
     """
     r, u, _ = centred(rec, model)
     stream = LoopStream(model)
@@ -53,7 +55,7 @@ def predict(model: Model, rec: LoopData, *, free_from: int | None = None) -> Pre
     else:
         u_hat, y_hat = stream.next(r)
         if free_from is not None:
-            free = stream.free_y(rec.n_samples, free_from)
+            free = stream.free_y_spectrum(rec.n_samples, free_from)
     return Prediction(u_hat, y_hat, rec.period or 0, free)
 
 

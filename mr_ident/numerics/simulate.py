@@ -11,13 +11,14 @@ Python loop per sample.
 
 from __future__ import annotations
 
+import functools
 import warnings
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import ConfigError, DimensionError
-from .arrays import ComplexArray, FloatArray
+from .arrays import ComplexArray, FloatArray, IntArray
 from .model import Model
 from .realize import balanced
 from .signals import LoopData
@@ -134,27 +135,12 @@ class StateRecursion:
                 self._Cm = ss.C @ V  # (n_out, n)
         self._z = np.zeros(self._lam.shape[0] if self._modal else 0, dtype=complex)
 
-    def free(self, n_steps: int, rows: slice, start: int, floor: float = 0.0) -> FloatArray:
-        """Free responses of the modes: a real basis, shape (n_steps - start, rows, k).
+    def modes(self) -> tuple[ComplexArray, ComplexArray] | None:
+        """Eigenvalues λ (n,) and output directions C V (n_out, n) of the modal form.
 
-        The outputs ``rows`` from step ``start`` on of the response to an initial state
-        (zero input), one column per real mode and two per complex pair (real and
-        imaginary part), for the modes with ``|λ|^start > floor`` only (default: every
-        mode that is not deadbeat). Empty (k = 0) when there is none.
+        None where A is (nearly) defective and the direct recursion is used instead.
         """
-        n_rows = len(range(*rows.indices(self.ss.C.shape[0])))
-        m = np.arange(start, n_steps)
-        cols = []
-        if self._modal:
-            lam = self._lam
-            for i in np.nonzero((np.abs(lam) ** start > floor) & (lam.imag >= 0))[0]:
-                g = np.outer(lam[i] ** m, self._Cm[rows, i])  # (M, rows)
-                cols.append(g.real)
-                if lam[i].imag > 0:
-                    cols.append(g.imag)
-        if not cols:
-            return np.zeros((m.size, n_rows, 0))
-        return np.stack(cols, axis=-1)
+        return (self._lam, self._Cm) if self._modal else None
 
     def run(self, w: ArrayLike) -> FloatArray:
         """Outputs (M, n_out) for inputs ``w`` (M, n_in), continuing from the last call."""
@@ -267,6 +253,58 @@ def simulate(
     return LoopData(ra, u, y, fs_high=model.fs_high, ratio=F)
 
 
+@functools.lru_cache(maxsize=8)
+def _phases(n_samples: int, start: int, F: int) -> tuple[ComplexArray, ...]:
+    """Per-bin phase factors of :func:`_geometric_dft`, independent of the model (cached).
+
+    With ``ω = 2π k / n_eff`` on the rfft bins k: ``e^{-jωF}``, ``e^{-jωF M}``
+    (M = periods from ``start // F`` on), ``e^{-jωs}`` and ``e^{-jω(s - p)}`` for s < F
+    (p = ``start % F``), each phase reduced exactly modulo 2π in integers first.
+    """
+    n_eff = n_samples - start
+    q, p = divmod(start, F)
+    M = n_samples // F - q
+    k = np.arange(n_eff // 2 + 1, dtype=np.int64)
+
+    def cis(n: IntArray) -> ComplexArray:  # e^{-j 2π n / n_eff}
+        return np.asarray(np.exp((-2j * np.pi / n_eff) * (n % n_eff)), dtype=complex)
+
+    s = np.arange(F)
+    out = (cis(k * F), cis(k * F * M), cis(np.outer(k, s)), cis(np.outer(k, s - p)))
+    for a in out:
+        a.setflags(write=False)
+    return out
+
+
+def _geometric_dft(
+    lam: ComplexArray, Cm: ComplexArray, n_samples: int, start: int, F: int
+) -> ComplexArray:
+    """``Σ_{n=start}^{N-1} g[n] e^{-jω(n - start)}`` of ``g[mF + s] = λ^m Cm[s]``, per bin.
+
+    ``ω = 2π k / (N - start)`` on the rfft bins; ``Cm`` (F, n_y, k), ``lam`` (k,).
+    With ``start = qF + p`` and ``z = λ e^{-jωF}``: the whole periods from q on give
+    ``λ^q e^{jωp} c(ω) (1 - z^M) / (1 - z)`` with ``c(ω) = Σ_s Cm[s] e^{-jωs}``, less the
+    first p samples of period q, ``λ^q Σ_{s<p} Cm[s] e^{-jω(s - p)}``. Shape (n_bins, n_y, k).
+    For |λ| < 1 - 1e-4 (a stable loop) ``1 - z`` keeps 12 digits.
+    """
+    eF, eFM, es, esp = _phases(n_samples, start, F)
+    q, p = divmod(start, F)
+    M = n_samples // F - q
+    _, ny, k = Cm.shape
+    lam_q = lam**q
+    with np.errstate(divide="ignore", invalid="ignore"):
+        geo = np.asarray(
+            (1.0 - np.multiply.outer(eFM, lam**M)) / (1.0 - np.multiply.outer(eF, lam)),
+            dtype=complex,
+        )
+    geo[~np.isfinite(geo)] = M  # z = 1 exactly: a mode on the unit circle at this bin
+    geo = geo * (esp[:, :1] * lam_q)  # e^{jωp} λ^q
+    g: ComplexArray = (es @ Cm.reshape(F, -1)).reshape(-1, ny, k) * geo[:, None, :]
+    if p:
+        g -= (esp[:, :p] @ Cm[:p].reshape(p, -1)).reshape(-1, ny, k) * lam_q
+    return g
+
+
 class LoopStream:
     """The loop of ``model`` simulated piece by piece, state carried across calls.
 
@@ -280,17 +318,46 @@ class LoopStream:
         self._loop = StateRecursion(lifted_loop(model))
         self._n = 0  # samples simulated so far (for the disturbance's time)
 
-    def free_y(self, n_samples: int, start: int) -> FloatArray:
-        """Free responses of y from sample ``start`` on, shape (n_samples - start, n_y, k).
+    def free_y_spectrum(self, n_samples: int, start: int) -> ComplexArray:
+        """DFT of the free responses of y from sample ``start`` on, shape (n_bins, n_y, k).
 
         Where the loop, started at rest, differs from one that was already running: the
-        response to the state at sample 0 (see :meth:`StateRecursion.free`). ``start`` and
-        ``n_samples`` multiples of F.
+        response of y to the loop's state at sample 0 (zero input), from sample ``start`` to
+        ``n_samples``, one real basis sequence per real mode and two per complex pair (real
+        and imaginary part of ``λ^m C v``), for every mode that is not deadbeat. Returned as
+        ``rfft(basis, axis=0, norm="ortho")`` over those ``n_samples - start`` samples
+        (n_bins = (n_samples - start) // 2 + 1), in closed form: a mode is geometric
+        over the low-rate periods, so its DFT is a finite geometric sum per bin
+        (:func:`_geometric_dft`), O(modes * bins) with no sequence built and no FFT.
+        Empty (k = 0) where there is no mode or A is defective.
         """
         F, ny = self.model.ratio, self.model.n_y
-        B = self._loop.free(n_samples // F, slice(0, F * ny), start // F)
-        k = B.shape[-1]
-        return B.reshape(B.shape[0] * F, ny, k)
+        n_eff = n_samples - start
+        n_bins = n_eff // 2 + 1
+        modes = self._loop.modes()
+        q = start // F
+        if modes is None or not modes[0].size:
+            return np.zeros((n_bins, ny, 0), dtype=complex)
+        lam, Cm = modes
+        keep = (lam.imag >= 0) & (np.abs(lam) ** q > 0.0) & (lam != 0.0)
+        lam, Cm = lam[keep], Cm[: F * ny, keep]
+        if not lam.size:
+            return np.zeros((n_bins, ny, 0), dtype=complex)
+        # the DFT of λ^m Cv at -k is the conjugate of λ̄'s at k: each pair's conjugate
+        # joins the modes, one pass over the positive bins gives G(λ) and G(λ̄)
+        cplx = lam.imag > 0
+        n_c = int(np.count_nonzero(cplx))
+        lam_all = np.concatenate([lam, lam[cplx].conj()])
+        C_all = np.concatenate([Cm, Cm[:, cplx].conj()], axis=1).reshape(F, ny, -1)
+        G: ComplexArray = _geometric_dft(lam_all, C_all, n_samples, start, F) / np.sqrt(n_eff)
+        if not n_c:
+            return G  # real modes: Re(λ^m Cv) is the sequence itself
+        g, gc = G[..., : lam.size], G[..., lam.size :]
+        re = g.copy()
+        re[..., cplx] = 0.5 * (g[..., cplx] + gc)  # DFT of Re(λ^m Cv): (G(λ) + G(λ̄)) / 2
+        im = (-0.5j) * (g[..., cplx] - gc)  # and of Im(λ^m Cv)
+        out: ComplexArray = np.concatenate([re, im], axis=-1)
+        return out
 
     def next(
         self, reference: ArrayLike, noise: ArrayLike | None = None
