@@ -28,9 +28,10 @@ from dataclasses import replace
 
 from ..numerics.model import Model
 from .causes import CauseFit, Equivalent, PlantData
+from .fitting import joint_refit, parameter_std
 from .objective import Objective
 from .registry import CAUSES
-from .selection import ACCEPT_MARGIN, joint_refit, parameter_std, swap
+from .selection import ACCEPT_MARGIN, swap
 
 #: Candidates tried in a chosen cause's place: single BIC (the ranking) within this of its.
 SCREEN_SLACK = 3 * ACCEPT_MARGIN
