@@ -9,6 +9,7 @@ relative error of P_h < 1e-4 over (0, 120] Hz (the LPM's bias for a 60 s record 
 from __future__ import annotations
 
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -395,3 +396,36 @@ def test_resolve_names_the_introspection_topics_it_reads(loop, tmp_path):
         True,
     )
     assert T0 > 0
+
+
+def test_replay_with_monitoring_reads_the_bag_once_and_names_the_change(
+    tmp_path, capsys, monkeypatch
+):
+    """``replay --params`` with ``monitor_model`` on per-sample sources of a rosbags bag.
+
+    The plant's gain is 1.3 times the model's: the statuses name it, window by window as
+    the node would, from the one read of the bag that also gave the estimate.
+    """
+    import mr_ident.live.replay as replay_mod
+
+    model, _ = paper_loop()
+    sim = simulate(replace(model, plant_gain=1.3), duration=40.0, rng=np.random.default_rng(3))
+    bag = joint_state_bag(tmp_path / "js", sim, stamps(sim.n_samples, 240.0))
+    params = tmp_path / "node.yaml"
+    fields = {
+        "fs_high": 240.0, "ratio": 3, "window_s": 20.0, "min_window_s": 20.0,
+        "update_period_s": 10.0, "monitor_model": str(PAPER),
+    }  # fmt: skip
+    params.write_text(yaml.safe_dump({"mr_ident": {"ros__parameters": fields}}))
+    opened = []
+    real_open = replay_mod.Bag.open
+    monkeypatch.setattr(
+        replay_mod.Bag, "open", lambda *a, **k: opened.append(a) or real_open(*a, **k)
+    )
+    argv = ["replay", str(bag), "--r", R, "--u", U, "--y", Y, "--ratio", "3"]
+    code = main([*argv, "--params", str(params), "--out", str(tmp_path / "r.npz")])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert len(opened) == 1, opened
+    lines = [s for s in out.splitlines() if s.startswith("plant at ")]
+    assert lines and "plant gain 1.3" in lines[-1], out

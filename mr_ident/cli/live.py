@@ -14,6 +14,7 @@ from .common import describe_pfgs, reading, source_specs, write_plots
 
 if TYPE_CHECKING:
     from ..io.config import IdentConfig
+    from ..numerics.signals import LoopData
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
@@ -38,19 +39,34 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if args.excitation_index:
         cfg = cfg.replace(excitation_index_topic=args.excitation_index)
     specs = source_specs(args)
+    monitoring = bool(cfg.monitor_model or cfg.monitor_reference)
     if specs is not None:
         from ..live.replay import replay_bag
 
         fs = args.fs_high or (cfg.fs_high if args.params else None)
         F = args.ratio or (cfg.ratio if args.params else None)
         res = replay_bag(
-            args.recording, cfg, specs, fs_high=fs, ratio=F, stop=args.stop, **reading(args)
+            args.recording,
+            cfg,
+            specs,
+            fs_high=fs,
+            ratio=F,
+            stop=args.stop,
+            keep_signals=monitoring,
+            **reading(args),
         )
         cfg = cfg.replace(
             fs_high=res.estimate.identification.fs_high, ratio=res.estimate.identification.ratio
         )
     else:
-        res = replay(args.recording, cfg, topics=args.topics, stop=args.stop, span=args.span)
+        res = replay(
+            args.recording,
+            cfg,
+            topics=args.topics,
+            stop=args.stop,
+            span=args.span,
+            keep_signals=monitoring,
+        )
     info, est = res.info, res.estimate
     if info.truncated:
         print(
@@ -85,28 +101,23 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
         model = load_model(args.model) if args.model else None
         write_plots(est.identification, args.plot, cfg.fs_high, cfg.ratio, est.n_samples, model)
-    if cfg.monitor_model or cfg.monitor_reference:
-        _replay_monitoring(args, cfg, specs)
+    if monitoring:
+        assert res.signals is not None
+        _replay_monitoring(res.signals, cfg, str(args.recording))
     return 0
 
 
-def _replay_monitoring(
-    args: argparse.Namespace, cfg: IdentConfig, specs: dict[str, list[str]] | None
-) -> None:
-    """The plant status changes the node would have shown (monitor_* in --params)."""
+def _replay_monitoring(signals: LoopData, cfg: IdentConfig, what: str) -> None:
+    """The plant status changes the node would have shown (monitor_* in --params).
+
+    Over the span the replay read (not read again), window by window as the node.
+    """
     from ..diagnosis.monitor import load_watch, watch_windows
-    from ..live.replay import bag_windows
+    from ..live.replay import loop_windows
 
     watch = load_watch(cfg)
     assert watch is not None
-    fs, F = cfg.fs_high, cfg.ratio
-    if specs is not None:
-        windows = bag_windows(args.recording, cfg, specs, fs_high=fs, ratio=F, **reading(args))
-    else:
-        windows = bag_windows(
-            args.recording, cfg, topics=args.topics, fs_high=fs, ratio=F, **reading(args)
-        )
-    for ev in watch_windows(windows, watch):
+    for ev in watch_windows(loop_windows(signals, cfg, what), watch):
         print(f"plant at {ev.time_s:.1f} s: {ev.level.upper()} {ev.text}")
 
 

@@ -56,12 +56,18 @@ def _feed(
 
 @dataclass(frozen=True)
 class ReplayResult:
-    """Outcome of :func:`replay`."""
+    """Outcome of :func:`replay`.
+
+    ``signals``: asked for with ``keep_signals``, the whole gap-free span replayed (the
+    ``span`` chosen), with the rates: what :func:`loop_windows` cuts the node's windows from
+    (monitoring), from the same read.
+    """
 
     estimate: Estimate
     stats: dict[str, StreamStats]
     info: RecordingInfo
     anomalies: tuple[str, ...]
+    signals: LoopData | None = None
 
 
 def replay(
@@ -71,6 +77,7 @@ def replay(
     topics: Sequence[str] | None = None,
     stop: int | None = None,
     span: str = "latest",
+    keep_signals: bool = False,
 ) -> ReplayResult:
     """Run a recording through the node's alignment and identification, offline.
 
@@ -78,12 +85,13 @@ def replay(
     ending at or before sample index ``stop`` (default: the end of the data) -
     the window the live node identified last when it saw the same blocks. ``span``
     other than "latest": the last window of that gap-free span (:mod:`mr_ident.live.spans`)
-    instead.
+    instead. ``keep_signals``: also the whole span (:attr:`ReplayResult.signals`).
     """
     check_span(span)
     labels = config.excitation_index_topic
     items, info, _ = read_blocks(path, topics, labels)
     al = Aligner(config.window_samples, config.ratio, config.reorder_blocks, labels=bool(labels))
+    every = None
     if span == "latest":
         notes = _feed(al, items, stop)
     else:
@@ -92,6 +100,15 @@ def replay(
         )
         notes = _feed(every, items, stop)
         notes = _span_into(al, every, span, notes, info, str(path))
+    signals = None
+    if keep_signals:
+        if every is None:
+            every = Aligner(
+                1 << 62, config.ratio, config.reorder_blocks, history=True, labels=bool(labels)
+            )
+            _feed(every, items, stop)
+        whole = _chosen(every, span, notes, replace(info), str(path))
+        signals = replace(whole, fs_high=config.fs_high, ratio=config.ratio)
     w = al.window(config.min_samples, stop=stop)
     if w is None:
         lo, hi = al.span(stop)
@@ -105,7 +122,7 @@ def replay(
             f"aligned span at the end: {max(0, hi - lo)} samples; {describe_spans(every.spans())}"
             + _what_broke(al, notes, info)
         )
-    return ReplayResult(estimate(w, config), al.stats, info, tuple(notes))
+    return ReplayResult(estimate(w, config), al.stats, info, tuple(notes), signals)
 
 
 def _span_into(
@@ -300,13 +317,14 @@ def replay_bag(
     stop: int | None = None,
     span: str = "latest",
     msg_path: Sequence[str | Path] = (),
+    keep_signals: bool = False,
 ) -> ReplayResult:
     """:func:`replay` for per-sample sources.
 
     The window the node would have identified last (``config.window_s``, ending at or before
     ``stop``; ``span`` other than "latest": the last window of that gap-free span);
     ``fs_high``/``ratio`` None: read off the stamps (and the configuration's replaced by
-    them).
+    them). ``keep_signals``: also the whole span (:attr:`ReplayResult.signals`).
     """
     check_span(span)
     labels = config.excitation_index_topic
@@ -340,7 +358,12 @@ def replay_bag(
             + _what_broke(read.aligner, read.notes, read.info)
             + f"; sources: {read.sources}"
         )
-    return ReplayResult(estimate(win, cfg), read.aligner.stats, read.info, tuple(notes))
+    signals = None
+    if keep_signals:
+        what = f"{path}: sources {read.sources}"
+        whole = _chosen(read.aligner, span, read.notes, replace(read.info), what)
+        signals = replace(whole, fs_high=read.fs_high, ratio=read.ratio)
+    return ReplayResult(estimate(win, cfg), read.aligner.stats, read.info, tuple(notes), signals)
 
 
 def bag_signals(
@@ -396,11 +419,24 @@ def bag_windows(
             path, specs, fs_high=fs_high, ratio=ratio, span=span, msg_path=msg_path, labels=labels
         )
         cfg = config.replace(fs_high=data.fs_high, ratio=data.ratio)
+    yield from loop_windows(data, cfg, str(path))
+
+
+def loop_windows(
+    data: LoopData, cfg: IdentConfig, what: str = "the data"
+) -> Iterator[tuple[float, LoopData, IdentConfig]]:
+    """The windows the node would have identified over ``data`` (one gap-free span).
+
+    Yields (loop time in s since the span's first sample, window, ``cfg``) every
+    ``update_period_s`` of loop time, once ``min_window_s`` is aligned; each window the
+    latest ``window_s`` ending there. ``cfg`` carries the rates. DataError naming ``what``
+    when the span is shorter than ``min_window_s``.
+    """
     F, N = cfg.ratio, data.n_samples
     step = max(F, F * int(round(cfg.update_period_s * cfg.fs_high / F)))
     if N < cfg.min_samples:
         raise DataError(
-            f"{path}: {N} aligned samples, fewer than min_window_s = {cfg.min_window_s:g} s "
+            f"{what}: {N} aligned samples, fewer than min_window_s = {cfg.min_window_s:g} s "
             f"({cfg.min_samples} samples at {cfg.fs_high:g} Hz)"
         )
     for end in range(cfg.min_samples, N + 1, step):
