@@ -16,9 +16,9 @@ import pytest
 rclpy = pytest.importorskip("rclpy")
 sensor_msgs = pytest.importorskip("sensor_msgs.msg")
 from rclpy.serialization import deserialize_message  # noqa: E402
+from rosgraph import PAPER, child, domain_env, fast_params, venv_bin, wait_for  # noqa: E402
+from rosgraph import graph as graph  # noqa: E402  (the fixture)
 from std_msgs.msg import Float64MultiArray  # noqa: E402
-from test_ros_node import PAPER, _bin, _env, child, fast_params, wait_for  # noqa: E402
-from test_ros_node import graph as graph  # noqa: E402  (the fixture)
 
 from mr_ident.io.modelfile import load_model  # noqa: E402
 from mr_ident.live.sampling import grid_stamps  # noqa: E402
@@ -110,13 +110,13 @@ def test_published_multisine_drives_the_sim_and_the_node_estimates_the_exact_pla
         wait_for(lambda: lis.count_publishers("output") > 0, 30, "the sim's publishers")
         proc = subprocess.run(
             [
-                _bin("mr-ident"),
+                venv_bin("mr-ident"),
                 "excite",
                 *("--fs-high", "240", "--band", "0,120", "--kind", "full", "--seed", "1"),
                 *("--period", str(N), "--periods", str(P), "--realizations", str(M)),
                 *("--publish", "reference", "--rate", "10", "--subscribers", "4", "--wait", "20"),
             ],
-            env=_env(graph.domain),
+            env=domain_env(graph.domain),
             capture_output=True,
             text=True,
             timeout=120,

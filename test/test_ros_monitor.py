@@ -19,9 +19,9 @@ import yaml
 pytest.importorskip("rclpy")
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
+from rosgraph import PAPER, await_subscribers, fast_params, publishers, wait_for  # noqa: E402
+from rosgraph import graph as graph  # noqa: E402  (the fixture)
 from std_msgs.msg import Float64MultiArray, String  # noqa: E402
-from test_ros_node import PAPER, await_subscribers, fast_params, publishers, wait_for  # noqa: E402
-from test_ros_node import graph as graph  # noqa: E402  (the fixture)
 
 from mr_ident.cli import main  # noqa: E402
 from mr_ident.diagnosis.monitor import load_watch, watch_windows  # noqa: E402

@@ -16,9 +16,9 @@ rclpy = pytest.importorskip("rclpy")
 sensor_msgs = pytest.importorskip("sensor_msgs.msg")
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+from rosgraph import CONTROLLER, PAPER, wait_for  # noqa: E402
+from rosgraph import graph as graph  # noqa: E402  (the fixture)
 from std_msgs.msg import Float64  # noqa: E402
-from test_ros_node import CONTROLLER, PAPER, wait_for  # noqa: E402
-from test_ros_node import graph as graph  # noqa: E402  (the fixture)
 
 from mr_ident.io.modelfile import load_model  # noqa: E402
 from mr_ident.numerics.excitation import SimSource  # noqa: E402
