@@ -1,4 +1,4 @@
-"""Shared fixtures: the paper model and a brute-force per-sample loop simulator."""
+"""Shared fixtures: the paper model, a brute-force per-sample loop simulator, periodic runs."""
 
 from __future__ import annotations
 
@@ -64,3 +64,24 @@ def brute_force_loop(
         u[n] = r[n] - held
         x = P.A @ x + P.B @ u[n]
     return u, y
+
+
+def periodic_runs(
+    model: Model, signals: np.ndarray, period: int, periods: int, skip: int = 1
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each realization's one-period excitation ``signals[m]`` through the loop, repeated.
+
+    ``periods`` periods from rest (:class:`~mr_ident.numerics.excitation.SimSource`), the
+    first ``skip`` dropped; r, u, y each (realizations, (periods - skip) * period).
+    """
+    from mr_ident.numerics.excitation import SimSource
+
+    runs = []
+    for sig in signals:
+        src = SimSource(model, block=period, excitation="signal", signal=np.reshape(sig, (-1, 1)))
+        blocks = [src.next() for _ in range(periods)]
+        runs.append(
+            [np.concatenate([b[i] for b in blocks])[skip * period :, 0] for i in (1, 2, 3)]
+        )
+    r, u, y = (np.stack([run[i] for run in runs]) for i in range(3))
+    return r, u, y

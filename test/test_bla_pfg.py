@@ -14,21 +14,12 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from conftest import periodic_runs
 
 from mr_ident.diagnosis.scenarios import draw_loop
 from mr_ident.numerics.bla import best_linear_approximation, lifted_line_pfg
-from mr_ident.numerics.excitation import SimSource
 from mr_ident.numerics.multisine import design
 from mr_ident.numerics.pfg import pfg_of_model
-
-
-def _periodic_run(model, ms, period, periods):
-    runs = []
-    for m in range(ms.r.shape[0]):
-        src = SimSource(model, block=period, excitation="signal", signal=ms.r[m])
-        blocks = [src.next() for _ in range(periods)]
-        runs.append([np.concatenate([b[i] for b in blocks])[period:, 0] for i in (1, 2, 3)])
-    return (np.stack([run[i] for run in runs]) for i in range(3))
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
@@ -39,7 +30,7 @@ def test_noise_free_the_pfg_from_data_is_the_models_at_every_line_of_a_lifted_de
     period = 60 * F * 10
     ms = design(fs_high=fs, period=period, band=(fs / period, 0.45 * fs), kind="odd",
                 periods=12, realizations=2, ratio=F, lifted=True, seed=seed)  # fmt: skip
-    r, u, y = _periodic_run(model, ms, period, 12)
+    r, u, y = periodic_runs(model, ms.r, period, 12)
     b = best_linear_approximation(r[:, 10 * period :], u[:, 10 * period :],
                                   y[:, 10 * period :], period, ms.lines[0], ratio=F)  # fmt: skip
     assert b.pfg is not None and b.pfg_std is not None
@@ -75,7 +66,7 @@ def test_identify_period_on_a_lifted_design_writes_the_pfg_from_data(tmp_path, c
     F, fs, period = model.ratio, model.fs_high, 1800
     ms = design(fs_high=fs, period=period, band=(fs / period, 0.45 * fs), kind="odd",
                 periods=6, realizations=2, ratio=F, lifted=True, seed=1)  # fmt: skip
-    r, u, y = _periodic_run(model, ms, period, 6)
+    r, u, y = periodic_runs(model, ms.r, period, 6)
     noise = 1e-3 * float(np.std(y)) * np.random.default_rng(2).standard_normal(y.shape)
     data, out = tmp_path / "lifted.npz", tmp_path / "bla.npz"
     np.savez(data, r=r, u=u, y=y + noise, fs_high=fs, ratio=F)

@@ -16,20 +16,14 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from conftest import periodic_runs
 
 from mr_ident.diagnosis.scenarios import draw_loop
 from mr_ident.errors import ConfigError, DimensionError
-from mr_ident.numerics.excitation import SimSource
 from mr_ident.numerics.multisine import alias_family, design
 from mr_ident.numerics.pfg import pfg_of_model
 from mr_ident.numerics.simulate import loop_poles
 from mr_ident.numerics.slow_periodic import slow_output_plant
-
-
-def _run(model, r, period, periods, skip):
-    src = SimSource(model, block=period, excitation="signal", signal=r)
-    blocks = [src.next() for _ in range(periods)]
-    return [np.concatenate([b[i] for b in blocks])[skip * period :, 0] for i in (1, 2, 3)]
 
 
 def _record(seed, noise=0.0, kept=3, rotate=True):
@@ -45,8 +39,7 @@ def _record(seed, noise=0.0, kept=3, rotate=True):
     ms = design(fs_high=fs, period=period, band=(fs / period, 0.2 * fs), kind="full",
                 periods=skip + kept, realizations=F, ratio=F, lifted=True, rotate=rotate,
                 seed=seed)  # fmt: skip
-    runs = [_run(model, ms.r[m], period, skip + kept, skip) for m in range(F)]
-    r, u, y = (np.stack([run[i] for run in runs]) for i in (0, 1, 2))
+    r, u, y = periodic_runs(model, ms.r, period, skip + kept, skip)
     return model, ms, period, (r, u), y
 
 
@@ -114,8 +107,7 @@ def test_excite_rotate_then_identify_period_on_a_slow_y(tmp_path, capsys):
     assert main([*args, "--rotate"]) == 0
     d = np.load(design_file)
     assert d["realization_lines"].shape[0] == F
-    runs = [_run(model, d["r"][m][:, None], period, skip + 3, 0) for m in range(F)]
-    r, u, y = (np.stack([run[i] for run in runs]) for i in (0, 1, 2))
+    r, u, y = periodic_runs(model, d["r"], period, skip + 3, 0)
     data, out = tmp_path / "slow.npz", tmp_path / "P.npz"
     np.savez(data, r=r, u=u, y=y[:, 1::F], y_phase=1, fs_high=fs, ratio=F)
     argv = ["identify", str(data), "--period", str(period), "--transient-periods", str(skip),
@@ -131,8 +123,7 @@ def test_excite_rotate_then_identify_period_on_a_slow_y(tmp_path, capsys):
     assert np.max(np.abs(got.gain / pfg_of_model(model, period).gain[lines - 1] - 1)) < 1e-8
     assert main([*args]) == 0  # the same without --rotate
     d = np.load(design_file)
-    runs = [_run(model, d["r"][m][:, None], period, skip + 3, 0) for m in range(F)]
-    r, u, y = (np.stack([run[i] for run in runs]) for i in (0, 1, 2))
+    r, u, y = periodic_runs(model, d["r"], period, skip + 3, 0)
     np.savez(data, r=r, u=u, y=y[:, ::F], fs_high=fs, ratio=F)
     assert main(argv) == 2
     assert "--rotate" in capsys.readouterr().err
