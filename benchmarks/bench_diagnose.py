@@ -11,7 +11,11 @@ of y within ``verdict.MAX_FIT_GAP`` points of the true model's. Exceptions other
 DataError are tracebacks. A parameter outside its tolerance is also tested against the
 data: the case counts as *credible* when the true model's likelihood ratio against the
 fit (``verdict.likelihood_ratio``) is within the chi-square quantile at
-``verdict.CONFIDENCE`` (the record cannot tell the truth from the fit). Prints a markdown
+``verdict.CONFIDENCE`` (the record cannot tell the truth from the fit). Before looking at
+the answer, each case is also classed *determinable* when the record holds the hidden
+values to their tolerances at all: every tolerance at least ``verdict.DETERMINED``
+Cramér-Rao std at the truth (``verdict.truth_std``, on the diagnosis's criterion); the
+success rate among those is what an estimator can be asked for. Prints a markdown
 table (per cause, pairs, none), the targets, and one line per failure; ``--json`` writes
 every case. Targets: >= 95 % per single cause, >= 85 % for pairs, >= 95 % of the "none"
 loops without a false cause, zero tracebacks.
@@ -54,9 +58,11 @@ from mr_ident.diagnosis.verdict import (
     COVERAGE,
     MAX_FIT_GAP,
     TOLERANCES,
+    determinable,
     in_region,
     judge,
     likelihood_ratio,
+    truth_std,
 )
 from mr_ident.errors import DataError
 
@@ -167,6 +173,7 @@ def run_case(case: dict, duration: float) -> dict:
             for c in d.applied
         ]
         lr = likelihood_ratio(d, sc.true)
+        bounds = truth_std(sc.nominal, sc.hidden, d.criterion)
         v = judge(
             sc,
             applied,
@@ -202,6 +209,8 @@ def run_case(case: dict, duration: float) -> dict:
         "credible": v.credible,
         "likelihood_ratio": lr,
         "truth_in_region": in_region(sc, lr),
+        "truth_std": bounds,
+        "determinable": determinable(sc.hidden, bounds, sc.nominal.fs_high),
         "misses": list(v.misses),
     }
 
@@ -244,6 +253,8 @@ def table(records: list[dict], groups: list[str]) -> tuple[str, dict[str, float]
         credible = [bool(r.get("success") or r.get("credible")) for r in rs]
         loose = [bool(r.get("success") or r.get("consistent")) for r in rs]
         stated = [bool(r.get("success") or r.get("consistent") or r.get("stated")) for r in rs]
+        det = [r for r in rs if r.get("determinable")]
+        has_det = any("determinable" in r for r in rs) and g != "none"
         gaps = [r["fit_gap"] for r in ok]
         secs = [r["seconds"] for r in ok]  # diagnoses that ran to the end
         rates[g] = 100 * float(np.mean(success))
@@ -252,6 +263,8 @@ def table(records: list[dict], groups: list[str]) -> tuple[str, dict[str, float]
             f"| {label} | {len(rs)} | {_pct(named)} | {_pct(params)} | {_pct(success)} "
             f"| {_pct(credible) if any('credible' in r for r in rs) else '–'} "
             f"| {_pct(loose)} | {_pct(stated)} "
+            f"| {_pct([bool(r.get('determinable')) for r in rs]) if has_det else '–'} "
+            f"| {_pct([bool(r.get('success')) for r in det]) if has_det else '–'} "
             f"| {_med(gaps)} | {_med(secs, fmt='.1f')} | {_med(secs, 95, '.1f')} |"
         )
     return "\n".join(rows), rates
@@ -277,6 +290,13 @@ def failure_line(r: dict) -> str:
         line += f"; truth's likelihood ratio {r['likelihood_ratio']:.1f}" + (
             " (within the region)" if r.get("credible") else ""
         )
+    if r.get("determinable") is False:
+        crlb = "; ".join(
+            f"{h['cause']}.{k} ± {sd:.2g}"
+            for h, sds in zip(r.get("hidden", []), r.get("truth_std", []), strict=False)
+            for k, sd in sds.items()
+        )
+        line += f"; not determinable by the record (Cramér-Rao at the truth: {crlb})"
     return line + (f"; out of tolerance: {'; '.join(r['misses'])}" if r["misses"] else "")
 
 

@@ -5,6 +5,11 @@ likelihood ratio against the fit is within the chi-square quantile at CONFIDENCE
 hidden causes' continuous values (the record cannot tell them apart), never when the cause
 was not named. likelihood_ratio on a diagnosis of a 30 % gain error: the true model scores
 within that region (Wilks: about chi-square with 1 dof), the nominal far outside it.
+
+The Cramér-Rao bound at the truth (truth_std), against analytic truth: in open loop with
+white output noise of std σ the whitened criterion's information on a plant gain g is
+``|P u|² / σ²``, so its bound is ``σ / |P u|`` (within 15 %: the criterion's noise level
+is the LPM's estimate). Each hidden parameter reaches its own place in the Model fields.
 """
 
 from __future__ import annotations
@@ -16,8 +21,19 @@ import scipy.stats
 
 from mr_ident import simulate
 from mr_ident.diagnosis import diagnose
-from mr_ident.diagnosis.scenarios import draw_scenario
-from mr_ident.diagnosis.verdict import CONFIDENCE, hidden_dof, in_region, judge, likelihood_ratio
+from mr_ident.diagnosis.prediction import predict
+from mr_ident.diagnosis.scenarios import PARAMETER_FIELDS, HiddenCause, apply, draw_scenario
+from mr_ident.diagnosis.verdict import (
+    CONFIDENCE,
+    DETERMINED,
+    TOLERANCES,
+    determinable,
+    hidden_dof,
+    in_region,
+    judge,
+    likelihood_ratio,
+    truth_std,
+)
 from mr_ident.io.modelfile import model_from_dict
 
 
@@ -48,3 +64,37 @@ def test_the_likelihood_ratio_of_the_truth_is_small_and_of_the_nominal_large():
     assert d.criterion is not None and d.cause == "gain_error"
     assert -1.0 < likelihood_ratio(d, true) < scipy.stats.chi2.ppf(CONFIDENCE, 1)
     assert likelihood_ratio(d, model) > 100
+
+
+def test_the_cramer_rao_bound_of_a_gain_in_open_loop_is_sigma_over_the_signal():
+    model = model_from_dict({"fs_high": 100.0, "ratio": 1,
+                             "plant": {"num": [10.0], "den": [1.0, 10.0]}})  # fmt: skip
+    sigma = 0.05
+    true = dataclasses.replace(model, plant_gain=1.2, noise_std=sigma)
+    rng = np.random.default_rng(3)
+    data = simulate(true, reference=rng.standard_normal((4000, 1)), noise=None, rng=rng)
+    data = dataclasses.replace(data, r=data.u)  # open loop: u is the excitation
+    d = diagnose(model, data)
+    J = d.criterion
+    assert J is not None and not J.closed
+    hidden = [HiddenCause("gain_error", {"gain": 1.2}, {"plant_gain": 1.2})]
+    (sd,) = truth_std(model, hidden, J)
+    signal = predict(model, J.rec).y[J.skip :]  # d(g P u)/dg, u as the criterion centres it
+    expected = sigma / float(np.linalg.norm(signal))
+    assert abs(sd["gain"] / expected - 1) < 0.15, (sd, expected)
+    tol = TOLERANCES["gain_error"]["gain"].bound(1.2, 100.0)
+    assert determinable(hidden, [sd], 100.0) == (DETERMINED * sd["gain"] <= tol)
+    assert not determinable(hidden, [{"gain": tol}], 100.0)
+
+
+def test_each_hidden_parameter_sets_its_own_place_in_the_model():
+    for cause, places in PARAMETER_FIELDS.items():
+        sc = draw_scenario([cause], np.random.default_rng(5), duration=5.0)
+        (h,) = sc.hidden
+        assert set(places) == set(h.parameters), cause
+        for key, (field, i) in places.items():
+            moved = h.with_values({key: 1.5 * h.parameters[key]})
+            got = getattr(apply(sc.nominal, [moved]), field)
+            value = got if i is None else got[-1][i]
+            assert value == 1.5 * h.parameters[key], (cause, key)
+            assert moved.parameters[key] == 1.5 * h.parameters[key]

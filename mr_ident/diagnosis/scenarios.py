@@ -68,6 +68,56 @@ class HiddenCause:
     parameters: dict[str, float]
     fields: dict[str, Any]
 
+    def with_values(self, values: dict[str, float]) -> HiddenCause:
+        """The same cause with some continuous parameters set to ``values`` (by name).
+
+        Through :data:`PARAMETER_FIELDS`; the settings that are not parameters (which mode
+        moved, a disturbance's phase) kept.
+        """
+        fields, params = dict(self.fields), dict(self.parameters)
+        for name, v in values.items():
+            key, i = PARAMETER_FIELDS[self.cause][name]
+            if i is None:
+                fields[key] = v
+            else:
+                entry = list(fields[key][0])
+                entry[i] = v
+                fields[key] = (tuple(entry),)
+            params[name] = v
+        return HiddenCause(self.cause, params, fields)
+
+
+#: Where each continuous parameter of a hidden cause sits in its Model fields: (field,
+#: index in the field's one entry, or None for a scalar field). Discrete ones are absent.
+PARAMETER_FIELDS: dict[str, dict[str, tuple[str, int | None]]] = {
+    "gain_error": {"gain": ("plant_gain", None)},
+    "input_delay": {"delay_s": ("input_delay", None)},
+    "additive_mode": {
+        "frequency_hz": ("additive_modes", 0),
+        "damping": ("additive_modes", 1),
+        "gain": ("additive_modes", 2),
+    },
+    "mode_shift": {
+        "frequency_hz": ("mode_changes", 1),
+        "damping": ("mode_changes", 2),
+        "residue_scale": ("mode_changes", 3),
+    },
+    "series_lowpass": {"frequency_hz": ("series_dynamics", 0)},
+    "series_resonance": {
+        "frequency_hz": ("series_dynamics", 0),
+        "damping": ("series_dynamics", 1),
+    },
+    "controller_notch": {
+        "frequency_hz": ("controller_notches", 0),
+        "damping": ("controller_notches", 1),
+        "depth": ("controller_notches", 2),
+    },
+    "periodic_disturbance": {
+        "frequency_hz": ("disturbances", 0),
+        "amplitude": ("disturbances", 1),
+    },
+}
+
 
 @dataclass(frozen=True, eq=False)
 class Scenario:
