@@ -8,8 +8,10 @@ within that region (Wilks: about chi-square with 1 dof), the nominal far outside
 
 The Cramér-Rao bound at the truth (truth_std), against analytic truth: in open loop with
 white output noise of std σ the whitened criterion's information on a plant gain g is
-``|P u|² / σ²``, so its bound is ``σ / |P u|`` (within 15 %: the criterion's noise level
-is the LPM's estimate). Each hidden parameter reaches its own place in the Model fields.
+``|P u|² / σ²``, so its bound is ``σ / |P u|`` (within 8 %: the criterion's noise level
+is the LPM's estimate; seeds 3-8 gave 0.95-1.04, and 1.10 when r kept its mean while u
+and y were centred, an equation at DC no plant satisfies). Each hidden parameter reaches
+its own place in the Model fields.
 """
 
 from __future__ import annotations
@@ -73,7 +75,7 @@ def test_the_cramer_rao_bound_of_a_gain_in_open_loop_is_sigma_over_the_signal():
     true = dataclasses.replace(model, plant_gain=1.2, noise_std=sigma)
     rng = np.random.default_rng(3)
     data = simulate(true, reference=rng.standard_normal((4000, 1)), noise=None, rng=rng)
-    data = dataclasses.replace(data, r=data.u)  # open loop: u is the excitation
+    data = dataclasses.replace(data, r=data.u + 0.3)  # open loop: u the excitation, r offset
     d = diagnose(model, data)
     J = d.criterion
     assert J is not None and not J.closed
@@ -81,7 +83,7 @@ def test_the_cramer_rao_bound_of_a_gain_in_open_loop_is_sigma_over_the_signal():
     (sd,) = truth_std(model, hidden, J)
     signal = predict(model, J.rec).y[J.skip :]  # d(g P u)/dg, u as the criterion centres it
     expected = sigma / float(np.linalg.norm(signal))
-    assert abs(sd["gain"] / expected - 1) < 0.15, (sd, expected)
+    assert abs(sd["gain"] / expected - 1) < 0.08, (sd, expected)
     tol = TOLERANCES["gain_error"]["gain"].bound(1.2, 100.0)
     assert determinable(hidden, [sd], 100.0) == (DETERMINED * sd["gain"] <= tol)
     assert not determinable(hidden, [{"gain": tol}], 100.0)

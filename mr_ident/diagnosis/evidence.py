@@ -138,9 +138,9 @@ def identify_record(
     """
     if rec.period is not None:
         return None
-    _, u, y = centred(rec, model)
+    r, u, y = centred(rec, model)
     return identify(
-        rec.r,
+        r,
         u,
         y,
         fs_high=rec.rates()[0],
