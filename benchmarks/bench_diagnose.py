@@ -13,8 +13,8 @@ data: the case counts as *credible* when the true model's likelihood ratio again
 fit (``verdict.likelihood_ratio``) is within the chi-square quantile at
 ``verdict.CONFIDENCE`` (the record cannot tell the truth from the fit). Before looking at
 the answer, each case is also classed *determinable* when the record holds the hidden
-values to their tolerances at all: every tolerance at least ``verdict.DETERMINED``
-Cramér-Rao std at the truth (``verdict.truth_std``, on the diagnosis's criterion); the
+values to their tolerances at all: every tolerance at least ``information.DETERMINED``
+Cramér-Rao std at the truth (``information.truth_std``, on the diagnosis's criterion); the
 success rate among those is what an estimator can be asked for. Prints a markdown
 table (per cause, pairs, none), the targets, and one line per failure; ``--json`` writes
 every case. Targets: >= 95 % per single cause, >= 85 % for pairs, >= 95 % of the "none"
@@ -51,6 +51,7 @@ from typing import Any
 
 import numpy as np
 
+from mr_ident.diagnosis.information import determinable, truth_std
 from mr_ident.diagnosis.scenarios import Scenario, draw_scenario
 from mr_ident.diagnosis.verdict import (
     CAUSE_NAMES,
@@ -58,11 +59,9 @@ from mr_ident.diagnosis.verdict import (
     COVERAGE,
     MAX_FIT_GAP,
     TOLERANCES,
-    determinable,
     in_region,
     judge,
     likelihood_ratio,
-    truth_std,
 )
 from mr_ident.errors import DataError
 

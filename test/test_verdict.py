@@ -23,18 +23,16 @@ import scipy.stats
 
 from mr_ident import simulate
 from mr_ident.diagnosis import diagnose
+from mr_ident.diagnosis.information import DETERMINED, determinable, truth_std
 from mr_ident.diagnosis.prediction import predict
 from mr_ident.diagnosis.scenarios import PARAMETER_FIELDS, HiddenCause, apply, draw_scenario
 from mr_ident.diagnosis.verdict import (
     CONFIDENCE,
-    DETERMINED,
     TOLERANCES,
-    determinable,
     hidden_dof,
     in_region,
     judge,
     likelihood_ratio,
-    truth_std,
 )
 from mr_ident.io.modelfile import model_from_dict
 
