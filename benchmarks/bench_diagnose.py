@@ -237,8 +237,9 @@ def table(records: list[dict], groups: list[str]) -> tuple[str, dict[str, float]
     head = (
         "| hidden | cases | named first | parameters in tolerance | success | success or truth in "
         f"{100 * CONFIDENCE:g} % region | success within {COVERAGE:g} std | with stated "
-        "equivalents | median fit gap | median s | p95 s |\n"
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+        "equivalents | determinable | success where determinable | median fit gap | median s "
+        "| p95 s |\n"
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
     )
     rows, rates = [head], {}
     for g in groups:
