@@ -49,6 +49,19 @@ def wait_for(pred, timeout: float, what: str, step: float = 0.05):
     raise AssertionError(f"timed out after {timeout} s waiting for {what}")
 
 
+def await_estimate_ending_at(
+    node, end: int, timeout: float = 30.0, what: str = "the estimate of the final window"
+):
+    """Until ``node``'s last estimate ends at sample ``end`` (bounded); that estimate."""
+
+    def done() -> bool:
+        est = node.last_estimate  # read once: the node's thread replaces it
+        return est is not None and est.first + est.n_samples == end
+
+    wait_for(done, timeout, what)
+    return node.last_estimate
+
+
 class Graph:
     """A context in its own domain, with nodes spun by one executor thread."""
 

@@ -16,7 +16,15 @@ import pytest
 rclpy = pytest.importorskip("rclpy")
 sensor_msgs = pytest.importorskip("sensor_msgs.msg")
 from rclpy.serialization import deserialize_message  # noqa: E402
-from rosgraph import PAPER, child, domain_env, fast_params, venv_bin, wait_for  # noqa: E402
+from rosgraph import (  # noqa: E402
+    PAPER,
+    await_estimate_ending_at,
+    child,
+    domain_env,
+    fast_params,
+    venv_bin,
+    wait_for,
+)
 from rosgraph import graph as graph  # noqa: E402  (the fixture)
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 
@@ -124,21 +132,9 @@ def test_published_multisine_drives_the_sim_and_the_node_estimates_the_exact_pla
         assert proc.returncode == 0, proc.stderr
         assert f"published {total} samples" in proc.stdout, proc.stdout
         wait_for(lambda: all(s.samples >= total for s in streams.values()), 30, "every sample")
-        wait_for(
-            lambda: (
-                node.last_estimate is not None
-                and node.last_estimate.first + node.last_estimate.n_samples == total
-            ),
-            30,
-            "the estimate of the final window",
-        )
-        wait_for(
-            lambda: (
-                bla_node.last_estimate is not None
-                and bla_node.last_estimate.first + bla_node.last_estimate.n_samples == total
-            ),
-            30,
-            "the periodic node's estimate of the final window",
+        await_estimate_ending_at(node, total)
+        await_estimate_ending_at(
+            bla_node, total, what="the periodic node's estimate of the final window"
         )
         assert sim.poll() is None, sim.stdout.read() if sim.stdout else ""
     est = node.last_estimate

@@ -6,15 +6,10 @@ localhost-only; every wait is bounded. Recording and replay: test_ros_record.py.
 
 from __future__ import annotations
 
-import os
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
-
-os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-os.environ.setdefault("ROS_LOG_DIR", str(Path(__file__).resolve().parents[1] / "out" / "ros_log"))
 
 rclpy = pytest.importorskip("rclpy")
 from rclpy.parameter import Parameter  # noqa: E402
@@ -23,6 +18,7 @@ from rosgraph import (  # noqa: E402
     PAPER,
     Feed,
     Listener,
+    await_estimate_ending_at,
     await_subscribers,
     fast_params,
     publish_sim,
@@ -226,14 +222,7 @@ def test_node_survives_faults_reports_each_and_never_estimates_across_one(graph,
     feed.send(400, pause=0.0)  # a burst: 48 000 samples per topic at once
     estimates_after(n, "a burst")
     feed.send(60)
-    wait_for(
-        lambda: (
-            node.last_estimate is not None
-            and node.last_estimate.first + node.last_estimate.n_samples == feed.src.next_index
-        ),
-        20,
-        "the estimate of the final window",
-    )
+    await_estimate_ending_at(node, feed.src.next_index, 20)
 
     stats = node._aligner.stats
     assert stats["output"].nonfinite == 1 and stats["input"].malformed == 1

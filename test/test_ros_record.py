@@ -6,17 +6,12 @@ localhost-only; every wait is bounded.
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
-
-os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-os.environ.setdefault("ROS_LOG_DIR", str(Path(__file__).resolve().parents[1] / "out" / "ros_log"))
 
 rclpy = pytest.importorskip("rclpy")
 from domain_coordinator import domain_id  # noqa: E402
@@ -25,6 +20,7 @@ from rosgraph import (  # noqa: E402
     ROOT,
     Graph,
     Listener,
+    await_estimate_ending_at,
     await_subscribers,
     child,
     domain_env,
@@ -52,14 +48,7 @@ def test_recording_decodes_with_mcap_ros2_and_replay_equals_live(graph, tmp_path
     node = graph.ident(fast_params(window_s=10.0, record_path=str(rec)))
     sent = publish_sim(publishers(graph), model, 14.0, block=240)
     end = sent[-1][0] + 240
-    wait_for(
-        lambda: (
-            node.last_estimate is not None
-            and node.last_estimate.first + node.last_estimate.n_samples == end
-        ),
-        30,
-        "final estimate",
-    )
+    await_estimate_ending_at(node, end, what="final estimate")
     live = node.last_estimate
     node.shutdown()  # finalises the recording
     with open(rec, "rb") as fh:

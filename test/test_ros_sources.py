@@ -16,7 +16,7 @@ rclpy = pytest.importorskip("rclpy")
 sensor_msgs = pytest.importorskip("sensor_msgs.msg")
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
-from rosgraph import CONTROLLER, PAPER, wait_for  # noqa: E402
+from rosgraph import CONTROLLER, PAPER, await_estimate_ending_at, wait_for  # noqa: E402
 from rosgraph import graph as graph  # noqa: E402  (the fixture)
 from std_msgs.msg import Float64  # noqa: E402
 
@@ -81,14 +81,7 @@ def test_node_on_joint_states_identifies_the_plant_with_no_sample_lost(graph):
             n += 1
         time.sleep(max(0.0, start + n / 2400.0 - time.monotonic()))
     rate = n / (time.monotonic() - start)
-    wait_for(
-        lambda: (
-            node.last_estimate is not None
-            and node.last_estimate.first + node.last_estimate.n_samples == n
-        ),
-        30,
-        "the estimate of the final window",
-    )
+    await_estimate_ending_at(node, n)
     stats = node._sources.feed.stats
     assert rate >= 1000.0, rate
     assert all(
@@ -196,14 +189,7 @@ def test_replay_of_the_nodes_recording_equals_its_estimate(graph, tmp_path):
             ref.publish(joint_state(t, ["j1"], position=[r[k, 0]]))
             n += 1
         time.sleep(0.05)
-    wait_for(
-        lambda: (
-            node.last_estimate is not None
-            and node.last_estimate.first + node.last_estimate.n_samples == n
-        ),
-        30,
-        "the estimate of the final window",
-    )
+    await_estimate_ending_at(node, n)
     live = node.last_estimate
     cfg = node.config
     node.shutdown()  # finalises the recording
