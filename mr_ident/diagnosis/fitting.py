@@ -164,17 +164,16 @@ def parameter_std(obj: Objective, nominal: Model, choices: list[Choice]) -> list
     out: list[Params] = [{k: 0.0 for k in CAUSES[c.cause].named(c, nominal)} for c in choices]
     if not cont:
         return out
-    r0 = obj.residuals(build(nominal, choices))
     steps = 1e-4 * np.maximum(np.abs(v.scale), 1e-12)
-    cols = []
-    for i, h in enumerate(steps):
+
+    def stepped(i: int) -> Model:
         x = v.x.copy()
-        x[i] += h
-        cols.append((obj.residuals(build(nominal, v.unpack(x))) - r0) / h)
-    J = np.column_stack(cols)
-    with np.errstate(all="ignore"):
-        cov = 0.5 * np.linalg.pinv(J.T @ J, rcond=1e-12, hermitian=True)
-        weak = np.diag(cov) * np.sum(J * J, axis=0) > 1e8  # no information on that value
+        x[i] += steps[i]
+        return build(nominal, v.unpack(x))
+
+    cov, weak = obj.gauss_newton(
+        build(nominal, choices), ((stepped(i), h) for i, h in enumerate(steps))
+    )
     k = 0
     for j, n in zip(cont, sizes, strict=True):
         cause, c = CAUSES[choices[j].cause], choices[j]

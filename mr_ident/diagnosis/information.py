@@ -12,8 +12,6 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
-import numpy as np
-
 from ..numerics.model import Model
 from .objective import Objective
 from .scenarios import HiddenCause, apply
@@ -33,7 +31,8 @@ def truth_std(
     On ``criterion`` (a diagnosis's :class:`~mr_ident.diagnosis.objective.Objective`:
     whitened residual components of variance 1/2 under the true model), the Fisher
     information of the hidden values jointly is ``2 JᵀJ``, J the residual's Jacobian by
-    forward differences at the truth (one simulation per value, step 1e-4 of the value).
+    forward differences at the truth (:meth:`~mr_ident.diagnosis.objective.Objective.
+    gauss_newton`, step 1e-4 of the value).
     What any unbiased estimator's spread is at least on this record, known before the
     diagnosis answers. Per hidden cause, by parameter name (discrete ones absent); inf
     where the record holds no information on a value.
@@ -49,16 +48,14 @@ def truth_std(
         moved[j] = hidden[j].with_values({key: value})
         return apply(nominal, moved)
 
-    r0 = criterion.residuals(apply(nominal, hidden))
-    cols = []
-    for j, key in names:
-        v = hidden[j].parameters[key]
-        h = 1e-4 * (abs(v) or 1.0)
-        cols.append((criterion.residuals(model_at(j, key, v + h)) - r0) / h)
-    J = np.column_stack(cols)
-    with np.errstate(all="ignore"):
-        cov = 0.5 * np.linalg.pinv(J.T @ J, rcond=1e-12, hermitian=True)
-        weak = np.diag(cov) * np.sum(J * J, axis=0) > 1e8  # no information on that value
+    steps = [1e-4 * (abs(hidden[j].parameters[key]) or 1.0) for j, key in names]
+    cov, weak = criterion.gauss_newton(
+        apply(nominal, hidden),
+        (
+            (model_at(j, key, hidden[j].parameters[key] + h), h)
+            for (j, key), h in zip(names, steps, strict=True)
+        ),
+    )
     for i, (j, key) in enumerate(names):
         var = float(cov[i, i])
         out[j][key] = math.inf if weak[i] or not var >= 0 else math.sqrt(var)

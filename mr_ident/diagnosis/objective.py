@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 import numpy as np
 import scipy.optimize
 
 from ..errors import DataError
-from ..numerics.arrays import ComplexArray, FloatArray
+from ..numerics.arrays import BoolArray, ComplexArray, FloatArray
 from ..numerics.model import Model
 from ..numerics.signals import LoopData
 from ..numerics.simulate import loop_poles
@@ -155,6 +155,24 @@ class Objective:
                     res = res - A @ beta
         ok = np.all(np.isfinite(res)) and float(np.max(np.abs(res), initial=0.0)) < 1e100
         return res if ok else np.full(2 * self.n_bins, 1e3)
+
+    def gauss_newton(
+        self, at: Model, moved: Iterable[tuple[Model, float]]
+    ) -> tuple[FloatArray, BoolArray]:
+        """Covariance of values at ``at`` from forward differences, and which are unknown.
+
+        ``moved``: per value, the model with that value moved by its step h, and h. The
+        residual's Jacobian J by forward differences (one simulation per value); its
+        components have variance 1/2 under a right model, so the covariance is
+        ``(JᵀJ)⁻¹ / 2`` (a pseudo-inverse); a value is without information (True) where
+        its variance times its column's squared norm exceeds 1e8.
+        """
+        r0 = self.residuals(at)
+        J = np.column_stack([(self.residuals(m) - r0) / h for m, h in moved])
+        with np.errstate(all="ignore"):
+            cov = np.asarray(0.5 * np.linalg.pinv(J.T @ J, rcond=1e-12, hermitian=True), float)
+            weak = np.asarray(np.diag(cov) * np.sum(J * J, axis=0) > 1e8, bool)
+        return cov, weak
 
     def bic(self, cost: float, p: int) -> float:
         """``2 cost + p ln(n_bins)`` (see the class docstring)."""
