@@ -169,7 +169,7 @@ def residual_peaks(ctx: Context, k: int = 2) -> list[tuple[float, int, float]]:
 
     obj, base = ctx.objective, ctx.current
     pred = predict(base, obj.rec)
-    s = obj.skip
+    s = obj.settle
     e = obj.y[s:] - pred.y[s:]
     n = e.shape[0]
     E = np.fft.rfft(e, axis=0, norm="ortho")
@@ -211,7 +211,7 @@ class PeriodicDisturbance(_LoopCause):
     def proposals(self, ctx: Context) -> list[Choice]:
         """At the residual's spectral peaks (amplitude and phase are then solved for)."""
         obj = ctx.objective
-        df = 2.0 * ctx.nominal.fs_high / max(obj.rec.n_samples - obj.skip, 1)
+        df = 2.0 * ctx.nominal.fs_high / max(obj.rec.n_samples - obj.settle, 1)
         return [Choice(self.name, (f, a, a), (float(o), df)) for f, o, a in residual_peaks(ctx)]
 
     def bounds(self, nominal: Model, choice: Choice) -> tuple[FloatArray, FloatArray, FloatArray]:

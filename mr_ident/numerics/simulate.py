@@ -142,6 +142,10 @@ class StateRecursion:
         """
         return (self._lam, self._Cm) if self._modal else None
 
+    def modal(self) -> tuple[ComplexArray, ComplexArray, ComplexArray, FloatArray] | None:
+        """λ (n,), Bm = V⁻¹B (n, n_in), Cm = C V (n_out, n) and D; None where defective."""
+        return (self._lam, self._Bm, self._Cm, self.ss.D) if self._modal else None
+
     def run(self, w: ArrayLike) -> FloatArray:
         """Outputs (M, n_out) for inputs ``w`` (M, n_in), continuing from the last call."""
         import scipy.signal  # here, not at the top: it costs half a second of start-up
@@ -305,6 +309,52 @@ def _geometric_dft(
     return g
 
 
+def window_phases(n_samples: int, ratio: int) -> ComplexArray:
+    """``e^{-j2πks/n}`` on the rfft bins k of ``n_samples`` and s < F, shape (n_bins, F)."""
+    return _phases(n_samples, 0, ratio)[2]
+
+
+def free_spectrum(
+    lam: ComplexArray,
+    Cm: ComplexArray,
+    F: int,
+    ny: int,
+    n_samples: int,
+    start: int,
+    every_mode: bool = False,
+) -> ComplexArray:
+    """DFT of the free responses ``λ_i^m Cm_i`` of y from ``start`` on, (n_bins, n_y, k).
+
+    ``lam`` (n,) and ``Cm`` (F n_y or more rows, n) of the lifted loop's modal form; see
+    :meth:`LoopStream.free_y_spectrum`. Modes dead by ``start`` (λ^q underflows) and
+    deadbeat ones are left out unless ``every_mode``.
+    """
+    n_eff = n_samples - start
+    n_bins = n_eff // 2 + 1
+    q = start // F
+    keep = lam.imag >= 0
+    if not every_mode:
+        keep &= (np.abs(lam) ** q > 0.0) & (lam != 0.0)
+    lam, Cm = lam[keep], Cm[: F * ny, keep]
+    if not lam.size:
+        return np.zeros((n_bins, ny, 0), dtype=complex)
+    # the DFT of λ^m Cv at -k is the conjugate of λ̄'s at k: each pair's conjugate
+    # joins the modes, one pass over the positive bins gives G(λ) and G(λ̄)
+    cplx = lam.imag > 0
+    n_c = int(np.count_nonzero(cplx))
+    lam_all = np.concatenate([lam, lam[cplx].conj()])
+    C_all = np.concatenate([Cm, Cm[:, cplx].conj()], axis=1).reshape(F, ny, -1)
+    G: ComplexArray = _geometric_dft(lam_all, C_all, n_samples, start, F) / np.sqrt(n_eff)
+    if not n_c:
+        return G  # real modes: Re(λ^m Cv) is the sequence itself
+    g, gc = G[..., : lam.size], G[..., lam.size :]
+    re = g.copy()
+    re[..., cplx] = 0.5 * (g[..., cplx] + gc)  # DFT of Re(λ^m Cv): (G(λ) + G(λ̄)) / 2
+    im = (-0.5j) * (g[..., cplx] - gc)  # and of Im(λ^m Cv)
+    out: ComplexArray = np.concatenate([re, im], axis=-1)
+    return out
+
+
 class LoopStream:
     """The loop of ``model`` simulated piece by piece, state carried across calls.
 
@@ -331,33 +381,11 @@ class LoopStream:
         (:func:`_geometric_dft`), O(modes * bins) with no sequence built and no FFT.
         Empty (k = 0) where there is no mode or A is defective.
         """
-        F, ny = self.model.ratio, self.model.n_y
-        n_eff = n_samples - start
-        n_bins = n_eff // 2 + 1
         modes = self._loop.modes()
-        q = start // F
-        if modes is None or not modes[0].size:
-            return np.zeros((n_bins, ny, 0), dtype=complex)
-        lam, Cm = modes
-        keep = (lam.imag >= 0) & (np.abs(lam) ** q > 0.0) & (lam != 0.0)
-        lam, Cm = lam[keep], Cm[: F * ny, keep]
-        if not lam.size:
-            return np.zeros((n_bins, ny, 0), dtype=complex)
-        # the DFT of λ^m Cv at -k is the conjugate of λ̄'s at k: each pair's conjugate
-        # joins the modes, one pass over the positive bins gives G(λ) and G(λ̄)
-        cplx = lam.imag > 0
-        n_c = int(np.count_nonzero(cplx))
-        lam_all = np.concatenate([lam, lam[cplx].conj()])
-        C_all = np.concatenate([Cm, Cm[:, cplx].conj()], axis=1).reshape(F, ny, -1)
-        G: ComplexArray = _geometric_dft(lam_all, C_all, n_samples, start, F) / np.sqrt(n_eff)
-        if not n_c:
-            return G  # real modes: Re(λ^m Cv) is the sequence itself
-        g, gc = G[..., : lam.size], G[..., lam.size :]
-        re = g.copy()
-        re[..., cplx] = 0.5 * (g[..., cplx] + gc)  # DFT of Re(λ^m Cv): (G(λ) + G(λ̄)) / 2
-        im = (-0.5j) * (g[..., cplx] - gc)  # and of Im(λ^m Cv)
-        out: ComplexArray = np.concatenate([re, im], axis=-1)
-        return out
+        F, ny = self.model.ratio, self.model.n_y
+        if modes is None:
+            return np.zeros(((n_samples - start) // 2 + 1, ny, 0), dtype=complex)
+        return free_spectrum(*modes, F, ny, n_samples, start)
 
     def next(
         self, reference: ArrayLike, noise: ArrayLike | None = None
