@@ -1,7 +1,9 @@
-"""Shared fixtures: the paper model, a brute-force per-sample loop simulator, periodic runs."""
+"""Shared fixtures: the paper model, a brute-force per-sample loop simulator, periodic runs,
+the environment of a ROS process in its own domain."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +13,18 @@ from mr_ident.io.modelfile import load_model
 from mr_ident.numerics.model import Model
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def domain_env(dom: int) -> dict[str, str]:
+    """The environment of a ROS process in domain ``dom``: localhost discovery only, its
+    logs under out/ros_log unless ROS_LOG_DIR says otherwise (no ROS import here)."""
+    log_dir = os.environ.get("ROS_LOG_DIR", str(ROOT / "out" / "ros_log"))
+    return dict(
+        os.environ,
+        ROS_DOMAIN_ID=str(dom),
+        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+        ROS_LOG_DIR=log_dir,
+    )
 
 
 @pytest.fixture(scope="session")

@@ -22,6 +22,7 @@ os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("ROS_LOG_DIR", str(Path(__file__).resolve().parents[1] / "out" / "ros_log"))
 
 rclpy = pytest.importorskip("rclpy")
+from conftest import domain_env  # noqa: E402
 from domain_coordinator import domain_id  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
@@ -215,10 +216,6 @@ def publish_sim(pubs, model, seconds: float, *, block=1000, skip=None, seed=3, w
     return Feed(pubs, model, seed, block).send(
         int(np.ceil(seconds * model.fs_high / block)), skip=skip
     )
-
-
-def domain_env(dom: int) -> dict:
-    return dict(os.environ, ROS_DOMAIN_ID=str(dom), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
 
 
 def venv_bin(name: str) -> str:

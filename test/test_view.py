@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import base64
 import json
-import os
 import shutil
 import socket
 import subprocess
@@ -23,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import domain_env
 
 from mr_ident.errors import ConfigError
 from mr_ident.view.server import ViewServer
@@ -166,7 +166,7 @@ def test_the_page_in_a_real_browser_plots_the_nodes_estimate(tmp_path):
     bindir = Path(sys.executable).parent
     port = _free_port()
     with domain_id() as dom:
-        env = dict(os.environ, ROS_DOMAIN_ID=str(dom), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+        env = domain_env(dom)
         params = [
             "--ros-args", "-p", "window_s:=60.0", "-p", "min_window_s:=10.0",
             "-p", "update_period_s:=1.0", "-p", "controller_num:=[6000.0, -5400.0]",
@@ -305,9 +305,7 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
     taken = str(server.server_address[1])
     try:
         with domain_id() as dom:
-            env = dict(
-                os.environ, ROS_DOMAIN_ID=str(dom), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST"
-            )
+            env = domain_env(dom)
             cases = {
                 "port in use": ([mr, "view", "--port", taken], "error: --port"),
                 "no node": (
