@@ -96,8 +96,9 @@ class Objective:
     computed in the frequency domain, as the lifted loop's circular response to r
     (:class:`~mr_ident.numerics.window_response.LoopSpectrum`): it differs from a
     simulation by a free response alone, so after the projection the two residuals agree
-    (to 1e-12, test/test_window_response.py), at a fifth less time per evaluation and
-    with the settling samples (5-25 % of a record) put to use. Every mode
+    (to rounding; test/test_window_response.py against the loop simulated sample by
+    sample), at a fifth less time per evaluation and with the settling samples (5-25 % of
+    a record) put to use. Every mode
     takes part, fast and deadbeat ones too: the DFT of a finite record of
     the noise as the loop shapes it is ``S_o(k) V(k)`` plus a leakage term from the
     loop's state at the record's ends, a smooth sum over the loop's modes that the LPM
