@@ -58,7 +58,7 @@ bench-live: $(STAMP)
 	$(PY) benchmarks/bench_live.py
 
 # diagnose on seeded random loops (100 per cause, 100 pairs, 100 with nothing hidden);
-# 1200 cases, 80-150 min on 2 cores (150 shared with other work), so run in three parts, each its own
+# 1200 cases, 70-90 min on 2 cores (more when shared with other work), so run in three parts, each its own
 # JSON in out/bench_diagnose/: `make bench-diagnose PART=A` (nothing hidden and the first
 # five causes), PART=B (the other five), PART=C (the pairs); without PART all three, then
 # the merged report. Not part of `make test`

@@ -19,6 +19,10 @@ from ..numerics.window_response import LoopSpectrum, lifted_dft
 from .noise import loop_noise_gain
 from .prediction import centred, predict
 
+#: The noise std per bin is taken as at least this fraction of y's std: no sensor resolves
+#: y finer (160 dB), and in a noise-free record the rest is rounding, which a fitted cause
+#: must not explain (the nominal's residual level there is 1e-22 of y's power).
+RESOLUTION = 1e-8
 #: The LPM's noise level counts as leakage where it exceeds the nominal's projected
 #: residual level by this factor (:meth:`Objective._leakage_removed`).
 LEAK_FACTOR = 3.0
@@ -163,7 +167,8 @@ class Objective:
         if self.closed and not rec.period:
             g = loop_noise_gain(base, n_eff)
             S = self._leakage_removed(S, g) * g
-        self.weight = 1.0 / np.sqrt(S)
+        floor = (RESOLUTION * np.std(y[self.skip :], axis=0)) ** 2
+        self.weight = 1.0 / np.sqrt(np.maximum(S, floor))
         if rec.period:  # a periodic r has no DC: y's is an offset, not the model's to explain
             self.weight[0] = 0.0
         self.n_bins = int(self.weight.size)
