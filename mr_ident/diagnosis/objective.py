@@ -156,7 +156,8 @@ class Objective:
             self._Y = np.fft.rfft(y[self.skip :], axis=0, norm="ortho")
             self._R = lifted_dft(r[self.skip :], base.ratio)
             self._L = (rec.n_samples - self.skip) // base.ratio
-        if self._spectra(base) is None:
+        base_spectra = self._spectra(base)
+        if base_spectra is None:
             raise DataError("the model cannot be simulated on this data (the loop is not stable)")
         # the noise level is given on the bins of the whole record: onto this one's, then
         # the loop's sharp shaping on this grid (closed loop, not periodic)
@@ -166,14 +167,19 @@ class Objective:
         S = np.column_stack([np.interp(dst, src, noise[:, j]) for j in range(noise.shape[1])])
         if self.closed and not rec.period:
             g = loop_noise_gain(base, n_eff)
-            S = self._leakage_removed(S, g) * g
+            S = self._leakage_removed(S, g, base_spectra) * g
         floor = (RESOLUTION * np.std(y[self.skip :], axis=0)) ** 2
         self.weight = 1.0 / np.sqrt(np.maximum(S, floor))
         if rec.period:  # a periodic r has no DC: y's is an offset, not the model's to explain
             self.weight[0] = 0.0
         self.n_bins = int(self.weight.size)
 
-    def _leakage_removed(self, level: FloatArray, g: FloatArray) -> FloatArray:
+    def _leakage_removed(
+        self,
+        level: FloatArray,
+        g: FloatArray,
+        base_spectra: tuple[ComplexArray, ComplexArray | None],
+    ) -> FloatArray:
         """The noise level, the LPM's but the nominal's projected residual's where smaller.
 
         Where the LPM's level exceeds the residual's by :data:`LEAK_FACTOR` (both with the
@@ -187,13 +193,13 @@ class Objective:
         sits below 1 Hz went unseen, weighed 1150x too little). The nominal's residual with
         every mode's free response projected out holds no leakage: its level is the noise
         where the model is right and more where it is wrong, so the smaller of the two
-        never reads a model error as less than noise.
+        never reads a model error as less than noise. ``base_spectra``: the nominal's
+        (:meth:`_spectra`).
         """
         flat = np.nanmedian(level, axis=0) * g  # projection weights from the loop's shape
-        self.weight = 1.0 / np.sqrt(flat)
-        res = self._whiten(self._spectra(self.base))
-        nb = self.weight.size
-        power = (res[:nb] ** 2 + res[nb:] ** 2).reshape(self.weight.shape) * flat / g
+        res = self._whiten(base_spectra, 1.0 / np.sqrt(flat))
+        nb = flat.size
+        power = (res[:nb] ** 2 + res[nb:] ** 2).reshape(flat.shape) * flat / g
         smooth = scipy.ndimage.median_filter(power, size=(33, 1), mode="mirror") / math.log(2.0)
         return np.where(level > LEAK_FACTOR * smooth, smooth, level)
 
@@ -245,20 +251,30 @@ class Objective:
         with np.errstate(over="ignore"):
             return float(np.sum(self.residuals(model) ** 2))
 
-    def _whiten(self, spectra: tuple[ComplexArray, ComplexArray | None] | None) -> FloatArray:
+    def _whiten(
+        self,
+        spectra: tuple[ComplexArray, ComplexArray | None] | None,
+        weight: FloatArray | None = None,
+    ) -> FloatArray:
+        """The residual times ``weight`` (default: the criterion's), free responses out.
+
+        The free responses are weighted alike and projected out; 1e3 everywhere where
+        ``spectra`` is None or the result overflows.
+        """
+        weight = self.weight if weight is None else weight
         if spectra is None:
-            return np.full(2 * self.n_bins, 1e3)
+            return np.full(2 * weight.size, 1e3)
         with np.errstate(all="ignore"):
-            E = spectra[0] * self.weight
+            E = spectra[0] * weight
             res = np.concatenate([E.real.ravel(), E.imag.ravel()])
             if spectra[1] is not None:  # the unknown state at the start, eliminated by lstsq
-                T = spectra[1] * self.weight[:, :, None]  # the free responses' spectrum
+                T = spectra[1] * weight[:, :, None]  # the free responses' spectrum
                 T = T.reshape(-1, T.shape[-1])
                 A = np.concatenate([T.real, T.imag])
                 if np.all(np.isfinite(A)):
                     res = project_out(A, res)
         ok = np.all(np.isfinite(res)) and float(np.max(np.abs(res), initial=0.0)) < 1e100
-        return res if ok else np.full(2 * self.n_bins, 1e3)
+        return res if ok else np.full(2 * weight.size, 1e3)
 
     def gauss_newton(
         self, at: Model, moved: Iterable[tuple[Model, float]]

@@ -135,15 +135,12 @@ class StateRecursion:
                 self._Cm = ss.C @ V  # (n_out, n)
         self._z = np.zeros(self._lam.shape[0] if self._modal else 0, dtype=complex)
 
-    def modes(self) -> tuple[ComplexArray, ComplexArray] | None:
-        """Eigenvalues λ (n,) and output directions C V (n_out, n) of the modal form.
-
-        None where A is (nearly) defective and the direct recursion is used instead.
-        """
-        return (self._lam, self._Cm) if self._modal else None
-
     def modal(self) -> tuple[ComplexArray, ComplexArray, ComplexArray, FloatArray] | None:
-        """λ (n,), Bm = V⁻¹B (n, n_in), Cm = C V (n_out, n) and D; None where defective."""
+        """The modal form: λ (n,), Bm = V⁻¹B (n, n_in), Cm = C V (n_out, n) and D.
+
+        λ the eigenvalues, Cm the output directions; None where A is (nearly) defective and
+        the direct recursion is used instead.
+        """
         return (self._lam, self._Bm, self._Cm, self.ss.D) if self._modal else None
 
     def run(self, w: ArrayLike) -> FloatArray:
@@ -381,11 +378,11 @@ class LoopStream:
         (:func:`_geometric_dft`), O(modes * bins) with no sequence built and no FFT.
         Empty (k = 0) where there is no mode or A is defective.
         """
-        modes = self._loop.modes()
+        modal = self._loop.modal()
         F, ny = self.model.ratio, self.model.n_y
-        if modes is None:
+        if modal is None:
             return np.zeros(((n_samples - start) // 2 + 1, ny, 0), dtype=complex)
-        return free_spectrum(*modes, F, ny, n_samples, start)
+        return free_spectrum(modal[0], modal[2], F, ny, n_samples, start)
 
     def next(
         self, reference: ArrayLike, noise: ArrayLike | None = None
