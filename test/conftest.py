@@ -15,16 +15,16 @@ from mr_ident.numerics.model import Model
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def domain_env(dom: int) -> dict[str, str]:
-    """The environment of a ROS process in domain ``dom``: localhost discovery only, its
-    logs under out/ros_log unless ROS_LOG_DIR says otherwise (no ROS import here)."""
+def ros_settings() -> dict[str, str]:
+    """What every ROS process of the tests runs with: localhost discovery only, its logs
+    under out/ros_log unless ROS_LOG_DIR says otherwise (no ROS import here)."""
     log_dir = os.environ.get("ROS_LOG_DIR", str(ROOT / "out" / "ros_log"))
-    return dict(
-        os.environ,
-        ROS_DOMAIN_ID=str(dom),
-        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-        ROS_LOG_DIR=log_dir,
-    )
+    return {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", "ROS_LOG_DIR": log_dir}
+
+
+def domain_env(dom: int) -> dict[str, str]:
+    """The environment of a ROS child process in domain ``dom`` (:func:`ros_settings`)."""
+    return dict(os.environ, **ros_settings(), ROS_DOMAIN_ID=str(dom))
 
 
 @pytest.fixture(scope="session")

@@ -17,12 +17,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import domain_env, ros_settings
 
-os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-os.environ.setdefault("ROS_LOG_DIR", str(Path(__file__).resolve().parents[1] / "out" / "ros_log"))
+os.environ.update(ros_settings())  # the nodes of this process too
 
 rclpy = pytest.importorskip("rclpy")
-from conftest import domain_env  # noqa: E402
 from domain_coordinator import domain_id  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
