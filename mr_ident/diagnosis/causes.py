@@ -161,6 +161,9 @@ class Cause:
     discrete: ClassVar[bool] = False
     #: Also changes P_h (a plant-side cause); else only the loop or the output.
     plant_side: ClassVar[bool] = True
+    #: In the controller's path (what it samples, computes and applies): the controller's
+    #: own equation decides it (:mod:`~mr_ident.diagnosis.controller_relation`).
+    controller_side: ClassVar[bool] = False
     #: Indices of ``Choice.x`` in which the simulated output is affine (a disturbance's
     #: in-phase and quadrature amplitudes): solved by least squares at every proposal
     #: before it is scored, so a start with the wrong phase is not ranked out.

@@ -6,7 +6,13 @@ rates) and a nominal :class:`~mr_ident.numerics.model.Model`, :func:`diagnose`:
 1. **Where** (:mod:`~mr_ident.diagnosis.evidence`): the identified P̂_h (and, with a
    controller, the lifted J̃ and S̃) against the model's, bin by bin in σ units, with a
    test whose false-alarm rate under noise alone is at most ``alpha``.
-2. **Why** (:mod:`~mr_ident.diagnosis.causes`): every cause of the registry is a
+2. **The controller's own equation** (:mod:`~mr_ident.diagnosis.controller_relation`):
+   in closed loop the logged u must be the model controller's output for the logged y
+   and r, with no noise between them. Where it is, no cause sits in the controller's
+   path; where a notch, control delay or sampling offset makes it so, that cause is
+   applied with its exact values before the plant's are sought; where nothing does, the
+   controller-side causes stay in the search below.
+3. **Why** (:mod:`~mr_ident.diagnosis.causes`): every cause of the registry is a
    parametric extension of the model, fitted to the data by least squares on the
    whitened spectrum of the simulation residual y - ŷ
    (:class:`~mr_ident.diagnosis.objective.Objective`, noise from
@@ -16,7 +22,7 @@ rates) and a nominal :class:`~mr_ident.numerics.model.Model`, :func:`diagnose`:
    ``none`` (p = 0). A cause is accepted only when its BIC is below that of the model it
    extends; accepted causes are applied greedily (up to ``max_causes``), each step
    re-ranking the rest against the extended model.
-3. **Gain** (:mod:`~mr_ident.diagnosis.prediction`): fit % of y and u, and the FRF error
+4. **Gain** (:mod:`~mr_ident.diagnosis.prediction`): fit % of y and u, and the FRF error
    in σ units, of the nominal and the extended model on validation data.
 """
 
@@ -38,11 +44,13 @@ from ..numerics.signals import LoopData
 from ..numerics.threads import one_blas_thread
 from .causes import CauseFit, PlantData
 from .controller_check import ControllerCheck, check_controller
+from .controller_relation import ControllerRelation, relate
 from .equivalence import with_equivalents
 from .evidence import Evidence, frf_evidence, identify_record
 from .noise import noise_spectrum
 from .objective import Objective, settle_samples
 from .prediction import TimeFit, centred, predict, time_fit
+from .registry import CAUSES, build
 from .selection import SCREEN_SAMPLES, select
 
 
@@ -142,6 +150,11 @@ class Diagnosis:
         The estimation criterion every cause was fitted on (the whitened time-domain
         residual of the estimation data), to score another model on the same footing
         (:func:`~mr_ident.diagnosis.verdict.likelihood_ratio`).
+    relation : ControllerRelation or None
+        The controller's own equation on the estimation data (does the logged u follow
+        from the logged y through the model's controller?) and the controller-side causes
+        it determined (:mod:`~mr_ident.diagnosis.controller_relation`); None in open loop
+        or with y at the low rate.
     """
 
     cause: str
@@ -160,6 +173,7 @@ class Diagnosis:
     distortion: list[BandLevels] = field(default_factory=list)
     controller: ControllerCheck | None = None
     criterion: Objective | None = field(default=None, repr=False, compare=False)
+    relation: ControllerRelation | None = None
 
     @property
     def nonlinear(self) -> bool:
@@ -312,14 +326,22 @@ def diagnose(
     ident = identify_record(est, model, n=n, degree=degree)
     ev_before = frf_evidence(model, est, n=n, degree=degree, alpha=alpha, ident=ident)
     noise = noise_spectrum(est, model, n=n, degree=degree, ident=ident)
-    full = Objective(est, model, noise)
+    # the controller's own equation first: it settles the controller's path exactly
+    relation = relate(model, est)
+    settled = relation is not None and relation.exact
+    fixed = relation.choices if relation is not None and settled else []
+    base = build(model, fixed)
+    full = Objective(est, base, noise)
     unit = est.period or model.ratio
     n_screen = est.n_samples if est.period else min(est.n_samples, SCREEN_SAMPLES // unit * unit)
-    screen = full if n_screen == est.n_samples else Objective(est.part(0, n_screen), model, noise)
+    screen = full if n_screen == est.n_samples else Objective(est.part(0, n_screen), base, noise)
     plant = PlantData(ev_before.frequency, ev_before.P_hat, ev_before.P_std)
-    sel = select(full, screen, model, plant, max_causes=max_causes)
+    why = relation.text() if relation is not None and settled else None
+    sel = select(full, screen, base, plant, max_causes=max_causes, ruled_out=why)
     ranking, current = sel.ranking, sel.model
-    applied = with_equivalents(full, screen, model, plant, sel.chosen, sel.ranking)
+    applied = _settled(full, model, relation) + with_equivalents(
+        full, screen, base, plant, sel.chosen, sel.ranking
+    )
     val_part = val.part(val_start, val.n_samples) if val_start else val
     pred_b, pred_a = predict(model, val), predict(current, val)
     if not val_start and model.controller is not None and val.period is None:
@@ -355,7 +377,28 @@ def diagnose(
         distortion(est),
         None if ident is None else check_controller(ident, n),
         full,
+        relation,
     )
+
+
+def _settled(obj: Objective, nominal: Model, rel: ControllerRelation | None) -> list[CauseFit]:
+    """The controller-side causes the controller's equation determined, as CauseFits.
+
+    Each with every one before it in its model; its score the BIC of that model on ``obj``
+    (the values were not fitted there, so they count no parameter); its std from the
+    equation.
+    """
+    if rel is None or not rel.exact:
+        return []
+    out = []
+    for j, c in enumerate(rel.choices):
+        cause = CAUSES[c.cause]
+        model = build(nominal, rel.choices[: j + 1])
+        bic, rss = obj.evaluate(model, 0)
+        params = cause.named(c, nominal)
+        text = cause.describe(params) + " (the controller's own equation, u from y, fixes it)"
+        out.append(CauseFit(c.cause, params, bic, rss, model, True, text, c, rel.std[j]))
+    return out
 
 
 #: A band whose unexcited lines stand this many dB above the noise shows distortion.

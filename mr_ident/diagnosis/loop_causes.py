@@ -25,6 +25,7 @@ class _LoopCause(Cause):
 class ControlDelay(_LoopCause):
     """The controller's held output is applied later than the model says."""
 
+    controller_side = True
     name = "control_delay"
     parameters = ("delay_samples",)
     meaning = (
@@ -63,6 +64,7 @@ class ControlDelay(_LoopCause):
 class SamplingOffset(_LoopCause):
     """The controller samples y at another high-rate phase than the model's."""
 
+    controller_side = True
     name = "sampling_offset"
     parameters = ("offset_samples",)
     meaning = "the controller samples y at another high-rate instant within its period"
@@ -98,6 +100,7 @@ class SamplingOffset(_LoopCause):
 class ControllerNotch(_LoopCause):
     """A notch filter in the controller that the model lacks."""
 
+    controller_side = True
     name = "controller_notch"
     parameters = ("frequency_hz", "damping", "depth")
     meaning = (

@@ -91,9 +91,18 @@ def select(
     plant: PlantData | None,
     *,
     max_causes: int = 3,
+    ruled_out: str | None = None,
 ) -> Selection:
-    """Forward selection of causes (see the module docstring)."""
-    applicable = [c for c in CAUSES.values() if c.applies(nominal)]
+    """Forward selection of causes (see the module docstring).
+
+    ``ruled_out``: why the controller-side causes are not sought (the controller's own
+    equation has settled them, :mod:`~mr_ident.diagnosis.controller_relation`); they are
+    then listed in the ranking as not applicable, with this reason as their description.
+    """
+    excluded = (
+        {c.name for c in CAUSES.values() if c.controller_side} if ruled_out is not None else set()
+    )
+    applicable = [c for c in CAUSES.values() if c.applies(nominal) and c.name not in excluded]
 
     def screen(chosen: list[Choice], among: list[str] | None = None) -> list[Choice]:
         ctx = Context(build(nominal, chosen), nominal, plant, est_screen)
@@ -168,9 +177,17 @@ def select(
         for j in range(len(chosen))
     ]
     inapplicable = [
-        CauseFit(c.name, {}, math.inf, {}, nominal, applicable=False)
+        CauseFit(
+            c.name,
+            {},
+            math.inf,
+            {},
+            nominal,
+            applicable=False,
+            description=ruled_out if ruled_out and c.name in excluded else "",
+        )
         for c in CAUSES.values()
-        if not c.applies(nominal)
+        if not c.applies(nominal) or c.name in excluded
     ]
     return Selection(fits, ranking + inapplicable, build(nominal, chosen))
 

@@ -1,0 +1,367 @@
+"""The controller's own equation: whether the logged u follows from the logged y and r.
+
+In closed loop the record holds both sides of the controller: the y it sampled and the u
+it applied, ``u_h = r_h - H_u K_l S_d y_h``. Given the measured r and y, the model's
+controller (its K_l, notches, sampling phase and control delay) predicts u with no noise
+at all: the plant and its noise enter only through y, which is measured. So the
+controller's side of the loop is checked on this equation alone, exactly, before any
+cause of the plant is sought:
+
+- where the model's controller reproduces the logged u to rounding
+  (:data:`EXACT`), the controller runs as modelled, and no controller-side cause
+  (a notch, a control delay, a sampling offset) can be in the loop;
+- where it does not, the controller-side causes are fitted to this equation
+  (:func:`relate`): a notch, a delay or an offset the machine has and the model lacks
+  brings the residual to rounding, and is then known to the precision of the numbers,
+  however little r excites the loop where it acts (on the y criterion alone a shallow,
+  wide notch was determined to 5-50 %, not 2 %);
+- where no set of them does, the logged u is not the controller's output for the
+  logged y (a u measured rather than commanded, with its own noise; a controller unlike
+  the model in a way outside the vocabulary): the relation is reported and left out,
+  and the controller-side causes are judged on y as the plant's are.
+
+Only u given y is used: the likelihood of (y, u) given r is that of y given r (the
+criterion, :mod:`~mr_ident.diagnosis.objective`) times that of u given y and r (this
+equation), so the two hold separate evidence and nothing is counted twice.
+
+The controller's state when the record began is unknown: its free responses (an
+integrator's constant among them) are projected out, as the loop's are in the criterion;
+the first periods, whose held outputs were computed before the record, are left out.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, replace
+
+import numpy as np
+import scipy.optimize
+
+from ..numerics.arrays import FloatArray
+from ..numerics.model import Model
+from ..numerics.signals import LoopData
+from ..numerics.simulate import StateRecursion
+from ..numerics.systems import StateSpace
+from .causes import Cause, Choice, Params, clip
+from .objective import project_out
+from .registry import CAUSES, build
+
+#: The controller relation holds when the logged u departs from the model controller's
+#: output by at most this fraction of that output (rms): float64 rounding through the
+#: loop's simulation is 1e-13-1e-9 of it; a float32 log 1e-7.
+EXACT = 1e-6
+#: Notched sets refined by least squares where no linear start closes the gap.
+REFINED = 3
+
+
+@dataclass(frozen=True)
+class ControllerRelation:
+    """What the controller's equation says of a record.
+
+    Attributes
+    ----------
+    error_before : float
+        rms of ``u - û`` over the rms of the controller's output, the nominal model's
+        controller (after the free responses are projected out).
+    error_after : float
+        The same with :attr:`choices` applied.
+    choices : list of Choice
+        The controller-side causes fitted to the equation (empty where it held at once).
+    std : list of dict
+        Per choice, the standard deviation of each named parameter on the equation.
+    samples : int
+        High-rate samples the equation was checked on.
+    """
+
+    error_before: float
+    error_after: float
+    choices: list[Choice]
+    std: list[Params]
+    samples: int
+
+    @property
+    def exact(self) -> bool:
+        """The equation holds to rounding with :attr:`choices` applied."""
+        return self.error_after <= EXACT
+
+    def text(self) -> str:
+        """The finding in words."""
+        pct = f"{100 * self.error_before:.2g} %"
+        if self.exact and not self.choices:
+            return (
+                f"the logged u is the model controller's output for the logged y (to "
+                f"{self.error_after:.1g} of it, {self.samples} samples): no cause in the "
+                "controller's path"
+            )
+        if self.exact:
+            return (
+                f"the logged u departs from the model controller's output for the logged y by "
+                f"{pct} (rms); the causes below bring it to {self.error_after:.1g}, so the "
+                "controller's own equation determines them"
+            )
+        return (
+            f"the logged u is not the model controller's output for the logged y ({pct} rms "
+            "apart, and no notch, delay or offset closes the gap): u may be measured rather "
+            "than commanded, or the controller differs otherwise; its causes are judged on y"
+        )
+
+
+def controller_side(nominal: Model) -> list[Cause]:
+    """The registered causes in the controller's path that apply to ``nominal``."""
+    return [c for c in CAUSES.values() if c.controller_side and c.applies(nominal)]
+
+
+class Equation:
+    """The controller's equation on one record: residual ``u - û`` of any model."""
+
+    def __init__(self, rec: LoopData, nominal: Model):
+        self.r, self.u, self.y = rec.r, rec.u, rec.y
+        self.F = nominal.ratio
+        self.M = rec.n_samples // self.F
+        # past the longest hold of any candidate (a control delay up to 2F and a sampling
+        # phase up to F - 1 more than the model's): every held output from within the record
+        hold = nominal.sample_phase + nominal.control_delay
+        self.start = min(self.F * (hold // self.F + 6), rec.n_samples // 2 // self.F * self.F)
+        out = self.u - self.r
+        self.scale = float(np.sqrt(np.mean(out[self.start :] ** 2))) or 1.0
+
+    @property
+    def samples(self) -> int:
+        """High-rate samples the residual covers."""
+        return self.F * self.M - self.start
+
+    def residual(self, model: Model) -> FloatArray:
+        """``(u - û) / scale`` from :attr:`start` on, free responses projected out (flat)."""
+        F, M = self.F, self.M
+        K = model.controller_ss()
+        phase, hold = model.sample_phase, model.sample_phase + model.control_delay
+        ys = self.y[phase : phase + F * M : F][:M]
+        if ys.shape[0] < M:  # a phase at the record's end: one period short
+            ys = np.vstack([ys, np.zeros((M - ys.shape[0], ys.shape[1]))])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # a defective controller: the direct recursion
+            uc = StateRecursion(K).run(ys)  # (M, n_u), the controller's outputs from rest
+            free = _free_responses(K, M)  # (M, n_u, nk)
+        n = F * M
+        idx = np.arange(self.start, n)
+        i, m = idx % F, idx // F
+        j = -((i - hold) // F)  # the output held at sample i is the one of period m - j
+        src = np.maximum(m - j, 0)
+        e = self.u[idx] - self.r[idx] + uc[src]
+        res = e.ravel() / self.scale
+        if free.shape[-1]:
+            A = -free[src].reshape(-1, free.shape[-1]) / self.scale
+            res = project_out(A, res)
+        return res
+
+    def error(self, model: Model) -> float:
+        """The rms of :meth:`residual`: how far ``model``'s controller departs, relatively."""
+        res = self.residual(model)
+        return float(np.sqrt(np.mean(res**2))) if np.all(np.isfinite(res)) else math.inf
+
+
+def _free_responses(K: StateSpace, M: int) -> FloatArray:
+    """The controller's output from each unit initial state with zero input, (M, n_u, nk)."""
+    nk, nu = K.A.shape[0], K.C.shape[0]
+    if not nk:
+        return np.zeros((M, nu, 0))
+    probe = StateSpace(K.A, np.eye(nk), K.C, np.zeros((nu, nk)), K.dt)
+    w = np.zeros((M + 1, nk))
+    cols = []
+    for s in range(nk):
+        w[:] = 0.0
+        w[0, s] = 1.0
+        cols.append(StateRecursion(probe).run(w)[1:])  # x[m] = A^(m-1) e_s, from m = 1
+    return np.stack(cols, axis=-1)
+
+
+def relate(nominal: Model, rec: LoopData) -> ControllerRelation | None:
+    """The controller's equation on ``rec``, with controller-side causes fitted where it fails.
+
+    None in open loop or with y at the low rate (the controller's samples are not all
+    logged). Otherwise the nominal's error; where it exceeds :data:`EXACT`, every
+    combination of a control delay (0 to 2F samples) and a sampling offset (every phase)
+    is tried, each without and with a notch (started by :func:`notch_start`, refined by
+    least squares where no start closes the gap); of the sets that bring the equation
+    to :data:`EXACT`, the one with the fewest values is kept (then the smallest error).
+    Where none does, the relation is returned with no causes (``exact`` False).
+    """
+    if nominal.controller is None or rec.y_step != 1 or rec.n_samples < 16 * nominal.ratio:
+        return None
+    eq = Equation(rec, nominal)
+    e0 = eq.error(nominal)
+    if e0 <= EXACT:
+        return ControllerRelation(e0, e0, [], [], eq.samples)
+    sides = {c.name: c for c in controller_side(nominal)}
+
+    def values(name: str) -> list[list[Choice]]:
+        cause = sides.get(name)
+        return [[]] + ([[Choice(name, (v,))] for v in cause.values(nominal)] if cause else [])
+
+    found: list[tuple[float, list[Choice]]] = []
+    notched: list[tuple[float, list[Choice]]] = []
+    for d in values("control_delay"):
+        for o in values("sampling_offset"):
+            discrete = d + o
+            base = build(nominal, discrete)
+            found.append((eq.error(base), discrete))
+            start = notch_start(eq, base) if "controller_notch" in sides else None
+            if start is not None:
+                trial = discrete + [start]
+                notched.append((eq.error(build(nominal, trial)), trial))
+    found += notched
+    if not any(err <= EXACT for err, _ in found):  # least squares from the best starts
+        for _, trial in sorted(notched, key=lambda t: t[0])[:REFINED]:
+            found.append(_refit(eq, nominal, trial))
+    exact = [(err, ch) for err, ch in found if err <= EXACT]
+    if not exact:  # no set of them closes the gap: nothing of it is used
+        return ControllerRelation(e0, e0, [], [], eq.samples)
+    err, chosen = min(exact, key=lambda t: (sum(CAUSES[c.cause].n_free for c in t[1]), t[0]))
+    if any(not CAUSES[c.cause].discrete for c in chosen):  # to the precision of the numbers
+        err, chosen = _refit(eq, nominal, chosen)
+    return ControllerRelation(e0, err, chosen, _std(eq, nominal, chosen), eq.samples)
+
+
+def notch_start(eq: Equation, base: Model) -> Choice | None:
+    """A notch after ``base``'s controller from the equation, linearly; None if none fits.
+
+    The controller's outputs are read off the logged u (``u_c = r - u`` at the last sample
+    of each period, held from period ``m - j``); ``z`` is ``base``'s controller applied to
+    the sampled y. A biquad ``B/A`` from z to u_c is linear in its five coefficients
+    (equation error ``A u_c = B z``; each free response of the controller, passed through
+    B, adds three columns), and its poles and zeros give the Tustin notch in closed form:
+    with ``t = (p - 1)/(p + 1)`` per pole, ``tan²(π f dt) = t₁t₂``,
+    ``ζ = -(t₁ + t₂) / (2 √(t₁t₂))`` and ``depth = (t₁' + t₂')/(t₁ + t₂)`` (primes: the
+    zeros). Exact on an exact record; elsewhere a start for least squares.
+    """
+    F, M = eq.F, eq.M
+    K = base.controller_ss()
+    hold = base.sample_phase + base.control_delay
+    ys = eq.y[base.sample_phase : base.sample_phase + F * M : F][:M]
+    if ys.shape[0] < M:
+        return None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        z = StateRecursion(K).run(ys)  # (M, n_u)
+        free = _free_responses(K, M)  # (M, n_u, nk)
+    jl = -((F - 1 - hold) // F)  # the last sample of period m holds u_c[m - jl]
+    k = np.arange(max(eq.start // F, 2), M - jl)
+
+    def uc(lag: int) -> FloatArray:
+        n = (k - lag + jl) * F + F - 1
+        return np.asarray(eq.r[n] - eq.u[n], float)
+
+    cols = [-uc(1), -uc(2), z[k], z[k - 1], z[k - 2]]
+    cols += [free[k - lag][:, :, i] for i in range(free.shape[-1]) for lag in range(3)]
+    A = np.stack([c.ravel() for c in cols], axis=1)
+    norm = np.sqrt(np.einsum("ij,ij->j", A, A))
+    if not (np.all(np.isfinite(A)) and np.all(norm[:5] > 0)):
+        return None
+    norm = np.where(norm > 0, norm, 1.0)
+    a1, a2, b0, b1, b2 = (np.linalg.lstsq(A / norm, uc(0).ravel(), rcond=1e-12)[0] / norm)[:5]
+    with np.errstate(all="ignore"):
+        P = (1 + a1 + a2) / (1 - a1 + a2)
+        t = 2 * (a2 - 1) / (1 - a1 + a2)  # t₁ + t₂ of the poles
+        tz = 2 * (b2 / b0 - 1) / (1 - b1 / b0 + b2 / b0)  # of the zeros
+        if not (np.isfinite(P) and P > 0):
+            return None
+        x = np.array(
+            [
+                math.atan(math.sqrt(P)) * base.fs_high / (math.pi * F),
+                -t / (2 * math.sqrt(P)),
+                tz / t,
+            ]
+        )
+    if not np.all(np.isfinite(x)):
+        return None
+    cause = CAUSES["controller_notch"]
+    lo, hi, _ = cause.bounds(base, Choice(cause.name, tuple(x)))
+    return Choice(cause.name, tuple(float(v) for v in clip(x, lo, hi)))
+
+
+def _continuous(nominal: Model, choices: list[Choice]) -> list[int]:
+    return [j for j, c in enumerate(choices) if not CAUSES[c.cause].discrete]
+
+
+def _refit(eq: Equation, nominal: Model, choices: list[Choice]) -> tuple[float, list[Choice]]:
+    """Every continuous value of ``choices`` fitted on the equation: (error, choices)."""
+    cont = _continuous(nominal, choices)
+    start = eq.error(build(nominal, choices))
+    if not cont:
+        return start, choices
+    bounds = [CAUSES[choices[j].cause].bounds(nominal, choices[j]) for j in cont]
+    sizes = [len(choices[j].x) for j in cont]
+    lo = np.concatenate([b[0] for b in bounds])
+    hi = np.concatenate([b[1] for b in bounds])
+    sc = np.concatenate([b[2] for b in bounds])
+    x0 = clip(np.concatenate([choices[j].x for j in cont]), lo, hi)
+
+    def unpack(x: FloatArray) -> list[Choice]:
+        out, k = list(choices), 0
+        for j, n in zip(cont, sizes, strict=True):
+            out[j] = replace(choices[j], x=tuple(float(v) for v in x[k : k + n]))
+            k += n
+        return out
+
+    def res(x: FloatArray) -> FloatArray:
+        r = eq.residual(build(nominal, unpack(x)))
+        return r if np.all(np.isfinite(r)) else np.full(r.shape, 1e3)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            sol = scipy.optimize.least_squares(
+                res,
+                x0,
+                bounds=(lo, hi),
+                x_scale=sc,
+                max_nfev=60,
+                ftol=1e-15,
+                xtol=1e-15,
+                gtol=1e-15,
+                diff_step=1e-7,
+            )
+            x = np.asarray(sol.x, float)
+        except (ValueError, np.linalg.LinAlgError):
+            return start, choices
+    fitted = unpack(x)
+    err = eq.error(build(nominal, fitted))
+    return (err, fitted) if err < start else (start, choices)
+
+
+def _std(eq: Equation, nominal: Model, choices: list[Choice]) -> list[Params]:
+    """Gauss-Newton std of each named parameter on the equation (its residual as the noise).
+
+    Discrete values 0; the residual's own spread (rounding) as its noise, so these say to
+    what precision the equation fixes the values.
+    """
+    out: list[Params] = []
+    for j, c in enumerate(choices):
+        cause = CAUSES[c.cause]
+        names = cause.named(c, nominal)
+        if cause.discrete:
+            out.append({k: 0.0 for k in names})
+            continue
+        r0 = eq.residual(build(nominal, choices))
+        sigma2 = float(np.sum(r0**2)) / max(r0.size - len(c.x), 1)
+        cols, steps = [], []
+        for i in range(len(c.x)):
+            h = 1e-6 * max(abs(c.x[i]), 1e-3)
+            x = list(c.x)
+            x[i] += h
+            moved = choices[:j] + [replace(c, x=tuple(x))] + choices[j + 1 :]
+            cols.append((eq.residual(build(nominal, moved)) - r0) / h)
+            steps.append(h)
+        J = np.column_stack(cols)
+        cov = sigma2 * np.linalg.pinv(J.T @ J)
+        G = []
+        for i, h in enumerate(steps):
+            x = list(c.x)
+            x[i] += h
+            moved_named = cause.named(replace(c, x=tuple(x)), nominal)
+            G.append([(moved_named[k] - names[k]) / h for k in names])
+        Gm = np.array(G).T
+        var = np.einsum("ai,ij,aj->a", Gm, cov, Gm)
+        out.append({k: float(math.sqrt(max(v, 0.0))) for k, v in zip(names, var, strict=True)})
+    return out
