@@ -14,7 +14,8 @@ fit (``verdict.likelihood_ratio``) is within the chi-square quantile at
 ``verdict.CONFIDENCE`` (the record cannot tell the truth from the fit). Before looking at
 the answer, each case is also classed *determinable* when the record holds the hidden
 values to their tolerances at all: every tolerance at least ``information.DETERMINED``
-Cramér-Rao std at the truth (``information.truth_std``, on the diagnosis's criterion); the
+Cramér-Rao std at the truth (``information.truth_std``, on the diagnosis's criterion and,
+for the controller's path, the controller's own equation); the
 success rate among those is what an estimator can be asked for. Prints a markdown
 table (per cause, pairs, none), the targets, and one line per failure; ``--json`` writes
 every case. Targets: >= 95 % per single cause, >= 85 % for pairs, >= 95 % of the "none"
@@ -171,8 +172,10 @@ def run_case(case: dict, duration: float) -> dict:
             [(q.cause, dict(q.parameters), dict(q.std), q.delta_bic) for q in c.equivalents]
             for c in d.applied
         ]
+        rel = d.relation
+        settled = {c.cause for c in rel.choices} if rel is not None and rel.exact else set()
         lr = likelihood_ratio(d, sc.true)
-        bounds = truth_std(sc.nominal, sc.hidden, d.criterion)
+        bounds = truth_std(sc.nominal, sc.hidden, d.criterion, d.criterion.rec)
         v = judge(
             sc,
             applied,
@@ -189,6 +192,7 @@ def run_case(case: dict, duration: float) -> dict:
                 "cause": c,
                 "parameters": p,
                 "std": sd,
+                "settled": c in settled,  # by the controller's own equation, to rounding
                 "equivalents": [
                     {"cause": e, "parameters": ep, "std": es, "delta_bic": db}
                     for e, ep, es, db in eq
@@ -206,6 +210,7 @@ def run_case(case: dict, duration: float) -> dict:
         "consistent": v.consistent,
         "stated": v.stated,
         "credible": v.credible,
+        "fixed": v.fixed,
         "likelihood_ratio": lr,
         "truth_in_region": in_region(sc, lr),
         "truth_std": bounds,
@@ -235,11 +240,12 @@ def _med(xs: list[float], q: float = 50.0, fmt: str = ".2f") -> str:
 def table(records: list[dict], groups: list[str]) -> tuple[str, dict[str, float]]:
     """The markdown table and each group's success rate (%)."""
     head = (
-        "| hidden | cases | named first | parameters in tolerance | success | success or truth in "
+        "| hidden | cases | named first | parameters in tolerance | success | success, damped "
+        "pairs' frequency to a fixed 2 % | success or truth in "
         f"{100 * CONFIDENCE:g} % region | success within {COVERAGE:g} std | with stated "
         "equivalents | determinable | success where determinable | median fit gap | median s "
         "| p95 s |\n"
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
     )
     rows, rates = [head], {}
     for g in groups:
@@ -251,6 +257,7 @@ def table(records: list[dict], groups: list[str]) -> tuple[str, dict[str, float]
         params = [bool(r.get("parameters_ok")) for r in rs] if g != "none" else []
         success = [bool(r.get("success")) for r in rs]
         credible = [bool(r.get("success") or r.get("credible")) for r in rs]
+        fixed = [bool(r.get("fixed")) for r in rs]
         loose = [bool(r.get("success") or r.get("consistent")) for r in rs]
         stated = [bool(r.get("success") or r.get("consistent") or r.get("stated")) for r in rs]
         det = [r for r in rs if r.get("determinable")]
@@ -261,6 +268,7 @@ def table(records: list[dict], groups: list[str]) -> tuple[str, dict[str, float]
         label = "none (nothing named)" if g == "none" else g
         rows.append(
             f"| {label} | {len(rs)} | {_pct(named)} | {_pct(params)} | {_pct(success)} "
+            f"| {_pct(fixed) if any('fixed' in r for r in rs) else '–'} "
             f"| {_pct(credible) if any('credible' in r for r in rs) else '–'} "
             f"| {_pct(loose)} | {_pct(stated)} "
             f"| {_pct([bool(r.get('determinable')) for r in rs]) if has_det else '–'} "
@@ -301,7 +309,10 @@ def failure_line(r: dict) -> str:
 
 
 def z_scores(records: list[dict]) -> np.ndarray:
-    """(estimate - truth) / reported std of every found continuous parameter."""
+    """(estimate - truth) / reported std of every found continuous parameter.
+
+    Not of those the controller's own equation fixed: their std is rounding's, not noise's.
+    """
     out = []
     for r in records:
         if not r.get("named"):
@@ -312,6 +323,8 @@ def z_scores(records: list[dict]) -> np.ndarray:
                 continue
             for key, true in h["parameters"].items():
                 sd = (got.get("std") or {}).get(key)
+                if got.get("settled"):  # fixed by the controller's equation: rounding, not noise
+                    continue
                 if sd and math.isfinite(sd) and key in got["parameters"]:
                     out.append((got["parameters"][key] - true) / sd)
     return np.asarray(out, float)

@@ -228,6 +228,12 @@ def test_tolerance_kinds():
     assert Tolerance("exact").within(2.0, 2, 1.0) and not Tolerance("exact").within(3.0, 2, 1.0)
     assert not Tolerance("relative", 0.02).within(math.nan, 1.0, 1.0)
     assert str(Tolerance("relative", 0.005)) == "0.5 %"
+    # a damped pair's frequency: 2 %, or a tenth of its half-power bandwidth 2ζf
+    band = Tolerance("relative", 0.02, width=0.1)
+    assert band.bound(100.0, 1000.0, 0.05) == pytest.approx(2.0)  # light: the 2 %
+    assert band.bound(100.0, 1000.0, 0.5) == pytest.approx(10.0)  # ζ 0.5: 10 %
+    assert band.within(109.0, 100.0, 1000.0, 0.5) and not band.within(109.0, 100.0, 1000.0)
+    assert str(band) == "2 % or 0.1 of 2ζf"
 
 
 # One case per cause (two in the pair) and one with nothing hidden; seed 100 + position.

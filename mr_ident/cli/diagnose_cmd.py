@@ -89,6 +89,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             print(f"    or, as well (BIC {q.delta_bic:+.1f}): {q.description}")
     if d.nonlinear:
         print(f"  found: {d.distortion_text()}")
+    if d.relation is not None:
+        print(f"  controller: {d.relation.text()}")
     if d.controller is not None and d.controller.differs:
         print(f"  found: {d.controller.text()}")
     for path in (args.json, args.report, args.out_model):

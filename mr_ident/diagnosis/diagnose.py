@@ -328,15 +328,15 @@ def diagnose(
     noise = noise_spectrum(est, model, n=n, degree=degree, ident=ident)
     # the controller's own equation first: it settles the controller's path exactly
     relation = relate(model, est)
-    settled = relation is not None and relation.exact
-    fixed = relation.choices if relation is not None and settled else []
+    settled = relation if relation is not None and relation.exact else None
+    fixed = settled.choices if settled is not None else []
     base = build(model, fixed)
     full = Objective(est, base, noise)
     unit = est.period or model.ratio
     n_screen = est.n_samples if est.period else min(est.n_samples, SCREEN_SAMPLES // unit * unit)
     screen = full if n_screen == est.n_samples else Objective(est.part(0, n_screen), base, noise)
     plant = PlantData(ev_before.frequency, ev_before.P_hat, ev_before.P_std)
-    why = relation.text() if relation is not None and settled else None
+    why = f"settled by the controller's own equation: {settled.text()}" if settled else None
     sel = select(full, screen, base, plant, max_causes=max_causes, ruled_out=why)
     ranking, current = sel.ranking, sel.model
     applied = _settled(full, model, relation) + with_equivalents(

@@ -12,8 +12,13 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
+import numpy as np
+
 from ..numerics.model import Model
+from ..numerics.signals import LoopData
+from .controller_relation import EXACT, Equation
 from .objective import Objective
+from .registry import CAUSES
 from .scenarios import HiddenCause, apply
 from .verdict import TOLERANCES
 
@@ -23,7 +28,10 @@ DETERMINED = 3.0
 
 
 def truth_std(
-    nominal: Model, hidden: Sequence[HiddenCause], criterion: Objective
+    nominal: Model,
+    hidden: Sequence[HiddenCause],
+    criterion: Objective,
+    record: LoopData | None = None,
 ) -> list[dict[str, float]]:
     """Cramér-Rao standard deviation of every hidden continuous parameter, at the truth.
 
@@ -36,10 +44,27 @@ def truth_std(
     What any unbiased estimator's spread is at least on this record, known before the
     diagnosis answers. Per hidden cause, by parameter name (discrete ones absent); inf
     where the record holds no information on a value.
+
+    With the ``record`` (closed loop, y at the high rate) the controller's own equation
+    counts too (:mod:`~mr_ident.diagnosis.controller_relation`): where the truth satisfies
+    it to :data:`~mr_ident.diagnosis.controller_relation.EXACT`, the controller-side
+    values are fixed by it (their std is its Gauss-Newton std, at rounding level) and the
+    others' bound is taken with those known.
     """
     hidden = list(hidden)
-    names = [(j, k) for j, h in enumerate(hidden) for k in _continuous(h.cause)]
     out: list[dict[str, float]] = [{} for _ in hidden]
+    settled: set[int] = set()
+    if record is not None and nominal.controller is not None and record.y_step == 1:
+        true = apply(nominal, hidden)
+        eq = Equation(record, nominal)
+        if eq.error(true) <= EXACT:
+            for j, h in enumerate(hidden):
+                if CAUSES[h.cause].controller_side:
+                    settled.add(j)
+                    out[j] = _equation_std(eq, nominal, hidden, j)
+    names = [
+        (j, k) for j, h in enumerate(hidden) if j not in settled for k in _continuous(h.cause)
+    ]
     if not names:
         return out
 
@@ -62,6 +87,29 @@ def truth_std(
     return out
 
 
+def _equation_std(
+    eq: Equation, nominal: Model, hidden: list[HiddenCause], j: int
+) -> dict[str, float]:
+    """Gauss-Newton std of hidden cause ``j``'s continuous values on the equation.
+
+    Its residual's own spread (rounding) as the noise.
+    """
+    keys = _continuous(hidden[j].cause)
+    if not keys:
+        return {}
+    r0 = eq.residual(apply(nominal, hidden))
+    sigma2 = float(np.sum(r0**2)) / max(r0.size - len(keys), 1)
+    cols = []
+    for key in keys:
+        h = 1e-6 * (abs(hidden[j].parameters[key]) or 1.0)
+        moved = list(hidden)
+        moved[j] = hidden[j].with_values({key: hidden[j].parameters[key] + h})
+        cols.append((eq.residual(apply(nominal, moved)) - r0) / h)
+    J = np.column_stack(cols)
+    cov = sigma2 * np.linalg.pinv(J.T @ J)
+    return {k: math.sqrt(max(float(cov[i, i]), 0.0)) for i, k in enumerate(keys)}
+
+
 def determinable(
     hidden: Sequence[HiddenCause], stds: Sequence[Mapping[str, float]], fs_high: float
 ) -> bool:
@@ -73,7 +121,8 @@ def determinable(
     """
     for h, sd in zip(hidden, stds, strict=True):
         for key, s in sd.items():
-            tol = TOLERANCES[h.cause][key].bound(h.parameters[key], fs_high)
+            zeta = float(h.parameters.get("damping", 0.0))
+            tol = TOLERANCES[h.cause][key].bound(h.parameters[key], fs_high, zeta)
             if not DETERMINED * s <= tol:
                 return False
     return True

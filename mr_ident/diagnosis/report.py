@@ -10,6 +10,7 @@ import math
 from typing import Any
 
 from .controller_check import MIN_FRACTION
+from .controller_relation import EXACT
 from .diagnose import NL_THRESHOLD_DB, Diagnosis
 from .selection import ACCEPT_MARGIN
 from .verdict import COVERAGE
@@ -57,6 +58,11 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
             for c in d.applied
         ],
         "findings": ([d.distortion_text()] if d.nonlinear else [])
+        + (
+            [d.relation.text()]
+            if d.relation is not None and d.relation.error_before > EXACT
+            else []
+        )
         + ([d.controller.text()] if d.controller is not None and d.controller.differs else [])
         + [c.description for c in d.applied],
         "nonlinear_distortion": {
@@ -73,6 +79,18 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
                 }
                 for b in d.distortion
             ],
+        },
+        "controller_relation": None
+        if d.relation is None
+        else {
+            "exact": d.relation.exact,
+            "error_before": d.relation.error_before,
+            "error_after": d.relation.error_after,
+            "tolerance": EXACT,
+            "samples": d.relation.samples,
+            "text": d.relation.text(),
+            "statistic": "rms of u - u_hat(r, y) over the rms of the controller's output, "
+            "u_hat the model controller's output for the logged y, free responses projected out",
         },
         "controller_check": None
         if d.controller is None
