@@ -4,7 +4,8 @@ The machine's loop is run sample by sample here, its controller the nominal K_l 
 by a notch discretised with scipy's bilinear transform (prewarped by hand, not
 ``realize.notch``) and a delay and sampling phase of its own; the equation must hold
 exactly where the controller is the model's and find the notch, delay and offset to
-1e-6 where it is not. Tolerances: the values to 1e-6 relative (measured 1e-13-1e-10);
+1e-6 where it is not; on a 2x2 loop too (a notch on both channels with a sampling
+offset). Tolerances: the values to 1e-6 relative (measured 1e-13-1e-10);
 the relation error of the model's own controller below ``EXACT`` (measured 1e-15-1e-12).
 """
 
@@ -132,3 +133,15 @@ def test_diagnose_applies_what_the_equation_settled_and_rules_out_the_rest():
     assert abs(d.parameters["depth"] - h["depth"]) < 1e-6
     ruled = {c.cause for c in d.ranking if not c.applicable and "equation" in c.description}
     assert ruled == {"controller_notch", "control_delay", "sampling_offset"}
+
+
+def test_a_two_by_two_loop_with_a_notch_on_both_channels_and_an_offset(mimo_model):
+    from mr_ident import simulate
+
+    m = replace(mimo_model, noise_std=0.01)
+    f = 0.15 * m.fs_low
+    true = replace(m, sample_phase=1, controller_notches=((f, 0.2, 0.0),))
+    rel = relate(m, simulate(true, duration=20.0, rng=np.random.default_rng(0)))
+    assert rel is not None and rel.exact
+    assert [c.cause for c in rel.choices] == ["sampling_offset", "controller_notch"]
+    np.testing.assert_allclose(rel.choices[1].x, (f, 0.2, 0.0), atol=1e-8)

@@ -95,10 +95,11 @@ class ControllerRelation:
                 "controller's path"
             )
         if self.exact:
+            names = " and ".join(c.cause for c in self.choices)
             return (
                 f"the logged u departs from the model controller's output for the logged y by "
-                f"{pct} (rms); the causes below bring it to {self.error_after:.1g}, so the "
-                "controller's own equation determines them"
+                f"{pct} (rms); with {names} it is that output to {self.error_after:.1g}, so "
+                "the controller's own equation determines them"
             )
         return (
             f"the logged u is not the model controller's output for the logged y ({pct} rms "
@@ -137,8 +138,6 @@ class Equation:
         K = model.controller_ss()
         phase, hold = model.sample_phase, model.sample_phase + model.control_delay
         ys = self.y[phase : phase + F * M : F][:M]
-        if ys.shape[0] < M:  # a phase at the record's end: one period short
-            ys = np.vstack([ys, np.zeros((M - ys.shape[0], ys.shape[1]))])
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # a defective controller: the direct recursion
             uc = StateRecursion(K).run(ys)  # (M, n_u), the controller's outputs from rest
