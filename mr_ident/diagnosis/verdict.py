@@ -85,7 +85,7 @@ TOLERANCES: dict[str, dict[str, Tolerance]] = {
     "input_delay": {"delay_s": Tolerance("samples", 0.1)},
     "additive_mode": {"frequency_hz": _F, "damping": _Z, "gain": Tolerance("relative", 0.15)},
     "mode_shift": {"frequency_hz": _F, "damping": _Z, "residue_scale": Tolerance("relative", 0.1)},
-    "series_lowpass": {"frequency_hz": _F},
+    "series_lowpass": {"frequency_hz": Tolerance("relative", 0.02)},
     "series_resonance": {"frequency_hz": _F, "damping": _Z},
     "controller_notch": {"frequency_hz": _F, "damping": _Z, "depth": Tolerance("absolute", 0.05)},
     "control_delay": {"delay_samples": _X},
