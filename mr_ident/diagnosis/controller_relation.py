@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -329,38 +330,44 @@ def _refit(eq: Equation, nominal: Model, choices: list[Choice]) -> tuple[float, 
     return (err, fitted) if err < start else (start, choices)
 
 
-def _std(eq: Equation, nominal: Model, choices: list[Choice]) -> list[Params]:
-    """Gauss-Newton std of each named parameter on the equation (its residual as the noise).
+def value_std(
+    eq: Equation, model_at: Callable[[FloatArray], Model], x: Sequence[float]
+) -> FloatArray:
+    """Gauss-Newton std of the values ``x`` on the equation, ``model_at(x)`` the model.
 
-    Discrete values 0; the residual's own spread (rounding) as its noise, so these say to
-    what precision the equation fixes the values.
+    The residual's own spread as its noise (rounding, where the equation holds): to what
+    precision the equation fixes the values. Forward differences, step 1e-6 of each value.
+    """
+    x0 = np.asarray(x, float)
+    r0 = eq.residual(model_at(x0))
+    sigma2 = float(np.sum(r0**2)) / max(r0.size - x0.size, 1)
+    cols = []
+    for i in range(x0.size):
+        h = 1e-6 * max(abs(x0[i]), 1e-3)
+        moved = x0.copy()
+        moved[i] += h
+        cols.append((eq.residual(model_at(moved)) - r0) / h)
+    J = np.column_stack(cols)
+    cov = sigma2 * np.linalg.pinv(J.T @ J)
+    return np.sqrt(np.maximum(np.diag(cov), 0.0))
+
+
+def _std(eq: Equation, nominal: Model, choices: list[Choice]) -> list[Params]:
+    """Per choice, the std of each parameter on the equation (:func:`value_std`; discrete 0).
+
+    The controller-side causes name their values as they are (``named`` is ``x``).
     """
     out: list[Params] = []
     for j, c in enumerate(choices):
         cause = CAUSES[c.cause]
-        names = cause.named(c, nominal)
         if cause.discrete:
-            out.append({k: 0.0 for k in names})
+            out.append({k: 0.0 for k in cause.parameters})
             continue
-        r0 = eq.residual(build(nominal, choices))
-        sigma2 = float(np.sum(r0**2)) / max(r0.size - len(c.x), 1)
-        cols, steps = [], []
-        for i in range(len(c.x)):
-            h = 1e-6 * max(abs(c.x[i]), 1e-3)
-            x = list(c.x)
-            x[i] += h
-            moved = choices[:j] + [replace(c, x=tuple(x))] + choices[j + 1 :]
-            cols.append((eq.residual(build(nominal, moved)) - r0) / h)
-            steps.append(h)
-        J = np.column_stack(cols)
-        cov = sigma2 * np.linalg.pinv(J.T @ J)
-        G = []
-        for i, h in enumerate(steps):
-            x = list(c.x)
-            x[i] += h
-            moved_named = cause.named(replace(c, x=tuple(x)), nominal)
-            G.append([(moved_named[k] - names[k]) / h for k in names])
-        Gm = np.array(G).T
-        var = np.einsum("ai,ij,aj->a", Gm, cov, Gm)
-        out.append({k: float(math.sqrt(max(v, 0.0))) for k, v in zip(names, var, strict=True)})
+
+        def model_at(v: FloatArray, j: int = j, c: Choice = c) -> Model:
+            moved = replace(c, x=tuple(float(t) for t in v))
+            return build(nominal, choices[:j] + [moved] + choices[j + 1 :])
+
+        sd = value_std(eq, model_at, c.x)
+        out.append({k: float(v) for k, v in zip(cause.parameters, sd, strict=True)})
     return out

@@ -12,11 +12,10 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
-import numpy as np
-
+from ..numerics.arrays import FloatArray
 from ..numerics.model import Model
 from ..numerics.signals import LoopData
-from .controller_relation import EXACT, Equation
+from .controller_relation import EXACT, Equation, value_std
 from .objective import Objective
 from .registry import CAUSES
 from .scenarios import HiddenCause, apply
@@ -90,24 +89,18 @@ def truth_std(
 def _equation_std(
     eq: Equation, nominal: Model, hidden: list[HiddenCause], j: int
 ) -> dict[str, float]:
-    """Gauss-Newton std of hidden cause ``j``'s continuous values on the equation.
-
-    Its residual's own spread (rounding) as the noise.
-    """
+    """The std of hidden cause ``j``'s continuous values on the controller's equation."""
     keys = _continuous(hidden[j].cause)
     if not keys:
         return {}
-    r0 = eq.residual(apply(nominal, hidden))
-    sigma2 = float(np.sum(r0**2)) / max(r0.size - len(keys), 1)
-    cols = []
-    for key in keys:
-        h = 1e-6 * (abs(hidden[j].parameters[key]) or 1.0)
+
+    def model_at(v: FloatArray) -> Model:
         moved = list(hidden)
-        moved[j] = hidden[j].with_values({key: hidden[j].parameters[key] + h})
-        cols.append((eq.residual(apply(nominal, moved)) - r0) / h)
-    J = np.column_stack(cols)
-    cov = sigma2 * np.linalg.pinv(J.T @ J)
-    return {k: math.sqrt(max(float(cov[i, i]), 0.0)) for i, k in enumerate(keys)}
+        moved[j] = hidden[j].with_values(dict(zip(keys, map(float, v), strict=True)))
+        return apply(nominal, moved)
+
+    sd = value_std(eq, model_at, [hidden[j].parameters[k] for k in keys])
+    return {k: float(v) for k, v in zip(keys, sd, strict=True)}
 
 
 def determinable(
