@@ -58,8 +58,8 @@ bench-live: $(STAMP)
 	$(PY) benchmarks/bench_live.py
 
 # diagnose on seeded random loops (100 per cause, 100 pairs, 100 with nothing hidden);
-# 1200 cases, 70-90 min on 2 cores (more when shared with other work), so run in three parts, each its own
-# JSON in out/bench_diagnose/: `make bench-diagnose PART=A` (nothing hidden and the first
+# 1200 cases, about 45 min on 2 cores (more when shared with other work), in three parts,
+# each its own JSON in out/bench_diagnose/: `make bench-diagnose PART=A` (nothing hidden and the first
 # five causes), PART=B (the other five), PART=C (the pairs); without PART all three, then
 # the merged report. Not part of `make test`
 BENCH_DIAG := $(PY) benchmarks/bench_diagnose.py
