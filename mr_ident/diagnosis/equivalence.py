@@ -2,9 +2,11 @@
 
 Some effects look alike over the band a record excites: a pure input delay of 4.6 ms and
 a first-order low-pass at 34.6 Hz bend the phase the same way below 20 Hz; a shallow wide
-notch low in the loop and a control delay; an additive mode at a one-mode plant's own
-mode and a gain change. The selection (:mod:`~mr_ident.diagnosis.selection`) keeps one
-of them (within its margin, the one with fewest values); a user should know that the
+notch low in the loop and a control delay (on y alone: where the logged u is the
+controller's output, its own equation tells them apart, :mod:`~mr_ident.diagnosis.
+controller_relation`); an additive mode at a one-mode plant's own mode and a gain
+change. The selection (:mod:`~mr_ident.diagnosis.selection`) keeps one of them (within
+its margin, the one with fewest values); a user should know that the
 others explain the data as well, so that the next experiment (a wider band, a longer
 record) can decide, and so that a named cause is not read as more certain than it is.
 
