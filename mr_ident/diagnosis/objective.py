@@ -121,8 +121,10 @@ class Objective:
     within the noise), so that the bins are independent with unit variance when
     the model is right: least squares is then efficient and
     ``-2 log L = 2 sum |E|^2 / S`` enters the BIC with the number of bins as the sample
-    size. Only y - ŷ enters: in closed loop u - û is the same noise filtered by the loop
-    (one noise source), so counting it too would double the evidence, noise included.
+    size. Only y - ŷ enters: in closed loop u - û(r) is the same noise filtered by the loop
+    (one noise source), so counting it too would double the evidence, noise included; u
+    given y is the controller's own equation (:mod:`~mr_ident.diagnosis.
+    controller_relation`), which holds separate evidence and is checked before this.
     """
 
     def __init__(
