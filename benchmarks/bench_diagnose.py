@@ -174,7 +174,7 @@ def run_case(case: dict, duration: float) -> dict:
             for c in d.applied
         ]
         rel = d.relation
-        settled = {c.cause for c in rel.choices} if rel is not None and rel.exact else set()
+        settled = {c.cause for c in rel.choices} if rel is not None and rel.settles else set()
         lr = likelihood_ratio(d, sc.true)
         bounds = truth_std(sc.nominal, sc.hidden, d.criterion, d.criterion.rec)
         v = judge(

@@ -145,3 +145,17 @@ def test_a_two_by_two_loop_with_a_notch_on_both_channels_and_an_offset(mimo_mode
     assert rel is not None and rel.exact
     assert [c.cause for c in rel.choices] == ["sampling_offset", "controller_notch"]
     np.testing.assert_allclose(rel.choices[1].x, (f, 0.2, 0.0), atol=1e-8)
+
+
+def test_y_logged_a_sample_late_is_not_taken_for_a_control_delay():
+    from mr_ident.diagnosis import diagnose
+
+    sc = draw_scenario(["gain_error"], np.random.default_rng(102), duration=8.0)
+    d, F = sc.data, sc.nominal.ratio
+    n = (d.n_samples - 1) // F * F
+    skewed = LoopData(d.r[:n], d.u[:n], d.y[1 : n + 1], fs_high=d.fs_high, ratio=F)
+    rel = relate(sc.nominal, skewed)
+    assert rel is not None and rel.exact and rel.choices  # the shift closes the equation...
+    dg = diagnose(sc.nominal, skewed)
+    assert dg.relation is not None and dg.relation.contradicted  # ...but not y: not applied
+    assert "skewed in time" in dg.relation.text()

@@ -49,11 +49,15 @@ from .objective import project_out
 from .registry import CAUSES, build
 
 #: The controller relation holds when the logged u departs from the model controller's
-#: output by at most this fraction of that output (rms): float64 rounding through the
-#: loop's simulation is 1e-13-1e-9 of it; a float32 log 1e-7.
-EXACT = 1e-6
-#: Notched sets refined by least squares where no linear start closes the gap.
+#: output by at most this fraction of that output (rms): float64 rounding through a
+#: simulated loop is 1e-15-1e-9 of it; a float32 log 1e-7-6e-7, growing with
+#: rms(u)/rms(r - u); a text log of 6 significant digits about 5e-7 times that ratio.
+EXACT = 1e-5
+#: Notched sets refined by least squares where no linear start closes the gap, if their
+#: error is below REFINE_BELOW (on an exact record the right set's linear start is exact
+#: already; a u with noise of its own leaves every start far above it).
 REFINED = 3
+REFINE_BELOW = 1e-3
 
 
 @dataclass(frozen=True)
@@ -73,6 +77,11 @@ class ControllerRelation:
         Per choice, the standard deviation of each named parameter on the equation.
     samples : int
         High-rate samples the equation was checked on.
+    contradicted : bool
+        The causes that close the equation make the loop explain y worse than without
+        them (:func:`~mr_ident.diagnosis.diagnose.diagnose` checks): the logged channels
+        are then more likely skewed in time than the controller changed, and nothing of
+        the equation is used.
     """
 
     error_before: float
@@ -80,15 +89,31 @@ class ControllerRelation:
     choices: list[Choice]
     std: list[Params]
     samples: int
+    contradicted: bool = False
 
     @property
     def exact(self) -> bool:
         """The equation holds to rounding with :attr:`choices` applied."""
         return self.error_after <= EXACT
 
+    @property
+    def settles(self) -> bool:
+        """The equation decides the controller's path: exact and not contradicted by y."""
+        return self.exact and not self.contradicted
+
     def text(self) -> str:
         """The finding in words."""
         pct = f"{100 * self.error_before:.2g} %"
+        names = " and ".join(c.cause for c in self.choices)
+        if self.contradicted:
+            return (
+                f"the logged u is the model controller's output for the logged y only with "
+                f"{names} (to {self.error_after:.1g}), but the loop with them explains y "
+                "worse than without: u and y are more likely logged skewed in time (a "
+                "whole-record shift reads as a control delay, with a sampling offset of F - 1 "
+                "for F > 1) than the controller changed; nothing of the equation is used and "
+                "the controller-side causes are judged on y"
+            )
         if self.exact and not self.choices:
             return (
                 f"the logged u is the model controller's output for the logged y (to "
@@ -96,7 +121,6 @@ class ControllerRelation:
                 "controller's path"
             )
         if self.exact:
-            names = " and ".join(c.cause for c in self.choices)
             return (
                 f"the logged u departs from the model controller's output for the logged y by "
                 f"{pct} (rms); with {names} it is that output to {self.error_after:.1g}, so "
@@ -105,7 +129,9 @@ class ControllerRelation:
         return (
             f"the logged u is not the model controller's output for the logged y ({pct} rms "
             "apart, and no notch, delay or offset closes the gap): u may be measured rather "
-            "than commanded, or the controller differs otherwise; its causes are judged on y"
+            "than commanded (with noise of its own), u and y may be logged skewed in time, "
+            "or the controller differs in a way outside the vocabulary (a shorter delay than "
+            "modelled, a feedforward that is not constant); its causes are judged on y"
         )
 
 
@@ -115,18 +141,29 @@ def controller_side(nominal: Model) -> list[Cause]:
 
 
 class Equation:
-    """The controller's equation on one record: residual ``u - û`` of any model."""
+    """The controller's equation on one record: residual ``u - û`` of any model.
+
+    From :attr:`start` on (past the longest hold of any candidate: a control delay up to
+    2F and a sampling phase up to F - 1 more than the nominal's, so every held output was
+    computed within the record). Projected out of it: the controller's free responses
+    (its unknown state at the record's start) and a constant per channel of u (a
+    feedforward or trim the controller adds, an offset of y through K_l's DC gain; with
+    the free responses they span a step's response). Divided by the rms of the logged
+    controller output ``r - u`` with the same projected out, so a large trim does not
+    dilute it.
+    """
 
     def __init__(self, rec: LoopData, nominal: Model):
         self.r, self.u, self.y = rec.r, rec.u, rec.y
         self.F = nominal.ratio
         self.M = rec.n_samples // self.F
-        # past the longest hold of any candidate (a control delay up to 2F and a sampling
-        # phase up to F - 1 more than the model's): every held output from within the record
         hold = nominal.sample_phase + nominal.control_delay
-        self.start = min(self.F * (hold // self.F + 6), rec.n_samples // 2 // self.F * self.F)
-        out = self.u - self.r
-        self.scale = float(np.sqrt(np.mean(out[self.start :] ** 2))) or 1.0
+        self.start = self.F * (hold // self.F + 6)
+        idx = np.arange(self.start, self.F * self.M)
+        out = (self.r[idx] - self.u[idx]).ravel()
+        ones: FloatArray = np.tile(np.eye(self.u.shape[1]), (idx.size, 1))
+        self._const = ones  # (n * n_u, n_u): a constant per channel
+        self.scale = float(np.sqrt(np.mean(project_out(ones, out) ** 2))) or 1.0
 
     @property
     def samples(self) -> int:
@@ -143,17 +180,17 @@ class Equation:
             warnings.simplefilter("ignore")  # a defective controller: the direct recursion
             uc = StateRecursion(K).run(ys)  # (M, n_u), the controller's outputs from rest
             free = _free_responses(K, M)  # (M, n_u, nk)
-        n = F * M
-        idx = np.arange(self.start, n)
+        idx = np.arange(self.start, F * M)
         i, m = idx % F, idx // F
         j = -((i - hold) // F)  # the output held at sample i is the one of period m - j
-        src = np.maximum(m - j, 0)
+        src = m - j
+        if src.size and src[0] < 0:  # a hold longer than the candidates' (never in relate)
+            return np.full(idx.size * self.u.shape[1], math.inf)
         e = self.u[idx] - self.r[idx] + uc[src]
         res = e.ravel() / self.scale
-        if free.shape[-1]:
-            A = -free[src].reshape(-1, free.shape[-1]) / self.scale
-            res = project_out(A, res)
-        return res
+        nk = free.shape[-1]
+        A = np.concatenate([-free[src].reshape(idx.size * free.shape[1], nk), self._const], 1)
+        return project_out(A, res)
 
     def error(self, model: Model) -> float:
         """The rms of :meth:`residual`: how far ``model``'s controller departs, relatively."""
@@ -187,8 +224,11 @@ def relate(nominal: Model, rec: LoopData) -> ControllerRelation | None:
     to :data:`EXACT`, the one with the fewest values is kept (then the smallest error).
     Where none does, the relation is returned with no causes (``exact`` False).
     """
-    if nominal.controller is None or rec.y_step != 1 or rec.n_samples < 16 * nominal.ratio:
+    if nominal.controller is None or rec.y_step != 1:
         return None
+    hold = nominal.sample_phase + nominal.control_delay
+    if rec.n_samples < 4 * nominal.ratio * (hold // nominal.ratio + 6):
+        return None  # too short to hold the longest candidate's start four times over
     eq = Equation(rec, nominal)
     e0 = eq.error(nominal)
     if e0 <= EXACT:
@@ -212,7 +252,8 @@ def relate(nominal: Model, rec: LoopData) -> ControllerRelation | None:
                 notched.append((eq.error(build(nominal, trial)), trial))
     found += notched
     if not any(err <= EXACT for err, _ in found):  # least squares from the best starts
-        for _, trial in sorted(notched, key=lambda t: t[0])[:REFINED]:
+        near = [t for t in sorted(notched, key=lambda t: t[0]) if t[0] < REFINE_BELOW]
+        for _, trial in near[:REFINED]:  # (a u with its own noise is nowhere near: skipped)
             found.append(_refit(eq, nominal, trial))
     exact = [(err, ch) for err, ch in found if err <= EXACT]
     if not exact:  # no set of them closes the gap: nothing of it is used

@@ -31,7 +31,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, ParamSpec
 
 import numpy as np
@@ -328,7 +328,13 @@ def diagnose(
     noise = noise_spectrum(est, model, n=n, degree=degree, ident=ident)
     # the controller's own equation first: it settles the controller's path exactly
     relation = relate(model, est)
-    settled = relation if relation is not None and relation.exact else None
+    if relation is not None and relation.exact and relation.choices:
+        # what closes the equation must also make the loop explain y better; where it makes
+        # it worse, the channels are skewed in time rather than the controller changed
+        check = Objective(est, model, noise)
+        if not check.cost(build(model, relation.choices)) < check.cost(model):
+            relation = replace(relation, contradicted=True)
+    settled = relation if relation is not None and relation.settles else None
     fixed = settled.choices if settled is not None else []
     base = build(model, fixed)
     full = Objective(est, base, noise)
@@ -388,7 +394,7 @@ def _settled(obj: Objective, nominal: Model, rel: ControllerRelation | None) -> 
     (the values were not fitted there, so they count no parameter); its std from the
     equation.
     """
-    if rel is None or not rel.exact:
+    if rel is None or not rel.settles:
         return []
     out = []
     for j, c in enumerate(rel.choices):

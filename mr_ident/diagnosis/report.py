@@ -84,6 +84,7 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
         if d.relation is None
         else {
             "exact": d.relation.exact,
+            "contradicted": d.relation.contradicted,
             "error_before": d.relation.error_before,
             "error_after": d.relation.error_after,
             "tolerance": EXACT,
