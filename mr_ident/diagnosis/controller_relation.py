@@ -14,7 +14,9 @@ cause of the plant is sought:
   (:func:`relate`): a notch, a delay or an offset the machine has and the model lacks
   brings the residual to rounding, and is then known to the precision of the numbers,
   however little r excites the loop where it acts (on the y criterion alone a shallow,
-  wide notch was determined to 5-50 %, not 2 %);
+  wide notch was determined to 5-50 %, not 2 %); unless they make the loop explain y
+  worse (:attr:`ControllerRelation.contradicted`, checked by the diagnosis): then u and
+  y are more likely logged skewed in time, and nothing of the equation is used;
 - where no set of them does, the logged u is not the controller's output for the
   logged y (a u measured rather than commanded, with its own noise; a controller unlike
   the model in a way outside the vocabulary): the relation is reported and left out,
@@ -25,8 +27,9 @@ criterion, :mod:`~mr_ident.diagnosis.objective`) times that of u given y and r (
 equation), so the two hold separate evidence and nothing is counted twice.
 
 The controller's state when the record began is unknown: its free responses (an
-integrator's constant among them) are projected out, as the loop's are in the criterion;
-the first periods, whose held outputs were computed before the record, are left out.
+integrator's constant among them) are projected out, as the loop's are in the criterion,
+and so is a constant per channel of u (a trim, an offset of y through K_l); the first
+periods, whose held outputs were computed before the record, are left out.
 """
 
 from __future__ import annotations
