@@ -14,9 +14,10 @@ cause of the plant is sought:
   (:func:`relate`): a notch, a delay or an offset the machine has and the model lacks
   brings the residual to rounding, and is then known to the precision of the numbers,
   however little r excites the loop where it acts (on the y criterion alone a shallow,
-  wide notch was determined to 5-50 %, not 2 %); unless they make the loop explain y
-  worse (:attr:`ControllerRelation.contradicted`, checked by the diagnosis): then u and
-  y are more likely logged skewed in time, and nothing of the equation is used;
+  wide notch was determined to 5-50 %, not 2 %); unless a delay or offset alone closes
+  it and makes the loop explain y worse (:attr:`ControllerRelation.contradicted`,
+  checked by the diagnosis): then u and y are more likely logged skewed in time, and
+  nothing of the equation is used;
 - where no set of them does, the logged u is not the controller's output for the
   logged y (a u measured rather than commanded, with its own noise; a controller unlike
   the model in a way outside the vocabulary): the relation is reported and left out,
@@ -81,10 +82,10 @@ class ControllerRelation:
     samples : int
         High-rate samples the equation was checked on.
     contradicted : bool
-        The causes that close the equation make the loop explain y worse than without
-        them (:func:`~mr_ident.diagnosis.diagnose.diagnose` checks): the logged channels
-        are then more likely skewed in time than the controller changed, and nothing of
-        the equation is used.
+        The delay or offset that closes the equation makes the loop explain y worse than
+        without it (:func:`~mr_ident.diagnosis.diagnose.diagnose` checks): the logged
+        channels are then more likely skewed in time than the controller changed, and
+        nothing of the equation is used.
     """
 
     error_before: float
