@@ -329,12 +329,12 @@ def diagnose(
     # the controller's own equation first: it settles the controller's path exactly
     relation = relate(model, est)
     shifts = relation.choices if relation is not None and relation.exact else []
-    if shifts and all(CAUSES[c.cause].discrete for c in shifts):
+    if relation is not None and shifts and all(CAUSES[c.cause].discrete for c in shifts):
         # a delay or offset that closes the equation must also make the loop explain y
         # better; where it makes it worse, the channels are skewed in time (a shift of y
         # against u reads as one), not the controller changed (a notch is no skew)
         check = Objective(est, model, noise)
-        if not check.cost(build(model, relation.choices)) < check.cost(model):
+        if not check.cost(build(model, shifts)) < check.cost(model):
             relation = replace(relation, contradicted=True)
     settled = relation if relation is not None and relation.settles else None
     fixed = settled.choices if settled is not None else []
