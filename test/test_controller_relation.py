@@ -159,3 +159,17 @@ def test_y_logged_a_sample_late_is_not_taken_for_a_control_delay():
     dg = diagnose(sc.nominal, skewed)
     assert dg.relation is not None and dg.relation.contradicted  # ...but not y: not applied
     assert "skewed in time" in dg.relation.text()
+
+
+def test_a_control_delay_shorter_than_modelled():
+    from mr_ident import simulate
+
+    sc = draw_scenario(["gain_error"], np.random.default_rng(44), duration=8.0)
+    model = replace(sc.nominal, control_delay=3)
+    true = replace(model, control_delay=1)
+    assert np.all(np.abs(loop_poles(true)) < 1)  # (the model's own loop need not be stable)
+    rel = relate(model, simulate(true, duration=8.0, rng=np.random.default_rng(1)))
+    assert rel is not None and rel.exact
+    assert [(c.cause, c.x) for c in rel.choices] == [("control_delay", (-2.0,))]
+    text = CAUSES["control_delay"].describe({"delay_samples": -2.0})
+    assert text == "the control output is applied 2 high-rate samples earlier than modelled"

@@ -134,8 +134,8 @@ class ControllerRelation:
             f"the logged u is not the model controller's output for the logged y ({pct} rms "
             "apart, and no notch, delay or offset closes the gap): u may be measured rather "
             "than commanded (with noise of its own), u and y may be logged skewed in time, "
-            "or the controller differs in a way outside the vocabulary (a shorter delay than "
-            "modelled, a feedforward that is not constant); its causes are judged on y"
+            "or the controller differs in a way outside the vocabulary (a feedforward that "
+            "is not constant, a filter other than a notch); its causes are judged on y"
         )
 
 
@@ -222,7 +222,8 @@ def relate(nominal: Model, rec: LoopData) -> ControllerRelation | None:
 
     None in open loop or with y at the low rate (the controller's samples are not all
     logged). Otherwise the nominal's error; where it exceeds :data:`EXACT`, every
-    combination of a control delay (0 to 2F samples) and a sampling offset (every phase)
+    combination of a control delay (the model's less down to none, or up to 2F samples
+    more) and a sampling offset (every phase)
     is tried, each without and with a notch (started by :func:`notch_start`, refined by
     least squares where no start closes the gap); of the sets that bring the equation
     to :data:`EXACT`, the one with the fewest values is kept (then the smallest error).
@@ -241,7 +242,10 @@ def relate(nominal: Model, rec: LoopData) -> ControllerRelation | None:
 
     def values(name: str) -> list[list[Choice]]:
         cause = sides.get(name)
-        return [[]] + ([[Choice(name, (v,))] for v in cause.values(nominal)] if cause else [])
+        vals = cause.values(nominal) if cause else []
+        if name == "control_delay" and cause:  # shorter than modelled, too
+            vals = [float(-k) for k in range(1, nominal.control_delay + 1)] + vals
+        return [[]] + [[Choice(name, (v,))] for v in vals]
 
     found: list[tuple[float, list[Choice]]] = []
     notched: list[tuple[float, list[Choice]]] = []

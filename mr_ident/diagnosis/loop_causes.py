@@ -58,6 +58,11 @@ class ControlDelay(_LoopCause):
     def describe(self, params: Params) -> str:
         """In words."""
         k = int(params["delay_samples"])
+        if k < 0:  # from the controller's equation: the model's delay was too long
+            return (
+                f"the control output is applied {-k} high-rate sample{'s' * (k != -1)} earlier "
+                "than modelled"
+            )
         return f"the control output is applied {k} high-rate sample{'s' * (k != 1)} later"
 
 
