@@ -49,6 +49,7 @@ from ..numerics.signals import LoopData
 from ..numerics.simulate import StateRecursion
 from ..numerics.systems import StateSpace
 from .causes import Cause, Choice, Params, clip
+from .fitting import Continuous
 from .objective import project_out
 from .registry import CAUSES, build
 
@@ -329,32 +330,15 @@ def notch_start(eq: Equation, base: Model) -> Choice | None:
     return Choice(cause.name, tuple(float(v) for v in clip(x, lo, hi)))
 
 
-def _continuous(nominal: Model, choices: list[Choice]) -> list[int]:
-    return [j for j, c in enumerate(choices) if not CAUSES[c.cause].discrete]
-
-
 def _refit(eq: Equation, nominal: Model, choices: list[Choice]) -> tuple[float, list[Choice]]:
     """Every continuous value of ``choices`` fitted on the equation: (error, choices)."""
-    cont = _continuous(nominal, choices)
+    v = Continuous.of(nominal, choices)
     start = eq.error(build(nominal, choices))
-    if not cont:
+    if not v.cont:
         return start, choices
-    bounds = [CAUSES[choices[j].cause].bounds(nominal, choices[j]) for j in cont]
-    sizes = [len(choices[j].x) for j in cont]
-    lo = np.concatenate([b[0] for b in bounds])
-    hi = np.concatenate([b[1] for b in bounds])
-    sc = np.concatenate([b[2] for b in bounds])
-    x0 = clip(np.concatenate([choices[j].x for j in cont]), lo, hi)
-
-    def unpack(x: FloatArray) -> list[Choice]:
-        out, k = list(choices), 0
-        for j, n in zip(cont, sizes, strict=True):
-            out[j] = replace(choices[j], x=tuple(float(v) for v in x[k : k + n]))
-            k += n
-        return out
 
     def res(x: FloatArray) -> FloatArray:
-        r = eq.residual(build(nominal, unpack(x)))
+        r = eq.residual(build(nominal, v.unpack(x)))
         return r if np.all(np.isfinite(r)) else np.full(r.shape, 1e3)
 
     with warnings.catch_warnings():
@@ -362,9 +346,9 @@ def _refit(eq: Equation, nominal: Model, choices: list[Choice]) -> tuple[float, 
         try:
             sol = scipy.optimize.least_squares(
                 res,
-                x0,
-                bounds=(lo, hi),
-                x_scale=sc,
+                clip(v.x, v.lower, v.upper),
+                bounds=(v.lower, v.upper),
+                x_scale=v.scale,
                 max_nfev=60,
                 ftol=1e-15,
                 xtol=1e-15,
@@ -374,7 +358,7 @@ def _refit(eq: Equation, nominal: Model, choices: list[Choice]) -> tuple[float, 
             x = np.asarray(sol.x, float)
         except (ValueError, np.linalg.LinAlgError):
             return start, choices
-    fitted = unpack(x)
+    fitted = v.unpack(x)
     err = eq.error(build(nominal, fitted))
     return (err, fitted) if err < start else (start, choices)
 

@@ -82,7 +82,7 @@ def solve_linear(obj: Objective, cause: Cause, current: Model, choice: Choice) -
 
 
 @dataclass(frozen=True)
-class _Continuous:
+class Continuous:
     """The continuous values of a set of choices as one vector (discrete ones left fixed).
 
     ``cont``: indices of the continuous choices; ``sizes``: their values' counts; ``x``,
@@ -98,7 +98,8 @@ class _Continuous:
     scale: FloatArray
 
     @classmethod
-    def of(cls, nominal: Model, choices: list[Choice]) -> _Continuous:
+    def of(cls, nominal: Model, choices: list[Choice]) -> Continuous:
+        """The continuous values of ``choices`` with their causes' bounds and scales."""
         cont = [j for j, c in enumerate(choices) if not CAUSES[c.cause].discrete]
         parts = [CAUSES[choices[j].cause].bounds(nominal, choices[j]) for j in cont]
         x = [np.asarray(choices[j].x, float) for j in cont]
@@ -129,7 +130,7 @@ def joint_refit(
     obj: Objective, nominal: Model, choices: list[Choice], *, max_nfev: int = 30
 ) -> tuple[list[Choice], float]:
     """Every continuous parameter of ``choices`` re-fitted together (discrete ones fixed)."""
-    v = _Continuous.of(nominal, choices)
+    v = Continuous.of(nominal, choices)
     start = obj.cost(build(nominal, choices))
     if not v.cont:
         return choices, start
@@ -159,7 +160,7 @@ def parameter_std(obj: Objective, nominal: Model, choices: list[Choice]) -> list
     Discrete values are given std 0; a singular direction (a value the data do not
     determine) gets inf.
     """
-    v = _Continuous.of(nominal, choices)
+    v = Continuous.of(nominal, choices)
     cont, sizes = v.cont, v.sizes
     out: list[Params] = [{k: 0.0 for k in CAUSES[c.cause].named(c, nominal)} for c in choices]
     if not cont:
