@@ -175,16 +175,22 @@ class Equation:
         """High-rate samples the residual covers."""
         return self.F * self.M - self.start
 
+    def outputs(self, model: Model) -> tuple[FloatArray, FloatArray]:
+        """``model``'s controller on the y it samples: outputs from rest and free responses.
+
+        Shapes (M, n_u) and (M, n_u, nk), one row per low-rate period.
+        """
+        K = model.controller_ss()
+        ys = self.y[model.sample_phase :: self.F][: self.M]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # a defective controller: the direct recursion
+            return StateRecursion(K).run(ys), _free_responses(K, self.M)
+
     def residual(self, model: Model) -> FloatArray:
         """``(u - û) / scale`` from :attr:`start` on, free responses projected out (flat)."""
         F, M = self.F, self.M
-        K = model.controller_ss()
-        phase, hold = model.sample_phase, model.sample_phase + model.control_delay
-        ys = self.y[phase : phase + F * M : F][:M]
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # a defective controller: the direct recursion
-            uc = StateRecursion(K).run(ys)  # (M, n_u), the controller's outputs from rest
-            free = _free_responses(K, M)  # (M, n_u, nk)
+        hold = model.sample_phase + model.control_delay
+        uc, free = self.outputs(model)
         idx = np.arange(self.start, F * M)
         i, m = idx % F, idx // F
         j = -((i - hold) // F)  # the output held at sample i is the one of period m - j
@@ -286,15 +292,8 @@ def notch_start(eq: Equation, base: Model) -> Choice | None:
     zeros). Exact on an exact record; elsewhere a start for least squares.
     """
     F, M = eq.F, eq.M
-    K = base.controller_ss()
     hold = base.sample_phase + base.control_delay
-    ys = eq.y[base.sample_phase : base.sample_phase + F * M : F][:M]
-    if ys.shape[0] < M:
-        return None
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        z = StateRecursion(K).run(ys)  # (M, n_u)
-        free = _free_responses(K, M)  # (M, n_u, nk)
+    z, free = eq.outputs(base)
     jl = -((F - 1 - hold) // F)  # the last sample of period m holds u_c[m - jl]
     k = np.arange(max(eq.start // F, 2), M - jl)
 
