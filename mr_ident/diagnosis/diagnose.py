@@ -329,17 +329,21 @@ def diagnose(
     # the controller's own equation first: it settles the controller's path exactly
     relation = relate(model, est)
     shifts = relation.choices if relation is not None and relation.exact else []
+    nominal_criterion = None
     if relation is not None and shifts and all(CAUSES[c.cause].discrete for c in shifts):
         # a delay or offset that closes the equation must also make the loop explain y
         # better; where it makes it worse, the channels are skewed in time (a shift of y
         # against u reads as one), not the controller changed (a notch is no skew)
-        check = Objective(est, model, noise)
-        if not check.cost(build(model, shifts)) < check.cost(model):
+        nominal_criterion = Objective(est, model, noise)
+        if not nominal_criterion.cost(build(model, shifts)) < nominal_criterion.cost(model):
             relation = replace(relation, contradicted=True)
     settled = relation if relation is not None and relation.settles else None
     fixed = settled.choices if settled is not None else []
     base = build(model, fixed)
-    full = Objective(est, base, noise)
+    if nominal_criterion is not None and not fixed:  # the skew's check built it already
+        full = nominal_criterion
+    else:
+        full = Objective(est, base, noise)
     unit = est.period or model.ratio
     n_screen = est.n_samples if est.period else min(est.n_samples, SCREEN_SAMPLES // unit * unit)
     screen = full if n_screen == est.n_samples else Objective(est.part(0, n_screen), base, noise)
