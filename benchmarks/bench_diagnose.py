@@ -320,12 +320,10 @@ def z_scores(records: list[dict]) -> np.ndarray:
             continue
         for h in r.get("hidden", []):
             got = next((a for a in r["applied"] if a["cause"] == h["cause"]), None)
-            if got is None:
+            if got is None or got.get("settled"):  # the equation's std: rounding, not noise
                 continue
             for key, true in h["parameters"].items():
                 sd = (got.get("std") or {}).get(key)
-                if got.get("settled"):  # fixed by the controller's equation: rounding, not noise
-                    continue
                 if sd and math.isfinite(sd) and key in got["parameters"]:
                     out.append((got["parameters"][key] - true) / sd)
     return np.asarray(out, float)
