@@ -45,10 +45,14 @@ def _scaled(model: Model, gain: float) -> Model:
 
 
 def _noise_free_errors(seed: int, **kw):
-    """Relative error of the PFG from data and the alias range rho (window n of the fit)."""
+    """Relative error of the PFG from data and the alias range rho (window n of the fit).
+
+    The fixed default window (``n=None``), so that rho is the fit's own; with ``n="auto"``
+    each bin has its own window (the property holds per bin with that bin's rho).
+    """
     loop, model = _loop(seed)
     sim = simulate(model, reference=loop.reference, noise=np.zeros_like(loop.reference))
-    res = _identify(model, sim, **kw)
+    res = _identify(model, sim, **{"n": None, **kw})
     N = sim.r.shape[0]
     assert res.pfg_data is not None and res.pfg_data.source == DATA_PFG_SOURCE
     with warnings.catch_warnings():
@@ -119,12 +123,15 @@ def test_every_method_gives_the_same_pfg_from_data(method):
 @pytest.mark.parametrize("method", ["time-lifted", "structured"])
 def test_every_method_gives_the_same_rational_pfg_from_data(method):
     """The extra fit has the method's local model: with ``local="rational"`` the same fit of
-    r -> [y; u] (one denominator) as freq-lifted's, its denominator term in the std."""
+    r -> [y; u] (one denominator) as freq-lifted's, its denominator term in the std. At the
+    fixed window: with ``n="auto"`` freq-lifted's PFG comes from its own chosen widths."""
     loop, model = _loop(3, duration=10.0)
     sim = simulate(model, reference=loop.reference, rng=np.random.default_rng(5))
     sim = replace(sim, y=sim.y + 1e-3 * np.random.default_rng(1).standard_normal(sim.y.shape))
-    ref = _identify(model, sim, local="rational", keep_lifted=False).pfg_data
-    got = _identify(model, sim, local="rational", method=method, keep_lifted=False).pfg_data
+    ref = _identify(model, sim, local="rational", keep_lifted=False, n=None).pfg_data
+    got = _identify(
+        model, sim, local="rational", method=method, keep_lifted=False, n=None
+    ).pfg_data
     np.testing.assert_allclose(got.gain, ref.gain, rtol=1e-9)
     np.testing.assert_allclose(got.std, ref.std, rtol=1e-6)
     poly = _identify(model, sim, method=method, keep_lifted=False).pfg_data

@@ -11,21 +11,22 @@ shared with the node's configuration.
 from __future__ import annotations
 
 import warnings
-from dataclasses import replace
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import ConfigError, DataError, DimensionError
-from .arrays import FloatArray
-from .bandwidth import candidates, select
+from .arrays import FloatArray, IntArray
+from .bandwidth import candidates, centre_bins, choose_widths, probe_runs
 from .lifting import check_ratio
 from .local import check_local, smallest_n
 from .local import check_options as check_local_options
-from .methods import METHODS, FitRequest, Method, PlantFit
+from .methods import METHODS, FitRequest, Method, PlantFit, Spectra
 from .pfg import pfg_from_plant
 from .pfg_data import fit_data_pfg
 from .results import FRF, PFG, Identification
+from .segments import Run, runs_of
 from .signals import y_at_low_rate
 from .threads import one_blas_thread, resolve_workers
 
@@ -178,9 +179,11 @@ def identify(
         F = h_l / h_h.
     method : {"freq-lifted", "time-lifted", "lpm", "structured", "etfe"}
     n : int, "auto" or None, default "auto"
-        LPM window half-width. ``"auto"``: per frequency, the candidate of least estimated
+        LPM window half-width. ``"auto"``: per centre bin (a low-rate bin of a lifted
+        method: one window for its F aliases), the candidate of least estimated
         mean-squared error among :func:`~mr_ident.numerics.bandwidth.candidates` from
-        :func:`default_n` up to 4 times that (as the record allows); see
+        :func:`default_n` up to 4 times that (as the record allows), the candidates fitted
+        on a probe of about 2 % of the bins, then one fit with the chosen widths; see
         :mod:`mr_ident.numerics.bandwidth`. None: :func:`default_n` (8 for a SISO loop up
         to F = 3). The n used per bin is ``Identification.n_used``.
     degree : int
@@ -211,8 +214,9 @@ def identify(
     -------
     Identification
         ``plant``: P_h on the bins (0, fs_high/2], shape (N//2, n_y, n_u), with its std;
-        ``pfg_data``: the PFG from data alone (the lifted r -> y fit at the base window,
-        whatever the method; None for a low-rate y), ``pfg``: the PFG from P_h and
+        ``pfg_data``: the PFG from data alone (the lifted r -> y fit: freq-lifted's own,
+        with its windows; for the other methods a lifted fit at the base window; None for
+        a low-rate y), ``pfg``: the PFG from P_h and
         ``controller_low`` when given.
 
     Raises
@@ -279,33 +283,42 @@ def identify(
     if auto and m.uses_lpm:
         ns = candidates(n0, (N // (2 * m.lift(F)) - 1) // 2)
 
-    def fit_with(nj: int, keep: bool, data_pfg: bool) -> PlantFit:
+    spectra = Spectra(ra, ua, ya, n_workers)
+
+    def fit_with(nj: int, keep: bool, data_pfg: bool, runs: tuple[Run, ...] | None) -> PlantFit:
         qj = check_options(method, nj, degree, F, ra.shape[1], max(ny, nu), local)
         return m.fit(
             FitRequest(
-                ra, ua, ya, F, nj, degree, qj, keep, n_workers, local, data_pfg, int(y_phase)
+                ra,
+                ua,
+                ya,
+                F,
+                nj,
+                degree,
+                qj,
+                keep,
+                n_workers,
+                local,
+                data_pfg,
+                int(y_phase),
+                runs,
+                spectra,
             )
         )
 
+    n_used = np.full(N // 2 + 1, ns[0] if m.uses_lpm else 0, dtype=np.int64)
     with one_blas_thread():
-        fits = [fit_with(nj, keep_lifted and j == 0, j == 0) for j, nj in enumerate(ns)]
+        runs = None
+        if len(ns) > 1:  # the automatic window: candidates on a probe, then one fit
+            widths = _choose_widths(ns, m.lift(F), N, fit_with)
+            runs = runs_of(widths)
+            n_used = widths[centre_bins(N, m.lift(F))]
+        fit = fit_with(n0, keep_lifted, True, runs)
         pfg_data = (
             None
             if slow
-            else _data_pfg(fits[0], ra, ua, ya, F, n0, degree, local, n_workers, float(fs_high))
+            else _data_pfg(fit, ra, ua, ya, F, n0, degree, local, n_workers, float(fs_high))
         )
-    fit = fits[0]
-    n_used = np.full(N // 2 + 1, ns[0] if m.uses_lpm else 0, dtype=np.int64)
-    if len(ns) > 1:
-        more = fits
-        choice = select(
-            ns,
-            np.stack([f.P_half for f in more]),
-            np.stack([f.var_half for f in more]),
-            halfwidth=ns[-1],
-        )
-        fit = replace(fit, P_half=choice.response, var_half=choice.variance)
-        n_used = choice.n
     std_half = np.sqrt(np.maximum(fit.var_half, 0.0))
     freq = np.arange(1, N // 2 + 1) * fs_high / N
     plant = FRF(freq, fit.P_half[1:], std_half[1:], method)
@@ -341,6 +354,33 @@ def identify(
     )
 
 
+def _choose_widths(
+    ns: tuple[int, ...],
+    lift: int,
+    n_samples: int,
+    fit_with: Callable[[int, bool, bool, tuple[Run, ...] | None], PlantFit],
+) -> IntArray:
+    """The half-width of every centre bin: each candidate fitted on the probe, then the rule.
+
+    :func:`~mr_ident.numerics.bandwidth.probe_runs` and
+    :func:`~mr_ident.numerics.bandwidth.choose_widths`; only the probed bins of each
+    candidate are kept meanwhile.
+    """
+    n_centres = (n_samples // lift) // 2 + 1
+    probe = probe_runs(n_centres, ns[-1])
+    centre_of = centre_bins(n_samples, lift)
+    fits = [fit_with(nj, False, False, tuple((a, b, nj) for a, b in probe)) for nj in ns]
+    probed = np.flatnonzero(np.isfinite(fits[0].P_half).all(axis=(1, 2)))
+    return choose_widths(
+        ns,
+        np.stack([f.P_half[probed] for f in fits]),
+        np.stack([f.var_half[probed] for f in fits]),
+        centre_of[probed],
+        n_centres,
+        halfwidth=ns[-1],
+    )
+
+
 #: The source of the PFG identified from data alone (:attr:`Identification.pfg_data`).
 DATA_PFG_SOURCE = "data:lifted r->y"
 
@@ -359,6 +399,7 @@ def _data_pfg(
 ) -> PFG | None:
     """The PFG from freq-lifted's fit r -> [y; u]: the method's own, else that fit once more.
 
+    freq-lifted's own fit has the method's windows (the chosen widths with ``n="auto"``).
     The extra fit has the method's local model and takes the larger of the method's window
     ``n`` (the base window with ``n="auto"``) and freq-lifted's default for that model
     (:func:`default_n`), so every method gives freq-lifted's PFG from data; None (with a

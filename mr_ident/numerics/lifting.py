@@ -183,7 +183,7 @@ def freq_lift(X: ArrayLike, ratio: int) -> AnyArray:
 
 
 def freq_lift_half(
-    half: list[ComplexArray], bins: range, ratio: int, n_samples: int
+    half: list[ComplexArray], bins: range | IntArray, ratio: int, n_samples: int
 ) -> ComplexArray:
     """Frequency-lifted spectrum ``X_tilde(k)`` of a real signal on consecutive low-rate bins.
 
@@ -191,9 +191,9 @@ def freq_lift_half(
     ----------
     half : list of ndarray, each (N//2+1,)
         :func:`half_spectrum` of the signal (c columns).
-    bins : range
-        Consecutive low-rate bins k (may reach below 0 or beyond M: the spectrum is
-        periodic, so windows around every bin are gathered the same way).
+    bins : range or ndarray of int
+        Low-rate bins k, usually consecutive (may reach below 0 or beyond M: the spectrum
+        is periodic, so windows around every bin are gathered the same way).
     ratio, n_samples : int
         F and N.
 
@@ -204,7 +204,7 @@ def freq_lift_half(
     """
     F = check_ratio(ratio)
     M = check_multiple(n_samples, F, "n_samples")
-    idx = (np.arange(bins.start, bins.stop)[:, None] + M * np.arange(F)[None, :]) % n_samples
+    idx = (np.asarray(bins, dtype=np.int64)[:, None] + M * np.arange(F)[None, :]) % n_samples
     return spectrum_bins(half, idx, n_samples).reshape(idx.shape[0], -1)
 
 
@@ -417,7 +417,7 @@ def unlift_variance(
 
 
 def low_rate_lift_half(
-    half: list[ComplexArray], bins: range, ratio: int, n_low: int
+    half: list[ComplexArray], bins: range | IntArray, ratio: int, n_low: int
 ) -> ComplexArray:
     """``sqrt(F) Y_l(k)`` of a low-rate signal on consecutive low-rate bins (the row's output).
 
@@ -425,8 +425,8 @@ def low_rate_lift_half(
     ----------
     half : list of ndarray, each (M//2+1,)
         :func:`half_spectrum` of the low-rate signal (M = ``n_low`` samples, c columns).
-    bins : range
-        Consecutive low-rate bins k (may reach below 0 or beyond M).
+    bins : range or ndarray of int
+        Low-rate bins k, usually consecutive (may reach below 0 or beyond M).
     ratio, n_low : int
         F and M.
 
@@ -435,7 +435,7 @@ def low_rate_lift_half(
     ndarray, shape (len(bins), c)
     """
     F = check_ratio(ratio)
-    idx = np.arange(bins.start, bins.stop)[:, None] % n_low
+    idx = np.asarray(bins, dtype=np.int64)[:, None] % n_low
     out: ComplexArray = np.sqrt(F) * spectrum_bins(half, idx, n_low)[:, 0]
     return out
 

@@ -11,9 +11,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from ..errors import ConfigError
 from . import lpm, lrm
-from .arrays import ComplexArray
+from .arrays import ComplexArray, IntArray
 from .catalog import LOCAL_MODELS
 from .lrm import DenominatorTerm
 
@@ -67,6 +69,21 @@ class LocalFit:
     n_bad: int
     dof: int
     den: DenominatorTerm | None = None
+
+    def take(self, keep: IntArray) -> LocalFit:
+        """The fit at the centre bins ``keep`` only.
+
+        As :class:`~mr_ident.numerics.segments.Segments` selects them; ``n_bad`` counts the
+        kept bins whose G is not finite.
+        """
+        G = self.G[..., keep]
+        den = self.den
+        if den is not None:
+            den = DenominatorTerm(den.gain[..., keep], den.cov[..., keep])
+        n_bad = int((~np.isfinite(G).all(axis=(0, 1))).sum())
+        return LocalFit(
+            G, self.noise_cov[..., keep], self.inv_gram[..., keep], n_bad, self.dof, den
+        )
 
 
 def local_fit(

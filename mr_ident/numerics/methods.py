@@ -28,13 +28,13 @@ function and one more row.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import DimensionError
 from . import batched
-from .arrays import ComplexArray, FloatArray
+from .arrays import BoolArray, ComplexArray, FloatArray, IntArray
 from .budget import block_bins
 from .lifting import (
     dft,
@@ -55,8 +55,37 @@ from .lpm import warn_rank_deficient
 from .lrm import DenominatorTerm
 from .pfg_data import empty_pfg, store_lifted_pfg
 from .results import LiftedFRF
+from .segments import Run, Segments, full_run, segments
 from .structured import structured_block
 from .threads import thread_map
+
+
+class Spectra:
+    """The spectra of r, u, y a method needs, computed once per identification.
+
+    :func:`~mr_ident.numerics.identify.identify` fits several windows on the same record
+    (the automatic window's candidates, then the chosen widths); they share these.
+    """
+
+    def __init__(self, r: FloatArray, u: FloatArray, y: FloatArray, workers: int) -> None:
+        self._signals = {"r": r, "u": u, "y": y}
+        self._workers = workers
+        self._half: dict[str, list[ComplexArray]] = {}
+        self._time: dict[tuple[str, int], ComplexArray] = {}
+
+    def half(self, name: str) -> list[ComplexArray]:
+        """:func:`~mr_ident.numerics.lifting.half_spectrum` of signal ``name`` (r, u or y)."""
+        if name not in self._half:
+            self._half[name] = half_spectrum(self._signals[name], workers=self._workers)
+        return self._half[name]
+
+    def time_lifted(self, name: str, ratio: int) -> ComplexArray:
+        """The M-point DFT of the time-lifted signal ``name`` (M, F c)."""
+        key = (name, ratio)
+        if key not in self._time:
+            x = time_lift(self._signals[name], ratio)
+            self._time[key] = dft(x, workers=self._workers)
+        return self._time[key]
 
 
 @dataclass(frozen=True)
@@ -67,6 +96,10 @@ class FitRequest:
     :mod:`mr_ident.numerics.local`. ``data_pfg``: a lifted method that fits r -> y also
     returns the PFG of that fit (:mod:`mr_ident.numerics.pfg_data`). ``y`` may have N/F
     rows: the output at the low rate, ``y_h[m F + y_phase]`` (``freq-lifted`` only).
+    ``runs``: the centre bins to fit and their half-widths (:mod:`mr_ident.numerics.segments`;
+    bins 0..M//2 of a lifted method, 0..N//2 of ``lpm``); None: every bin with ``n``. Bins
+    outside the runs are NaN in the result; the lifted maps are kept only when the runs
+    cover every bin. ``spectra``: shared between the fits of one record (else computed).
     """
 
     r: FloatArray
@@ -81,11 +114,31 @@ class FitRequest:
     local: str = "polynomial"
     data_pfg: bool = False
     y_phase: int = 0
+    runs: tuple[Run, ...] | None = None
+    spectra: Spectra | None = field(default=None, compare=False)
 
     @property
     def n_samples(self) -> int:
         """N."""
         return int(self.r.shape[0])
+
+    def plan(self, n_bins: int) -> tuple[Run, ...]:
+        """The runs to fit on centre bins 0..n_bins-1: :attr:`runs`, or all with :attr:`n`."""
+        return full_run(n_bins, self.n) if self.runs is None else self.runs
+
+    def half(self, name: str) -> list[ComplexArray]:
+        """The half spectrum of r, u or y (shared through :attr:`spectra` when given)."""
+        if self.spectra is not None:
+            return self.spectra.half(name)
+        x = {"r": self.r, "u": self.u, "y": self.y}[name]
+        return half_spectrum(x, workers=self.workers)
+
+    def time_lifted(self, name: str) -> ComplexArray:
+        """The DFT of the time-lifted r, u or y (shared through :attr:`spectra`)."""
+        if self.spectra is not None:
+            return self.spectra.time_lifted(name, self.ratio)
+        x = {"r": self.r, "u": self.u, "y": self.y}[name]
+        return dft(time_lift(x, self.ratio), workers=self.workers)
 
 
 @dataclass(frozen=True)
@@ -210,18 +263,18 @@ def _den_variance(g: ComplexArray, den: DenominatorTerm) -> FloatArray:
 def _store_half(
     P_half: ComplexArray,
     var_half: FloatArray,
-    bins: range,
+    bins: IntArray,
     P: ComplexArray,
     var: FloatArray,
     ratio: int,
     n_samples: int,
 ) -> None:
-    """Write unlifted estimates (K, F, n_y, n_u) of low-rate ``bins`` to the half spectrum.
+    """Write unlifted estimates (K, F, n_y, n_u) of low-rate ``bins`` (K,) to the half spectrum.
 
     Alias by alias, the bins at or below N/2 as they are, those above conjugated at N -
     kappa.
     """
-    kappa = unlift_bins(np.arange(bins.start, bins.stop), ratio, n_samples)
+    kappa = unlift_bins(bins, ratio, n_samples)
     for l in range(ratio):
         idx, upper = fold_half(kappa[:, l], n_samples)
         for sel, value in ((~upper, P[:, l]), (upper, np.conj(P[:, l]))):
@@ -229,40 +282,46 @@ def _store_half(
             var_half[idx[sel]] = var[sel, l]
 
 
+def _fit_segment(seg: Segments, fit: LocalFit) -> LocalFit:
+    """The engine's fit over ``seg.window`` reduced to the segment's centre bins."""
+    return fit if seg.whole else fit.take(seg.keep)
+
+
 def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
     F = req.ratio if ratio is None else ratio
-    N, n = req.n_samples, req.n
+    N = req.n_samples
     ny, nu = req.y.shape[1], req.u.shape[1]
     M, half = N // F, N // 2
-    Rh, Uh, Yh = (half_spectrum(x, workers=req.workers) for x in (req.r, req.u, req.y))
+    Rh, Uh, Yh = (req.half(x) for x in ("r", "u", "y"))
     Kc = M // 2
     P_half = np.full((half + 1, ny, nu), np.nan + 0j)
     var_half = np.full((half + 1, ny, nu), np.nan)
     slow = req.y.shape[0] != N  # y at the low rate: r -> y is one lifted block row
     n_row = ny if slow else F * ny  # rows of the r -> y part of the fit
-    keep = req.keep_lifted and ratio is None and not slow
+    plan = req.plan(Kc + 1)
+    keep = req.keep_lifted and ratio is None and not slow and _covers(plan, Kc + 1)
     pfg = empty_pfg(N) if req.data_pfg and ratio is None and not slow else None
 
     step = block_bins(F, req.r.shape[1], max(ny, nu))
 
-    def block(b0: int) -> tuple[int, int, tuple[ComplexArray, ...] | None]:
-        """Lift, fit, indirect step and unlift one block of bins.
+    def block(seg: Segments) -> tuple[int, int, tuple[ComplexArray, ...] | None]:
+        """Lift, fit, indirect step and unlift one segment of bins.
 
-        Blocks bound the memory and run on threads; each writes only its own bins.
+        Segments bound the memory and run on threads; each writes only its own bins.
         """
-        kb = range(b0, min(b0 + step, Kc + 1))
-        window = range(kb.start - n, kb.stop + n)
+        window, kb = seg.window, seg.bins
         Yl = low_rate_lift_half(Yh, window, F, M) if slow else freq_lift_half(Yh, window, F, N)
         fit = local_fit(
             req.local,
             freq_lift_half(Rh, window, F, N),
             np.concatenate([Yl, freq_lift_half(Uh, window, F, N)], axis=1),
-            n,
+            seg.n,
             req.degree,
         )  # bins-last
+        fit = _fit_segment(seg, fit)
         P, rdiag, cdiag, extra = _indirect_diag(fit, n_row)
         if slow:
-            Pk = unlift_row(P.transpose(2, 0, 1), F, np.arange(kb.start, kb.stop), N, req.y_phase)
+            Pk = unlift_row(P.transpose(2, 0, 1), F, kb, N, req.y_phase)
             var = unlift_row_variance(rdiag.T, cdiag.T, F)
             if extra is not None:  # (n_y, F n_u, K): entry (a, l n_u + b) is alias l's
                 var = var + extra.transpose(2, 0, 1).reshape(len(kb), ny, F, nu).transpose(
@@ -283,29 +342,65 @@ def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
         kept = tuple(a.transpose(2, 0, 1) for a in lifted) if keep else None
         return fit.n_bad, fit.dof, kept
 
-    done = thread_map(block, range(0, Kc + 1, step), req.workers)
-    warn_rank_deficient(sum(d[0] for d in done), Kc + 1, stacklevel=4)
+    segs = segments(plan, 1, step)
+    done = thread_map(block, segs, req.workers)
+    warn_rank_deficient(sum(d[0] for d in done), _n_centres(plan), stacklevel=4)
     pfg_half, pfg_var = (None, None) if pfg is None else pfg
     if not keep:
         return PlantFit(P_half, var_half, pfg_half=pfg_half, pfg_var_half=pfg_var)
-    G, Cv, Ainv = (np.concatenate([d[2][i] for d in done if d[2] is not None]) for i in range(3))
-    q = done[0][1]
+    G, Cv, Ainv = (
+        _in_bin_order(segs, [d[2][i] for d in done if d[2] is not None], Kc + 1) for i in range(3)
+    )
+    q = min(d[1] for d in done)
     maps = _lifted_maps(G, Cv, Ainv, F * ny, "frequency", req, q)
     return PlantFit(P_half, var_half, *maps, pfg_half, pfg_var)
 
 
+def _covers(plan: tuple[Run, ...], n_bins: int) -> bool:
+    """The runs fit every centre bin 0..n_bins-1."""
+    return sum(b - a for a, b, _ in plan) == n_bins
+
+
+def _n_centres(plan: tuple[Run, ...]) -> int:
+    return sum(b - a for a, b, _ in plan)
+
+
+def _in_bin_order(segs: list[Segments], parts: list[ComplexArray], n_bins: int) -> ComplexArray:
+    """Bins-first arrays of the segments (each (len(seg.bins), ...)) put in bin order."""
+    if len(parts) == 1:
+        return parts[0]
+    out = np.empty((n_bins,) + parts[0].shape[1:], dtype=parts[0].dtype)
+    for seg, part in zip(segs, parts, strict=True):
+        out[seg.bins] = part
+    return out
+
+
 def _time_lifted(req: FitRequest) -> PlantFit:
-    F, N, n = req.ratio, req.n_samples, req.n
+    F, N = req.ratio, req.n_samples
     ny, nu = req.y.shape[1], req.u.shape[1]
     M, half, Kc = N // F, N // 2, N // F // 2
-    Rt, Ut, Yt = (dft(time_lift(x, F), workers=req.workers) for x in (req.r, req.u, req.y))
-    idx = np.arange(-n, Kc + n + 1) % M
-    fit = local_fit(
-        req.local, Rt[idx], np.concatenate([Yt[idx], Ut[idx]], axis=1), n, req.degree, req.workers
-    )
-    warn_rank_deficient(fit.n_bad, Kc + 1, stacklevel=4)
+    Rt, Ut, Yt = (req.time_lifted(x) for x in ("r", "u", "y"))
+    plan = req.plan(Kc + 1)
+    segs = segments(plan, 1, Kc + 1)
+    fits = []
+    for seg in segs:
+        idx = seg.window % M
+        fit = local_fit(
+            req.local,
+            Rt[idx],
+            np.concatenate([Yt[idx], Ut[idx]], axis=1),
+            seg.n,
+            req.degree,
+            req.workers,
+        )
+        fits.append(_fit_segment(seg, fit))
+    warn_rank_deficient(sum(f.n_bad for f in fits), _n_centres(plan), stacklevel=4)
+    if len(fits) == 1 and segs[0].whole:
+        fit = fits[0]
+    else:
+        fit = _merged(segs, fits, Kc + 1)
     G, Cv, Ainv = (a.transpose(2, 0, 1) for a in (fit.G, fit.noise_cov, fit.inv_gram))
-    P, row, col = _indirect_full(G, Cv, Ainv, F * ny)
+    P, row, col = _indirect_on(G, Cv, Ainv, F * ny, _fitted_mask(segs, Kc + 1))
     # The lifted system is real: its FRF on bins 0..M//2 gives all M bins, and unlifting
     # those gives every high-rate bin k + l M.
     full = [half_to_full(a, M) for a in (P, row, col)]
@@ -316,9 +411,56 @@ def _time_lifted(req: FitRequest) -> PlantFit:
     if fit.den is not None:
         var = var + _time_den_variance(fit.den, P, G[:, F * ny :], F * ny, F, M)
     var_half = var.transpose(1, 0, 2, 3).reshape(N, ny, nu)[: half + 1]
-    if not req.keep_lifted:
+    if not req.keep_lifted or not _covers(plan, Kc + 1):
         return PlantFit(P_half, var_half)
-    return PlantFit(P_half, var_half, *_lifted_maps(G, Cv, Ainv, F * ny, "time", req, fit.dof))
+    q = min(f.dof for f in fits)
+    return PlantFit(P_half, var_half, *_lifted_maps(G, Cv, Ainv, F * ny, "time", req, q))
+
+
+def _fitted_mask(segs: list[Segments], n_bins: int) -> BoolArray:
+    """True at the centre bins the segments fit."""
+    mask = np.zeros(n_bins, dtype=bool)
+    for seg in segs:
+        mask[seg.bins] = True
+    return mask
+
+
+def _merged(segs: list[Segments], fits: list[LocalFit], n_bins: int) -> LocalFit:
+    """The segments' fits on every bin 0..n_bins-1, bins last (NaN where none was fitted)."""
+
+    def put(parts: list[ComplexArray]) -> ComplexArray:
+        out = np.full(parts[0].shape[:-1] + (n_bins,), np.nan + 0j)
+        for seg, part in zip(segs, parts, strict=True):
+            out[..., seg.bins] = part
+        return out
+
+    den = None
+    if fits[0].den is not None:
+        dens = [f.den for f in fits if f.den is not None]
+        den = DenominatorTerm(put([d.gain for d in dens]), put([d.cov for d in dens]))
+    return LocalFit(
+        put([f.G for f in fits]),
+        put([f.noise_cov for f in fits]),
+        put([f.inv_gram for f in fits]),
+        sum(f.n_bad for f in fits),
+        min(f.dof for f in fits),
+        den,
+    )
+
+
+def _indirect_on(
+    G: ComplexArray, Cv: ComplexArray, Ainv: ComplexArray, n_y: int, fitted: BoolArray
+) -> tuple[ComplexArray, ComplexArray, ComplexArray]:
+    """:func:`_indirect_full` on the ``fitted`` bins; NaN on the others."""
+    if fitted.all():
+        return _indirect_full(G, Cv, Ainv, n_y)
+    parts = _indirect_full(G[fitted], Cv[fitted], Ainv[fitted], n_y)
+    out = []
+    for a in parts:
+        full = np.full((G.shape[0],) + a.shape[1:], np.nan + 0j)
+        full[fitted] = a
+        out.append(full)
+    return out[0], out[1], out[2]
 
 
 def _time_den_variance(
@@ -364,22 +506,24 @@ def _lifted_maps(
 
 
 def _structured(req: FitRequest) -> PlantFit:
-    F, N, n = req.ratio, req.n_samples, req.n
+    F, N = req.ratio, req.n_samples
     ny, nu = req.y.shape[1], req.u.shape[1]
-    Rh, Uh, Yh = (half_spectrum(x, workers=req.workers) for x in (req.r, req.u, req.y))
+    Rh, Uh, Yh = (req.half(x) for x in ("r", "u", "y"))
     Kc = N // F // 2
     P_half = np.full((N // 2 + 1, ny, nu), np.nan + 0j)
     var_half = np.full((N // 2 + 1, ny, nu), np.nan)
     step = block_bins(F, req.r.shape[1], max(ny, nu))
+    plan = req.plan(Kc + 1)
 
-    def block(b0: int) -> int:
-        """Both stages and the indirect step on one block of low-rate bins (own bins only)."""
-        kb = range(b0, min(b0 + step, Kc + 1))
-        window = range(kb.start - 2 * n, kb.stop + 2 * n)
-        Rl, Yl, Ul = (freq_lift_half(X, window, F, N) for X in (Rh, Yh, Uh))
-        fit = structured_block(Rl, Yl, Ul, F, n, req.degree, req.local)
+    def block(seg: Segments) -> int:
+        """Both stages and the indirect step on one segment of low-rate bins (own bins only)."""
+        Rl, Yl, Ul = (freq_lift_half(X, seg.window, F, N) for X in (Rh, Yh, Uh))
+        fit = structured_block(Rl, Yl, Ul, F, seg.n, req.degree, req.local)
+        if not seg.whole:  # bins ordered l * W + j over the W centres; keep the segment's
+            W = seg.window.size - 2 * seg.pad
+            fit = fit.take((np.arange(F)[:, None] * W + seg.keep[None, :]).ravel())
         P, rdiag, cdiag, extra = _indirect_diag(fit, ny)  # bins ordered l * B + j
-        B = len(kb)
+        B = seg.bins.size
         P = P.reshape(ny, nu, F, B).transpose(3, 2, 0, 1)
         var = (
             rdiag.reshape(ny, F, B).transpose(2, 1, 0)[:, :, :, None]
@@ -387,11 +531,11 @@ def _structured(req: FitRequest) -> PlantFit:
         )
         if extra is not None:
             var = var + extra.reshape(ny, nu, F, B).transpose(3, 2, 0, 1)
-        _store_half(P_half, var_half, kb, P, var, F, N)
+        _store_half(P_half, var_half, seg.bins, P, var, F, N)
         return fit.n_bad
 
-    n_bad = sum(thread_map(block, range(0, Kc + 1, step), req.workers))
-    warn_rank_deficient(n_bad, F * (Kc + 1), stacklevel=4)
+    n_bad = sum(thread_map(block, segments(plan, 2, step), req.workers))
+    warn_rank_deficient(n_bad, F * _n_centres(plan), stacklevel=4)
     return PlantFit(P_half, var_half)
 
 
@@ -406,7 +550,7 @@ def _etfe(req: FitRequest) -> PlantFit:
             f"etfe needs a SISO loop (one experiment cannot separate {nu} inputs); got "
             f"n_y={ny}, n_u={nu}"
         )
-    Uf, Yf = (half_spectrum(x, workers=req.workers)[0] for x in (req.u, req.y))
+    Uf, Yf = (req.half(x)[0] for x in ("u", "y"))
     with np.errstate(divide="ignore", invalid="ignore"):
         P = (Yf / Uf)[:, None, None]
     return PlantFit(P, np.full(P.shape, np.nan))

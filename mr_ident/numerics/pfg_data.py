@@ -21,7 +21,7 @@ import warnings
 
 import numpy as np
 
-from .arrays import ComplexArray, FloatArray
+from .arrays import ComplexArray, FloatArray, IntArray
 from .budget import block_bins
 from .lifting import fold_half, freq_lift_half, half_spectrum, unlift_bins
 from .local import local_fit
@@ -38,7 +38,7 @@ def empty_pfg(n_samples: int) -> tuple[FloatArray, FloatArray]:
 def store_lifted_pfg(
     gain_half: FloatArray,
     var_half: FloatArray,
-    bins: range,
+    bins: range | IntArray,
     J: ComplexArray,
     row_cov: ComplexArray,
     col_cov: ComplexArray,
@@ -53,8 +53,8 @@ def store_lifted_pfg(
     gain_half, var_half : ndarray, shape (N//2+1,)
         Written at the high-rate bins ``k + l M`` of ``bins`` (folded into 0..N//2: the
         PFG of a real loop is the same at kappa and N - kappa).
-    bins : range
-        Consecutive low-rate bins k of the block.
+    bins : range or ndarray of int
+        The low-rate bins k of the block.
     J : ndarray, shape (F*n_y, F*n_r, K), bins last
     row_cov : ndarray, shape (F*n_y, F*n_y, K)
     col_cov : ndarray, shape (F*n_r, F*n_r, K)
@@ -70,7 +70,7 @@ def store_lifted_pfg(
         col_cov=col_cov.transpose(2, 0, 1),
         den=den,
     )
-    kappa = unlift_bins(np.arange(bins.start, bins.stop), ratio, n_samples)
+    kappa = unlift_bins(np.asarray(bins), ratio, n_samples)
     idx, _ = fold_half(kappa.ravel(), n_samples)
     gain_half[idx] = gain.ravel()
     var_half[idx] = std.ravel() ** 2
