@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 export ROS_LOG_DIR ?= $(CURDIR)/out/ros_log
 export MPLBACKEND := Agg
 
-.PHONY: demo paper test lint bench lrm-figure bench-structured bench-alias-range bench-bag bench-live bench-diagnose bench-monitor soak motor-bench venv clean
+.PHONY: demo paper test lint docs bench lrm-figure bench-structured bench-alias-range bench-bag bench-live bench-diagnose bench-monitor soak motor-bench venv clean
 
 venv: $(STAMP)
 
@@ -30,6 +30,10 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 	$(VENV)/bin/mypy
+
+# the documentation site (docs/, mkdocs.yml) into out/site; --strict: a broken link or anchor fails
+docs: $(STAMP)
+	$(VENV)/bin/mkdocs build --strict --site-dir out/site
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_identify.py

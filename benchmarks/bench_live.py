@@ -16,7 +16,7 @@
    1 kHz grid) to a node configured with sources, at rising message rates per topic.
    A step passes when every message became a sample (no gap, none off the grid).
 
-Not a test: prints figures for the README.
+Not a test: prints figures for docs/benchmarks.md.
 """
 
 from __future__ import annotations

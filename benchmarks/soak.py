@@ -12,7 +12,7 @@ Meanwhile this script samples every process's resident memory (VmRSS) and
 records when each estimate arrives. Afterwards it checks, by sample index, that
 the node received every sample with no gap and that the recording holds every
 block exactly once, and reports RSS at start (the node's window full) and end,
-and the estimate intervals. Prints the figures for the README and writes
+and the estimate intervals. Prints the figures for docs/benchmarks.md and writes
 them to ``out/soak/soak.json``.
 
     .venv/bin/python benchmarks/soak.py [--minutes 30] [--rate 400] [--out-dir out/soak]

@@ -1,6 +1,6 @@
 """Write the bad-input corpus under test/corpus/ (run: .venv/bin/python scripts/make_corpus.py).
 
-Every file breaks the file formats of the README in exactly one way; test/test_corpus.py
+Every file breaks the file formats of docs/formats.md in exactly one way; test/test_corpus.py
 feeds each to the CLI and expects ``error: <what, where>`` on stderr, exit status 2,
 no traceback and no output file. The files are committed; this script is how they
 were made (deterministic: a fixed seed, fixed MCAP times), so a change of format

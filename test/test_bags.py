@@ -222,7 +222,8 @@ def test_a_held_low_rate_source_spreads_over_F_samples_and_gives_F(tmp_path):
 def test_a_camera_at_the_low_rate_gives_the_exact_plant(loop, tmp_path, capsys):
     """y from a camera at the controller's rate (one message per low-rate period, at the
     high-rate sample 1 of each, read with .@hold), r and u at the high rate: identify and
-    replay with --y-rate low give P_h on (0, 120] Hz (README, "Outputs at the low rate")."""
+    replay with --y-rate low give P_h on (0, 120] Hz (docs/method.md, "Outputs at the low
+    rate")."""
     model, sim = loop
     t = stamps(sim.n_samples, 240.0)
     with BagWriter(tmp_path / "cam") as bw:

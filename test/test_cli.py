@@ -169,7 +169,7 @@ print(",".join(heavy))
 )
 def test_start_up_imports_only_what_the_command_needs(setup, heavy):
     """Start-up is kept fast by what is imported, checked here without timing anything
-    (figures: README, Start-up)."""
+    (figures: docs/benchmarks.md, Start-up)."""
     code = _LOADED.format(setup=setup, heavy=heavy)
     proc = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=ROOT

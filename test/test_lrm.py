@@ -14,7 +14,7 @@ Tolerances:
   time-lifted 8e-5 against 0.12 and 0.16, structured 0.008 against 0.18); away from the
   mode rational is no worse than 10x polynomial and < 1e-4 (1e-3 structured). ``lpm`` is
   not held to it in the loop: its aliases act as noise in the denominator's regressors
-  (0.43 there, worse than polynomial's 0.18; README);
+  (0.43 there, worse than polynomial's 0.18; docs/method.md);
 * the reported std: spread over 40 fresh-noise runs / reported std in [0.8, 1.25] near
   the mode and away from it (a 100-run development check: 1.00 and 1.02; without the
   denominator's term 1.17 and 1.13).

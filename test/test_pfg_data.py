@@ -71,7 +71,7 @@ def test_the_pfg_from_data_noise_free_errs_by_the_alias_range(seed):
     """Polynomial (the default): median relative error far below 1e-4 (measured 7e-10 to
     2e-6), 74-99 % of the bins within 1e-4, the error about eps rho with eps small: the
     rest lie where a lifted row is dominated by another alias (rho large) or next to a pole
-    of the lifted loop inside the window (README, "The PFG from data")."""
+    of the lifted loop inside the window (docs/method.md, "The PFG from data")."""
     rel, rho = _noise_free_errors(seed)
     assert np.median(rel) < 1e-5, np.median(rel)
     assert np.mean(rel <= 1e-4) > 0.7, np.mean(rel <= 1e-4)

@@ -1,6 +1,6 @@
 """y measured at the low rate only: P_h on every high-rate bin from fast r, u and slow y.
 
-The rule (README, "Outputs at the low rate"): for ``y_l[m] = y_h[m F + q]``,
+The rule (docs/method.md, "Outputs at the low rate"): for ``y_l[m] = y_h[m F + q]``,
 ``sqrt(F) Y_l(k) = sum_l exp(2j pi kappa_l q / N) P_h(kappa_l) U(kappa_l)``, kappa_l = k + l M.
 """
 
