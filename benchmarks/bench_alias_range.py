@@ -25,7 +25,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from mr_ident.diagnosis.scenarios import draw_loop
+from mr_bench.scenarios import draw_loop
 from mr_ident.numerics.alias_range import pfg_alias_range, row_alias_range
 from mr_ident.numerics.identify import default_n, identify
 from mr_ident.numerics.pfg import pfg_of_model

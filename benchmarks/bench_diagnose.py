@@ -1,6 +1,6 @@
 """Benchmark: diagnose on seeded random loops with hidden causes.
 
-Every case is a loop drawn by ``mr_ident.diagnosis.scenarios.draw_scenario`` (fs_high in
+Every case is a loop drawn by ``mr_bench.scenarios.draw_scenario`` (fs_high in
 {240, 500, 1000} Hz, F in {1, 2, 3, 5}, plants of order 2-6 in modal and cascaded form,
 with and without integrators, random stabilising low-rate controllers, SNR 20-60 dB), a
 record of ``--duration`` seconds, and one hidden cause, a pair of two different causes
@@ -53,9 +53,9 @@ from typing import Any
 
 import numpy as np
 
-from mr_ident.diagnosis.information import determinable, truth_std
-from mr_ident.diagnosis.scenarios import Scenario, draw_scenario
-from mr_ident.diagnosis.verdict import (
+from mr_bench.information import determinable, truth_std
+from mr_bench.scenarios import Scenario, draw_scenario
+from mr_bench.verdict import (
     CAUSE_NAMES,
     CONFIDENCE,
     COVERAGE,

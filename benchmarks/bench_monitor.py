@@ -1,7 +1,7 @@
 """False alarms of the plant monitoring: the loop as modelled, watched over a long run.
 
 One long record of each loop (the paper's plant at 34 dB SNR, and loops drawn at random by
-``mr_ident.diagnosis.scenarios.draw_loop`` at 240 Hz) is cut into the windows the node would
+``mr_bench.scenarios.draw_loop`` at 240 Hz) is cut into the windows the node would
 identify (``window_s`` long, one every ``update_period_s``: overlapping, as live), each held
 against the loop's own model by :class:`~mr_ident.diagnosis.monitor.PlantWatch` at
 ``monitor_alpha`` = 0.01. Prints, per loop, the estimates, those with a significant bin
@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
+from mr_bench.scenarios import draw_loop
 from mr_ident.diagnosis.drift import Reference
 from mr_ident.diagnosis.monitor import PlantWatch
-from mr_ident.diagnosis.scenarios import draw_loop
 from mr_ident.io.config import IdentConfig
 from mr_ident.io.modelfile import load_model
 from mr_ident.live.estimate import estimate

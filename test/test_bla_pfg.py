@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from conftest import periodic_runs
 
-from mr_ident.diagnosis.scenarios import draw_loop
+from mr_bench.scenarios import draw_loop
 from mr_ident.numerics.bla import best_linear_approximation, lifted_line_pfg
 from mr_ident.numerics.multisine import design
 from mr_ident.numerics.pfg import pfg_of_model

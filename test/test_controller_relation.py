@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 import scipy.signal
 
+from mr_bench.scenarios import draw_loop, draw_scenario
 from mr_ident.diagnosis.controller_relation import EXACT, Equation, relate
 from mr_ident.diagnosis.registry import CAUSES
-from mr_ident.diagnosis.scenarios import draw_loop, draw_scenario
 from mr_ident.numerics.signals import LoopData
 from mr_ident.numerics.simulate import loop_poles
 

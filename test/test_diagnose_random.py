@@ -1,6 +1,6 @@
 """Randomized diagnosis: the generator of the benchmark, and a few fast seeded cases of it.
 
-The generator (mr_ident.diagnosis.scenarios, which benchmarks/bench_diagnose.py draws
+The generator (mr_bench.scenarios, which benchmarks/bench_diagnose.py draws
 hundreds of cases from) must give stable plants under stabilising controllers at the
 stated fraction of the critical gain, the stated SNR, hidden causes that keep the loop
 stable and change it, and the same scenario for the same seed.
@@ -22,7 +22,7 @@ from dataclasses import fields, replace
 import numpy as np
 import pytest
 
-from mr_ident.diagnosis.scenarios import (
+from mr_bench.scenarios import (
     MIN_CHANGE,
     RATIOS,
     HiddenCause,
@@ -31,7 +31,7 @@ from mr_ident.diagnosis.scenarios import (
     draw_scenario,
     relative_change,
 )
-from mr_ident.diagnosis.verdict import CAUSE_NAMES, MAX_FIT_GAP, TOLERANCES, Tolerance, judge
+from mr_bench.verdict import CAUSE_NAMES, MAX_FIT_GAP, TOLERANCES, Tolerance, judge
 from mr_ident.errors import ConfigError
 from mr_ident.numerics.model import Model
 from mr_ident.numerics.simulate import loop_poles, simulate

@@ -1,7 +1,7 @@
 """Drift against a reference and the monitor's hysteresis (mr_ident.diagnosis.drift, .monitor).
 
 Estimates are identified from loops simulated here (the paper's plant and loops drawn at
-random by diagnosis.scenarios), held against the model they were simulated from (no drift)
+random by mr_bench.scenarios), held against the model they were simulated from (no drift)
 and against a model whose plant differs (drift). Tolerances stated at each check.
 """
 
@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mr_bench.scenarios import draw_loop
 from mr_ident.diagnosis.drift import Drift, Reference, drift
 from mr_ident.diagnosis.monitor import RESIZE_DB, Monitor
-from mr_ident.diagnosis.scenarios import draw_loop
 from mr_ident.errors import ConfigError, DimensionError
 from mr_ident.io.modelfile import load_model
 from mr_ident.numerics.identify import identify

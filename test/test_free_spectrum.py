@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from conftest import brute_force_loop
 
-from mr_ident.diagnosis.scenarios import draw_loop
+from mr_bench.scenarios import draw_loop
 from mr_ident.numerics.simulate import LoopStream, lifted_loop
 
 

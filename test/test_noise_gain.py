@@ -16,8 +16,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from mr_bench.scenarios import draw_loop
 from mr_ident.diagnosis.noise import loop_noise_gain
-from mr_ident.diagnosis.scenarios import draw_loop
 from mr_ident.numerics.simulate import simulate
 
 

@@ -17,10 +17,10 @@ import warnings
 import numpy as np
 import pytest
 
+from mr_bench.scenarios import draw_scenario
 from mr_ident.diagnosis.diagnose import default_n, identify_record, noise_spectrum, split
 from mr_ident.diagnosis.noise import loop_noise_gain
 from mr_ident.diagnosis.objective import Objective
-from mr_ident.diagnosis.scenarios import draw_scenario
 
 
 @pytest.mark.parametrize("seed", [1, 19, 21])

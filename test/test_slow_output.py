@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mr_bench.scenarios import draw_loop
 from mr_ident.cli import main
-from mr_ident.diagnosis.scenarios import draw_loop
 from mr_ident.errors import ConfigError, DataError, DimensionError
 from mr_ident.io.datafile import read_npz
 from mr_ident.numerics.alias_range import row_alias_range

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from conftest import periodic_runs
 
-from mr_ident.diagnosis.scenarios import draw_loop
+from mr_bench.scenarios import draw_loop
 from mr_ident.errors import ConfigError, DimensionError
 from mr_ident.numerics.multisine import alias_family, design
 from mr_ident.numerics.pfg import pfg_of_model

@@ -121,7 +121,7 @@ def test_on_random_loops_structured_is_exact_noise_free_and_no_worse_than_lpm_wi
     """Two seeded random loops (the diagnosis generator: F in {2, 3}, 60 s, SNR 20-60 dB).
     Noise-free: <= 1e-7 and below lpm (measured 2e-8 and 6e-10 against lpm's 3e-8 and
     5e-6). Noisy, both n auto: within 10 % of lpm (measured 1.00x both)."""
-    from mr_ident.diagnosis.scenarios import draw_loop
+    from mr_bench.scenarios import draw_loop
 
     rng = np.random.default_rng(7)
     for _ in range(2):

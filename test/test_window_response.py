@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from conftest import brute_force_loop
 
-from mr_ident.diagnosis.scenarios import draw_loop
+from mr_bench.scenarios import draw_loop
 from mr_ident.numerics.window_response import LoopSpectrum, lifted_dft
 
 

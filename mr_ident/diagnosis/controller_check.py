@@ -9,7 +9,7 @@ controller running the loop differs from its model (its gain, its filters, its t
 Per bin ``z = |g_data - g_model| / sqrt(s_data² + s_model²)``. With the right controller
 the two errors are strongly correlated (both come from one fit; measured on random loops:
 the spread of the difference is 0.03-0.34 of that root sum of squares), so a bin beyond
-:data:`~mr_ident.diagnosis.verdict.COVERAGE` is rare; a controller that differs moves
+:data:`COVERAGE` is rare; a controller that differs moves
 the PFG wherever the loop gain matters, over bands of bins, most at the low frequencies.
 So the bins are weighed as on a log-frequency axis (weight 1/f: every decade counts the
 same), and the finding is reported when more than :data:`MIN_FRACTION` of that axis lies
@@ -30,7 +30,10 @@ import numpy as np
 
 from ..numerics.arrays import FloatArray
 from ..numerics.results import Identification
-from .verdict import COVERAGE
+
+#: Standard deviations within which a loosely determined parameter counts as consistent
+#: (the diagnosis's coverage level; the benchmark's verdict uses the same).
+COVERAGE = 3.0
 
 #: Share of the tested band (log-frequency axis) beyond COVERAGE std above which the
 #: controller differs from its model.

@@ -149,7 +149,7 @@ class Diagnosis:
     criterion : Objective or None
         The estimation criterion every cause was fitted on (the whitened time-domain
         residual of the estimation data), to score another model on the same footing
-        (:func:`~mr_ident.diagnosis.verdict.likelihood_ratio`).
+        (:func:`~mr_bench.verdict.likelihood_ratio`).
     relation : ControllerRelation or None
         The controller's own equation on the estimation data (does the logged u follow
         from the logged y through the model's controller?) and the controller-side causes

@@ -1,7 +1,7 @@
 """Whether a diagnosis found what a scenario hides: tolerances, the verdict, the judge.
 
 :func:`judge` compares what :func:`~mr_ident.diagnosis.diagnose` applied against the causes
-:func:`~mr_ident.diagnosis.scenarios.draw_scenario` hid: named first, every parameter within
+:func:`~mr_bench.scenarios.draw_scenario` hid: named first, every parameter within
 :data:`TOLERANCES`, the validation fit within :data:`MAX_FIT_GAP` of the true model's. A
 fixed tolerance asks more than some records can give (a shallow notch where r excites the
 loop little determines its frequency to 5 %, not 2 %); so the verdict also says whether the
@@ -21,17 +21,17 @@ from typing import TYPE_CHECKING
 
 import scipy.stats
 
-from .registry import CAUSES
+from mr_ident.diagnosis.controller_check import COVERAGE
+from mr_ident.diagnosis.registry import CAUSES
 
 if TYPE_CHECKING:
-    from ..numerics.model import Model
-    from .diagnose import Diagnosis
+    from mr_ident.diagnosis.diagnose import Diagnosis
+    from mr_ident.numerics.model import Model
+
     from .scenarios import Scenario
 
 #: Largest fit gap (the true model's validation fit % minus the extended model's).
 MAX_FIT_GAP = 1.0
-#: Standard deviations within which a loosely determined parameter counts as consistent.
-COVERAGE = 3.0
 #: Level of the likelihood-ratio confidence region the truth is tested against.
 CONFIDENCE = 0.99
 

@@ -2,7 +2,7 @@
 
 :func:`truth_std` is the Cramér-Rao bound of the hidden values at the truth on a
 diagnosis's criterion; :func:`determinable` says whether that bound is within the
-benchmark's tolerances (:data:`~mr_ident.diagnosis.verdict.TOLERANCES`) at all. A miss
+benchmark's tolerances (:data:`~mr_bench.verdict.TOLERANCES`) at all. A miss
 on a case the record does not determine is the record's, whoever the estimator; the
 success rate among the determinable cases is what a diagnosis can be asked for.
 """
@@ -12,12 +12,13 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
-from ..numerics.arrays import FloatArray
-from ..numerics.model import Model
-from ..numerics.signals import LoopData
-from .controller_relation import EXACT, Equation, value_std
-from .objective import Objective
-from .registry import CAUSES
+from mr_ident.diagnosis.controller_relation import EXACT, Equation, value_std
+from mr_ident.diagnosis.objective import Objective
+from mr_ident.diagnosis.registry import CAUSES
+from mr_ident.numerics.arrays import FloatArray
+from mr_ident.numerics.model import Model
+from mr_ident.numerics.signals import LoopData
+
 from .scenarios import HiddenCause, apply
 from .verdict import TOLERANCES
 

@@ -2,7 +2,7 @@
 
 :func:`draw_scenario` draws a loop (:func:`draw_loop`), hides none, one or two causes in
 it (:func:`draw_cause`, through :class:`~mr_ident.numerics.model.Model` fields) and
-simulates the true loop; :func:`~mr_ident.diagnosis.verdict.judge` tells whether a
+simulates the true loop; :func:`~mr_bench.verdict.judge` tells whether a
 diagnosis named them with their parameters within its tolerances. Draws (U uniform,
 log-U log-uniform): fs_high in {240, 500, 1000} Hz, F in {1, 2, 3, 5}; a continuous
 plant of order 2-6, with no integrator (one in two), 1/s or 1/s², in modal form (modes
@@ -25,12 +25,13 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError, MrIdentError
-from ..numerics.arrays import FloatArray
-from ..numerics.model import Model
-from ..numerics.signals import LoopData
-from ..numerics.simulate import loop_poles, simulate
-from ..numerics.systems import TransferMatrix
+from mr_ident.errors import ConfigError, MrIdentError
+from mr_ident.numerics.arrays import FloatArray
+from mr_ident.numerics.model import Model
+from mr_ident.numerics.signals import LoopData
+from mr_ident.numerics.simulate import loop_poles, simulate
+from mr_ident.numerics.systems import TransferMatrix
+
 from .verdict import CAUSE_NAMES
 
 FS_HIGH: tuple[float, ...] = (240.0, 500.0, 1000.0)
