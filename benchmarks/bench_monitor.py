@@ -26,9 +26,9 @@ from mr_ident.diagnosis.monitor import PlantWatch
 from mr_ident.io.config import IdentConfig
 from mr_ident.io.modelfile import load_model
 from mr_ident.live.estimate import estimate
-from mr_ident.numerics.model import Model
 from mr_ident.numerics.signals import LoopData
-from mr_ident.numerics.simulate import simulate
+from mr_ident.numerics.systems.model import Model
+from mr_ident.numerics.systems.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -29,7 +29,7 @@ import numpy as np
 from mr_bench.scenarios import draw_loop
 from mr_ident.io.modelfile import load_model
 from mr_ident.numerics.identify import identify
-from mr_ident.numerics.simulate import simulate
+from mr_ident.numerics.systems.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 METHODS = ("freq-lifted", "time-lifted", "lpm", "structured")

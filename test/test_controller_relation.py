@@ -21,7 +21,7 @@ from mr_bench.scenarios import draw_loop, draw_scenario
 from mr_ident.diagnosis.controller_relation import EXACT, Equation, relate
 from mr_ident.diagnosis.registry import CAUSES
 from mr_ident.numerics.signals import LoopData
-from mr_ident.numerics.simulate import loop_poles
+from mr_ident.numerics.systems.simulate import loop_poles
 
 
 def _machine_notch(f: float, zeta: float, depth: float, fs_low: float) -> tuple:

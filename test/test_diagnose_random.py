@@ -33,9 +33,9 @@ from mr_bench.scenarios import (
 )
 from mr_bench.verdict import CAUSE_NAMES, MAX_FIT_GAP, TOLERANCES, Tolerance, judge
 from mr_ident.errors import ConfigError
-from mr_ident.numerics.model import Model
-from mr_ident.numerics.simulate import loop_poles, simulate
-from mr_ident.numerics.systems import TransferMatrix
+from mr_ident.numerics.systems.lti import TransferMatrix
+from mr_ident.numerics.systems.model import Model
+from mr_ident.numerics.systems.simulate import loop_poles, simulate
 
 FS = (240.0,)  # the shortest records (7200 samples): diagnose time grows with N
 DURATION = 30.0

@@ -20,9 +20,9 @@ from mr_ident.diagnosis.monitor import RESIZE_DB, Monitor
 from mr_ident.errors import ConfigError, DimensionError
 from mr_ident.io.modelfile import load_model
 from mr_ident.numerics.identify import identify
-from mr_ident.numerics.lpm import dof as lpm_dof
-from mr_ident.numerics.lpm import smallest_n
-from mr_ident.numerics.simulate import simulate
+from mr_ident.numerics.local.lpm import dof as lpm_dof
+from mr_ident.numerics.local.lpm import smallest_n
+from mr_ident.numerics.systems.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 N_WIN, DEGREE = 8, 2
@@ -199,7 +199,7 @@ def test_plant_watch_names_a_moved_mode_and_a_delay(paper, change, cause, key, t
     from mr_ident.io.config import IdentConfig
     from mr_ident.live.estimate import estimate
     from mr_ident.numerics.signals import LoopData
-    from mr_ident.numerics.systems import TransferMatrix
+    from mr_ident.numerics.systems.lti import TransferMatrix
 
     paper = replace(paper, controller=TransferMatrix.siso([3000.0, -2700.0], [1.0, -0.3], 3 / 240))
     y = simulate(paper, duration=20.0, rng=np.random.default_rng(0)).y

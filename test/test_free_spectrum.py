@@ -16,7 +16,7 @@ import pytest
 from conftest import brute_force_loop
 
 from mr_bench.scenarios import draw_loop
-from mr_ident.numerics.simulate import LoopStream, lifted_loop
+from mr_ident.numerics.systems.simulate import LoopStream, lifted_loop
 
 
 def _residual(G: np.ndarray, y: np.ndarray) -> float:

@@ -18,7 +18,7 @@ import pytest
 
 from mr_bench.scenarios import draw_loop
 from mr_ident.diagnosis.noise import loop_noise_gain
-from mr_ident.numerics.simulate import simulate
+from mr_ident.numerics.systems.simulate import simulate
 
 
 @pytest.mark.parametrize("seed,ratio", [(7100, 1), (7101, 2), (7102, 3), (7103, 5)])

@@ -12,9 +12,9 @@ from dataclasses import replace
 import numpy as np
 
 from mr_ident.numerics.identify import identify
+from mr_ident.numerics.lifted.structured import structured_block
 from mr_ident.numerics.lifting import dft
-from mr_ident.numerics.simulate import simulate
-from mr_ident.numerics.structured import structured_block
+from mr_ident.numerics.systems.simulate import simulate
 
 
 def _window_lstsq(X, Y, n, R):

@@ -16,8 +16,8 @@ from mr_ident.diagnosis.controller_relation import EXACT, Equation, value_std
 from mr_ident.diagnosis.objective import Objective
 from mr_ident.diagnosis.registry import CAUSES
 from mr_ident.numerics.arrays import FloatArray
-from mr_ident.numerics.model import Model
 from mr_ident.numerics.signals import LoopData
+from mr_ident.numerics.systems.model import Model
 
 from .scenarios import HiddenCause, apply
 from .verdict import TOLERANCES

@@ -1,7 +1,7 @@
 """Seeded random loops with hidden causes, for the diagnosis' tests and benchmark.
 
 :func:`draw_scenario` draws a loop (:func:`draw_loop`), hides none, one or two causes in
-it (:func:`draw_cause`, through :class:`~mr_ident.numerics.model.Model` fields) and
+it (:func:`draw_cause`, through :class:`~mr_ident.numerics.systems.model.Model` fields) and
 simulates the true loop; :func:`~mr_bench.verdict.judge` tells whether a
 diagnosis named them with their parameters within its tolerances. Draws (U uniform,
 log-U log-uniform): fs_high in {240, 500, 1000} Hz, F in {1, 2, 3, 5}; a continuous
@@ -27,10 +27,10 @@ import numpy as np
 
 from mr_ident.errors import ConfigError, MrIdentError
 from mr_ident.numerics.arrays import FloatArray
-from mr_ident.numerics.model import Model
 from mr_ident.numerics.signals import LoopData
-from mr_ident.numerics.simulate import loop_poles, simulate
-from mr_ident.numerics.systems import TransferMatrix
+from mr_ident.numerics.systems.lti import TransferMatrix
+from mr_ident.numerics.systems.model import Model
+from mr_ident.numerics.systems.simulate import loop_poles, simulate
 
 from .verdict import CAUSE_NAMES
 

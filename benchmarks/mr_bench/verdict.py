@@ -26,7 +26,7 @@ from mr_ident.diagnosis.registry import CAUSES
 
 if TYPE_CHECKING:
     from mr_ident.diagnosis.diagnose import Diagnosis
-    from mr_ident.numerics.model import Model
+    from mr_ident.numerics.systems.model import Model
 
     from .scenarios import Scenario
 

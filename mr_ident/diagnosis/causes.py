@@ -3,7 +3,7 @@
 Every cause is a parametric extension of the model: its name and parameters, when it can
 occur in a loop (:meth:`Cause.applies`), where to start looking (:meth:`Cause.proposals`,
 from the identified FRF or a grid), the bounds of its parameters, how it extends a
-:class:`~mr_ident.numerics.model.Model` (:meth:`Cause.apply`) and how it says what it
+:class:`~mr_ident.numerics.systems.model.Model` (:meth:`Cause.apply`) and how it says what it
 found in words a mechatronics engineer uses (:meth:`Cause.describe`). The registry is
 :data:`~mr_ident.diagnosis.registry.CAUSES`; one engine fits and selects them all
 (:mod:`~mr_ident.diagnosis.selection`). The causes themselves are in
@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..numerics.arrays import ComplexArray, FloatArray
-from ..numerics.model import Model
+from ..numerics.systems.model import Model
 from .objective import Objective
 
 Params = dict[str, float]

@@ -44,10 +44,10 @@ import numpy as np
 import scipy.optimize
 
 from ..numerics.arrays import FloatArray
-from ..numerics.model import Model
 from ..numerics.signals import LoopData
-from ..numerics.simulate import StateRecursion
-from ..numerics.systems import StateSpace
+from ..numerics.systems.lti import StateSpace
+from ..numerics.systems.model import Model
+from ..numerics.systems.simulate import StateRecursion
 from .causes import Cause, Choice, Params, clip
 from .fitting import Continuous
 from .objective import project_out

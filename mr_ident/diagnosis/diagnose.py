@@ -1,7 +1,7 @@
 """Model validation: where a nominal model is wrong, why, and how much a fix gains.
 
 Given measured r_h, u_h, y_h (a :class:`~mr_ident.numerics.signals.LoopData` with its
-rates) and a nominal :class:`~mr_ident.numerics.model.Model`, :func:`diagnose`:
+rates) and a nominal :class:`~mr_ident.numerics.systems.model.Model`, :func:`diagnose`:
 
 1. **Where** (:mod:`~mr_ident.diagnosis.evidence`): the identified P̂_h (and, with a
    controller, the lifted J̃ and S̃) against the model's, bin by bin in σ units, with a
@@ -37,10 +37,10 @@ from typing import Any, ParamSpec
 import numpy as np
 
 from ..errors import ConfigError, DataError
-from ..numerics.bla import BandLevels, distortion_by_band
+from ..numerics.excitation.bla import BandLevels, distortion_by_band
 from ..numerics.identify import default_n, min_samples
-from ..numerics.model import Model
 from ..numerics.signals import LoopData
+from ..numerics.systems.model import Model
 from ..numerics.threads import one_blas_thread
 from .causes import CauseFit, PlantData
 from .controller_check import ControllerCheck, check_controller

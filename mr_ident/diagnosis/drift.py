@@ -24,8 +24,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import ConfigError, DimensionError
 from ..numerics.arrays import ComplexArray, FloatArray
-from ..numerics.model import Model
 from ..numerics.results import FRF
+from ..numerics.systems.model import Model
 
 #: The drift levels, in order of severity.
 LEVELS = ("ok", "warn", "error")
@@ -135,7 +135,7 @@ def drift(
 ) -> Drift:
     """``estimate`` held against ``reference`` (see the module docstring).
 
-    ``dof``: the estimate's degrees of freedom q (``numerics.lpm.dof`` of its window), one
+    ``dof``: the estimate's degrees of freedom q (``numerics.local.lpm.dof`` of its window), one
     for every bin or one per bin (shape (K,), where the window width varies);
     ``alpha``: false-alarm probability per estimate over the whole band; ``error_db``: the
     size at which the level is ``error``; ``min_hz``: bins below it are not tested (the

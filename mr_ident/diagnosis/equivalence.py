@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-from ..numerics.model import Model
+from ..numerics.systems.model import Model
 from .causes import CauseFit, Equivalent, PlantData
 from .fitting import joint_refit, parameter_std
 from .objective import Objective

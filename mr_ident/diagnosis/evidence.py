@@ -20,12 +20,12 @@ from numpy.typing import NDArray
 from ..errors import DataError
 from ..numerics.arrays import FloatArray
 from ..numerics.identify import identify
+from ..numerics.lifted.loop import closed_loop_maps
 from ..numerics.lifting import half_to_full
-from ..numerics.loop import closed_loop_maps
-from ..numerics.lpm import dof as lpm_dof
-from ..numerics.model import Model
+from ..numerics.local.lpm import dof as lpm_dof
 from ..numerics.results import Identification
 from ..numerics.signals import LoopData
+from ..numerics.systems.model import Model
 from .prediction import centred
 
 

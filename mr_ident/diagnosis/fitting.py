@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..numerics.arrays import FloatArray
-from ..numerics.model import Model
+from ..numerics.systems.model import Model
 from .causes import Cause, Choice, Context, Params, clip
 from .objective import Objective, least_squares
 from .registry import CAUSES, build

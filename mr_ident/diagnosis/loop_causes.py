@@ -13,7 +13,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..numerics.arrays import FloatArray
-from ..numerics.model import Model
+from ..numerics.systems.model import Model
 from .causes import Cause, Choice, Context, Params, hz
 from .prediction import predict
 

@@ -30,9 +30,9 @@ from ..io.datafile import read_result
 from ..io.modelfile import load_model
 from ..live.estimate import Estimate, estimate
 from ..numerics.identify import method_of
-from ..numerics.lpm import dof as lpm_dof
-from ..numerics.model import Model
+from ..numerics.local.lpm import dof as lpm_dof
 from ..numerics.signals import LoopData
+from ..numerics.systems.model import Model
 from .drift import LEVELS, Drift, Reference, drift
 
 #: A drift whose size moved by more than this (dB) since the last diagnosis is diagnosed again.

@@ -9,10 +9,10 @@ import scipy.ndimage
 import scipy.stats
 
 from ..numerics.arrays import FloatArray, IntArray
-from ..numerics.bla import excited_lines, unexcited_lines
-from ..numerics.model import Model
+from ..numerics.excitation.bla import excited_lines, unexcited_lines
 from ..numerics.results import Identification
 from ..numerics.signals import LoopData
+from ..numerics.systems.model import Model
 from .evidence import identify_record
 from .prediction import centred
 
@@ -34,8 +34,8 @@ def loop_noise_gain(model: Model, n_samples: int) -> FloatArray:
     lightly damped poles, which no window of bins resolves (a pole 1 % damped is a bin
     wide in a 30 s record). Ones in open loop; at least :data:`GAIN_FLOOR` of its median.
     """
+    from ..numerics.lifted.loop import closed_loop_maps, lifted_controller
     from ..numerics.lifting import unlift_bins
-    from ..numerics.loop import closed_loop_maps, lifted_controller
 
     N = int(n_samples)
     if model.controller is None or N % model.ratio:

@@ -12,10 +12,10 @@ import scipy.optimize
 
 from ..errors import DataError
 from ..numerics.arrays import BoolArray, ComplexArray, FloatArray
-from ..numerics.model import Model
 from ..numerics.signals import LoopData
-from ..numerics.simulate import loop_poles
-from ..numerics.window_response import LoopSpectrum, lifted_dft
+from ..numerics.systems.model import Model
+from ..numerics.systems.simulate import loop_poles
+from ..numerics.systems.window_response import LoopSpectrum, lifted_dft
 from .noise import loop_noise_gain
 from .prediction import centred, predict
 
@@ -98,7 +98,7 @@ class Objective:
     whitened like the residual), so that neither the start-up transient nor a slow mode's
     tail counts as a model error, and no sample is skipped for it. The model's y is then
     computed in the frequency domain, as the lifted loop's circular response to r
-    (:class:`~mr_ident.numerics.window_response.LoopSpectrum`): it differs from a
+    (:class:`~mr_ident.numerics.systems.window_response.LoopSpectrum`): it differs from a
     simulation by a free response alone, so after the projection the two residuals agree
     (to rounding; test/test_window_response.py against the loop simulated sample by
     sample), at a fifth less time per evaluation and with the settling samples (up to a
@@ -151,7 +151,7 @@ class Objective:
         if rec.period:
             self.skip = self.settle = rec.period
         # closed loop over whole periods: the model's y in the frequency domain, with no
-        # simulation (numerics.window_response; the same residual once the free responses
+        # simulation (numerics.systems.window_response; the same residual once the free responses
         # are projected out)
         self._spectral = self.closed and self.skip % base.ratio == 0
         if self._spectral:

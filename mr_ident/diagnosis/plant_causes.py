@@ -16,8 +16,8 @@ import numpy as np
 import scipy.optimize
 
 from ..numerics.arrays import FloatArray
-from ..numerics.model import Model
-from ..numerics.realize import realize
+from ..numerics.systems.model import Model
+from ..numerics.systems.realize import realize
 from .causes import Cause, Choice, Context, Params, PlantData, clip, hz, percent
 
 

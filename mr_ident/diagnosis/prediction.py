@@ -13,9 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..numerics.arrays import ComplexArray, FloatArray
-from ..numerics.model import Model
 from ..numerics.signals import LoopData
-from ..numerics.simulate import LoopStream
+from ..numerics.systems.model import Model
+from ..numerics.systems.simulate import LoopStream
 
 
 @dataclass(frozen=True)
@@ -24,7 +24,7 @@ class Prediction:
 
     ``free``: in closed loop when asked for, the DFT of the free responses of y from sample
     ``start`` on, shape ((N - start) // 2 + 1, n_y, k)
-    (:meth:`~mr_ident.numerics.simulate.LoopStream.free_y_spectrum`).
+    (:meth:`~mr_ident.numerics.systems.simulate.LoopStream.free_y_spectrum`).
     """
 
     u: FloatArray

@@ -6,7 +6,7 @@ A new cause is one more class and one more entry here.
 from __future__ import annotations
 
 from ..errors import ConfigError
-from ..numerics.model import Model
+from ..numerics.systems.model import Model
 from .causes import Cause, Choice
 from .loop_causes import LOOP_CAUSES
 from .plant_causes import PLANT_CAUSES

@@ -33,7 +33,7 @@ import math
 import warnings
 from dataclasses import dataclass, replace
 
-from ..numerics.model import Model
+from ..numerics.systems.model import Model
 from .causes import Cause, CauseFit, Choice, Context, PlantData
 from .fitting import fit_single, joint_refit, parameter_std
 from .objective import Objective

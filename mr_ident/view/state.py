@@ -16,9 +16,9 @@ from numpy.typing import ArrayLike
 
 from ..diagnosis.drift import Reference
 from ..numerics.arrays import FloatArray
-from ..numerics.bla import BLA
-from ..numerics.model import Model
+from ..numerics.excitation.bla import BLA
 from ..numerics.results import FRF
+from ..numerics.systems.model import Model
 
 
 def _list(a: ArrayLike) -> list[float | None]:

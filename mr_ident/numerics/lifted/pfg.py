@@ -15,16 +15,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..errors import DimensionError
-from .arrays import AnyArray, ComplexArray, FloatArray
-from .lifting import check_multiple, check_ratio, half_to_full
+from ...errors import DimensionError
+from ..arrays import AnyArray, ComplexArray, FloatArray
+from ..lifting import check_multiple, check_ratio, half_to_full
+from ..results import PFG
+from ..threads import resolve_workers, thread_map
 from .loop import controller_factors
-from .results import PFG
-from .threads import resolve_workers, thread_map
 
 if TYPE_CHECKING:
-    from .lrm import DenominatorTerm
-    from .model import Model
+    from ..local.lrm import DenominatorTerm
+    from ..systems.model import Model
 
 
 def _column_gain(col: ComplexArray) -> tuple[AnyArray, AnyArray, AnyArray]:
@@ -71,7 +71,7 @@ def pfg_from_plant(
         Standard deviation of the plant estimate (independent bins assumed);
         gives a first-order std of the PFG.
     phase, delay : int
-        See :mod:`mr_ident.numerics.loop`.
+        See :mod:`mr_ident.numerics.lifted.loop`.
     fs_high : float, default 1.0
         High sample rate, for the frequencies ``k fs_high / N`` of the result (the
         default gives cycles per sample).
@@ -297,7 +297,7 @@ def lifted_gains(
     den : DenominatorTerm, optional
         A local rational fit's denominator share of the covariance, bins last (gain
         (F*n_y, F*n_r, R_d, K)): adds ``E dg^2 = h S_d h^H / 2`` with
-        ``h_t = u^H C0_t[:, block l] v`` (:mod:`mr_ident.numerics.lrm`).
+        ``h_t = u^H C0_t[:, block l] v`` (:mod:`mr_ident.numerics.local.lrm`).
 
     Returns
     -------

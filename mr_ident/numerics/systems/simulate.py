@@ -17,12 +17,12 @@ import warnings
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..errors import ConfigError, DimensionError
-from .arrays import ComplexArray, FloatArray, IntArray
+from ...errors import ConfigError, DimensionError
+from ..arrays import ComplexArray, FloatArray, IntArray
+from ..signals import LoopData
+from .lti import StateSpace
 from .model import Model
 from .realize import balanced
-from .signals import LoopData
-from .systems import StateSpace
 
 
 def lifted_loop(model: Model) -> StateSpace:

@@ -24,7 +24,7 @@ moves, in realization m, every line m places along its *alias family* (the F lin
 (0, N/2] whose lifted bin is its own or its conjugate's), so that F realizations excite
 every alias of every lifted bin once: the lifted input then has full rank F over the
 realizations, which an output measured at the low rate needs
-(:mod:`~mr_ident.numerics.slow_periodic`); the family reaches beyond the band, up to
+(:mod:`~mr_ident.numerics.lifted.slow_periodic`); the family reaches beyond the band, up to
 fs/2.
 
 **Several inputs**: the excited lines are dealt out in turn (input i gets lines i, i + n_u,
@@ -38,8 +38,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError
-from .arrays import FloatArray, IntArray
+from ...errors import ConfigError
+from ..arrays import FloatArray, IntArray
 
 #: The designs of :func:`design`.
 KINDS = ("full", "odd", "odd-random")

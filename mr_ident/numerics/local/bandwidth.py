@@ -31,8 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError, DimensionError
-from .arrays import ComplexArray, FloatArray, IntArray
+from ...errors import ConfigError, DimensionError
+from ..arrays import ComplexArray, FloatArray, IntArray
 
 #: Ratio between successive candidate half-widths.
 GROWTH = 1.5

@@ -4,7 +4,7 @@ Every entry of the LPM's normal equations (``K^H K``, ``K^H Y``, ``Y^H Y``) is a
 the window ``r = -n..n`` of a product signal times a kernel ``(r/n)^q`` (or the window's
 orthonormal polynomials): :func:`window_sums` computes them for all bins at once, one
 real BLAS product per block of bins against a banded Toeplitz matrix (:class:`Kernel`);
-:func:`kernels` builds the kernels of :func:`~mr_ident.numerics.lpm.lpm_bins_last`;
+:func:`kernels` builds the kernels of :func:`~mr_ident.numerics.local.lpm.lpm_bins_last`;
 :func:`moving_sum` is the unweighted sum by doubling.
 """
 

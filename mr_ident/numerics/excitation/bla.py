@@ -31,9 +31,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError, DimensionError
-from .arrays import ComplexArray, FloatArray, IntArray
-from .lifting import fold_half, unlift_bins
+from ...errors import ConfigError, DimensionError
+from ..arrays import ComplexArray, FloatArray, IntArray
+from ..lifting import fold_half, unlift_bins
 
 
 @dataclass(frozen=True)
@@ -341,12 +341,12 @@ def lifted_line_pfg(
     """The PFG from data at each excited line of a lifted design, and its std.
 
     The PFG at line kappa is the 2-norm of block column l of the lifted closed-loop map
-    J(k), k = kappa mod M, M = period / F (:mod:`~mr_ident.numerics.pfg`). Where kappa is
+    J(k), k = kappa mod M, M = period / F (:mod:`~mr_ident.numerics.lifted.pfg`). Where kappa is
     the only excited line in its lifted bin (and in its conjugate's: ``mr-ident excite
     --lifted``), r excites that column alone, so in periodic steady state it is measured
     exactly: the output's F aliases over r at kappa,
     ``J(k)[:, l] = [Y(k + i M)]_i / R(kappa)``, averaged over realizations; no local model
-    and no alias range (:mod:`~mr_ident.numerics.alias_range`) enter. Elsewhere nan.
+    and no alias range (:mod:`~mr_ident.numerics.lifted.alias_range`) enter. Elsewhere nan.
 
     ``R, Y``: (M_r, period//2+1) period-mean spectra of r and y per realization;
     ``var_y``: the noise variance of Y (same shape) or None; the std is first order in the

@@ -35,8 +35,8 @@ their physical meaning is in the README's cause table)::
 
 ``additive_modes``, ``mode_changes``, ``series_dynamics`` and a fractional
 ``input_delay_s`` need a continuous-time plant. Every model is simulated and evaluated in
-state space (:mod:`~mr_ident.numerics.realize`): the polynomials of the file are turned into
-sections once, and nothing past second order goes back to polynomial form.
+state space (:mod:`~mr_ident.numerics.systems.realize`): the polynomials of the file are turned
+into sections once, and nothing past second order goes back to polynomial form.
 
 MIMO: ``num`` is a nested list ``[n_out][n_in][coefficients]``; ``den`` is either
 one coefficient list shared by all entries or nested the same way.
@@ -50,8 +50,10 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ModelError
-from .arrays import ComplexArray, FloatArray
+from ...errors import ModelError
+from ..arrays import ComplexArray, FloatArray
+from ..results import FRF
+from .lti import StateSpace, TransferMatrix
 from .realize import (
     balanced,
     block_diag,
@@ -67,8 +69,6 @@ from .realize import (
     split_mode,
     zoh,
 )
-from .results import FRF
-from .systems import StateSpace, TransferMatrix
 
 
 @dataclass(frozen=True)

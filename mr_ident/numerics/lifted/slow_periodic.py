@@ -10,17 +10,17 @@ periodic steady state that is one exact equation per realization in the F unknow
 ``P_h(a + lM)``. One realization cannot give them: the loop puts every alias into u
 (the held controller output), but in proportion to what r excites, so realizations that
 excite the same alias give proportional rows. A rotated design
-(:func:`~mr_ident.numerics.multisine.design` with ``rotate=True``) excites every alias of
-every lifted bin once in F realizations, so the rows span all F: least squares per lifted
+(:func:`~mr_ident.numerics.excitation.multisine.design` with ``rotate=True``) excites every alias
+of every lifted bin once in F realizations, so the rows span all F: least squares per lifted
 bin gives P_h at every line of every excited family, up to fs_high/2, with no local model
-(no alias range, :mod:`~mr_ident.numerics.alias_range`, no leakage). The std is first
+(no alias range, :mod:`~mr_ident.numerics.lifted.alias_range`, no leakage). The std is first
 order in the period-mean noise of Y_low (the spread over periods); u is the recorded
 plant input, taken as exact.
 
 The same design measures the lifted r -> u map: ``Ũ_m(k) = S̃(k) R̃_m(k)`` over the F
 realizations gives ``S̃(k)`` whole, so the lifted closed loop r -> y follows as
 ``J̃(k) = diag(P_h(k + lM)) S̃(k)`` (y = P_h u at every line), and with it the PFG from data
-(the 2-norm of block column l, :mod:`~mr_ident.numerics.pfg`), no controller model: the
+(the 2-norm of block column l, :mod:`~mr_ident.numerics.lifted.pfg`), no controller model: the
 fast output's response is not measured, but the plant and u determine it.
 """
 
@@ -30,9 +30,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError, DimensionError
-from .arrays import ComplexArray, FloatArray, IntArray
-from .lifting import unlift_bins
+from ...errors import ConfigError, DimensionError
+from ..arrays import ComplexArray, FloatArray, IntArray
+from ..lifting import unlift_bins
 
 #: The source of the PFG from data of a rotated design (:attr:`SlowPlant.pfg`).
 SLOW_PFG_SOURCE = "data:rotated lifted design"
@@ -75,8 +75,8 @@ def slow_output_plant(
 
     A lifted bin counts when the reference's spectra at its F aliases over the
     realizations have rank F (entries below 1e-3 of r's peak line taken as zero, as
-    :func:`~mr_ident.numerics.bla.excited_lines` does): from the design, not from u, which
-    carries the loop's noise and transient at every bin.
+    :func:`~mr_ident.numerics.excitation.bla.excited_lines` does): from the design, not from u,
+    which carries the loop's noise and transient at every bin.
 
     Parameters
     ----------

@@ -38,7 +38,7 @@ the denominator's uncertainty, carried by ``den_gain`` (C0) and ``den_cov`` (S_d
 approximation: the denominator's regressors hold the noisy Y (errors in variables; a
 bias of order the noise variance, neglected) and the weight is taken as known.
 
-Shapes: bins last, as :func:`~mr_ident.numerics.lpm.lpm_bins_last`: the windows of a
+Shapes: bins last, as :func:`~mr_ident.numerics.local.lpm.lpm_bins_last`: the windows of a
 chunk of bins are formed explicitly (``(B, 2n+1, ...)`` stacks) and every solve runs on
 ``(B, p, p)`` stacks; no Python loop per bin.
 """
@@ -50,12 +50,12 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import ConfigError
-from .arrays import BoolArray, ComplexArray
-from .budget import lrm_chunk_bins
+from ...errors import ConfigError
+from ..arrays import BoolArray, ComplexArray
+from ..budget import lrm_chunk_bins
+from ..threads import thread_map
 from .lpm import check_window
 from .lpm import dof as lpm_dof
-from .threads import thread_map
 
 #: Sanathanan-Koerner re-weighted steps after Levy's.
 SK_ITERATIONS = 1

@@ -1,20 +1,20 @@
 """The local model of every LPM method, one call: polynomial (the LPM) or rational (the LRM).
 
-``polynomial`` (:mod:`mr_ident.numerics.lpm`, the default) fits G and the transient as
-polynomials of degree R in each window; ``rational`` (:mod:`mr_ident.numerics.lrm`) adds a
+``polynomial`` (:mod:`mr_ident.numerics.local.lpm`, the default) fits G and the transient as
+polynomials of degree R in each window; ``rational`` (:mod:`mr_ident.numerics.local.lrm`) adds a
 common denominator of order R, for lightly damped modes with few bins across their
-half-power band. The methods (:mod:`mr_ident.numerics.methods`,
-:mod:`mr_ident.numerics.structured`) call :func:`local_fit` and never the engines.
+half-power band. The methods (:mod:`mr_ident.numerics.lifted.methods`,
+:mod:`mr_ident.numerics.lifted.structured`) call :func:`local_fit` and never the engines.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..errors import ConfigError
+from ...errors import ConfigError
+from ..arrays import ComplexArray
+from ..catalog import LOCAL_MODELS
 from . import lpm, lrm
-from .arrays import ComplexArray
-from .catalog import LOCAL_MODELS
 from .lrm import DenominatorTerm
 
 

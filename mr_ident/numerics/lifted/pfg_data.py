@@ -1,15 +1,15 @@
 """The PFG straight from data: the lifted closed-loop map r -> y, no controller model.
 
 The PFG at high-rate bin ``k + l M`` is the 2-norm of block column l of the
-frequency-lifted map ``J(k)`` (:mod:`mr_ident.numerics.pfg`). An LPM of the lifted
+frequency-lifted map ``J(k)`` (:mod:`mr_ident.numerics.lifted.pfg`). An LPM of the lifted
 spectra r -> y identifies ``J(k)`` with its Kronecker covariance, so the PFG and its
 first-order std follow from r_h and y_h alone (van Haren, Blanken, Oomen, MSSP 235, 2025,
 identify the lifted closed loop directly). ``freq-lifted`` fits r -> [y; u] anyway: it
 hands its J block by block to :func:`store_lifted_pfg`; the other methods call
 :func:`fit_data_pfg`, the same lifted fit once more (r -> [y; u] with the method's local
-model, :mod:`mr_ident.numerics.local`: a rational model's denominator is common to y and
+model, :mod:`mr_ident.numerics.local.fit`: a rational model's denominator is common to y and
 u), so that every method gives the same PFG from data. How close it comes noise-free is
-a matter of the alias range (:mod:`mr_ident.numerics.alias_range`).
+a matter of the alias range (:mod:`mr_ident.numerics.lifted.alias_range`).
 
 Block by block, like the lifted methods: the lifted maps of a long record are never held
 whole.
@@ -21,13 +21,13 @@ import warnings
 
 import numpy as np
 
-from .arrays import ComplexArray, FloatArray
-from .budget import block_bins
-from .lifting import fold_half, freq_lift_half, half_spectrum, unlift_bins
-from .local import local_fit
-from .lrm import DenominatorTerm
+from ..arrays import ComplexArray, FloatArray
+from ..budget import block_bins
+from ..lifting import fold_half, freq_lift_half, half_spectrum, unlift_bins
+from ..local.fit import local_fit
+from ..local.lrm import DenominatorTerm
+from ..threads import thread_map
 from .pfg import lifted_gains
-from .threads import thread_map
 
 
 def empty_pfg(n_samples: int) -> tuple[FloatArray, FloatArray]:
@@ -58,7 +58,7 @@ def store_lifted_pfg(
     J : ndarray, shape (F*n_y, F*n_r, K), bins last
     row_cov : ndarray, shape (F*n_y, F*n_y, K)
     col_cov : ndarray, shape (F*n_r, F*n_r, K)
-        As :func:`~mr_ident.numerics.local.local_fit` returns them (the y rows of C_v).
+        As :func:`~mr_ident.numerics.local.fit.local_fit` returns them (the y rows of C_v).
     ratio, n_samples : int
     den : DenominatorTerm, optional
         A rational fit's denominator term, its gain cut to the y rows (F*n_y, F*n_r, R_d, K).
@@ -97,7 +97,7 @@ def fit_data_pfg(
     ratio, n, degree : int
         F and the window's options (checked by the caller for F*n_r lifted inputs).
     local : {"polynomial", "rational"}
-        The local model (:func:`~mr_ident.numerics.local.local_fit`), the method's.
+        The local model (:func:`~mr_ident.numerics.local.fit.local_fit`), the method's.
     workers : int
         Threads over blocks of bins.
 

@@ -40,10 +40,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import ConfigError, DataError, DimensionError
-from .arrays import ComplexArray, readonly
-from .budget import chunk_bins
-from .threads import resolve_workers, thread_map
+from ...errors import ConfigError, DataError, DimensionError
+from ..arrays import ComplexArray, readonly
+from ..budget import chunk_bins
+from ..threads import resolve_workers, thread_map
 from .window_sums import kernels, moment_index, moving_sum, window_sums
 
 

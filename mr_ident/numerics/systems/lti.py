@@ -12,8 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import ModelError
-from .arrays import FloatArray
+from ...errors import ModelError
+from ..arrays import FloatArray
 
 Poly = tuple[float, ...]
 

@@ -20,7 +20,7 @@ function and one more row.
 ``structured``
     Frequency-lifted instrument, diagonal lifted plant: the lifted LPM of r -> u gives the
     instrument ``Z = S̃ R̃``; per alias an LPM of [y; u] on Z along the high-rate axis and
-    the indirect step (:mod:`mr_ident.numerics.structured`).
+    the indirect step (:mod:`mr_ident.numerics.lifted.structured`).
 ``etfe``
     ``Y / U`` per bin, no window, no noise model (std NaN). SISO only.
 """
@@ -32,11 +32,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import DimensionError
-from . import batched
-from .arrays import ComplexArray, FloatArray
-from .budget import block_bins
-from .lifting import (
+from ...errors import DimensionError
+from .. import batched
+from ..arrays import ComplexArray, FloatArray
+from ..budget import block_bins
+from ..lifting import (
     dft,
     fold_half,
     freq_lift_half,
@@ -50,13 +50,13 @@ from .lifting import (
     unlift_row_variance,
     unlift_variance,
 )
-from .local import LocalFit, local_fit
-from .lpm import warn_rank_deficient
-from .lrm import DenominatorTerm
+from ..local.fit import LocalFit, local_fit
+from ..local.lpm import warn_rank_deficient
+from ..local.lrm import DenominatorTerm
+from ..results import LiftedFRF
+from ..threads import thread_map
 from .pfg_data import empty_pfg, store_lifted_pfg
-from .results import LiftedFRF
 from .structured import structured_block
-from .threads import thread_map
 
 
 @dataclass(frozen=True)
@@ -64,8 +64,8 @@ class FitRequest:
     """Checked input of a method: r, u, y (N, channels), F, LPM options and threads.
 
     ``local``: the local model of the fits, "polynomial" (LPM) or "rational" (LRM),
-    :mod:`mr_ident.numerics.local`. ``data_pfg``: a lifted method that fits r -> y also
-    returns the PFG of that fit (:mod:`mr_ident.numerics.pfg_data`). ``y`` may have N/F
+    :mod:`mr_ident.numerics.local.fit`. ``data_pfg``: a lifted method that fits r -> y also
+    returns the PFG of that fit (:mod:`mr_ident.numerics.lifted.pfg_data`). ``y`` may have N/F
     rows: the output at the low rate, ``y_h[m F + y_phase]`` (``freq-lifted`` only).
     """
 

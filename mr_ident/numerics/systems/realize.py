@@ -22,9 +22,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..errors import ModelError
-from .arrays import FloatArray
-from .systems import StateSpace, TransferMatrix, balance, expm, proper, tf2ss
+from ...errors import ModelError
+from ..arrays import FloatArray
+from .lti import StateSpace, TransferMatrix, balance, expm, proper, tf2ss
 
 
 def _pairs(roots: ArrayLike) -> tuple[list[complex], list[float]]:

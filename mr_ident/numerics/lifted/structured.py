@@ -27,16 +27,16 @@ so ``Cov(vec[J'; S']) = C_v ⊗ (KᴴK)⁻¹`` and, as for the indirect step of 
 ``E C_v Eᴴ`` is the covariance of ``y_l - P u_l``: the output noise at κ.
 
 Shapes: lifted spectra are alias-major (``l·c + ch``); the fits are bins-last, as
-:func:`~mr_ident.numerics.lpm.lpm_bins_last` returns them.
+:func:`~mr_ident.numerics.local.lpm.lpm_bins_last` returns them.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .arrays import ComplexArray
-from .local import LocalFit, local_fit
-from .lrm import DenominatorTerm
+from ..arrays import ComplexArray
+from ..local.fit import LocalFit, local_fit
+from ..local.lrm import DenominatorTerm
 
 
 def instrument_degree(degree: int) -> int:
@@ -91,7 +91,7 @@ def structured_block(
         F, the window half-width (both stages) and the polynomial degree R (the second
         stage; the first uses :func:`instrument_degree`).
     local : {"polynomial", "rational"}
-        The local model of both stages (:mod:`mr_ident.numerics.local`); a rational first
+        The local model of both stages (:mod:`mr_ident.numerics.local.fit`); a rational first
         stage keeps the order R (its denominator follows the loop's modes).
 
     Returns

@@ -19,7 +19,7 @@ import functools
 
 import numpy as np
 
-from .arrays import ComplexArray, FloatArray
+from ..arrays import ComplexArray, FloatArray
 from .model import Model
 from .simulate import StateRecursion, free_spectrum, lifted_loop, window_phases
 

@@ -2,7 +2,7 @@
 
 :class:`Excitation` is the reference r_h: white noise or a random-phase multisine
 repeated period after period; :class:`SimSource` runs the loop of a model on it with
-the state carried from block to block (:class:`~mr_ident.numerics.simulate.LoopStream`),
+the state carried from block to block (:class:`~mr_ident.numerics.systems.simulate.LoopStream`),
 so consecutive blocks equal one long simulation. ``mr-ident-sim`` publishes its blocks.
 :class:`Follower` runs the loop on a reference that arrives from outside, block by block
 (``mr-ident-sim --reference-topic``).
@@ -14,10 +14,10 @@ import math
 
 import numpy as np
 
-from ..errors import ConfigError
-from .arrays import FloatArray
-from .model import Model
-from .simulate import LoopStream
+from ...errors import ConfigError
+from ..arrays import FloatArray
+from ..systems.model import Model
+from ..systems.simulate import LoopStream
 
 
 def multisine(model: Model, period_s: float, rng: np.random.Generator) -> FloatArray:

@@ -22,9 +22,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..errors import ConfigError, DimensionError
-from .arrays import ComplexArray
-from .lifting import check_multiple, check_ratio, lift_frf
+from ...errors import ConfigError, DimensionError
+from ..arrays import ComplexArray
+from ..lifting import check_multiple, check_ratio, lift_frf
 
 
 def check_timing(phase: int, delay: int, ratio: int) -> None:

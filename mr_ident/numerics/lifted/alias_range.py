@@ -23,13 +23,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..errors import DimensionError
-from .arrays import ComplexArray, FloatArray
-from .lifting import check_multiple, check_ratio, fold_half, half_to_full
+from ...errors import DimensionError
+from ..arrays import ComplexArray, FloatArray
+from ..lifting import check_multiple, check_ratio, fold_half, half_to_full
 from .loop import closed_loop_maps
 
 if TYPE_CHECKING:
-    from .model import Model
+    from ..systems.model import Model
 
 
 def alias_range(G: ArrayLike, ratio: int, halfwidth: int = 0) -> FloatArray:
@@ -88,7 +88,7 @@ def _on_high_rate_bins(rho: FloatArray, ratio: int, n_samples: int) -> FloatArra
 def pfg_alias_range(model: Model, n_samples: int, halfwidth: int = 0) -> FloatArray:
     """The alias range of a model's lifted r -> y on the bins (0, fs_high/2], (N//2,).
 
-    The PFG from data (:mod:`mr_ident.numerics.pfg_data`) at a bin needs its local model
+    The PFG from data (:mod:`mr_ident.numerics.lifted.pfg_data`) at a bin needs its local model
     good to ``tolerance / rho`` there; ``halfwidth`` is the window's n. NaN at the
     multiples of fs_low with an integrating controller (the model's lifted map is not
     finite there).

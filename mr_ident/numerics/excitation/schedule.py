@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError, DataError
-from .arrays import FloatArray, IntArray
+from ...errors import ConfigError, DataError
+from ..arrays import FloatArray, IntArray
 
 #: The labels of a sample, in this order (channels of the index stream).
 LABELS = ("realization", "period", "sample")
@@ -95,7 +95,7 @@ def realizations_of(labels: IntArray, period: int, transient: int = 1) -> IntArr
         Row j: positions in the record of P' whole periods of the j-th realization found
         (in order of their label), P' the least number any of them has; the periods of
         two runs of one realization (a looped design) are joined. Index the record's r,
-        u, y with it to get the (M', P'·N) arrays of :func:`mr_ident.numerics.bla.bla`.
+        u, y with it to get the (M', P'·N) arrays of :func:`mr_ident.numerics.excitation.bla.bla`.
 
     Raises
     ------
