@@ -74,9 +74,9 @@ def known_causes() -> tuple[set[str] | None, str]:
     """The causes the diagnosis knows (its CAUSES registry), or None and why not."""
     try:
         try:
-            from mr_ident.diagnosis.causes import CAUSES
+            from mr_ident.diagnosis.causes.cause import CAUSES
         except ImportError:
-            from mr_ident.diagnosis.registry import CAUSES  # the registry's newer home
+            from mr_ident.diagnosis.causes.registry import CAUSES  # the registry's newer home
         return set(CAUSES), ""
     except Exception as err:  # the core does not import: no case can run
         return None, f"{type(err).__name__}: {err}"
@@ -128,7 +128,7 @@ def _text(cause: str, p: dict[str, float]) -> str:
 def run_case(case: dict, duration: float) -> dict:
     """Draw the case's scenario, diagnose it, judge it; a JSON-able record."""
     from mr_ident.diagnosis import diagnose
-    from mr_ident.diagnosis.prediction import time_fit
+    from mr_ident.diagnosis.criterion.prediction import time_fit
 
     out = dict(case)
     t0 = time.perf_counter()

@@ -3,7 +3,7 @@
 One long record of each loop (the paper's plant at 34 dB SNR, and loops drawn at random by
 ``mr_bench.scenarios.draw_loop`` at 240 Hz) is cut into the windows the node would
 identify (``window_s`` long, one every ``update_period_s``: overlapping, as live), each held
-against the loop's own model by :class:`~mr_ident.diagnosis.monitor.PlantWatch` at
+against the loop's own model by :class:`~mr_ident.diagnosis.monitoring.monitor.PlantWatch` at
 ``monitor_alpha`` = 0.01. Prints, per loop, the estimates, those with a significant bin
 (per-estimate false alarms; alpha bounds their rate), and the times the held status left
 OK (``monitor_hold`` = 3).
@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from mr_bench.scenarios import draw_loop
-from mr_ident.diagnosis.drift import Reference
-from mr_ident.diagnosis.monitor import PlantWatch
+from mr_ident.diagnosis.monitoring.drift import Reference
+from mr_ident.diagnosis.monitoring.monitor import PlantWatch
 from mr_ident.io.config import IdentConfig
 from mr_ident.io.modelfile import load_model
 from mr_ident.live.estimate import estimate

@@ -58,9 +58,9 @@ def known_causes() -> set[str]:
     """The diagnosis' cause registry; the test is skipped when the core does not import."""
     try:
         try:
-            from mr_ident.diagnosis.causes import CAUSES
+            from mr_ident.diagnosis.causes.cause import CAUSES
         except ImportError:
-            from mr_ident.diagnosis.registry import CAUSES
+            from mr_ident.diagnosis.causes.registry import CAUSES
     except Exception as err:  # the diagnosis core is mid-rewrite
         pytest.skip(f"the diagnosis does not import: {type(err).__name__}: {err}")
     return set(CAUSES)
@@ -258,7 +258,7 @@ def test_diagnose_finds_what_a_random_loop_hides(causes, seed):
     if unknown:
         pytest.skip(f"the diagnosis does not know {', '.join(unknown)} yet (not in CAUSES)")
     from mr_ident.diagnosis import diagnose
-    from mr_ident.diagnosis.prediction import time_fit
+    from mr_ident.diagnosis.criterion.prediction import time_fit
 
     sc = draw_scenario(causes, np.random.default_rng(seed), duration=DURATION, fs_choices=FS)
     d = diagnose(sc.nominal, sc.data)

@@ -1,4 +1,5 @@
-"""Drift against a reference and the monitor's hysteresis (mr_ident.diagnosis.drift, .monitor).
+"""Drift against a reference and the monitor's hysteresis
+(mr_ident.diagnosis.monitoring.drift, .monitor).
 
 Estimates are identified from loops simulated here (the paper's plant and loops drawn at
 random by mr_bench.scenarios), held against the model they were simulated from (no drift)
@@ -15,8 +16,8 @@ import numpy as np
 import pytest
 
 from mr_bench.scenarios import draw_loop
-from mr_ident.diagnosis.drift import Drift, Reference, drift
-from mr_ident.diagnosis.monitor import RESIZE_DB, Monitor
+from mr_ident.diagnosis.monitoring.drift import Drift, Reference, drift
+from mr_ident.diagnosis.monitoring.monitor import RESIZE_DB, Monitor
 from mr_ident.errors import ConfigError, DimensionError
 from mr_ident.io.modelfile import load_model
 from mr_ident.numerics.identify import identify
@@ -148,7 +149,7 @@ def test_plant_watch_holds_estimates_and_names_the_cause(paper):
     x 1.3 leaves ok after monitor_hold = 2 estimates, asks then once for a diagnosis, and the
     diagnosis of the window (absolute indices: its phase from the model's) names the gain
     within 2 %."""
-    from mr_ident.diagnosis.monitor import PlantWatch
+    from mr_ident.diagnosis.monitoring.monitor import PlantWatch
     from mr_ident.io.config import IdentConfig
     from mr_ident.live.estimate import estimate
     from mr_ident.numerics.signals import LoopData
@@ -195,7 +196,7 @@ def test_plant_watch_names_a_moved_mode_and_a_delay(paper, change, cause, key, t
     change with its value within tolerance (frequency 2 %, delay 0.1 sample). The paper's
     plant under the softer lead controller of test_validate (half gain: the paper's own
     loop is near instability with 1.5 samples more delay)."""
-    from mr_ident.diagnosis.monitor import PlantWatch
+    from mr_ident.diagnosis.monitoring.monitor import PlantWatch
     from mr_ident.io.config import IdentConfig
     from mr_ident.live.estimate import estimate
     from mr_ident.numerics.signals import LoopData

@@ -18,7 +18,7 @@ import pytest
 
 from mr_bench.scenarios import HiddenCause, draw_scenario
 from mr_bench.verdict import judge
-from mr_ident.diagnosis.selection import ACCEPT_MARGIN
+from mr_ident.diagnosis.selection.forward import ACCEPT_MARGIN
 
 
 @pytest.fixture(scope="module")

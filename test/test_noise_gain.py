@@ -1,4 +1,4 @@
-"""The loop's noise gain (mr_ident.diagnosis.noise.loop_noise_gain) against what a
+"""The loop's noise gain (mr_ident.diagnosis.criterion.noise.loop_noise_gain) against what a
 simulation of the loop does with white output noise.
 
 Loops drawn at random (``scenarios.draw_loop``, F in {1, 2, 3, 5}) run with r = 0 and
@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from mr_bench.scenarios import draw_loop
-from mr_ident.diagnosis.noise import loop_noise_gain
+from mr_ident.diagnosis.criterion.noise import loop_noise_gain
 from mr_ident.numerics.systems.simulate import simulate
 
 

@@ -17,8 +17,8 @@ import numpy as np
 import scipy.linalg
 
 from mr_ident.diagnosis import diagnose
+from mr_ident.diagnosis.causes.plant_causes import PLANT_CAUSES
 from mr_ident.diagnosis.diagnose import NL_THRESHOLD_DB
-from mr_ident.diagnosis.plant_causes import PLANT_CAUSES
 from mr_ident.numerics.excitation.bla import best_linear_approximation
 from mr_ident.numerics.excitation.multisine import design
 from mr_ident.numerics.signals import LoopData

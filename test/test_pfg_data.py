@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from mr_bench.scenarios import draw_loop
-from mr_ident.diagnosis.controller_check import check_controller
+from mr_ident.diagnosis.controller.check import check_controller
 from mr_ident.io.datafile import read_identification, write_result
 from mr_ident.numerics.identify import DATA_PFG_SOURCE, default_n, identify
 from mr_ident.numerics.lifted.alias_range import pfg_alias_range

@@ -24,7 +24,7 @@ from rosgraph import graph as graph  # noqa: E402  (the fixture)
 from std_msgs.msg import Float64MultiArray, String  # noqa: E402
 
 from mr_ident.cli import main  # noqa: E402
-from mr_ident.diagnosis.monitor import load_watch, watch_windows  # noqa: E402
+from mr_ident.diagnosis.monitoring.monitor import load_watch, watch_windows  # noqa: E402
 from mr_ident.io.datafile import read_data  # noqa: E402
 from mr_ident.io.modelfile import load_model  # noqa: E402
 from mr_ident.live.replay import bag_windows  # noqa: E402

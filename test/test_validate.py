@@ -21,7 +21,7 @@ import pytest
 
 from mr_ident.cli import main
 from mr_ident.diagnosis import diagnose
-from mr_ident.diagnosis.plant_causes import plant_modes
+from mr_ident.diagnosis.causes.plant_causes import plant_modes
 from mr_ident.errors import ModelError
 from mr_ident.io.modelfile import load_model, model_from_dict, model_to_dict
 from mr_ident.numerics.signals import LoopData

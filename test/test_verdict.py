@@ -33,7 +33,7 @@ from mr_bench.verdict import (
 )
 from mr_ident import simulate
 from mr_ident.diagnosis import diagnose
-from mr_ident.diagnosis.prediction import predict
+from mr_ident.diagnosis.criterion.prediction import predict
 from mr_ident.io.modelfile import model_from_dict
 
 

@@ -12,9 +12,9 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
-from mr_ident.diagnosis.controller_relation import EXACT, Equation, value_std
-from mr_ident.diagnosis.objective import Objective
-from mr_ident.diagnosis.registry import CAUSES
+from mr_ident.diagnosis.causes.registry import CAUSES
+from mr_ident.diagnosis.controller.relation import EXACT, Equation, value_std
+from mr_ident.diagnosis.criterion.objective import Objective
 from mr_ident.numerics.arrays import FloatArray
 from mr_ident.numerics.signals import LoopData
 from mr_ident.numerics.systems.model import Model
@@ -36,18 +36,18 @@ def truth_std(
     """Cramér-Rao standard deviation of every hidden continuous parameter, at the truth.
 
     The truth is ``nominal`` with ``hidden`` (a scenario's causes) applied.
-    On ``criterion`` (a diagnosis's :class:`~mr_ident.diagnosis.objective.Objective`:
+    On ``criterion`` (a diagnosis's :class:`~mr_ident.diagnosis.criterion.objective.Objective`:
     whitened residual components of variance 1/2 under the true model), the Fisher
     information of the hidden values jointly is ``2 JᵀJ``, J the residual's Jacobian by
-    forward differences at the truth (:meth:`~mr_ident.diagnosis.objective.Objective.
+    forward differences at the truth (:meth:`~mr_ident.diagnosis.criterion.objective.Objective.
     gauss_newton`, step 1e-4 of the value).
     What any unbiased estimator's spread is at least on this record, known before the
     diagnosis answers. Per hidden cause, by parameter name (discrete ones absent); inf
     where the record holds no information on a value.
 
     With the ``record`` (closed loop, y at the high rate) the controller's own equation
-    counts too (:mod:`~mr_ident.diagnosis.controller_relation`): where the truth satisfies
-    it to :data:`~mr_ident.diagnosis.controller_relation.EXACT`, the controller-side
+    counts too (:mod:`~mr_ident.diagnosis.controller.relation`): where the truth satisfies
+    it to :data:`~mr_ident.diagnosis.controller.relation.EXACT`, the controller-side
     values are fixed by it (their std is its Gauss-Newton std, at rounding level) and the
     others' bound is taken with those known.
     """

@@ -21,8 +21,8 @@ from typing import TYPE_CHECKING
 
 import scipy.stats
 
-from mr_ident.diagnosis.controller_check import COVERAGE
-from mr_ident.diagnosis.registry import CAUSES
+from mr_ident.diagnosis.causes.registry import CAUSES
+from mr_ident.diagnosis.controller.check import COVERAGE
 
 if TYPE_CHECKING:
     from mr_ident.diagnosis.diagnose import Diagnosis
@@ -136,7 +136,7 @@ class Verdict:
 def likelihood_ratio(diagnosis: Diagnosis, model: Model) -> float:
     """``2 (J(model) - J(extended))`` on the diagnosis's estimation criterion J.
 
-    J is the whitened residual's cost (:class:`~mr_ident.diagnosis.objective.Objective`);
+    J is the whitened residual's cost (:class:`~mr_ident.diagnosis.criterion.objective.Objective`);
     when ``model`` is the truth and the extended model's p continuous values were fitted
     to it, the statistic is about chi-square with p degrees of freedom (Wilks), so it tests
     whether the record can tell ``model`` from the fit at all.

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..diagnosis.drift import Reference
+from ..diagnosis.monitoring.drift import Reference
 from ..numerics.arrays import FloatArray
 from ..numerics.excitation.bla import BLA
 from ..numerics.results import FRF

@@ -8,11 +8,11 @@ import numpy as np
 import scipy.ndimage
 import scipy.stats
 
-from ..numerics.arrays import FloatArray, IntArray
-from ..numerics.excitation.bla import excited_lines, unexcited_lines
-from ..numerics.results import Identification
-from ..numerics.signals import LoopData
-from ..numerics.systems.model import Model
+from ...numerics.arrays import FloatArray, IntArray
+from ...numerics.excitation.bla import excited_lines, unexcited_lines
+from ...numerics.results import Identification
+from ...numerics.signals import LoopData
+from ...numerics.systems.model import Model
 from .evidence import identify_record
 from .prediction import centred
 
@@ -34,8 +34,8 @@ def loop_noise_gain(model: Model, n_samples: int) -> FloatArray:
     lightly damped poles, which no window of bins resolves (a pole 1 % damped is a bin
     wide in a 30 s record). Ones in open loop; at least :data:`GAIN_FLOOR` of its median.
     """
-    from ..numerics.lifted.loop import closed_loop_maps, lifted_controller
-    from ..numerics.lifting import unlift_bins
+    from ...numerics.lifted.loop import closed_loop_maps, lifted_controller
+    from ...numerics.lifting import unlift_bins
 
     N = int(n_samples)
     if model.controller is None or N % model.ratio:
@@ -80,7 +80,7 @@ def noise_spectrum(
     :func:`loop_noise_gain` (the shaping, whose lightly damped peaks are narrower than any
     window of bins: a 1 %-damped closed-loop pole is one bin wide in 30 s), so that what is
     smoothed is smooth; the criterion multiplies the gain back on its own bins
-    (:class:`~mr_ident.diagnosis.objective.Objective`). Open loop and periodic data: the
+    (:class:`~mr_ident.diagnosis.criterion.objective.Objective`). Open loop and periodic data: the
     spectrum itself, for periodic data from the spread of y over periods (interpolated to
     the record's bins).
     Smoothed by a running median over 33 bins, corrected to a mean. A sinusoid that r does

@@ -1,8 +1,9 @@
 """Which causes, together: forward selection with joint re-fits and an information criterion.
 
-The criterion is the BIC of the time-domain residual (:class:`~mr_ident.diagnosis.objective.
-Objective`): ``BIC = 2 sum_k |E(k)|² / S(k) + p ln(n_bins)``, p the free parameters of every
-chosen cause. Each step:
+The criterion is the BIC of the time-domain residual
+(:class:`~mr_ident.diagnosis.criterion.objective.Objective`):
+``BIC = 2 sum_k |E(k)|² / S(k) + p ln(n_bins)``, p the free parameters of every chosen
+cause. Each step:
 
 1. **Screen.** Every applicable cause is fitted on top of the causes chosen so far (their
    values fixed), on the screening part of the record (at most :data:`SCREEN_SAMPLES`
@@ -33,11 +34,11 @@ import math
 import warnings
 from dataclasses import dataclass, replace
 
-from ..numerics.systems.model import Model
-from .causes import Cause, CauseFit, Choice, Context, PlantData
+from ...numerics.systems.model import Model
+from ..causes.cause import Cause, CauseFit, Choice, Context, PlantData
+from ..causes.registry import CAUSES, build
+from ..criterion.objective import Objective
 from .fitting import fit_single, joint_refit, parameter_std
-from .objective import Objective
-from .registry import CAUSES, build
 
 #: Longest screening part of the record, in samples.
 SCREEN_SAMPLES = 20_000
@@ -96,7 +97,7 @@ def select(
     """Forward selection of causes (see the module docstring).
 
     ``ruled_out``: why the controller-side causes are not sought (the controller's own
-    equation has settled them, :mod:`~mr_ident.diagnosis.controller_relation`); they are
+    equation has settled them, :mod:`~mr_ident.diagnosis.controller.relation`); they are
     then listed in the ranking as not applicable, with this reason as their description.
     """
     excluded = (

@@ -10,12 +10,12 @@ import numpy as np
 import scipy.ndimage
 import scipy.optimize
 
-from ..errors import DataError
-from ..numerics.arrays import BoolArray, ComplexArray, FloatArray
-from ..numerics.signals import LoopData
-from ..numerics.systems.model import Model
-from ..numerics.systems.simulate import loop_poles
-from ..numerics.systems.window_response import LoopSpectrum, lifted_dft
+from ...errors import DataError
+from ...numerics.arrays import BoolArray, ComplexArray, FloatArray
+from ...numerics.signals import LoopData
+from ...numerics.systems.model import Model
+from ...numerics.systems.simulate import loop_poles
+from ...numerics.systems.window_response import LoopSpectrum, lifted_dft
 from .noise import loop_noise_gain
 from .prediction import centred, predict
 
@@ -113,8 +113,8 @@ class Objective:
     lowered the cost by 12 600; with every mode projected, 2 of 3 such false causes go).
 
     The spectrum ``E(k)`` of y - ŷ (``rfft``, orthonormal) is divided by the noise std:
-    the level of :func:`~mr_ident.diagnosis.noise.noise_spectrum` times, in closed loop,
-    the nominal loop's :func:`~mr_ident.diagnosis.noise.loop_noise_gain` on this record's
+    the level of :func:`~mr_ident.diagnosis.criterion.noise.noise_spectrum` times, in closed loop,
+    the nominal loop's :func:`~mr_ident.diagnosis.criterion.noise.loop_noise_gain` on this record's
     bins (measured: without the gain a loop with a 1 %-damped closed-loop pole drew a
     false mode and a disturbance at that pole's frequency, the truth's likelihood ratio
     446; a notch fitted 40 % off with the truth rejected at 52; with it both are
@@ -123,8 +123,9 @@ class Objective:
     ``-2 log L = 2 sum |E|^2 / S`` enters the BIC with the number of bins as the sample
     size. Only y - ŷ enters: in closed loop u - û(r) is the same noise filtered by the loop
     (one noise source), so counting it too would double the evidence, noise included; u
-    given y is the controller's own equation (:mod:`~mr_ident.diagnosis.
-    controller_relation`), which holds separate evidence and is checked before this.
+    given y is the controller's own equation
+    (:mod:`~mr_ident.diagnosis.controller.relation`), which holds separate evidence and is
+    checked before this.
     """
 
     def __init__(

@@ -2,7 +2,7 @@
 
 The reference is a model's exact P_h (std 0) or an earlier identification (with its std).
 Per bin and entry the σ-error ``|P̂ - P_ref| / sqrt(σ̂² + σ_ref²)`` is compared with the
-test of :mod:`~mr_ident.diagnosis.evidence` (F(2, 2q) at ``1 - alpha / n_tests``,
+test of :mod:`~mr_ident.diagnosis.criterion.evidence` (F(2, 2q) at ``1 - alpha / n_tests``,
 Bonferroni over the bins and entries tested, q the estimate's degrees of freedom), so that
 an unchanged plant raises an alarm with probability at most ``alpha`` per estimate.
 Contiguous significant bins are reported as bands. The drift's *size* is the median
@@ -22,10 +22,10 @@ import numpy as np
 import scipy.stats
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import ConfigError, DimensionError
-from ..numerics.arrays import ComplexArray, FloatArray
-from ..numerics.results import FRF
-from ..numerics.systems.model import Model
+from ...errors import ConfigError, DimensionError
+from ...numerics.arrays import ComplexArray, FloatArray
+from ...numerics.results import FRF
+from ...numerics.systems.model import Model
 
 #: The drift levels, in order of severity.
 LEVELS = ("ok", "warn", "error")

@@ -3,19 +3,20 @@
 Some effects look alike over the band a record excites: a pure input delay of 4.6 ms and
 a first-order low-pass at 34.6 Hz bend the phase the same way below 20 Hz; a shallow wide
 notch low in the loop and a control delay (on y alone: where the logged u is the
-controller's output, its own equation tells them apart, :mod:`~mr_ident.diagnosis.
-controller_relation`); an additive mode at a one-mode plant's own mode and a gain
-change. The selection (:mod:`~mr_ident.diagnosis.selection`) keeps one of them (within
-its margin, the one with fewest values); a user should know that the
+controller's output, its own equation tells them apart,
+:mod:`~mr_ident.diagnosis.controller.relation`); an additive mode at a one-mode plant's own
+mode and a gain change. The selection (:mod:`~mr_ident.diagnosis.selection.forward`) keeps
+one of them (within its margin, the one with fewest values); a user should know that the
 others explain the data as well, so that the next experiment (a wider band, a longer
 record) can decide, and so that a named cause is not read as more certain than it is.
 
 For each chosen cause, the other applicable causes are fitted in its place (on top of the
-rest, then every continuous value re-fitted jointly: :func:`~mr_ident.diagnosis.
-selection.swap`). One whose BIC comes within :data:`~mr_ident.diagnosis.selection.
-ACCEPT_MARGIN` of the chosen set's is an *equivalent*: the evidence between the two is
-less than the evidence the selection demands for a cause at all. Its values are re-fitted
-on the whole estimation record and given their standard deviations.
+rest, then every continuous value re-fitted jointly:
+:func:`~mr_ident.diagnosis.selection.forward.swap`). One whose BIC comes within
+:data:`~mr_ident.diagnosis.selection.forward.ACCEPT_MARGIN` of the chosen set's is an
+*equivalent*: the evidence between the two is less than the evidence the selection demands
+for a cause at all. Its values are re-fitted on the whole estimation record and given their
+standard deviations.
 
 Fitting every cause in every place would double a diagnosis's time, so the candidates
 are first screened by the ranking (each cause alone on the nominal model): a look-alike
@@ -28,12 +29,12 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-from ..numerics.systems.model import Model
-from .causes import CauseFit, Equivalent, PlantData
+from ...numerics.systems.model import Model
+from ..causes.cause import CauseFit, Equivalent, PlantData
+from ..causes.registry import CAUSES
+from ..criterion.objective import Objective
 from .fitting import joint_refit, parameter_std
-from .objective import Objective
-from .registry import CAUSES
-from .selection import ACCEPT_MARGIN, swap
+from .forward import ACCEPT_MARGIN, swap
 
 #: Candidates tried in a chosen cause's place: single BIC (the ranking) within this of its.
 SCREEN_SLACK = 3 * ACCEPT_MARGIN
@@ -47,9 +48,9 @@ def with_equivalents(
     chosen: list[CauseFit],
     ranking: list[CauseFit],
 ) -> list[CauseFit]:
-    """``chosen`` (from :func:`~mr_ident.diagnosis.selection.select`) with equivalents.
+    """``chosen`` (from :func:`~mr_ident.diagnosis.selection.forward.select`) with equivalents.
 
-    Each one's :attr:`~mr_ident.diagnosis.causes.CauseFit.equivalents` is filled in.
+    Each one's :attr:`~mr_ident.diagnosis.causes.cause.CauseFit.equivalents` is filled in.
 
     ``obj``: the whole estimation record (the BIC); ``screen``: its screening part (the
     fits); ``ranking``: every cause alone on the nominal (the screen of candidates). The

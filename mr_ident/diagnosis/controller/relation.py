@@ -24,7 +24,7 @@ cause of the plant is sought:
   and the controller-side causes are judged on y as the plant's are.
 
 Only u given y is used: the likelihood of (y, u) given r is that of y given r (the
-criterion, :mod:`~mr_ident.diagnosis.objective`) times that of u given y and r (this
+criterion, :mod:`~mr_ident.diagnosis.criterion.objective`) times that of u given y and r (this
 equation), so the two hold separate evidence and nothing is counted twice.
 
 The controller's state when the record began is unknown: its free responses (an
@@ -43,15 +43,15 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.optimize
 
-from ..numerics.arrays import FloatArray
-from ..numerics.signals import LoopData
-from ..numerics.systems.lti import StateSpace
-from ..numerics.systems.model import Model
-from ..numerics.systems.simulate import StateRecursion
-from .causes import Cause, Choice, Params, clip
-from .fitting import Continuous
-from .objective import project_out
-from .registry import CAUSES, build
+from ...numerics.arrays import FloatArray
+from ...numerics.signals import LoopData
+from ...numerics.systems.lti import StateSpace
+from ...numerics.systems.model import Model
+from ...numerics.systems.simulate import StateRecursion
+from ..causes.cause import Cause, Choice, Params, clip
+from ..causes.registry import CAUSES, build
+from ..criterion.objective import project_out
+from ..selection.fitting import Continuous
 
 #: The controller relation holds when the logged u departs from the model controller's
 #: output by at most this fraction of that output (rms): float64 rounding through a

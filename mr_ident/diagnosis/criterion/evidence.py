@@ -17,15 +17,15 @@ import numpy as np
 import scipy.stats
 from numpy.typing import NDArray
 
-from ..errors import DataError
-from ..numerics.arrays import FloatArray
-from ..numerics.identify import identify
-from ..numerics.lifted.loop import closed_loop_maps
-from ..numerics.lifting import half_to_full
-from ..numerics.local.lpm import dof as lpm_dof
-from ..numerics.results import Identification
-from ..numerics.signals import LoopData
-from ..numerics.systems.model import Model
+from ...errors import DataError
+from ...numerics.arrays import FloatArray
+from ...numerics.identify import identify
+from ...numerics.lifted.loop import closed_loop_maps
+from ...numerics.lifting import half_to_full
+from ...numerics.local.lpm import dof as lpm_dof
+from ...numerics.results import Identification
+from ...numerics.signals import LoopData
+from ...numerics.systems.model import Model
 from .prediction import centred
 
 
@@ -134,7 +134,7 @@ def identify_record(
     Lifted maps kept (None for periodic data, which is estimated from its periods instead).
     One run serves :func:`frf_evidence` for any model with the same controller structure and
     :func:`noise_spectrum`; its ``pfg`` is of the model's controller (beside ``pfg_data``,
-    for :mod:`~mr_ident.diagnosis.controller_check`).
+    for :mod:`~mr_ident.diagnosis.controller.check`).
     """
     if rec.period is not None:
         return None

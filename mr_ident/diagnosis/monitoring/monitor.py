@@ -1,7 +1,7 @@
 """Monitoring a running loop: drift levels held against alarm storms, and when to diagnose.
 
-Each estimate gives a :class:`~mr_ident.diagnosis.drift.Drift`. :class:`Monitor` turns the
-sequence into a status an operator can trust:
+Each estimate gives a :class:`~mr_ident.diagnosis.monitoring.drift.Drift`. :class:`Monitor`
+turns the sequence into a status an operator can trust:
 
 - **hysteresis**: the reported level changes only after ``hold`` consecutive estimates
   agree on the new one (a single noisy estimate never flips it);
@@ -24,15 +24,15 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import ConfigError
-from ..io.config import IdentConfig
-from ..io.datafile import read_result
-from ..io.modelfile import load_model
-from ..live.estimate import Estimate, estimate
-from ..numerics.identify import method_of
-from ..numerics.local.lpm import dof as lpm_dof
-from ..numerics.signals import LoopData
-from ..numerics.systems.model import Model
+from ...errors import ConfigError
+from ...io.config import IdentConfig
+from ...io.datafile import read_result
+from ...io.modelfile import load_model
+from ...live.estimate import Estimate, estimate
+from ...numerics.identify import method_of
+from ...numerics.local.lpm import dof as lpm_dof
+from ...numerics.signals import LoopData
+from ...numerics.systems.model import Model
 from .drift import LEVELS, Drift, Reference, drift
 
 #: A drift whose size moved by more than this (dB) since the last diagnosis is diagnosed again.
@@ -225,7 +225,7 @@ class PlantWatch:
         """The cause of the drift in ``window`` (the estimate's), or None without a model."""
         if self.model is None:
             return None
-        from .diagnose import diagnose  # the heavy part, only when a drift is diagnosed
+        from ..diagnose import diagnose  # the heavy part, only when a drift is diagnosed
 
         t0 = time.perf_counter()
         m = self.model

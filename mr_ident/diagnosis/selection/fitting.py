@@ -1,11 +1,11 @@
 """Fitting causes to the criterion: one cause alone, several jointly, and their std.
 
-The pieces :mod:`~mr_ident.diagnosis.selection` and :mod:`~mr_ident.diagnosis.equivalence`
-build on: a single cause fitted on top of the causes chosen so far
-(:func:`fit_single`; values the residual is affine in solved directly,
+The pieces :mod:`~mr_ident.diagnosis.selection.forward` and
+:mod:`~mr_ident.diagnosis.selection.equivalence` build on: a single cause fitted on top of
+the causes chosen so far (:func:`fit_single`; values the residual is affine in solved directly,
 :func:`solve_linear`), every continuous value of a set re-fitted together
 (:func:`joint_refit`), and the Gauss-Newton standard deviation of each named parameter
-(:func:`parameter_std`). All on an :class:`~mr_ident.diagnosis.objective.Objective`.
+(:func:`parameter_std`). All on an :class:`~mr_ident.diagnosis.criterion.objective.Objective`.
 """
 
 from __future__ import annotations
@@ -15,11 +15,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..numerics.arrays import FloatArray
-from ..numerics.systems.model import Model
-from .causes import Cause, Choice, Context, Params, clip
-from .objective import Objective, least_squares
-from .registry import CAUSES, build
+from ...numerics.arrays import FloatArray
+from ...numerics.systems.model import Model
+from ..causes.cause import Cause, Choice, Context, Params, clip
+from ..causes.registry import CAUSES, build
+from ..criterion.objective import Objective, least_squares
 
 
 def fit_single(cause: Cause, ctx: Context) -> tuple[Choice, float] | None:
@@ -153,7 +153,7 @@ def parameter_std(obj: Objective, nominal: Model, choices: list[Choice]) -> list
     """Standard deviation of every named parameter of ``choices``, fitted jointly on ``obj``.
 
     The whitened residual's components have variance 1/2 under a right model
-    (:class:`~mr_ident.diagnosis.objective.Objective`), so the continuous values have the
+    (:class:`~mr_ident.diagnosis.criterion.objective.Objective`), so the continuous values have the
     Gauss-Newton covariance ``C = (JᵀJ)⁻¹ / 2``, J the residual's Jacobian by forward
     differences at the fit (one simulation per value); a named quantity ``g(x)`` (an
     amplitude from its two quadratures, a stiffness ratio) has ``∇g C ∇gᵀ`` (delta method).

@@ -3,7 +3,7 @@
 Each starts from the identified plant: a weighted least-squares fit of the cause's
 parameters to P̂_h (bins weighted by 1/σ̂², no simulation, so cheap) gives the proposals
 that the time-domain criterion then refines and scores
-(:mod:`~mr_ident.diagnosis.selection`).
+(:mod:`~mr_ident.diagnosis.selection.forward`).
 """
 
 from __future__ import annotations
@@ -15,10 +15,10 @@ from dataclasses import replace
 import numpy as np
 import scipy.optimize
 
-from ..numerics.arrays import FloatArray
-from ..numerics.systems.model import Model
-from ..numerics.systems.realize import realize
-from .causes import Cause, Choice, Context, Params, PlantData, clip, hz, percent
+from ...numerics.arrays import FloatArray
+from ...numerics.systems.model import Model
+from ...numerics.systems.realize import realize
+from .cause import Cause, Choice, Context, Params, PlantData, clip, hz, percent
 
 
 def plant_modes(model: Model) -> list[tuple[float, float]]:

@@ -5,10 +5,10 @@ occur in a loop (:meth:`Cause.applies`), where to start looking (:meth:`Cause.pr
 from the identified FRF or a grid), the bounds of its parameters, how it extends a
 :class:`~mr_ident.numerics.systems.model.Model` (:meth:`Cause.apply`) and how it says what it
 found in words a mechatronics engineer uses (:meth:`Cause.describe`). The registry is
-:data:`~mr_ident.diagnosis.registry.CAUSES`; one engine fits and selects them all
-(:mod:`~mr_ident.diagnosis.selection`). The causes themselves are in
-:mod:`~mr_ident.diagnosis.plant_causes` (between u and y) and
-:mod:`~mr_ident.diagnosis.loop_causes` (in the controller's path and on the output).
+:data:`~mr_ident.diagnosis.causes.registry.CAUSES`; one engine fits and selects them all
+(:mod:`~mr_ident.diagnosis.selection.forward`). The causes themselves are in
+:mod:`~mr_ident.diagnosis.causes.plant_causes` (between u and y) and
+:mod:`~mr_ident.diagnosis.causes.loop_causes` (in the controller's path and on the output).
 """
 
 from __future__ import annotations
@@ -19,9 +19,9 @@ from typing import ClassVar
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..numerics.arrays import ComplexArray, FloatArray
-from ..numerics.systems.model import Model
-from .objective import Objective
+from ...numerics.arrays import ComplexArray, FloatArray
+from ...numerics.systems.model import Model
+from ..criterion.objective import Objective
 
 Params = dict[str, float]
 
@@ -91,7 +91,7 @@ class CauseFit:
         computed (the ranking) and 0 for a discrete value.
     equivalents : tuple of Equivalent
         Other causes that, in this one's place, explain the data as well (the data do not
-        tell them apart; :mod:`~mr_ident.diagnosis.equivalence`), best first.
+        tell them apart; :mod:`~mr_ident.diagnosis.selection.equivalence`), best first.
     """
 
     cause: str
@@ -162,7 +162,7 @@ class Cause:
     #: Also changes P_h (a plant-side cause); else only the loop or the output.
     plant_side: ClassVar[bool] = True
     #: In the controller's path (what it samples, computes and applies): the controller's
-    #: own equation decides it (:mod:`~mr_ident.diagnosis.controller_relation`).
+    #: own equation decides it (:mod:`~mr_ident.diagnosis.controller.relation`).
     controller_side: ClassVar[bool] = False
     #: Indices of ``Choice.x`` in which the simulated output is affine (a disturbance's
     #: in-phase and quadrature amplitudes): solved by least squares at every proposal

@@ -2,7 +2,7 @@
 
 They leave P_h as it is (the lifted identification does not use the controller), so the
 identified plant says nothing of them; the time-domain criterion does
-(:mod:`~mr_ident.diagnosis.selection`).
+(:mod:`~mr_ident.diagnosis.selection.forward`).
 """
 
 from __future__ import annotations
@@ -12,10 +12,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..numerics.arrays import FloatArray
-from ..numerics.systems.model import Model
-from .causes import Cause, Choice, Context, Params, hz
-from .prediction import predict
+from ...numerics.arrays import FloatArray
+from ...numerics.systems.model import Model
+from ..criterion.prediction import predict
+from .cause import Cause, Choice, Context, Params, hz
 
 
 class _LoopCause(Cause):

@@ -28,8 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..numerics.arrays import FloatArray
-from ..numerics.results import Identification
+from ...numerics.arrays import FloatArray
+from ...numerics.results import Identification
 
 #: Standard deviations within which a loosely determined parameter counts as consistent
 #: (the diagnosis's coverage level; the benchmark's verdict uses the same).

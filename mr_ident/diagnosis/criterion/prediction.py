@@ -12,10 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..numerics.arrays import ComplexArray, FloatArray
-from ..numerics.signals import LoopData
-from ..numerics.systems.model import Model
-from ..numerics.systems.simulate import LoopStream
+from ...numerics.arrays import ComplexArray, FloatArray
+from ...numerics.signals import LoopData
+from ...numerics.systems.model import Model
+from ...numerics.systems.simulate import LoopStream
 
 
 @dataclass(frozen=True)

@@ -5,9 +5,9 @@ A new cause is one more class and one more entry here.
 
 from __future__ import annotations
 
-from ..errors import ConfigError
-from ..numerics.systems.model import Model
-from .causes import Cause, Choice
+from ...errors import ConfigError
+from ...numerics.systems.model import Model
+from .cause import Cause, Choice
 from .loop_causes import LOOP_CAUSES
 from .plant_causes import PLANT_CAUSES
 
