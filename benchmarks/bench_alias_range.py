@@ -4,7 +4,7 @@ Seeded random loops (``scenarios.draw_loop`` at 240/500 Hz; F in {2, 3, 5} for t
 {2, 3} for a low-rate y, taken at q = 0), noise-free, ``--duration`` s each. Per local
 model (polynomial R = 2, the default; rational R = 2; rational R = 3), the fraction of
 the bins (0, fs_high/2] within 1e-4 relative of the exact value, per decade of the alias
-range rho (:mod:`mr_ident.numerics.alias_range`), and the median of error / rho. Bins
+range rho (:mod:`mr_ident.numerics.lifted.alias_range`), and the median of error / rho. Bins
 where the exact value is not finite are left out (the multiples of fs_low with an
 integrating controller or plant), and for a low-rate y with an integrating controller
 the multiples of fs_low themselves (S(0) is singular there: the indirect step has no
@@ -25,12 +25,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from mr_ident.diagnosis.scenarios import draw_loop
-from mr_ident.numerics.alias_range import pfg_alias_range, row_alias_range
+from mr_bench.scenarios import draw_loop
 from mr_ident.numerics.identify import default_n, identify
-from mr_ident.numerics.pfg import pfg_of_model
+from mr_ident.numerics.lifted.alias_range import pfg_alias_range, row_alias_range
+from mr_ident.numerics.lifted.pfg import pfg_of_model
 from mr_ident.numerics.signals import LoopData
-from mr_ident.numerics.simulate import simulate
+from mr_ident.numerics.systems.simulate import simulate
 
 CONFIGS = (("polynomial", 2), ("rational", 2), ("rational", 3))
 DECADES = range(0, 8)

@@ -1,6 +1,6 @@
 """Benchmark: diagnose on seeded random loops with hidden causes.
 
-Every case is a loop drawn by ``mr_ident.diagnosis.scenarios.draw_scenario`` (fs_high in
+Every case is a loop drawn by ``mr_bench.scenarios.draw_scenario`` (fs_high in
 {240, 500, 1000} Hz, F in {1, 2, 3, 5}, plants of order 2-6 in modal and cascaded form,
 with and without integrators, random stabilising low-rate controllers, SNR 20-60 dB), a
 record of ``--duration`` seconds, and one hidden cause, a pair of two different causes
@@ -53,9 +53,9 @@ from typing import Any
 
 import numpy as np
 
-from mr_ident.diagnosis.information import determinable, truth_std
-from mr_ident.diagnosis.scenarios import Scenario, draw_scenario
-from mr_ident.diagnosis.verdict import (
+from mr_bench.information import determinable, truth_std
+from mr_bench.scenarios import Scenario, draw_scenario
+from mr_bench.verdict import (
     CAUSE_NAMES,
     CONFIDENCE,
     COVERAGE,
@@ -74,9 +74,9 @@ def known_causes() -> tuple[set[str] | None, str]:
     """The causes the diagnosis knows (its CAUSES registry), or None and why not."""
     try:
         try:
-            from mr_ident.diagnosis.causes import CAUSES
+            from mr_ident.diagnosis.causes.cause import CAUSES
         except ImportError:
-            from mr_ident.diagnosis.registry import CAUSES  # the registry's newer home
+            from mr_ident.diagnosis.causes.registry import CAUSES  # the registry's newer home
         return set(CAUSES), ""
     except Exception as err:  # the core does not import: no case can run
         return None, f"{type(err).__name__}: {err}"
@@ -128,7 +128,7 @@ def _text(cause: str, p: dict[str, float]) -> str:
 def run_case(case: dict, duration: float) -> dict:
     """Draw the case's scenario, diagnose it, judge it; a JSON-able record."""
     from mr_ident.diagnosis import diagnose
-    from mr_ident.diagnosis.prediction import time_fit
+    from mr_ident.diagnosis.criterion.prediction import time_fit
 
     out = dict(case)
     t0 = time.perf_counter()

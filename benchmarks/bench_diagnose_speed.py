@@ -20,8 +20,8 @@ import numpy as np
 
 from mr_ident.diagnosis import diagnose
 from mr_ident.io.modelfile import load_model
-from mr_ident.numerics.simulate import simulate
-from mr_ident.numerics.systems import TransferMatrix
+from mr_ident.numerics.systems.lti import TransferMatrix
+from mr_ident.numerics.systems.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -29,7 +29,7 @@ import numpy as np
 from mr_ident.allocator import keep_freed_memory
 from mr_ident.io.modelfile import load_model
 from mr_ident.numerics.identify import default_n, identify  # (also loads the module patched below)
-from mr_ident.numerics.simulate import simulate
+from mr_ident.numerics.systems.simulate import simulate
 from mr_ident.numerics.threads import resolve_workers
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -135,7 +135,7 @@ def main() -> None:
 
     def reference(split=3):  # split = F * n_y: J (r -> y) and S (r -> u) fitted separately
         with mock.patch.object(
-            sys.modules["mr_ident.numerics.lpm"],
+            sys.modules["mr_ident.numerics.local.lpm"],
             "lpm_bins_last",
             functools.partial(straightforward_lpm_core, split=split),
         ):

@@ -39,7 +39,7 @@ LATENCY_RUNS = 3  # each with a fresh node (its first estimate, after the warm-u
 
 def _signals(n: int) -> np.ndarray:
     from mr_ident.io.modelfile import load_model
-    from mr_ident.numerics.simulate import simulate
+    from mr_ident.numerics.systems.simulate import simulate
 
     m = load_model(Path(__file__).resolve().parents[1] / "config" / "paper_example.yaml")
     sim = simulate(m, n_samples=n, rng=np.random.default_rng(0))

@@ -1,9 +1,9 @@
 """False alarms of the plant monitoring: the loop as modelled, watched over a long run.
 
 One long record of each loop (the paper's plant at 34 dB SNR, and loops drawn at random by
-``mr_ident.diagnosis.scenarios.draw_loop`` at 240 Hz) is cut into the windows the node would
+``mr_bench.scenarios.draw_loop`` at 240 Hz) is cut into the windows the node would
 identify (``window_s`` long, one every ``update_period_s``: overlapping, as live), each held
-against the loop's own model by :class:`~mr_ident.diagnosis.monitor.PlantWatch` at
+against the loop's own model by :class:`~mr_ident.diagnosis.monitoring.monitor.PlantWatch` at
 ``monitor_alpha`` = 0.01. Prints, per loop, the estimates, those with a significant bin
 (per-estimate false alarms; alpha bounds their rate), and the times the held status left
 OK (``monitor_hold`` = 3).
@@ -20,15 +20,15 @@ from pathlib import Path
 
 import numpy as np
 
-from mr_ident.diagnosis.drift import Reference
-from mr_ident.diagnosis.monitor import PlantWatch
-from mr_ident.diagnosis.scenarios import draw_loop
+from mr_bench.scenarios import draw_loop
+from mr_ident.diagnosis.monitoring.drift import Reference
+from mr_ident.diagnosis.monitoring.monitor import PlantWatch
 from mr_ident.io.config import IdentConfig
 from mr_ident.io.modelfile import load_model
 from mr_ident.live.estimate import estimate
-from mr_ident.numerics.model import Model
 from mr_ident.numerics.signals import LoopData
-from mr_ident.numerics.simulate import simulate
+from mr_ident.numerics.systems.model import Model
+from mr_ident.numerics.systems.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -4,7 +4,7 @@
    0, 1, 2, noise-free and with output noise (std 7e-7 by default): the median over the
    bins (0, fs_high/2] of |P_h - P_hat| / |P_h|, per method and window, the median over
    the seeds.
-2. Seeded random loops (mr_ident.diagnosis.scenarios.draw_loop: fs_high 240..1000 Hz,
+2. Seeded random loops (mr_bench.scenarios.draw_loop: fs_high 240..1000 Hz,
    F in {2, 3, 5}, plants of order 2-6, SNR 20-60 dB), 120 s each: the same error per
    loop; printed: the median over loops of each method's error relative to lpm's with
    the fixed window, and how often structured beats lpm (both n auto).
@@ -26,10 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from mr_ident.diagnosis.scenarios import draw_loop
+from mr_bench.scenarios import draw_loop
 from mr_ident.io.modelfile import load_model
 from mr_ident.numerics.identify import identify
-from mr_ident.numerics.simulate import simulate
+from mr_ident.numerics.systems.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 METHODS = ("freq-lifted", "time-lifted", "lpm", "structured")

@@ -37,14 +37,14 @@ _EXPORTS: dict[str, str] = {
         ),
         "numerics.lifting",
     ),
-    **dict.fromkeys(("LPMFit", "lpm", "pad_circular"), "numerics.lpm"),
-    "Model": "numerics.model",
+    **dict.fromkeys(("LPMFit", "lpm", "pad_circular"), "numerics.local.lpm"),
+    "Model": "numerics.systems.model",
     **dict.fromkeys(("load_model", "model_from_dict", "model_to_dict"), "io.modelfile"),
-    **dict.fromkeys(("pfg_from_lifted", "pfg_from_plant"), "numerics.pfg"),
+    **dict.fromkeys(("pfg_from_lifted", "pfg_from_plant"), "numerics.lifted.pfg"),
     **dict.fromkeys(("FRF", "PFG", "Identification", "LiftedFRF"), "numerics.results"),
     "LoopData": "numerics.signals",
-    **dict.fromkeys(("lifted_loop", "simulate"), "numerics.simulate"),
-    **dict.fromkeys(("StateSpace", "TransferMatrix"), "numerics.systems"),
+    **dict.fromkeys(("lifted_loop", "simulate"), "numerics.systems.simulate"),
+    **dict.fromkeys(("StateSpace", "TransferMatrix"), "numerics.systems.lti"),
     **dict.fromkeys(("Diagnosis", "diagnose"), "diagnosis"),
 }
 
@@ -69,6 +69,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
     from .errors import ConfigError, DataError, DimensionError, ModelError, MrIdentError  # noqa: F401
     from .io.modelfile import load_model, model_from_dict, model_to_dict  # noqa: F401
     from .numerics.identify import METHODS, identify  # noqa: F401
+    from .numerics.lifted.pfg import pfg_from_lifted, pfg_from_plant  # noqa: F401
     from .numerics.lifting import (
         dft,
         freq_lift,
@@ -79,10 +80,9 @@ if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
         time_unlift,
         unlift_frf,
     )
-    from .numerics.lpm import LPMFit, lpm, pad_circular  # noqa: F401
-    from .numerics.model import Model  # noqa: F401
-    from .numerics.pfg import pfg_from_lifted, pfg_from_plant  # noqa: F401
+    from .numerics.local.lpm import LPMFit, lpm, pad_circular  # noqa: F401
     from .numerics.results import FRF, PFG, Identification, LiftedFRF  # noqa: F401
     from .numerics.signals import LoopData  # noqa: F401
-    from .numerics.simulate import lifted_loop, simulate  # noqa: F401
-    from .numerics.systems import StateSpace, TransferMatrix  # noqa: F401
+    from .numerics.systems.lti import StateSpace, TransferMatrix  # noqa: F401
+    from .numerics.systems.model import Model  # noqa: F401
+    from .numerics.systems.simulate import lifted_loop, simulate  # noqa: F401

@@ -35,8 +35,8 @@ from .live.recordings import BAG_SUFFIXES, DATA_SUFFIXES, is_bag
 from .live.spans import DEFAULT_SPAN, check_span
 
 if TYPE_CHECKING:
-    from .numerics.model import Model
     from .numerics.results import FRF
+    from .numerics.systems.model import Model
 
 TASKS = ("identify", "diagnose")
 

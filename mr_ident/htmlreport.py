@@ -16,8 +16,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
+from .diagnosis.criterion.evidence import Evidence
 from .diagnosis.diagnose import Diagnosis
-from .diagnosis.evidence import Evidence
 from .numerics.results import FRF
 from .plots import bode_figure
 

@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from .numerics.identify import METHODS, identify
-from .numerics.model import Model
-from .numerics.pfg import pfg_of_model
-from .numerics.simulate import simulate
+from .numerics.lifted.pfg import pfg_of_model
+from .numerics.systems.model import Model
+from .numerics.systems.simulate import simulate
 from .plots import plot_bode, plot_errors, plot_pfg, plot_windows
 
 

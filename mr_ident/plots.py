@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from .numerics.results import FRF, PFG
 
 if TYPE_CHECKING:
-    from .numerics.bla import BLA, BandLevels
+    from .numerics.excitation.bla import BLA, BandLevels
 
 
 def _save(fig: Figure, path: str | Path) -> Path:

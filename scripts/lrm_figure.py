@@ -20,7 +20,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from mr_ident.io.modelfile import load_model
 from mr_ident.numerics.identify import identify
 from mr_ident.numerics.results import FRF
-from mr_ident.numerics.simulate import simulate
+from mr_ident.numerics.systems.simulate import simulate
 from mr_ident.plots import bode_figure
 
 ROOT = Path(__file__).resolve().parents[1]

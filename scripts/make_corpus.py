@@ -25,7 +25,7 @@ CHUNK = 4096  # small MCAP chunks, so a cut lands after some finished chunks
 
 def signals(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     from mr_ident.io.modelfile import load_model
-    from mr_ident.numerics.simulate import simulate
+    from mr_ident.numerics.systems.simulate import simulate
 
     model = load_model(ROOT / "config" / "paper_example.yaml")
     sim = simulate(model, duration=n / FS, rng=np.random.default_rng(7))

@@ -206,7 +206,7 @@ def joint_state_mcap(path, sim, t, *, skip=(), **options):
 def paper_loop():
     """The paper's loop simulated for 60 s (seed 0): (model, LoopData), the bags' content."""
     from mr_ident.io.modelfile import load_model
-    from mr_ident.numerics.simulate import simulate
+    from mr_ident.numerics.systems.simulate import simulate
 
     model = load_model(Path(__file__).resolve().parents[1] / "config" / "paper_example.yaml")
     return model, simulate(model, duration=60.0, rng=np.random.default_rng(0))

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from mr_ident.io.modelfile import load_model
-from mr_ident.numerics.model import Model
+from mr_ident.numerics.systems.model import Model
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -85,10 +85,10 @@ def periodic_runs(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each realization's one-period excitation ``signals[m]`` through the loop, repeated.
 
-    ``periods`` periods from rest (:class:`~mr_ident.numerics.excitation.SimSource`), the
+    ``periods`` periods from rest (:class:`~mr_ident.numerics.excitation.sources.SimSource`), the
     first ``skip`` dropped; r, u, y each (realizations, (periods - skip) * period).
     """
-    from mr_ident.numerics.excitation import SimSource
+    from mr_ident.numerics.excitation.sources import SimSource
 
     runs = []
     for sig in signals:

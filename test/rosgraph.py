@@ -27,7 +27,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 
-from mr_ident.numerics.excitation import SimSource  # noqa: E402
+from mr_ident.numerics.excitation.sources import SimSource  # noqa: E402
 from mr_ident.ros.messages import BLOCK_QOS, BODE_TOPICS, RESULT_QOS, block_msg  # noqa: E402
 from mr_ident.ros.node import IdentNode  # noqa: E402
 

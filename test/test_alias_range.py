@@ -5,11 +5,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from mr_ident.diagnosis.scenarios import draw_loop
+from mr_bench.scenarios import draw_loop
 from mr_ident.errors import DimensionError
-from mr_ident.numerics.alias_range import alias_range, pfg_alias_range, row_alias_range
+from mr_ident.numerics.lifted.alias_range import alias_range, pfg_alias_range, row_alias_range
 from mr_ident.numerics.lifting import half_to_full, lifting_transform
-from mr_ident.numerics.simulate import lifted_loop
+from mr_ident.numerics.systems.simulate import lifted_loop
 
 
 def _per_bin(G, F, n):

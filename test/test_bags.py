@@ -22,7 +22,7 @@ from mr_ident.io.modelfile import load_model
 from mr_ident.io.sources import bag_types, resolve
 from mr_ident.live.replay import bag_signals
 from mr_ident.numerics.identify import identify
-from mr_ident.numerics.simulate import simulate
+from mr_ident.numerics.systems.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "config" / "paper_example.yaml"

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from mr_ident.errors import ConfigError, DimensionError
-from mr_ident.numerics.bandwidth import candidates, moving_mean, select
 from mr_ident.numerics.identify import identify
-from mr_ident.numerics.lpm import lpm
-from mr_ident.numerics.simulate import simulate
+from mr_ident.numerics.local.bandwidth import candidates, moving_mean, select
+from mr_ident.numerics.local.lpm import lpm
+from mr_ident.numerics.systems.simulate import simulate
 
 
 def test_candidates_grow_by_half_up_to_four_times_the_smallest():

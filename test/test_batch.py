@@ -21,7 +21,7 @@ from mr_ident import batch
 from mr_ident.cli import main
 from mr_ident.io.datafile import read_identification, read_result, write_data
 from mr_ident.io.modelfile import load_model
-from mr_ident.numerics.simulate import simulate
+from mr_ident.numerics.systems.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "config" / "paper_example.yaml"

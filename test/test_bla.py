@@ -1,4 +1,5 @@
-"""The best linear approximation with its noise and nonlinear parts (mr_ident.numerics.bla).
+"""The best linear approximation with its noise and nonlinear parts
+(mr_ident.numerics.excitation.bla).
 
 Open loop: a second-order discrete plant behind a static nonlinearity (none, cubic,
 square), odd-random multisines (M realizations, P periods after one dropped), output
@@ -13,8 +14,8 @@ import pytest
 import scipy.signal
 
 from mr_ident.errors import ConfigError
-from mr_ident.numerics.bla import best_linear_approximation, distortion_by_band
-from mr_ident.numerics.multisine import design
+from mr_ident.numerics.excitation.bla import best_linear_approximation, distortion_by_band
+from mr_ident.numerics.excitation.multisine import design
 
 N, M, P = 1024, 8, 4
 B, A = [0.0, 0.02, 0.018], [1.0, -1.7, 0.74]  # a lightly damped second-order plant
@@ -69,7 +70,7 @@ def test_the_multirate_closed_loop_bla_is_the_plant():
     lines > 40 dB above the noise, which an earlier version reported as nonlinear
     distortion of a linear loop)."""
     from mr_ident.io.modelfile import load_model
-    from mr_ident.numerics.excitation import SimSource
+    from mr_ident.numerics.excitation.sources import SimSource
 
     model = load_model("config/paper_example.yaml")
     ms = design(fs_high=240.0, period=2400, band=(0.5, 100.0), kind="odd", periods=3,

@@ -1,4 +1,5 @@
-"""The PFG from data at the lines of a lifted design (mr_ident.numerics.bla.lifted_line_pfg).
+"""The PFG from data at the lines of a lifted design
+(mr_ident.numerics.excitation.bla.lifted_line_pfg).
 
 Loops drawn at random (``scenarios.draw_loop``: plants of order 2-6, lead/PI/PID
 controllers, F in {2, 3, 5}) played a lifted odd multisine (``design(lifted=True)``: one
@@ -16,10 +17,10 @@ import numpy as np
 import pytest
 from conftest import periodic_runs
 
-from mr_ident.diagnosis.scenarios import draw_loop
-from mr_ident.numerics.bla import best_linear_approximation, lifted_line_pfg
-from mr_ident.numerics.multisine import design
-from mr_ident.numerics.pfg import pfg_of_model
+from mr_bench.scenarios import draw_loop
+from mr_ident.numerics.excitation.bla import best_linear_approximation, lifted_line_pfg
+from mr_ident.numerics.excitation.multisine import design
+from mr_ident.numerics.lifted.pfg import pfg_of_model
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])

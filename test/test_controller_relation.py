@@ -1,4 +1,4 @@
-"""The controller's own equation (diagnosis.controller_relation) on loops drawn at random.
+"""The controller's own equation (diagnosis.controller.relation) on loops drawn at random.
 
 The machine's loop is run sample by sample here, its controller the nominal K_l followed
 by a notch discretised with scipy's bilinear transform (prewarped by hand, not
@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from mr_ident.diagnosis.controller_relation import EXACT, Equation, relate
-from mr_ident.diagnosis.registry import CAUSES
-from mr_ident.diagnosis.scenarios import draw_loop, draw_scenario
+from mr_bench.scenarios import draw_loop, draw_scenario
+from mr_ident.diagnosis.causes.registry import CAUSES
+from mr_ident.diagnosis.controller.relation import EXACT, Equation, relate
 from mr_ident.numerics.signals import LoopData
-from mr_ident.numerics.simulate import loop_poles
+from mr_ident.numerics.systems.simulate import loop_poles
 
 
 def _machine_notch(f: float, zeta: float, depth: float, fs_low: float) -> tuple:

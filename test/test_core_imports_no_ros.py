@@ -18,7 +18,7 @@ CORE = (
 
 
 def test_importing_the_core_loads_no_ros_module():
-    assert "mr_ident.numerics.lifting" in CORE and "mr_ident.diagnosis.causes" in CORE
+    assert "mr_ident.numerics.lifting" in CORE and "mr_ident.diagnosis.causes.cause" in CORE
     code = (
         "import sys\n"
         + "".join(f"import {m}\n" for m in CORE)

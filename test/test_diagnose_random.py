@@ -1,6 +1,6 @@
 """Randomized diagnosis: the generator of the benchmark, and a few fast seeded cases of it.
 
-The generator (mr_ident.diagnosis.scenarios, which benchmarks/bench_diagnose.py draws
+The generator (mr_bench.scenarios, which benchmarks/bench_diagnose.py draws
 hundreds of cases from) must give stable plants under stabilising controllers at the
 stated fraction of the critical gain, the stated SNR, hidden causes that keep the loop
 stable and change it, and the same scenario for the same seed.
@@ -22,7 +22,7 @@ from dataclasses import fields, replace
 import numpy as np
 import pytest
 
-from mr_ident.diagnosis.scenarios import (
+from mr_bench.scenarios import (
     MIN_CHANGE,
     RATIOS,
     HiddenCause,
@@ -31,11 +31,11 @@ from mr_ident.diagnosis.scenarios import (
     draw_scenario,
     relative_change,
 )
-from mr_ident.diagnosis.verdict import CAUSE_NAMES, MAX_FIT_GAP, TOLERANCES, Tolerance, judge
+from mr_bench.verdict import CAUSE_NAMES, MAX_FIT_GAP, TOLERANCES, Tolerance, judge
 from mr_ident.errors import ConfigError
-from mr_ident.numerics.model import Model
-from mr_ident.numerics.simulate import loop_poles, simulate
-from mr_ident.numerics.systems import TransferMatrix
+from mr_ident.numerics.systems.lti import TransferMatrix
+from mr_ident.numerics.systems.model import Model
+from mr_ident.numerics.systems.simulate import loop_poles, simulate
 
 FS = (240.0,)  # the shortest records (7200 samples): diagnose time grows with N
 DURATION = 30.0
@@ -58,9 +58,9 @@ def known_causes() -> set[str]:
     """The diagnosis' cause registry; the test is skipped when the core does not import."""
     try:
         try:
-            from mr_ident.diagnosis.causes import CAUSES
+            from mr_ident.diagnosis.causes.cause import CAUSES
         except ImportError:
-            from mr_ident.diagnosis.registry import CAUSES
+            from mr_ident.diagnosis.causes.registry import CAUSES
     except Exception as err:  # the diagnosis core is mid-rewrite
         pytest.skip(f"the diagnosis does not import: {type(err).__name__}: {err}")
     return set(CAUSES)
@@ -258,7 +258,7 @@ def test_diagnose_finds_what_a_random_loop_hides(causes, seed):
     if unknown:
         pytest.skip(f"the diagnosis does not know {', '.join(unknown)} yet (not in CAUSES)")
     from mr_ident.diagnosis import diagnose
-    from mr_ident.diagnosis.prediction import time_fit
+    from mr_ident.diagnosis.criterion.prediction import time_fit
 
     sc = draw_scenario(causes, np.random.default_rng(seed), duration=DURATION, fs_choices=FS)
     d = diagnose(sc.nominal, sc.data)

@@ -1,7 +1,8 @@
-"""Drift against a reference and the monitor's hysteresis (mr_ident.diagnosis.drift, .monitor).
+"""Drift against a reference and the monitor's hysteresis
+(mr_ident.diagnosis.monitoring.drift, .monitor).
 
 Estimates are identified from loops simulated here (the paper's plant and loops drawn at
-random by diagnosis.scenarios), held against the model they were simulated from (no drift)
+random by mr_bench.scenarios), held against the model they were simulated from (no drift)
 and against a model whose plant differs (drift). Tolerances stated at each check.
 """
 
@@ -14,15 +15,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mr_ident.diagnosis.drift import Drift, Reference, drift
-from mr_ident.diagnosis.monitor import RESIZE_DB, Monitor
-from mr_ident.diagnosis.scenarios import draw_loop
+from mr_bench.scenarios import draw_loop
+from mr_ident.diagnosis.monitoring.drift import Drift, Reference, drift
+from mr_ident.diagnosis.monitoring.monitor import RESIZE_DB, Monitor
 from mr_ident.errors import ConfigError, DimensionError
 from mr_ident.io.modelfile import load_model
 from mr_ident.numerics.identify import identify
-from mr_ident.numerics.lpm import dof as lpm_dof
-from mr_ident.numerics.lpm import smallest_n
-from mr_ident.numerics.simulate import simulate
+from mr_ident.numerics.local.lpm import dof as lpm_dof
+from mr_ident.numerics.local.lpm import smallest_n
+from mr_ident.numerics.systems.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 N_WIN, DEGREE = 8, 2
@@ -148,7 +149,7 @@ def test_plant_watch_holds_estimates_and_names_the_cause(paper):
     x 1.3 leaves ok after monitor_hold = 2 estimates, asks then once for a diagnosis, and the
     diagnosis of the window (absolute indices: its phase from the model's) names the gain
     within 2 %."""
-    from mr_ident.diagnosis.monitor import PlantWatch
+    from mr_ident.diagnosis.monitoring.monitor import PlantWatch
     from mr_ident.io.config import IdentConfig
     from mr_ident.live.estimate import estimate
     from mr_ident.numerics.signals import LoopData
@@ -195,11 +196,11 @@ def test_plant_watch_names_a_moved_mode_and_a_delay(paper, change, cause, key, t
     change with its value within tolerance (frequency 2 %, delay 0.1 sample). The paper's
     plant under the softer lead controller of test_validate (half gain: the paper's own
     loop is near instability with 1.5 samples more delay)."""
-    from mr_ident.diagnosis.monitor import PlantWatch
+    from mr_ident.diagnosis.monitoring.monitor import PlantWatch
     from mr_ident.io.config import IdentConfig
     from mr_ident.live.estimate import estimate
     from mr_ident.numerics.signals import LoopData
-    from mr_ident.numerics.systems import TransferMatrix
+    from mr_ident.numerics.systems.lti import TransferMatrix
 
     paper = replace(paper, controller=TransferMatrix.siso([3000.0, -2700.0], [1.0, -0.3], 3 / 240))
     y = simulate(paper, duration=20.0, rng=np.random.default_rng(0)).y

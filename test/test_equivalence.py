@@ -16,9 +16,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from mr_ident.diagnosis.scenarios import HiddenCause, draw_scenario
-from mr_ident.diagnosis.selection import ACCEPT_MARGIN
-from mr_ident.diagnosis.verdict import judge
+from mr_bench.scenarios import HiddenCause, draw_scenario
+from mr_bench.verdict import judge
+from mr_ident.diagnosis.selection.forward import ACCEPT_MARGIN
 
 
 @pytest.fixture(scope="module")

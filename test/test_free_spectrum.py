@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from conftest import brute_force_loop
 
-from mr_ident.diagnosis.scenarios import draw_loop
-from mr_ident.numerics.simulate import LoopStream, lifted_loop
+from mr_bench.scenarios import draw_loop
+from mr_ident.numerics.systems.simulate import LoopStream, lifted_loop
 
 
 def _residual(G: np.ndarray, y: np.ndarray) -> float:

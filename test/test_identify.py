@@ -17,7 +17,7 @@ import pytest
 
 from mr_ident.errors import ConfigError, DataError, DimensionError
 from mr_ident.numerics.identify import METHODS, identify
-from mr_ident.numerics.simulate import simulate
+from mr_ident.numerics.systems.simulate import simulate
 
 
 @pytest.fixture(scope="module")
@@ -125,7 +125,7 @@ def test_threads_do_not_change_a_single_bit(paper_model, method, monkeypatch):
     budget = sys.modules["mr_ident.numerics.budget"]
     monkeypatch.setattr(budget, "BLOCK_BINS", 1000)  # several blocks
     monkeypatch.setattr(budget, "CHUNK_BINS", 700)
-    monkeypatch.setattr(sys.modules["mr_ident.numerics.pfg"], "PFG_BLOCK", 900)
+    monkeypatch.setattr(sys.modules["mr_ident.numerics.lifted.pfg"], "PFG_BLOCK", 900)
     sim = simulate(
         replace(paper_model, noise_std=1e-3), duration=60.0, rng=np.random.default_rng(5)
     )
@@ -190,6 +190,6 @@ def test_the_default_window_grows_with_F_and_the_channels():
 def test_the_catalog_names_every_method():
     """The parser's names (imported without numpy) are the methods' table, in its order."""
     from mr_ident.numerics.catalog import METHOD_NAMES
-    from mr_ident.numerics.methods import METHODS
+    from mr_ident.numerics.lifted.methods import METHODS
 
     assert tuple(METHODS) == METHOD_NAMES

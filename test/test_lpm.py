@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from mr_ident.errors import ConfigError, DataError
-from mr_ident.numerics.lpm import lpm
+from mr_ident.numerics.local.lpm import lpm
 
 
 def per_bin_reference(U, Y, n, R):

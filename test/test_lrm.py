@@ -1,4 +1,5 @@
-"""The local rational method (numerics/lrm.py) against a per-window brute force and exact models.
+"""The local rational method (numerics/local/lrm.py) against a per-window brute force and exact
+models.
 
 Tolerances:
 * batched = a per-window complex ``lstsq`` of the joint problem (all outputs, one
@@ -30,9 +31,9 @@ from mr_ident.io.config import IdentConfig
 from mr_ident.io.modelfile import model_from_dict
 from mr_ident.numerics.identify import identify
 from mr_ident.numerics.lifting import dft
-from mr_ident.numerics.local import local_fit
-from mr_ident.numerics.lrm import SK_ITERATIONS, dof, lrm_bins_last
-from mr_ident.numerics.simulate import loop_poles, simulate
+from mr_ident.numerics.local.fit import local_fit
+from mr_ident.numerics.local.lrm import SK_ITERATIONS, dof, lrm_bins_last
+from mr_ident.numerics.systems.simulate import loop_poles, simulate
 
 BINS_ACROSS = 11  # bins across the half-power band
 

@@ -6,7 +6,7 @@ import yaml
 
 from mr_ident.errors import ModelError
 from mr_ident.io.modelfile import load_model, model_from_dict, model_to_dict
-from mr_ident.numerics.simulate import loop_poles
+from mr_ident.numerics.systems.simulate import loop_poles
 
 BASE = {
     "fs_high": 240.0,
@@ -74,7 +74,7 @@ def test_a_fractional_input_delay_is_discretised_exactly_for_held_inputs(delay_s
     """Against a fine continuous-time simulation of the delayed plant, held input (lsim, ZOH)."""
     import scipy.signal
 
-    from mr_ident.numerics.realize import sections, zoh
+    from mr_ident.numerics.systems.realize import sections, zoh
 
     h, up = 0.01, 50
     num, den = [1.0, 2.0], [1.0, 3.0, 100.0]
@@ -95,8 +95,8 @@ def test_the_small_lti_kernels_agree_with_scipy_and_with_analytic_truth():
     import scipy.linalg
     import scipy.signal
 
-    from mr_ident.numerics.realize import sections, zoh
-    from mr_ident.numerics.systems import expm, tf2ss
+    from mr_ident.numerics.systems.lti import expm, tf2ss
+    from mr_ident.numerics.systems.realize import sections, zoh
 
     w = 3.0  # a rotation generator: expm is exact in closed form
     R = expm(np.array([[0.0, -w], [w, 0.0]]))

@@ -1,4 +1,5 @@
-"""Multisine designs checked line by line (mr_ident.numerics.multisine, mr-ident excite).
+"""Multisine designs checked line by line (mr_ident.numerics.excitation.multisine, mr-ident
+excite).
 
 Every property is checked on the signal itself (its DFT), not on the design's own
 bookkeeping: periodic to 1e-12, energy only on the stated lines (outside: < 1e-20 of the
@@ -12,7 +13,7 @@ import pytest
 
 from mr_ident.cli import main
 from mr_ident.errors import ConfigError, MrIdentError
-from mr_ident.numerics.multisine import design
+from mr_ident.numerics.excitation.multisine import design
 
 FS, N = 240.0, 2400
 
@@ -135,7 +136,7 @@ def test_the_simulated_loop_plays_an_excitation_file(tmp_path):
     exact plant on the excited lines (noise-free: 1e-6 relative)."""
     from mr_ident.io.excitefile import read_excitation, write_excitation
     from mr_ident.io.modelfile import load_model
-    from mr_ident.numerics.excitation import SimSource
+    from mr_ident.numerics.excitation.sources import SimSource
     from mr_ident.ros.sim import excitation_signal
 
     model = load_model("config/paper_example.yaml")

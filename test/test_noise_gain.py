@@ -1,4 +1,4 @@
-"""The loop's noise gain (mr_ident.diagnosis.noise.loop_noise_gain) against what a
+"""The loop's noise gain (mr_ident.diagnosis.criterion.noise.loop_noise_gain) against what a
 simulation of the loop does with white output noise.
 
 Loops drawn at random (``scenarios.draw_loop``, F in {1, 2, 3, 5}) run with r = 0 and
@@ -16,9 +16,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from mr_ident.diagnosis.noise import loop_noise_gain
-from mr_ident.diagnosis.scenarios import draw_loop
-from mr_ident.numerics.simulate import simulate
+from mr_bench.scenarios import draw_loop
+from mr_ident.diagnosis.criterion.noise import loop_noise_gain
+from mr_ident.numerics.systems.simulate import simulate
 
 
 @pytest.mark.parametrize("seed,ratio", [(7100, 1), (7101, 2), (7102, 3), (7103, 5)])

@@ -1,4 +1,4 @@
-"""The criterion's noise level (mr_ident.diagnosis.objective.Objective) against the noise
+"""The criterion's noise level (mr_ident.diagnosis.criterion.objective.Objective) against the noise
 the record was made with.
 
 Loops drawn at random with integral action in the controller (``scenarios.draw_scenario``,
@@ -17,10 +17,10 @@ import warnings
 import numpy as np
 import pytest
 
+from mr_bench.scenarios import draw_scenario
+from mr_ident.diagnosis.criterion.noise import loop_noise_gain
+from mr_ident.diagnosis.criterion.objective import Objective
 from mr_ident.diagnosis.diagnose import default_n, identify_record, noise_spectrum, split
-from mr_ident.diagnosis.noise import loop_noise_gain
-from mr_ident.diagnosis.objective import Objective
-from mr_ident.diagnosis.scenarios import draw_scenario
 
 
 @pytest.mark.parametrize("seed", [1, 19, 21])

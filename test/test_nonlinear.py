@@ -17,13 +17,13 @@ import numpy as np
 import scipy.linalg
 
 from mr_ident.diagnosis import diagnose
+from mr_ident.diagnosis.causes.plant_causes import PLANT_CAUSES
 from mr_ident.diagnosis.diagnose import NL_THRESHOLD_DB
-from mr_ident.diagnosis.plant_causes import PLANT_CAUSES
-from mr_ident.numerics.bla import best_linear_approximation
-from mr_ident.numerics.model import Model
-from mr_ident.numerics.multisine import design
+from mr_ident.numerics.excitation.bla import best_linear_approximation
+from mr_ident.numerics.excitation.multisine import design
 from mr_ident.numerics.signals import LoopData
-from mr_ident.numerics.systems import TransferMatrix
+from mr_ident.numerics.systems.lti import TransferMatrix
+from mr_ident.numerics.systems.model import Model
 
 FS, N, PERIODS = 1000.0, 1000, 8
 M_, B_ = 0.05, 1.0  # kg, N s/m: a 3.2 Hz corner
@@ -139,7 +139,7 @@ def test_a_gain_change_in_a_linear_multirate_loop_is_found_and_no_distortion_nam
     import dataclasses
 
     from mr_ident.io.modelfile import load_model
-    from mr_ident.numerics.simulate import LoopStream
+    from mr_ident.numerics.systems.simulate import LoopStream
 
     model = load_model("config/paper_example.yaml")
     n = 1200

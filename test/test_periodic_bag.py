@@ -20,9 +20,9 @@ from bagmaker import BagWriter, stamps
 from mr_ident.cli import main
 from mr_ident.live.periodic import cut_by_labels, record_by_count
 from mr_ident.live.replay import bag_signals
-from mr_ident.numerics.bla import best_linear_approximation
-from mr_ident.numerics.multisine import design
-from mr_ident.numerics.schedule import LABELS, Schedule
+from mr_ident.numerics.excitation.bla import best_linear_approximation
+from mr_ident.numerics.excitation.multisine import design
+from mr_ident.numerics.excitation.schedule import LABELS, Schedule
 
 N, M, P, FS = 256, 4, 4, 100.0
 B, A = [0.0, 0.02, 0.018], [1.0, -1.7, 0.74]
@@ -130,7 +130,7 @@ def test_the_multirate_closed_loop_in_the_block_contract_gives_p_h_within_its_st
     lines show no distortion (within 6 dB of the noise: the ratio keeps the lifted aliases
     out)."""
     from mr_ident.io.modelfile import load_model
-    from mr_ident.numerics.excitation import SimSource
+    from mr_ident.numerics.excitation.sources import SimSource
 
     model = load_model("config/paper_example.yaml")
     n, p, m = 2400, 3, 2

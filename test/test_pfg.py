@@ -7,9 +7,9 @@ import pytest
 from conftest import brute_force_loop
 
 from mr_ident.numerics.identify import identify
-from mr_ident.numerics.pfg import pfg_from_lifted, pfg_from_plant
-from mr_ident.numerics.simulate import loop_poles, simulate
-from mr_ident.numerics.systems import TransferMatrix
+from mr_ident.numerics.lifted.pfg import pfg_from_lifted, pfg_from_plant
+from mr_ident.numerics.systems.lti import TransferMatrix
+from mr_ident.numerics.systems.simulate import loop_poles, simulate
 
 
 @pytest.mark.parametrize("phase,delay,gain", [(0, 0, 6000.0), (1, 1, 2000.0), (2, 2, 2000.0)])
@@ -83,8 +83,8 @@ def test_pfg_std_follows_the_noise(paper_model):
 
 
 def test_the_dense_closed_loop_maps_agree_with_the_structured_pfg(paper_model):
+    from mr_ident.numerics.lifted.loop import closed_loop_maps
     from mr_ident.numerics.lifting import half_to_full
-    from mr_ident.numerics.loop import closed_loop_maps
 
     F, N = 3, 300
     M = N // F

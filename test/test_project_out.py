@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mr_ident.diagnosis.objective import project_out
+from mr_ident.diagnosis.criterion.objective import project_out
 
 
 def _reference(A: np.ndarray, b: np.ndarray) -> np.ndarray:

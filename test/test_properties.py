@@ -22,7 +22,7 @@ from mr_ident.numerics.lifting import (
     time_unlift,
     unlift_frf,
 )
-from mr_ident.numerics.lpm import lpm
+from mr_ident.numerics.local.lpm import lpm
 
 SETTINGS = settings(
     max_examples=int(os.environ.get("MR_IDENT_HYPOTHESIS_EXAMPLES", 40)),

@@ -1,4 +1,5 @@
-"""State-space realisations (numerics/realize.py) against closed forms and direct evaluation.
+"""State-space realisations (numerics/systems/realize.py) against closed forms and direct
+evaluation.
 
 Tolerances: the simulated step response of a sixth-order modal plant within 1e-9 of its
 peak against the closed-form continuous step response (a held step is exact under ZOH);
@@ -11,8 +12,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from mr_ident.numerics.model import Model
-from mr_ident.numerics.realize import (
+from mr_ident.numerics.systems.lti import TransferMatrix
+from mr_ident.numerics.systems.model import Model
+from mr_ident.numerics.systems.realize import (
     lowpass,
     mode_block,
     notch,
@@ -22,8 +24,7 @@ from mr_ident.numerics.realize import (
     split_mode,
     zoh,
 )
-from mr_ident.numerics.simulate import simulate
-from mr_ident.numerics.systems import TransferMatrix
+from mr_ident.numerics.systems.simulate import simulate
 
 FS = 1000.0
 MODES = [(40.0, 0.02, 1.0), (150.0, 0.01, -0.3), (380.0, 0.05, 0.2)]  # f, damping, gain
@@ -149,7 +150,7 @@ def test_the_zoh_with_delay_matches_a_fine_simulation(delay):
 
 def test_freqresp_on_a_pole_is_infinite_there_and_exact_elsewhere():
     """A double integrator's response at DC (z = 1): inf, not a LinAlgError; others exact."""
-    from mr_ident.numerics.systems import StateSpace
+    from mr_ident.numerics.systems.lti import StateSpace
 
     dt = 1e-3
     A = np.array([[1.0, dt], [0.0, 1.0]])  # defective: the eigenvector path is refused

@@ -21,7 +21,7 @@ from mr_ident.io.modelfile import load_model
 from mr_ident.live.recordings import load_recording
 from mr_ident.live.replay import bag_signals
 from mr_ident.numerics.identify import identify
-from mr_ident.numerics.simulate import simulate
+from mr_ident.numerics.systems.simulate import simulate
 
 SPECS = {"r": [R], "u": [U], "y": [Y]}
 DROPPED = {1000, 12000}

@@ -30,9 +30,9 @@ from std_msgs.msg import Float64MultiArray  # noqa: E402
 
 from mr_ident.io.modelfile import load_model  # noqa: E402
 from mr_ident.live.sampling import grid_stamps  # noqa: E402
-from mr_ident.numerics.bla import best_linear_approximation  # noqa: E402
-from mr_ident.numerics.multisine import design  # noqa: E402
-from mr_ident.numerics.schedule import LABELS, Schedule, realizations_of  # noqa: E402
+from mr_ident.numerics.excitation.bla import best_linear_approximation  # noqa: E402
+from mr_ident.numerics.excitation.multisine import design  # noqa: E402
+from mr_ident.numerics.excitation.schedule import LABELS, Schedule, realizations_of  # noqa: E402
 from mr_ident.ros.excite_pub import index_topic, make_form, publish  # noqa: E402
 from mr_ident.ros.messages import BLOCK_QOS, block_of  # noqa: E402
 

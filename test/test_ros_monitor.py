@@ -24,12 +24,12 @@ from rosgraph import graph as graph  # noqa: E402  (the fixture)
 from std_msgs.msg import Float64MultiArray, String  # noqa: E402
 
 from mr_ident.cli import main  # noqa: E402
-from mr_ident.diagnosis.monitor import load_watch, watch_windows  # noqa: E402
+from mr_ident.diagnosis.monitoring.monitor import load_watch, watch_windows  # noqa: E402
 from mr_ident.io.datafile import read_data  # noqa: E402
 from mr_ident.io.modelfile import load_model  # noqa: E402
 from mr_ident.live.replay import bag_windows  # noqa: E402
-from mr_ident.numerics.excitation import SimSource  # noqa: E402
-from mr_ident.numerics.simulate import simulate  # noqa: E402
+from mr_ident.numerics.excitation.sources import SimSource  # noqa: E402
+from mr_ident.numerics.systems.simulate import simulate  # noqa: E402
 from mr_ident.ros.messages import RESULT_QOS, block_msg  # noqa: E402
 
 
@@ -165,7 +165,7 @@ def test_node_names_a_moved_mode_and_a_delay(graph, tmp_path: Path, change, caus
     cause named on ~/diagnosis with its value within tolerance (frequency 2 %, delay 0.1
     sample) and WARN or ERROR."""
     from mr_ident.io.modelfile import model_to_dict
-    from mr_ident.numerics.systems import TransferMatrix
+    from mr_ident.numerics.systems.lti import TransferMatrix
 
     soft = replace(
         load_model(PAPER),

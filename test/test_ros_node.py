@@ -31,7 +31,7 @@ from mr_ident.io.config import IdentConfig  # noqa: E402
 from mr_ident.io.modelfile import load_model  # noqa: E402
 from mr_ident.live.estimate import estimate  # noqa: E402
 from mr_ident.live.replay import replay  # noqa: E402
-from mr_ident.numerics.excitation import SimSource  # noqa: E402
+from mr_ident.numerics.excitation.sources import SimSource  # noqa: E402
 from mr_ident.ros.messages import BLOCK_QOS, BODE_TOPICS, block_msg  # noqa: E402
 from mr_ident.ros.node import IdentNode  # noqa: E402
 

@@ -21,7 +21,7 @@ from rosgraph import graph as graph  # noqa: E402  (the fixture)
 from std_msgs.msg import Float64  # noqa: E402
 
 from mr_ident.io.modelfile import load_model  # noqa: E402
-from mr_ident.numerics.excitation import SimSource  # noqa: E402
+from mr_ident.numerics.excitation.sources import SimSource  # noqa: E402
 
 QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 

@@ -8,9 +8,9 @@ import pytest
 
 from mr_ident.errors import ConfigError, DataError
 from mr_ident.live.sampling import Sampler, grid_stamps
-from mr_ident.numerics.excitation import Follower
-from mr_ident.numerics.schedule import Schedule, realizations_of
-from mr_ident.numerics.simulate import LoopStream
+from mr_ident.numerics.excitation.schedule import Schedule, realizations_of
+from mr_ident.numerics.excitation.sources import Follower
+from mr_ident.numerics.systems.simulate import LoopStream
 
 
 def test_labels_follow_realization_then_period_then_sample_and_loop():

@@ -1,7 +1,7 @@
 """Fitting centre bins in runs of their own width equals fitting each width on every bin.
 
 The automatic window fits a few candidate widths on a probe of bins, then every bin with
-its chosen width (:mod:`mr_ident.numerics.segments`): the segments of one engine call must
+its chosen width (:mod:`mr_ident.numerics.local.segments`): the segments of one engine call must
 give, bin for bin, exactly what the fixed-width fit gives (the windows that straddle two
 segments are dropped, never kept).
 """
@@ -10,12 +10,13 @@ import numpy as np
 import pytest
 
 from mr_ident.errors import ConfigError
-from mr_ident.numerics.bandwidth import centre_bins, probe_runs
 from mr_ident.numerics.identify import identify
-from mr_ident.numerics.lpm import dof
-from mr_ident.numerics.methods import METHODS, FitRequest, Spectra
-from mr_ident.numerics.segments import check_runs, runs_of, segments
-from mr_ident.numerics.simulate import simulate
+from mr_ident.numerics.lifted.methods import METHODS, FitRequest
+from mr_ident.numerics.lifted.spectra import Spectra
+from mr_ident.numerics.local.bandwidth import centre_bins, probe_runs
+from mr_ident.numerics.local.lpm import dof
+from mr_ident.numerics.local.segments import check_runs, runs_of, segments
+from mr_ident.numerics.systems.simulate import simulate
 
 
 def test_runs_of_is_the_run_length_code():

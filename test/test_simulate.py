@@ -8,7 +8,7 @@ from conftest import brute_force_loop
 
 from mr_ident.errors import ConfigError, DimensionError
 from mr_ident.io.modelfile import model_from_dict
-from mr_ident.numerics.simulate import simulate
+from mr_ident.numerics.systems.simulate import simulate
 
 
 @pytest.mark.parametrize("phase,delay", [(0, 0), (1, 0), (2, 1), (0, 4)])

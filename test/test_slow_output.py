@@ -10,12 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mr_bench.scenarios import draw_loop
 from mr_ident.cli import main
-from mr_ident.diagnosis.scenarios import draw_loop
 from mr_ident.errors import ConfigError, DataError, DimensionError
 from mr_ident.io.datafile import read_npz
-from mr_ident.numerics.alias_range import row_alias_range
 from mr_ident.numerics.identify import default_n, identify
+from mr_ident.numerics.lifted.alias_range import row_alias_range
+from mr_ident.numerics.lifted.pfg import pfg_of_model
 from mr_ident.numerics.lifting import (
     dft,
     half_spectrum,
@@ -24,9 +25,8 @@ from mr_ident.numerics.lifting import (
     unlift_bins,
     unlift_row,
 )
-from mr_ident.numerics.pfg import pfg_of_model
 from mr_ident.numerics.signals import LoopData
-from mr_ident.numerics.simulate import simulate
+from mr_ident.numerics.systems.simulate import simulate
 
 
 @pytest.mark.parametrize("F,q", [(2, 0), (3, 2), (5, 1)])

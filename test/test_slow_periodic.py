@@ -1,4 +1,5 @@
-"""P_h from a low-rate output on a rotated lifted multisine (mr_ident.numerics.slow_periodic).
+"""P_h from a low-rate output on a rotated lifted multisine
+(mr_ident.numerics.lifted.slow_periodic).
 
 Loops drawn at random (``scenarios.draw_loop``: plants of order 2-6, lead/PI/PID, F in
 {2, 3, 5}) played a rotated lifted design (``design(rotate=True)``, F realizations), in
@@ -18,12 +19,12 @@ import numpy as np
 import pytest
 from conftest import periodic_runs
 
-from mr_ident.diagnosis.scenarios import draw_loop
+from mr_bench.scenarios import draw_loop
 from mr_ident.errors import ConfigError, DimensionError
-from mr_ident.numerics.multisine import alias_family, design
-from mr_ident.numerics.pfg import pfg_of_model
-from mr_ident.numerics.simulate import loop_poles
-from mr_ident.numerics.slow_periodic import slow_output_plant
+from mr_ident.numerics.excitation.multisine import alias_family, design
+from mr_ident.numerics.lifted.pfg import pfg_of_model
+from mr_ident.numerics.lifted.slow_periodic import slow_output_plant
+from mr_ident.numerics.systems.simulate import loop_poles
 
 
 def _record(seed, noise=0.0, kept=3, rotate=True):

@@ -14,7 +14,7 @@ from mr_ident.io.config import IdentConfig, load_params
 from mr_ident.live.align import Aligner
 from mr_ident.live.estimate import detect_phase, estimate, publish_grid, warm_up
 from mr_ident.numerics.signals import LoopData
-from mr_ident.numerics.simulate import LoopStream, simulate
+from mr_ident.numerics.systems.simulate import LoopStream, simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -155,7 +155,7 @@ def test_phase_detection_finds_the_sampling_phase(paper_model, phase, delay):
         paper_model, sample_phase=phase, control_delay=delay, controller=paper_model.controller
     )
     if delay:  # a computation delay needs a gentler controller to stay stable
-        from mr_ident.numerics.systems import TransferMatrix
+        from mr_ident.numerics.systems.lti import TransferMatrix
 
         m = dataclasses.replace(
             m, controller=TransferMatrix.siso([600.0, -540.0], [1.0, -0.3], 3 / 240)
@@ -304,7 +304,7 @@ def test_a_mimo_controller_from_node_parameters_gives_the_models_pfg():
     K_l; the estimate of a noise-free MIMO loop then has the model's PFG (1e-5 median
     relative) and the warm-up runs with the configured channels."""
     from mr_ident.io.modelfile import model_from_dict
-    from mr_ident.numerics.pfg import pfg_of_model
+    from mr_ident.numerics.lifted.pfg import pfg_of_model
 
     model = model_from_dict(
         {

@@ -12,9 +12,9 @@ from dataclasses import replace
 import numpy as np
 
 from mr_ident.numerics.identify import identify
+from mr_ident.numerics.lifted.structured import structured_block
 from mr_ident.numerics.lifting import dft
-from mr_ident.numerics.simulate import simulate
-from mr_ident.numerics.structured import structured_block
+from mr_ident.numerics.systems.simulate import simulate
 
 
 def _window_lstsq(X, Y, n, R):
@@ -121,7 +121,7 @@ def test_on_random_loops_structured_is_exact_noise_free_and_no_worse_than_lpm_wi
     """Two seeded random loops (the diagnosis generator: F in {2, 3}, 60 s, SNR 20-60 dB).
     Noise-free: <= 1e-7 and below lpm (measured 2e-8 and 6e-10 against lpm's 3e-8 and
     5e-6). Noisy, both n auto: within 10 % of lpm (measured 1.00x both)."""
-    from mr_ident.diagnosis.scenarios import draw_loop
+    from mr_bench.scenarios import draw_loop
 
     rng = np.random.default_rng(7)
     for _ in range(2):

@@ -21,13 +21,13 @@ import pytest
 
 from mr_ident.cli import main
 from mr_ident.diagnosis import diagnose
-from mr_ident.diagnosis.plant_causes import plant_modes
+from mr_ident.diagnosis.causes.plant_causes import plant_modes
 from mr_ident.errors import ModelError
 from mr_ident.io.modelfile import load_model, model_from_dict, model_to_dict
-from mr_ident.numerics.model import Model
 from mr_ident.numerics.signals import LoopData
-from mr_ident.numerics.simulate import simulate
-from mr_ident.numerics.systems import TransferMatrix
+from mr_ident.numerics.systems.lti import TransferMatrix
+from mr_ident.numerics.systems.model import Model
+from mr_ident.numerics.systems.simulate import simulate
 
 FS, F, DURATION = 240.0, 3, 30.0
 NOISE_FRACTION = 0.02
@@ -314,7 +314,7 @@ def _random_loop(rng: np.random.Generator) -> Model:
     """A loop drawn at random: a modal plant of 1-2 modes (one may be an integrator pair's
     neighbour at low frequency), an input delay of 0-2.5 samples, F in {2, 3}, and a
     low-rate PD-like controller whose gain is halved until the loop is stable."""
-    from mr_ident.numerics.simulate import loop_poles
+    from mr_ident.numerics.systems.simulate import loop_poles
 
     Fr = int(rng.choice([2, 3]))
     num, den = np.array([0.0]), np.array([1.0])

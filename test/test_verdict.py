@@ -1,4 +1,4 @@
-"""The judge of the diagnosis benchmark (mr_ident.diagnosis.verdict).
+"""The judge of the diagnosis benchmark (mr_bench.verdict).
 
 A parameter outside its fixed tolerance counts as *credible* only when the truth's
 likelihood ratio against the fit is within the chi-square quantile at CONFIDENCE for the
@@ -21,12 +21,9 @@ import dataclasses
 import numpy as np
 import scipy.stats
 
-from mr_ident import simulate
-from mr_ident.diagnosis import diagnose
-from mr_ident.diagnosis.information import DETERMINED, determinable, truth_std
-from mr_ident.diagnosis.prediction import predict
-from mr_ident.diagnosis.scenarios import PARAMETER_FIELDS, HiddenCause, apply, draw_scenario
-from mr_ident.diagnosis.verdict import (
+from mr_bench.information import DETERMINED, determinable, truth_std
+from mr_bench.scenarios import PARAMETER_FIELDS, HiddenCause, apply, draw_scenario
+from mr_bench.verdict import (
     CONFIDENCE,
     TOLERANCES,
     hidden_dof,
@@ -34,6 +31,9 @@ from mr_ident.diagnosis.verdict import (
     judge,
     likelihood_ratio,
 )
+from mr_ident import simulate
+from mr_ident.diagnosis import diagnose
+from mr_ident.diagnosis.criterion.prediction import predict
 from mr_ident.io.modelfile import model_from_dict
 
 

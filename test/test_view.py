@@ -261,7 +261,7 @@ def test_a_bag_replays_its_estimates_into_the_view(tmp_path):
     from mr_ident.live.estimate import estimate, publish_grid
     from mr_ident.live.replay import bag_signals
     from mr_ident.numerics.signals import LoopData
-    from mr_ident.numerics.simulate import simulate
+    from mr_ident.numerics.systems.simulate import simulate
 
     model = load_model(PAPER)
     sim = simulate(model, duration=40.0, rng=np.random.default_rng(4))
@@ -365,7 +365,7 @@ def test_a_bla_reference_brings_its_noise_and_nonlinear_std_to_the_state_and_the
     page's script (run under node.js with a stub document and Plotly; skipped without node)
     draws the σ curves beside the estimate, the BLA alone before the first estimate, and
     the levels in the table."""
-    from mr_ident.numerics.bla import BLA
+    from mr_ident.numerics.excitation.bla import BLA
     from mr_ident.view.state import ViewState
 
     f = np.array([1.0, 3.0, 5.0])

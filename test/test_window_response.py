@@ -1,4 +1,4 @@
-"""The loop's y over a window in the frequency domain (numerics.window_response) against
+"""The loop's y over a window in the frequency domain (numerics.systems.window_response) against
 the loop simulated sample by sample.
 
 Loops drawn at random (``scenarios.draw_loop``, F in {1, 2, 3, 5}; two with a sinusoidal
@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 from conftest import brute_force_loop
 
-from mr_ident.diagnosis.scenarios import draw_loop
-from mr_ident.numerics.window_response import LoopSpectrum, lifted_dft
+from mr_bench.scenarios import draw_loop
+from mr_ident.numerics.systems.window_response import LoopSpectrum, lifted_dft
 
 
 def _residual(G: np.ndarray, X: np.ndarray) -> float:

@@ -10,9 +10,9 @@ from typing import TYPE_CHECKING, Any
 from ..errors import ConfigError, DataError
 
 if TYPE_CHECKING:
-    from ..numerics.model import Model
     from ..numerics.results import Identification
     from ..numerics.signals import LoopData
+    from ..numerics.systems.model import Model
 
 
 def resolve_rates(
@@ -72,7 +72,7 @@ def write_plots(
 
     The PFG plot shows the PFG from data and, with a controller, the one from P_h and it.
     """
-    from ..numerics.pfg import pfg_of_model
+    from ..numerics.lifted.pfg import pfg_of_model
     from ..plots import plot_bode, plot_pfg
 
     nyq = fs / F / 2 if F > 1 else None
@@ -91,8 +91,7 @@ def describe_pfgs(ident: Identification) -> list[str]:
     """Lines on the PFGs of a result: each one's peak and std; with both, their agreement."""
     import numpy as np
 
-    from ..diagnosis.controller_check import check_controller
-    from ..diagnosis.verdict import COVERAGE
+    from ..diagnosis.controller.check import COVERAGE, check_controller
 
     lines = []
     for g, what in ((ident.pfg_data, "from data (lifted r->y)"), (ident.pfg, "from P_h and K_l")):

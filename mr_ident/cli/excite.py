@@ -137,7 +137,7 @@ def cmd_excite(args: argparse.Namespace) -> int:
 def _design(args: argparse.Namespace) -> tuple[Any, float, int]:
     """Design per the options, write ``--out`` if given, say what; (r, fs_high, period)."""
     from ..io.excitefile import write_excitation
-    from ..numerics.multisine import design
+    from ..numerics.excitation.multisine import design
 
     if args.lifted and args.ratio == 1:
         raise ConfigError("--lifted needs --ratio F > 1 (the lifted aliases it keeps apart)")

@@ -112,7 +112,7 @@ def _replay_monitoring(signals: LoopData, cfg: IdentConfig, what: str) -> None:
 
     Over the span the replay read (not read again), window by window as the node.
     """
-    from ..diagnosis.monitor import load_watch, watch_windows
+    from ..diagnosis.monitoring.monitor import load_watch, watch_windows
     from ..live.replay import loop_windows
 
     watch = load_watch(cfg)

@@ -29,7 +29,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
     from ..io.datafile import write_data
     from ..io.modelfile import load_model
-    from ..numerics.simulate import simulate
+    from ..numerics.systems.simulate import simulate
 
     model = load_model(args.model)
     sim = simulate(model, duration=args.duration, rng=np.random.default_rng(args.seed))

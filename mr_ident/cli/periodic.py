@@ -21,14 +21,14 @@ from .common import read_loop, reading, source_specs
 if TYPE_CHECKING:
     from ..io.periodicfile import Realizations
     from ..live.periodic import Periods
-    from ..numerics.bla import BLA
+    from ..numerics.excitation.bla import BLA
 
 
 def identify_periodic(args: argparse.Namespace) -> int:
     """``identify --period``: the BLA of an NPZ of realizations or of a bag."""
     from ..live.periodic import cut_by_count, periodic_bla
     from ..live.recordings import is_bag
-    from ..numerics.bla import distortion_by_band
+    from ..numerics.excitation.bla import distortion_by_band
 
     if is_bag(args.data):
         cut, fs, F = _bag_periods(args)
@@ -47,14 +47,14 @@ def identify_periodic(args: argparse.Namespace) -> int:
 def _npz_slow(args: argparse.Namespace, data: Realizations, fs: float, F: int) -> int:
     """P_h from an NPZ whose y holds the low-rate samples only.
 
-    Through :func:`~mr_ident.numerics.slow_periodic.slow_output_plant` (a rotated lifted
+    Through :func:`~mr_ident.numerics.lifted.slow_periodic.slow_output_plant` (a rotated lifted
     design: ``mr-ident excite --lifted --rotate``), written as an identification result.
     """
     import numpy as np
 
     from ..io.datafile import write_result
+    from ..numerics.lifted.slow_periodic import SLOW_PFG_SOURCE, slow_output_plant
     from ..numerics.results import FRF, PFG, Identification
-    from ..numerics.slow_periodic import SLOW_PFG_SOURCE, slow_output_plant
 
     r, u, y, q = data.r, data.u, data.y, data.y_phase
     N, T = int(args.period), int(args.transient_periods)

@@ -2,11 +2,14 @@
 
 And the gain of an extended model (``mr-ident diagnose``).
 
-:mod:`~mr_ident.diagnosis.prediction` (the model simulated on the data),
-:mod:`~mr_ident.diagnosis.evidence` (the per-bin test), :mod:`~mr_ident.diagnosis.noise`,
-:mod:`~mr_ident.diagnosis.objective` (the criterion), :mod:`~mr_ident.diagnosis.causes`
-(one class per cause, a registry), :mod:`~mr_ident.diagnosis.diagnose` and
-:mod:`~mr_ident.diagnosis.report` (the JSON summary). Above numerics and I/O.
+:mod:`~mr_ident.diagnosis.diagnose` (the one call) and :mod:`~mr_ident.diagnosis.report`
+(the JSON summary) at the top; in rooms: the criterion every cause is fitted by
+(:mod:`~mr_ident.diagnosis.criterion`: prediction, the per-bin evidence, noise, the
+objective), the causes (:mod:`~mr_ident.diagnosis.causes`: one class per cause, a
+registry), their selection (:mod:`~mr_ident.diagnosis.selection`: fitting, forward
+selection, equivalents), the controller's checks (:mod:`~mr_ident.diagnosis.controller`)
+and monitoring (:mod:`~mr_ident.diagnosis.monitoring`: drift, the monitor). Above numerics
+and I/O.
 """
 
 from .diagnose import Diagnosis, diagnose

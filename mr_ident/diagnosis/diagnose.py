@@ -1,28 +1,28 @@
 """Model validation: where a nominal model is wrong, why, and how much a fix gains.
 
 Given measured r_h, u_h, y_h (a :class:`~mr_ident.numerics.signals.LoopData` with its
-rates) and a nominal :class:`~mr_ident.numerics.model.Model`, :func:`diagnose`:
+rates) and a nominal :class:`~mr_ident.numerics.systems.model.Model`, :func:`diagnose`:
 
-1. **Where** (:mod:`~mr_ident.diagnosis.evidence`): the identified P̂_h (and, with a
+1. **Where** (:mod:`~mr_ident.diagnosis.criterion.evidence`): the identified P̂_h (and, with a
    controller, the lifted J̃ and S̃) against the model's, bin by bin in σ units, with a
    test whose false-alarm rate under noise alone is at most ``alpha``.
-2. **The controller's own equation** (:mod:`~mr_ident.diagnosis.controller_relation`):
+2. **The controller's own equation** (:mod:`~mr_ident.diagnosis.controller.relation`):
    in closed loop the logged u must be the model controller's output for the logged y
    and r, with no noise between them. Where it is, no cause sits in the controller's
    path; where a notch, control delay or sampling offset makes it so, that cause is
    applied with its exact values before the plant's are sought; where nothing does, the
    controller-side causes stay in the search below.
-3. **Why** (:mod:`~mr_ident.diagnosis.causes`): every cause of the registry is a
+3. **Why** (:mod:`~mr_ident.diagnosis.causes.cause`): every cause of the registry is a
    parametric extension of the model, fitted to the data by least squares on the
    whitened spectrum of the simulation residual y - ŷ
-   (:class:`~mr_ident.diagnosis.objective.Objective`, noise from
-   :mod:`~mr_ident.diagnosis.noise`). Causes are ranked by the Bayesian information
+   (:class:`~mr_ident.diagnosis.criterion.objective.Objective`, noise from
+   :mod:`~mr_ident.diagnosis.criterion.noise`). Causes are ranked by the Bayesian information
    criterion ``BIC = 2 sum_k |E(k)|^2 / S(k) + p ln n`` (n the number of bins, p the
    cause's free parameters; lower is better). The model being extended is the cause
    ``none`` (p = 0). A cause is accepted only when its BIC is below that of the model it
    extends; accepted causes are applied greedily (up to ``max_causes``), each step
    re-ranking the rest against the extended model.
-4. **Gain** (:mod:`~mr_ident.diagnosis.prediction`): fit % of y and u, and the FRF error
+4. **Gain** (:mod:`~mr_ident.diagnosis.criterion.prediction`): fit % of y and u, and the FRF error
    in σ units, of the nominal and the extended model on validation data.
 """
 
@@ -37,21 +37,21 @@ from typing import Any, ParamSpec
 import numpy as np
 
 from ..errors import ConfigError, DataError
-from ..numerics.bla import BandLevels, distortion_by_band
+from ..numerics.excitation.bla import BandLevels, distortion_by_band
 from ..numerics.identify import default_n, min_samples
-from ..numerics.model import Model
 from ..numerics.signals import LoopData
+from ..numerics.systems.model import Model
 from ..numerics.threads import one_blas_thread
-from .causes import CauseFit, PlantData
-from .controller_check import ControllerCheck, check_controller
-from .controller_relation import ControllerRelation, relate
-from .equivalence import with_equivalents
-from .evidence import Evidence, frf_evidence, identify_record
-from .noise import noise_spectrum
-from .objective import Objective, settle_samples
-from .prediction import TimeFit, centred, predict, time_fit
-from .registry import CAUSES, build
-from .selection import SCREEN_SAMPLES, select
+from .causes.cause import CauseFit, PlantData
+from .causes.registry import CAUSES, build
+from .controller.check import ControllerCheck, check_controller
+from .controller.relation import ControllerRelation, relate
+from .criterion.evidence import Evidence, frf_evidence, identify_record
+from .criterion.noise import noise_spectrum
+from .criterion.objective import Objective, settle_samples
+from .criterion.prediction import TimeFit, centred, predict, time_fit
+from .selection.equivalence import with_equivalents
+from .selection.forward import SCREEN_SAMPLES, select
 
 
 def min_record(n: int, ratio: int) -> int:
@@ -144,16 +144,16 @@ class Diagnosis:
         Which data were used for what.
     controller : ControllerCheck or None
         The PFG from data against the PFG of the model's controller, on the estimation data
-        (:mod:`~mr_ident.diagnosis.controller_check`); None in open loop or for periodic
+        (:mod:`~mr_ident.diagnosis.controller.check`); None in open loop or for periodic
         data.
     criterion : Objective or None
         The estimation criterion every cause was fitted on (the whitened time-domain
         residual of the estimation data), to score another model on the same footing
-        (:func:`~mr_ident.diagnosis.verdict.likelihood_ratio`).
+        (:func:`~mr_bench.verdict.likelihood_ratio`).
     relation : ControllerRelation or None
         The controller's own equation on the estimation data (does the logged u follow
         from the logged y through the model's controller?) and the controller-side causes
-        it determined (:mod:`~mr_ident.diagnosis.controller_relation`); None in open loop
+        it determined (:mod:`~mr_ident.diagnosis.controller.relation`); None in open loop
         or with y at the low rate.
     """
 

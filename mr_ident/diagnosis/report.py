@@ -9,11 +9,10 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from .controller_check import MIN_FRACTION
-from .controller_relation import EXACT
+from .controller.check import COVERAGE, MIN_FRACTION
+from .controller.relation import EXACT
 from .diagnose import NL_THRESHOLD_DB, Diagnosis
-from .selection import ACCEPT_MARGIN
-from .verdict import COVERAGE
+from .selection.forward import ACCEPT_MARGIN
 
 
 def _finite(x: float | None) -> float | None:

@@ -30,7 +30,8 @@ BLOCK_TYPE = "std_msgs/msg/Float64MultiArray"
 SAMPLES, CHANNELS = "samples", "channels"
 STREAMS = ("reference", "input", "output")  # r_h, u_h, y_h
 #: The fourth stream beside r, u, y: an excitation's labels (3 channels: realization,
-#: period, sample of the period; :mod:`mr_ident.numerics.schedule`) at the samples' indices.
+#: period, sample of the period; :mod:`mr_ident.numerics.excitation.schedule`) at the samples'
+#: indices.
 LABELS_STREAM = "excitation_index"
 MAX_INDEX = 2**53
 

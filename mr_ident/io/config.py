@@ -29,7 +29,7 @@ import yaml
 from ..errors import ConfigError, yaml_problem
 from ..numerics.identify import AUTO, METHODS, check_options, default_n
 from ..numerics.identify import min_samples as record_minimum
-from ..numerics.systems import TransferMatrix
+from ..numerics.systems.lti import TransferMatrix
 from .paths import parse_source
 
 
@@ -304,7 +304,7 @@ class IdentConfig:
 
     @property
     def identify_n(self) -> int | str:
-        """``identify(n=...)``: ``n``, or "auto" for 0 (:mod:`mr_ident.numerics.bandwidth`)."""
+        """``identify(n=...)``: ``n``, or "auto" for 0 (:mod:`~.numerics.local.bandwidth`)."""
         return self.n or AUTO
 
     @property

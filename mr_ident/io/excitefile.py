@@ -9,7 +9,7 @@ import numpy as np
 
 from ..errors import ConfigError, DataError
 from ..numerics.arrays import FloatArray
-from ..numerics.multisine import Multisine
+from ..numerics.excitation.multisine import Multisine
 from .atomic import atomic_write
 from .datafile import load_npz
 

@@ -1,7 +1,7 @@
 """An excitation's labels beside its signal: their topic, and the sources that read them.
 
 ``mr-ident excite --publish TOPIC`` puts each sample's labels (realization, period,
-sample of the period; :data:`~mr_ident.numerics.schedule.LABELS`) on
+sample of the period; :data:`~mr_ident.numerics.excitation.schedule.LABELS`) on
 ``TOPIC/excitation_index`` in the form of the signal (:mod:`mr_ident.ros.excite_pub`):
 
 - the block contract: a block of 3 channels at the samples' indices (read as a fourth
@@ -18,7 +18,7 @@ index (:mod:`mr_ident.live.feed`, :mod:`mr_ident.live.align`).
 from __future__ import annotations
 
 from ..errors import DataError
-from ..numerics.schedule import LABELS
+from ..numerics.excitation.schedule import LABELS
 from .blocks import BLOCK_TYPE
 
 #: The labels' topic, under the signal's topic.

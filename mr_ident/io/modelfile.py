@@ -1,6 +1,6 @@
-"""Model files (YAML): read, validate and write a :class:`~mr_ident.numerics.model.Model`.
+"""Model files (YAML): read, validate and write a :class:`~mr_ident.numerics.systems.model.Model`.
 
-The form is the one in :mod:`mr_ident.numerics.model`'s docstring and the README. Every
+The form is the one in :mod:`mr_ident.numerics.systems.model`'s docstring and the README. Every
 problem is a :class:`~mr_ident.errors.ModelError` naming the file and the key
 (``plant.num[2]``), or the YAML line and column; an unstable loop is refused.
 """
@@ -15,9 +15,9 @@ import numpy as np
 import yaml
 
 from ..errors import ModelError, yaml_problem
-from ..numerics.model import Model
-from ..numerics.simulate import loop_poles
-from ..numerics.systems import TransferMatrix
+from ..numerics.systems.lti import TransferMatrix
+from ..numerics.systems.model import Model
+from ..numerics.systems.simulate import loop_poles
 
 _KEYS = {
     "fs_high",

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..errors import DataError
 from ..numerics.arrays import FloatArray
-from ..numerics.bla import BLA, LINE_PFG_SOURCE
+from ..numerics.excitation.bla import BLA, LINE_PFG_SOURCE
 from .atomic import atomic_write
 from .datafile import load_npz
 

@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 
 from ..errors import DataError
 from ..io.config import IdentConfig
-from ..numerics.bla import BLA
+from ..numerics.excitation.bla import BLA
 from ..numerics.identify import identify
 from ..numerics.results import Identification
 from ..numerics.signals import LoopData

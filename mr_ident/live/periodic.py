@@ -5,14 +5,14 @@ The one path from a periodic record to the best linear approximation, for ``iden
 
 - by the labels that came with the samples (:func:`cut_by_labels`, the record's
   :attr:`~mr_ident.numerics.signals.LoopData.labels`): the period read off the labels (or
-  checked against them), and :func:`~mr_ident.numerics.schedule.realizations_of` keeps the
-  whole periods of every realization after the first ``transient`` of each run;
+  checked against them), and :func:`~mr_ident.numerics.excitation.schedule.realizations_of` keeps
+  the whole periods of every realization after the first ``transient`` of each run;
 - without labels (:func:`cut_by_count`): the realizations as rows (an NPZ, or one row: a
   record from its first sample), periods counted from each row's first sample, the first
   ``transient`` dropped;
 
-then :func:`periodic_bla` (:func:`~mr_ident.numerics.bla.best_linear_approximation` of the
-cut, the noise from the spread over periods, the nonlinear part from the spread over
+then :func:`periodic_bla` (:func:`~mr_ident.numerics.excitation.bla.best_linear_approximation` of
+the cut, the noise from the spread over periods, the nonlinear part from the spread over
 realizations) and :func:`bla_identification` (the BLA as P_h on the excited lines, what
 the node publishes like any estimate).
 """
@@ -25,9 +25,9 @@ import numpy as np
 
 from ..errors import ConfigError, DataError
 from ..numerics.arrays import FloatArray
-from ..numerics.bla import BLA, LINE_PFG_SOURCE, best_linear_approximation
+from ..numerics.excitation.bla import BLA, LINE_PFG_SOURCE, best_linear_approximation
+from ..numerics.excitation.schedule import labelled_period, realizations_of
 from ..numerics.results import FRF, PFG, Identification
-from ..numerics.schedule import labelled_period, realizations_of
 from ..numerics.signals import LoopData
 
 
@@ -38,7 +38,8 @@ class Periods:
     Attributes
     ----------
     r, u, y : ndarray, shape (M, P·N)
-        One channel each, the arrays of :func:`~mr_ident.numerics.bla.best_linear_approximation`.
+        One channel each, the arrays of
+        :func:`~mr_ident.numerics.excitation.bla.best_linear_approximation`.
     period : int
         N.
     by : {"labels", "count"}
@@ -98,7 +99,8 @@ def cut_by_labels(data: LoopData, period: int | None, transient: int) -> Periods
         A gap-free record with :attr:`~mr_ident.numerics.signals.LoopData.labels`; one
         channel each.
     period : int or None
-        N; None: read off the labels (:func:`~mr_ident.numerics.schedule.labelled_period`),
+        N; None: read off the labels
+        (:func:`~mr_ident.numerics.excitation.schedule.labelled_period`),
         else checked against them.
     transient : int
         Leading whole periods dropped from every run of one realization.
@@ -170,7 +172,7 @@ def bla_identification(bla: BLA, period: int, fs_high: float, ratio: int) -> Ide
     """The BLA as an identification: P_h at the excited lines (Hz), its total std.
 
     With the PFG from data where the design measured it (a lifted design's lines,
-    :func:`~mr_ident.numerics.bla.lifted_line_pfg`; nan at the others), no model PFG.
+    :func:`~mr_ident.numerics.excitation.bla.lifted_line_pfg`; nan at the others), no model PFG.
     """
     f = bla.lines * fs_high / period
     plant = FRF(f, bla.response[:, None, None], bla.std[:, None, None], "bla")

@@ -21,7 +21,7 @@ from ..numerics.signals import LoopData
 from .spans import DEFAULT_SPAN, check_span
 
 if TYPE_CHECKING:
-    from ..numerics.model import Model
+    from ..numerics.systems.model import Model
 
 #: Suffixes of the files read as loop data (bags are directories or these suffixes).
 DATA_SUFFIXES = (".csv", ".npz")

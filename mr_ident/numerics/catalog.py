@@ -2,14 +2,14 @@
 
 The parser needs the method names to build ``--method``; importing the methods themselves
 would load scipy first and cost a second of start-up. :data:`METHOD_NAMES` is checked
-against :data:`~mr_ident.numerics.methods.METHODS` by the tests.
+against :data:`~mr_ident.numerics.lifted.methods.METHODS` by the tests.
 """
 
 #: The identification methods, in the README's order.
 METHOD_NAMES: tuple[str, ...] = ("freq-lifted", "time-lifted", "lpm", "structured", "etfe")
 
 #: The local models of the LPM methods' windows, the default first
-#: (:mod:`mr_ident.numerics.local`).
+#: (:mod:`mr_ident.numerics.local.fit`).
 LOCAL_MODELS: tuple[str, ...] = ("polynomial", "rational")
 #: The message forms ``mr-ident excite --publish`` streams (``--as``; README, "Excitation
 #: design"): the block contract, a JointState position, a forward_command_controller command.

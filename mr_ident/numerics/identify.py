@@ -1,8 +1,8 @@
 """Identification of the high-rate plant of a multirate loop from r_h, u_h, y_h.
 
 :func:`identify` checks its input, runs one method of the table
-:data:`~mr_ident.numerics.methods.METHODS` (``freq-lifted``, ``time-lifted``, ``lpm``,
-``structured``, ``etfe``: see :mod:`mr_ident.numerics.methods`) and, given the
+:data:`~mr_ident.numerics.lifted.methods.METHODS` (``freq-lifted``, ``time-lifted``, ``lpm``,
+``structured``, ``etfe``: see :mod:`mr_ident.numerics.lifted.methods`) and, given the
 controller, adds the PFG.
 :func:`check_options` and :func:`min_samples` are the option and record-length rules,
 shared with the node's configuration.
@@ -18,15 +18,16 @@ from numpy.typing import ArrayLike
 
 from ..errors import ConfigError, DataError, DimensionError
 from .arrays import FloatArray, IntArray
-from .bandwidth import candidates, centre_bins, choose_widths, probe_runs
+from .lifted.methods import METHODS, FitRequest, Method, PlantFit
+from .lifted.pfg import pfg_from_plant
+from .lifted.pfg_data import fit_data_pfg
+from .lifted.spectra import Spectra
 from .lifting import check_ratio
-from .local import check_local, smallest_n
-from .local import check_options as check_local_options
-from .methods import METHODS, FitRequest, Method, PlantFit, Spectra
-from .pfg import pfg_from_plant
-from .pfg_data import fit_data_pfg
+from .local.bandwidth import candidates, centre_bins, choose_widths, probe_runs
+from .local.fit import check_local, smallest_n
+from .local.fit import check_options as check_local_options
+from .local.segments import Run, runs_of
 from .results import FRF, PFG, Identification
-from .segments import Run, runs_of
 from .signals import y_at_low_rate
 from .threads import one_blas_thread, resolve_workers
 
@@ -62,9 +63,9 @@ def check_options(
     (which has no local model: ``local`` must be "polynomial" there).
 
     The rule: ``q = 2n+1 - (R+1)(lift n_in + 1) > lift n_out`` with lift = F for the
-    lifted methods, else 1 (:func:`~mr_ident.numerics.lpm.check_lpm_options`); with
+    lifted methods, else 1 (:func:`~mr_ident.numerics.local.lpm.check_lpm_options`); with
     ``local="rational"`` the denominator's unknowns count too
-    (:func:`~mr_ident.numerics.lrm.check_lrm_options`).
+    (:func:`~mr_ident.numerics.local.lrm.check_lrm_options`).
     """
     m = method_of(method)
     if not m.uses_lpm:
@@ -85,7 +86,7 @@ def default_n(
     The smallest n >= 8 whose residual degrees of freedom exceed the outputs of the fit by
     :data:`DOF_MARGIN`: ``2n+1 - (R+1)(lift n_in + 1) >= lift n_out + 2``, lift = F for a
     lifted method, else 1 (``local="rational"``: less the denominator's share,
-    :func:`~mr_ident.numerics.lrm.dof`).
+    :func:`~mr_ident.numerics.local.lrm.dof`).
 
     >>> default_n("freq-lifted", 2, 3, 1, 1), default_n("freq-lifted", 2, 10, 1, 1)
     (8, 22)
@@ -104,7 +105,7 @@ def default_n(
 def min_samples(method: str, n: int, ratio: int) -> int:
     """The shortest record ``method`` accepts.
 
-    See :meth:`~mr_ident.numerics.methods.Method.min_samples`.
+    See :meth:`~mr_ident.numerics.lifted.methods.Method.min_samples`.
     """
     return method_of(method).min_samples(n, ratio)
 
@@ -181,17 +182,17 @@ def identify(
     n : int, "auto" or None, default "auto"
         LPM window half-width. ``"auto"``: per centre bin (a low-rate bin of a lifted
         method: one window for its F aliases), the candidate of least estimated
-        mean-squared error among :func:`~mr_ident.numerics.bandwidth.candidates` from
+        mean-squared error among :func:`~mr_ident.numerics.local.bandwidth.candidates` from
         :func:`default_n` up to 4 times that (as the record allows), the candidates fitted
         on a probe of about 2 % of the bins, then one fit with the chosen widths; see
-        :mod:`mr_ident.numerics.bandwidth`. None: :func:`default_n` (8 for a SISO loop up
+        :mod:`mr_ident.numerics.local.bandwidth`. None: :func:`default_n` (8 for a SISO loop up
         to F = 3). The n used per bin is ``Identification.n_used``.
     degree : int
         Polynomial degree R (default 2); with ``local="rational"`` the order of the
         numerator, the transient and the common denominator.
     local : {"polynomial", "rational"}
-        The local model of every window (:mod:`mr_ident.numerics.local`): the LPM, or the
-        local rational model (:mod:`mr_ident.numerics.lrm`: a common denominator per
+        The local model of every window (:mod:`mr_ident.numerics.local.fit`): the LPM, or the
+        local rational model (:mod:`mr_ident.numerics.local.lrm`: a common denominator per
         window, for lightly damped modes; slower, and its default window is wider by the
         denominator's degrees of freedom).
     controller_low : array_like, shape (M, n_u, n_y), optional
@@ -362,8 +363,8 @@ def _choose_widths(
 ) -> IntArray:
     """The half-width of every centre bin: each candidate fitted on the probe, then the rule.
 
-    :func:`~mr_ident.numerics.bandwidth.probe_runs` and
-    :func:`~mr_ident.numerics.bandwidth.choose_widths`; only the probed bins of each
+    :func:`~mr_ident.numerics.local.bandwidth.probe_runs` and
+    :func:`~mr_ident.numerics.local.bandwidth.choose_widths`; only the probed bins of each
     candidate are kept meanwhile.
     """
     n_centres = (n_samples // lift) // 2 + 1

@@ -93,7 +93,8 @@ class LiftedFRF:
     n_samples : int
         High-rate record length N (so the low-rate length is N / F).
     dof : int
-        Degrees of freedom q of the noise covariance estimate (:func:`~mr_ident.numerics.lpm.dof`).
+        Degrees of freedom q of the noise covariance estimate
+        (:func:`~mr_ident.numerics.local.lpm.dof`).
     """
 
     bins: IntArray

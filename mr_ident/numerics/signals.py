@@ -68,7 +68,7 @@ class LoopData:
         Samples per period of a periodic excitation, where the data are periodic.
     labels : ndarray of int, shape (N, 3), or None
         Each sample's labels (realization, period, sample of the period) where an
-        excitation's labels came with the record (:mod:`mr_ident.numerics.schedule`).
+        excitation's labels came with the record (:mod:`mr_ident.numerics.excitation.schedule`).
     y_phase : int
         q: with y at the low rate, the high-rate sample (0..F-1) of each period at which it
         was taken, ``y[m] = y_h[m F + q]`` (0 otherwise).

@@ -234,7 +234,7 @@ def _settle(rclpy, n, live: _Live, timeout: float, stop: Stop) -> None:
 
 def _report(out_dir: Path, cfg, model, recording: Path, live: _Live, node_rc: int) -> int:
     from ..live.replay import replay
-    from ..numerics.pfg import pfg_of_model
+    from ..numerics.lifted.pfg import pfg_of_model
     from ..plots import plot_bode, plot_pfg
 
     if live.P is None or live.freq is None or live.P_std is None:

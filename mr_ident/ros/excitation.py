@@ -26,7 +26,7 @@ def bla_values(est: Estimate) -> dict[str, str]:
 
     ``periodic``: what the labels gave; with a BLA its realizations and periods, the
     median nonlinear over noise std, and the odd and even distortion in dB above the noise
-    (:attr:`~mr_ident.numerics.bla.BLA.odd_db`).
+    (:attr:`~mr_ident.numerics.excitation.bla.BLA.odd_db`).
     """
     if not est.periodic:
         return {}

@@ -1,7 +1,8 @@
 """``mr-ident excite --publish TOPIC``: stream an excitation design on a topic at fs_high.
 
 The design (M realizations of P periods of N samples, ``mr-ident excite``) is played
-realization after realization and looped (:class:`~mr_ident.numerics.schedule.Schedule`),
+realization after realization and looped
+(:class:`~mr_ident.numerics.excitation.schedule.Schedule`),
 on a timer: each tick publishes the samples that are due by then, so the stream keeps
 fs_high × ``rate`` on average whatever the timer's jitter. Sample index i counts from
 the first sample published; its stamp is ``t0 + round(i / fs_high)`` (t0 the node's
@@ -21,12 +22,13 @@ clock at the start), computed from the index, never read off the wall clock per 
     ``--tick`` one sample (the default for this form).
 
 Beside the signal, on ``TOPIC/excitation_index``, the same form carries each sample's
-labels (realization, period, sample of the period; :data:`~mr_ident.numerics.schedule.LABELS`):
+labels (realization, period, sample of the period;
+:data:`~mr_ident.numerics.excitation.schedule.LABELS`):
 a block of 3 channels at the same index; a JointState with the same stamp, names
 ``realization``, ``period``, ``sample`` in ``position``; a Float64MultiArray
 ``[realization, period, sample]`` after each command. A recording of both topics can be
 cut back into realizations and periods
-(:func:`~mr_ident.numerics.schedule.realizations_of`) with the sources the signal itself
+(:func:`~mr_ident.numerics.excitation.schedule.realizations_of`) with the sources the signal itself
 is read with (e.g. ``TOPIC/excitation_index.position{name=="realization"}``).
 
 Per-sample forms are serialized many at once: one message of the layout is serialized
@@ -49,7 +51,7 @@ from ..io.labels import index_topic
 from ..live.sampling import grid_stamps
 from ..numerics.arrays import FloatArray, IntArray
 from ..numerics.catalog import EXCITATION_FORMS
-from ..numerics.schedule import LABELS, Schedule
+from ..numerics.excitation.schedule import LABELS, Schedule
 from .program import Stop, spin_until_stopped
 
 #: The message forms of ``--as``.

@@ -1,6 +1,6 @@
 """The node's plant monitoring: ``~/drift``, ``~/diagnosis`` and the status ``<node>: plant``.
 
-A thin adapter around :class:`~mr_ident.diagnosis.monitor.PlantWatch`: each estimate is
+A thin adapter around :class:`~mr_ident.diagnosis.monitoring.monitor.PlantWatch`: each estimate is
 held against the reference on the estimating thread (a few ms); when the watch asks for a
 diagnosis, the window goes to a thread of its own (seconds), never blocking the estimates,
 and at most one runs at a time. With ``record_path`` set, the diagnosed window is kept
@@ -10,7 +10,7 @@ beside the recording as ``<record_path stem>.event-<k>.npz`` (r, u, y, fs_high, 
 ``~/drift`` (Float64MultiArray, dims ``quantity`` x ``frequency``): rows frequency (Hz),
 relative deviation ``|P̂ - P_ref| / |P_ref|``, σ-error, its threshold, on the published
 bins. ``~/diagnosis`` (std_msgs/String): the latest diagnosis as JSON
-(:meth:`~mr_ident.diagnosis.monitor.WindowDiagnosis.as_dict`, plus ``event_file``).
+(:meth:`~mr_ident.diagnosis.monitoring.monitor.WindowDiagnosis.as_dict`, plus ``event_file``).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray, String
 
-from ..diagnosis.monitor import MonitorState, PlantWatch, WindowDiagnosis, load_watch
+from ..diagnosis.monitoring.monitor import MonitorState, PlantWatch, WindowDiagnosis, load_watch
 from ..errors import MrIdentError
 from ..io.config import IdentConfig
 from ..io.datafile import write_data
@@ -67,7 +67,7 @@ class PlantMonitoring:
     def reconfigure(self, cfg: IdentConfig) -> None:
         """New parameters: the watch reloaded when a monitor_* value or the rates changed.
 
-        Raises what :func:`~mr_ident.diagnosis.monitor.load_watch` raises (the parameter
+        Raises what :func:`~mr_ident.diagnosis.monitoring.monitor.load_watch` raises (the parameter
         set is then refused).
         """
         keys = (

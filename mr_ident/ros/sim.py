@@ -27,8 +27,8 @@ from ..io.blocks import STREAMS
 from ..io.excitefile import read_excitation
 from ..io.modelfile import load_model
 from ..numerics.arrays import FloatArray
-from ..numerics.excitation import Follower, SimSource
-from ..numerics.model import Model
+from ..numerics.excitation.sources import Follower, SimSource
+from ..numerics.systems.model import Model
 from .program import Stop, handle_signals, ros_context, spin_until_stopped
 
 

@@ -14,11 +14,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..diagnosis.drift import Reference
+from ..diagnosis.monitoring.drift import Reference
 from ..numerics.arrays import FloatArray
-from ..numerics.bla import BLA
-from ..numerics.model import Model
+from ..numerics.excitation.bla import BLA
 from ..numerics.results import FRF
+from ..numerics.systems.model import Model
 
 
 def _list(a: ArrayLike) -> list[float | None]:

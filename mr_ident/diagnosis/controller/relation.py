@@ -1,0 +1,405 @@
+"""The controller's own equation: whether the logged u follows from the logged y and r.
+
+In closed loop the record holds both sides of the controller: the y it sampled and the u
+it applied, ``u_h = r_h - H_u K_l S_d y_h``. Given the measured r and y, the model's
+controller (its K_l, notches, sampling phase and control delay) predicts u with no noise
+at all: the plant and its noise enter only through y, which is measured. So the
+controller's side of the loop is checked on this equation alone, exactly, before any
+cause of the plant is sought:
+
+- where the model's controller reproduces the logged u to rounding
+  (:data:`EXACT`), the controller runs as modelled, and no controller-side cause
+  (a notch, a control delay, a sampling offset) can be in the loop;
+- where it does not, the controller-side causes are fitted to this equation
+  (:func:`relate`): a notch, a delay or an offset the machine has and the model lacks
+  brings the residual to rounding, and is then known to the precision of the numbers,
+  however little r excites the loop where it acts (on the y criterion alone a shallow,
+  wide notch was determined to 5-50 %, not 2 %); unless a delay or offset alone closes
+  it and makes the loop explain y worse (:attr:`ControllerRelation.contradicted`,
+  checked by the diagnosis): then u and y are more likely logged skewed in time, and
+  nothing of the equation is used;
+- where no set of them does, the logged u is not the controller's output for the
+  logged y (a u measured rather than commanded, with its own noise; a controller unlike
+  the model in a way outside the vocabulary): the relation is reported and left out,
+  and the controller-side causes are judged on y as the plant's are.
+
+Only u given y is used: the likelihood of (y, u) given r is that of y given r (the
+criterion, :mod:`~mr_ident.diagnosis.criterion.objective`) times that of u given y and r (this
+equation), so the two hold separate evidence and nothing is counted twice.
+
+The controller's state when the record began is unknown: its free responses (an
+integrator's constant among them) are projected out, as the loop's are in the criterion,
+and so is a constant per channel of u (a trim, an offset of y through K_l); the first
+periods, whose held outputs were computed before the record, are left out.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+import scipy.optimize
+
+from ...numerics.arrays import FloatArray
+from ...numerics.signals import LoopData
+from ...numerics.systems.lti import StateSpace
+from ...numerics.systems.model import Model
+from ...numerics.systems.simulate import StateRecursion
+from ..causes.cause import Cause, Choice, Params, clip
+from ..causes.registry import CAUSES, build
+from ..criterion.objective import project_out
+from ..selection.fitting import Continuous
+
+#: The controller relation holds when the logged u departs from the model controller's
+#: output by at most this fraction of that output (rms): float64 rounding through a
+#: simulated loop is 1e-15-1e-9 of it; a float32 log 1e-7-6e-7, growing with
+#: rms(u)/rms(r - u); a text log of 6 significant digits about 5e-7 times that ratio.
+EXACT = 1e-5
+#: Notched sets refined by least squares where no linear start closes the gap, if their
+#: error is below REFINE_BELOW (on an exact record the right set's linear start is exact
+#: already; a u with noise of its own leaves every start far above it).
+REFINED = 3
+REFINE_BELOW = 1e-3
+
+
+@dataclass(frozen=True)
+class ControllerRelation:
+    """What the controller's equation says of a record.
+
+    Attributes
+    ----------
+    error_before : float
+        rms of ``u - û`` over the rms of the controller's output, the nominal model's
+        controller (after the free responses are projected out).
+    error_after : float
+        The same with :attr:`choices` applied.
+    choices : list of Choice
+        The controller-side causes fitted to the equation (empty where it held at once).
+    std : list of dict
+        Per choice, the standard deviation of each named parameter on the equation.
+    samples : int
+        High-rate samples the equation was checked on.
+    contradicted : bool
+        The delay or offset that closes the equation makes the loop explain y worse than
+        without it (:func:`~mr_ident.diagnosis.diagnose.diagnose` checks): the logged
+        channels are then more likely skewed in time than the controller changed, and
+        nothing of the equation is used.
+    """
+
+    error_before: float
+    error_after: float
+    choices: list[Choice]
+    std: list[Params]
+    samples: int
+    contradicted: bool = False
+
+    @property
+    def exact(self) -> bool:
+        """The equation holds to rounding with :attr:`choices` applied."""
+        return self.error_after <= EXACT
+
+    @property
+    def settles(self) -> bool:
+        """The equation decides the controller's path: exact and not contradicted by y."""
+        return self.exact and not self.contradicted
+
+    def text(self) -> str:
+        """The finding in words."""
+        pct = f"{100 * self.error_before:.2g} %"
+        names = " and ".join(c.cause for c in self.choices)
+        if self.contradicted:
+            return (
+                f"the logged u is the model controller's output for the logged y only with "
+                f"{names} (to {self.error_after:.1g}), but the loop with them explains y "
+                "worse than without: u and y are more likely logged skewed in time (a "
+                "whole-record shift reads as a control delay, with a sampling offset of F - 1 "
+                "for F > 1) than the controller changed; nothing of the equation is used and "
+                "the controller-side causes are judged on y"
+            )
+        if self.exact and not self.choices:
+            return (
+                f"the logged u is the model controller's output for the logged y (to "
+                f"{self.error_after:.1g} of it, {self.samples} samples): no cause in the "
+                "controller's path"
+            )
+        if self.exact:
+            return (
+                f"the logged u departs from the model controller's output for the logged y by "
+                f"{pct} (rms); with {names} it is that output to {self.error_after:.1g}, so "
+                "the controller's own equation determines them"
+            )
+        return (
+            f"the logged u is not the model controller's output for the logged y ({pct} rms "
+            "apart, and no notch, delay or offset closes the gap): u may be measured rather "
+            "than commanded (with noise of its own), u and y may be logged skewed in time, "
+            "or the controller differs in a way outside the vocabulary (a feedforward that "
+            "is not constant, a filter other than a notch); its causes are judged on y"
+        )
+
+
+def controller_side(nominal: Model) -> list[Cause]:
+    """The registered causes in the controller's path that apply to ``nominal``."""
+    return [c for c in CAUSES.values() if c.controller_side and c.applies(nominal)]
+
+
+class Equation:
+    """The controller's equation on one record: residual ``u - û`` of any model.
+
+    From :attr:`start` on (past the longest hold of any candidate: a control delay up to
+    2F and a sampling phase up to F - 1 more than the nominal's, so every held output was
+    computed within the record). Projected out of it: the controller's free responses
+    (its unknown state at the record's start) and a constant per channel of u (a
+    feedforward or trim the controller adds, an offset of y through K_l's DC gain; with
+    the free responses they span a step's response). Divided by the rms of the logged
+    controller output ``r - u`` with the same projected out, so a large trim does not
+    dilute it.
+    """
+
+    def __init__(self, rec: LoopData, nominal: Model):
+        self.r, self.u, self.y = rec.r, rec.u, rec.y
+        self.F = nominal.ratio
+        self.M = rec.n_samples // self.F
+        hold = nominal.sample_phase + nominal.control_delay
+        self.start = self.F * (hold // self.F + 6)
+        idx = np.arange(self.start, self.F * self.M)
+        out = (self.r[idx] - self.u[idx]).ravel()
+        ones: FloatArray = np.tile(np.eye(self.u.shape[1]), (idx.size, 1))
+        self._const = ones  # (n * n_u, n_u): a constant per channel
+        self.scale = float(np.sqrt(np.mean(project_out(ones, out) ** 2))) or 1.0
+
+    @property
+    def samples(self) -> int:
+        """High-rate samples the residual covers."""
+        return self.F * self.M - self.start
+
+    def outputs(self, model: Model) -> tuple[FloatArray, FloatArray]:
+        """``model``'s controller on the y it samples: outputs from rest and free responses.
+
+        Shapes (M, n_u) and (M, n_u, nk), one row per low-rate period.
+        """
+        K = model.controller_ss()
+        ys = self.y[model.sample_phase :: self.F][: self.M]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # a defective controller: the direct recursion
+            return StateRecursion(K).run(ys), _free_responses(K, self.M)
+
+    def residual(self, model: Model) -> FloatArray:
+        """``(u - û) / scale`` from :attr:`start` on, free responses projected out (flat)."""
+        F, M = self.F, self.M
+        hold = model.sample_phase + model.control_delay
+        uc, free = self.outputs(model)
+        idx = np.arange(self.start, F * M)
+        i, m = idx % F, idx // F
+        j = -((i - hold) // F)  # the output held at sample i is the one of period m - j
+        src = m - j
+        if src.size and src[0] < 0:  # a hold longer than the candidates' (never in relate)
+            return np.full(idx.size * self.u.shape[1], math.inf)
+        e = self.u[idx] - self.r[idx] + uc[src]
+        res = e.ravel() / self.scale
+        nk = free.shape[-1]
+        A = np.concatenate([-free[src].reshape(idx.size * free.shape[1], nk), self._const], 1)
+        return project_out(A, res)
+
+    def error(self, model: Model) -> float:
+        """The rms of :meth:`residual`: how far ``model``'s controller departs, relatively."""
+        res = self.residual(model)
+        return float(np.sqrt(np.mean(res**2))) if np.all(np.isfinite(res)) else math.inf
+
+
+def _free_responses(K: StateSpace, M: int) -> FloatArray:
+    """The controller's output from each unit initial state with zero input, (M, n_u, nk)."""
+    nk, nu = K.A.shape[0], K.C.shape[0]
+    if not nk:
+        return np.zeros((M, nu, 0))
+    probe = StateSpace(K.A, np.eye(nk), K.C, np.zeros((nu, nk)), K.dt)
+    w = np.zeros((M + 1, nk))
+    cols = []
+    for s in range(nk):
+        w[:] = 0.0
+        w[0, s] = 1.0
+        cols.append(StateRecursion(probe).run(w)[1:])  # x[m] = A^(m-1) e_s, from m = 1
+    return np.stack(cols, axis=-1)
+
+
+def relate(nominal: Model, rec: LoopData) -> ControllerRelation | None:
+    """The controller's equation on ``rec``, with controller-side causes fitted where it fails.
+
+    None in open loop or with y at the low rate (the controller's samples are not all
+    logged). Otherwise the nominal's error; where it exceeds :data:`EXACT`, every
+    combination of a control delay (the model's less down to none, or up to 2F samples
+    more) and a sampling offset (every phase)
+    is tried, each without and with a notch (started by :func:`notch_start`, refined by
+    least squares where no start closes the gap); of the sets that bring the equation
+    to :data:`EXACT`, the one with the fewest values is kept (then the smallest error).
+    Where none does, the relation is returned with no causes (``exact`` False).
+    """
+    if nominal.controller is None or rec.y_step != 1:
+        return None
+    hold = nominal.sample_phase + nominal.control_delay
+    if rec.n_samples < 4 * nominal.ratio * (hold // nominal.ratio + 6):
+        return None  # too short to hold the longest candidate's start four times over
+    eq = Equation(rec, nominal)
+    e0 = eq.error(nominal)
+    if e0 <= EXACT:
+        return ControllerRelation(e0, e0, [], [], eq.samples)
+    sides = {c.name: c for c in controller_side(nominal)}
+
+    def values(name: str) -> list[list[Choice]]:
+        cause = sides.get(name)
+        vals = cause.values(nominal) if cause else []
+        if name == "control_delay" and cause:  # shorter than modelled, too
+            vals = [float(-k) for k in range(1, nominal.control_delay + 1)] + vals
+        return [[]] + [[Choice(name, (v,))] for v in vals]
+
+    found: list[tuple[float, list[Choice]]] = []
+    notched: list[tuple[float, list[Choice]]] = []
+    for d in values("control_delay"):
+        for o in values("sampling_offset"):
+            discrete = d + o
+            base = build(nominal, discrete)
+            found.append((eq.error(base), discrete))
+            start = notch_start(eq, base) if "controller_notch" in sides else None
+            if start is not None:
+                trial = discrete + [start]
+                notched.append((eq.error(build(nominal, trial)), trial))
+    found += notched
+    if not any(err <= EXACT for err, _ in found):  # least squares from the best starts
+        near = [t for t in sorted(notched, key=lambda t: t[0]) if t[0] < REFINE_BELOW]
+        for _, trial in near[:REFINED]:  # (a u with its own noise is nowhere near: skipped)
+            found.append(_refit(eq, nominal, trial))
+    exact = [(err, ch) for err, ch in found if err <= EXACT]
+    if not exact:  # no set of them closes the gap: nothing of it is used
+        return ControllerRelation(e0, e0, [], [], eq.samples)
+    err, chosen = min(exact, key=lambda t: (sum(CAUSES[c.cause].n_free for c in t[1]), t[0]))
+    if any(not CAUSES[c.cause].discrete for c in chosen):  # to the precision of the numbers
+        err, chosen = _refit(eq, nominal, chosen)
+    return ControllerRelation(e0, err, chosen, _std(eq, nominal, chosen), eq.samples)
+
+
+def notch_start(eq: Equation, base: Model) -> Choice | None:
+    """A notch after ``base``'s controller from the equation, linearly; None if none fits.
+
+    The controller's outputs are read off the logged u (``u_c = r - u`` at the last sample
+    of each period, held from period ``m - j``); ``z`` is ``base``'s controller applied to
+    the sampled y. A biquad ``B/A`` from z to u_c is linear in its five coefficients
+    (equation error ``A u_c = B z``; each free response of the controller, passed through
+    B, adds three columns), and its poles and zeros give the Tustin notch in closed form:
+    with ``t = (p - 1)/(p + 1)`` per pole, ``tan²(π f dt) = t₁t₂``,
+    ``ζ = -(t₁ + t₂) / (2 √(t₁t₂))`` and ``depth = (t₁' + t₂')/(t₁ + t₂)`` (primes: the
+    zeros). Exact on an exact record; elsewhere a start for least squares.
+    """
+    F, M = eq.F, eq.M
+    hold = base.sample_phase + base.control_delay
+    z, free = eq.outputs(base)
+    jl = -((F - 1 - hold) // F)  # the last sample of period m holds u_c[m - jl]
+    k = np.arange(max(eq.start // F, 2), M - jl)
+
+    def uc(lag: int) -> FloatArray:
+        n = (k - lag + jl) * F + F - 1
+        return np.asarray(eq.r[n] - eq.u[n], float)
+
+    cols = [-uc(1), -uc(2), z[k], z[k - 1], z[k - 2]]
+    cols += [free[k - lag][:, :, i] for i in range(free.shape[-1]) for lag in range(3)]
+    A = np.stack([c.ravel() for c in cols], axis=1)
+    norm = np.sqrt(np.einsum("ij,ij->j", A, A))
+    if not (np.all(np.isfinite(A)) and np.all(norm[:5] > 0)):
+        return None
+    norm = np.where(norm > 0, norm, 1.0)
+    a1, a2, b0, b1, b2 = (np.linalg.lstsq(A / norm, uc(0).ravel(), rcond=1e-12)[0] / norm)[:5]
+    with np.errstate(all="ignore"):
+        P = (1 + a1 + a2) / (1 - a1 + a2)
+        t = 2 * (a2 - 1) / (1 - a1 + a2)  # t₁ + t₂ of the poles
+        tz = 2 * (b2 / b0 - 1) / (1 - b1 / b0 + b2 / b0)  # of the zeros
+        if not (np.isfinite(P) and P > 0):
+            return None
+        x = np.array(
+            [
+                math.atan(math.sqrt(P)) * base.fs_high / (math.pi * F),
+                -t / (2 * math.sqrt(P)),
+                tz / t,
+            ]
+        )
+    if not np.all(np.isfinite(x)):
+        return None
+    cause = CAUSES["controller_notch"]
+    lo, hi, _ = cause.bounds(base, Choice(cause.name, tuple(x)))
+    return Choice(cause.name, tuple(float(v) for v in clip(x, lo, hi)))
+
+
+def _refit(eq: Equation, nominal: Model, choices: list[Choice]) -> tuple[float, list[Choice]]:
+    """Every continuous value of ``choices`` fitted on the equation: (error, choices)."""
+    v = Continuous.of(nominal, choices)
+    start = eq.error(build(nominal, choices))
+    if not v.cont:
+        return start, choices
+
+    def res(x: FloatArray) -> FloatArray:
+        r = eq.residual(build(nominal, v.unpack(x)))
+        return r if np.all(np.isfinite(r)) else np.full(r.shape, 1e3)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            sol = scipy.optimize.least_squares(
+                res,
+                clip(v.x, v.lower, v.upper),
+                bounds=(v.lower, v.upper),
+                x_scale=v.scale,
+                max_nfev=60,
+                ftol=1e-15,
+                xtol=1e-15,
+                gtol=1e-15,
+                diff_step=1e-7,
+            )
+            x = np.asarray(sol.x, float)
+        except (ValueError, np.linalg.LinAlgError):
+            return start, choices
+    fitted = v.unpack(x)
+    err = eq.error(build(nominal, fitted))
+    return (err, fitted) if err < start else (start, choices)
+
+
+def value_std(
+    eq: Equation, model_at: Callable[[FloatArray], Model], x: Sequence[float]
+) -> FloatArray:
+    """Gauss-Newton std of the values ``x`` on the equation, ``model_at(x)`` the model.
+
+    The residual's own spread as its noise (rounding, where the equation holds): to what
+    precision the equation fixes the values. Forward differences, step 1e-6 of each value.
+    """
+    x0 = np.asarray(x, float)
+    r0 = eq.residual(model_at(x0))
+    sigma2 = float(np.sum(r0**2)) / max(r0.size - x0.size, 1)
+    cols = []
+    for i in range(x0.size):
+        h = 1e-6 * max(abs(x0[i]), 1e-3)
+        moved = x0.copy()
+        moved[i] += h
+        cols.append((eq.residual(model_at(moved)) - r0) / h)
+    J = np.column_stack(cols)
+    cov = sigma2 * np.linalg.pinv(J.T @ J)
+    return np.sqrt(np.maximum(np.diag(cov), 0.0))
+
+
+def _std(eq: Equation, nominal: Model, choices: list[Choice]) -> list[Params]:
+    """Per choice, the std of each parameter on the equation (:func:`value_std`; discrete 0).
+
+    The controller-side causes name their values as they are (``named`` is ``x``).
+    """
+    out: list[Params] = []
+    for j, c in enumerate(choices):
+        cause = CAUSES[c.cause]
+        if cause.discrete:
+            out.append({k: 0.0 for k in cause.parameters})
+            continue
+
+        def model_at(v: FloatArray, j: int = j, c: Choice = c) -> Model:
+            moved = replace(c, x=tuple(float(t) for t in v))
+            return build(nominal, choices[:j] + [moved] + choices[j + 1 :])
+
+        sd = value_std(eq, model_at, c.x)
+        out.append({k: float(v) for k, v in zip(cause.parameters, sd, strict=True)})
+    return out

@@ -1,0 +1,34 @@
+"""The spectra of r, u, y that the methods fit, computed once per identification."""
+
+from __future__ import annotations
+
+from ..arrays import ComplexArray, FloatArray
+from ..lifting import dft, half_spectrum, time_lift
+
+
+class Spectra:
+    """The spectra of r, u, y a method needs, computed once per identification.
+
+    :func:`~mr_ident.numerics.identify.identify` fits several windows on the same record
+    (the automatic window's candidates, then the chosen widths); they share these.
+    """
+
+    def __init__(self, r: FloatArray, u: FloatArray, y: FloatArray, workers: int) -> None:
+        self._signals = {"r": r, "u": u, "y": y}
+        self._workers = workers
+        self._half: dict[str, list[ComplexArray]] = {}
+        self._time: dict[tuple[str, int], ComplexArray] = {}
+
+    def half(self, name: str) -> list[ComplexArray]:
+        """:func:`~mr_ident.numerics.lifting.half_spectrum` of signal ``name`` (r, u or y)."""
+        if name not in self._half:
+            self._half[name] = half_spectrum(self._signals[name], workers=self._workers)
+        return self._half[name]
+
+    def time_lifted(self, name: str, ratio: int) -> ComplexArray:
+        """The M-point DFT of the time-lifted signal ``name`` (M, F c)."""
+        key = (name, ratio)
+        if key not in self._time:
+            x = time_lift(self._signals[name], ratio)
+            self._time[key] = dft(x, workers=self._workers)
+        return self._time[key]

@@ -1,0 +1,260 @@
+"""Linear time-invariant systems: transfer-function matrices and state space.
+
+A :class:`TransferMatrix` holds one numerator per (output, input) entry and one
+denominator per entry, coefficients in descending powers of s (continuous,
+``dt = None``) or z (discrete, sample time ``dt``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ...errors import ModelError
+from ..arrays import FloatArray
+
+Poly = tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class StateSpace:
+    """``x+ = A x + B u, y = C x + D u`` (discrete) with sample time ``dt``."""
+
+    A: NDArray[np.float64]
+    B: NDArray[np.float64]
+    C: NDArray[np.float64]
+    D: NDArray[np.float64]
+    dt: float | None
+
+    @property
+    def n_states(self) -> int:
+        """Order of the realisation."""
+        return int(self.A.shape[0])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(n_out, n_in)."""
+        return int(self.D.shape[0]), int(self.D.shape[1])
+
+    def poles(self) -> NDArray[np.complex128]:
+        """Eigenvalues of A."""
+        if not self.A.size:
+            return np.zeros(0, dtype=np.complex128)
+        return np.asarray(np.linalg.eigvals(self.A), dtype=np.complex128)
+
+    def freqresp(self, frequency: ArrayLike) -> NDArray[np.complex128]:
+        """``C (xI - A)^-1 B + D`` at ``frequency`` Hz, shape (K, n_out, n_in).
+
+        ``x = exp(2j pi f dt)`` (discrete) or ``2j pi f`` (continuous); through the
+        eigendecomposition of A when its eigenvectors are well conditioned, else a batched
+        solve.
+        """
+        f = np.atleast_1d(np.asarray(frequency, dtype=float))
+        x = 2j * np.pi * f if self.dt is None else np.exp(2j * np.pi * f * self.dt)
+        n = self.A.shape[0]
+        out = np.array(np.broadcast_to(self.D.astype(complex), (f.size, *self.D.shape)))
+        if n == 0:
+            return out
+        lam, V = np.linalg.eig(self.A)
+        pole = np.min(np.abs(x[:, None] - lam[None, :]), axis=1) <= 1e-7 * (1.0 + np.abs(x))
+        if np.any(pole):  # on a pole (an integrator at DC): infinite there, the rest as usual
+            rest = StateSpace(self.A, self.B, self.C, self.D, self.dt).freqresp(f[~pole])
+            out[~pole] = rest
+            out[pole] = np.inf
+            return out
+        if np.linalg.cond(V) < 1e8:
+            Bm = np.linalg.solve(V, self.B.astype(complex))  # (n, n_in)
+            Cm = self.C @ V  # (n_out, n)
+            for lo in range(0, f.size, 4096):
+                g = 1.0 / (x[lo : lo + 4096, None] - lam[None, :])  # (k, n)
+                out[lo : lo + 4096] += np.einsum("on,kn,ni->koi", Cm, g, Bm)
+            return out
+        eye = np.eye(n)
+        for lo in range(0, f.size, 1024):
+            xs = x[lo : lo + 1024]
+            M = xs[:, None, None] * eye - self.A
+            rhs = np.broadcast_to(self.B.astype(complex), (xs.size, *self.B.shape))
+            out[lo : lo + 1024] += self.C @ np.linalg.solve(M, rhs)
+        return out
+
+
+@dataclass(frozen=True)
+class TransferMatrix:
+    """An ``n_out x n_in`` matrix of rational transfer functions.
+
+    Attributes
+    ----------
+    num, den : tuple of tuple of tuple of float
+        ``num[o][i]`` and ``den[o][i]``: coefficients, descending powers.
+    dt : float or None
+        Sample time in s; None for continuous time.
+    """
+
+    num: tuple[tuple[Poly, ...], ...]
+    den: tuple[tuple[Poly, ...], ...]
+    dt: float | None
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(n_out, n_in)."""
+        return len(self.num), len(self.num[0])
+
+    @classmethod
+    def siso(cls, num: ArrayLike, den: ArrayLike, dt: float | None = None) -> TransferMatrix:
+        """A 1 x 1 transfer matrix ``num/den`` (descending powers)."""
+        return cls(
+            ((tuple(np.atleast_1d(np.asarray(num, float))),),),
+            ((tuple(np.atleast_1d(np.asarray(den, float))),),),
+            dt,
+        )
+
+    def __call__(self, x: ArrayLike) -> NDArray[np.complex128]:
+        """Evaluate at complex points ``x`` (s or z), shape (K,) -> (K, n_out, n_in).
+
+        On a pole (an integrating controller at z = 1) the value is inf, without a warning:
+        that is the answer there.
+        """
+        xa = np.atleast_1d(np.asarray(x, dtype=complex))
+        no, ni = self.shape
+        out = np.empty((xa.size, no, ni), dtype=complex)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for o in range(no):
+                for i in range(ni):
+                    num, den = np.polyval(self.num[o][i], xa), np.polyval(self.den[o][i], xa)
+                    out[:, o, i] = num / den
+        return out
+
+    def freqresp(self, frequency: ArrayLike, *, dt: float | None = None) -> NDArray[np.complex128]:
+        """Frequency response at ``frequency`` Hz, shape (K, n_out, n_in).
+
+        Discrete systems are evaluated at ``z = exp(2j pi f dt)``; continuous ones at
+        ``s = 2j pi f``.
+        """
+        f = np.asarray(frequency, dtype=float)
+        if self.dt is None:
+            return self(2j * np.pi * f)
+        return self(np.exp(2j * np.pi * f * self.dt))
+
+    def dft_response(self, n: int) -> NDArray[np.complex128]:
+        """A discrete system on the n DFT bins of its rate.
+
+        ``z = exp(2j pi k / n)``, k = 0..n-1, shape (n, n_out, n_in) (a controller on
+        every low-rate bin of a record).
+        """
+        if self.dt is None:
+            raise ModelError("dft_response needs a discrete-time system (dt set)")
+        return self(np.exp(2j * np.pi * np.arange(n) / n))
+
+    def times(self, num: ArrayLike, den: ArrayLike) -> TransferMatrix:
+        """Every entry multiplied by the scalar transfer function ``num/den`` (same domain)."""
+        b = np.atleast_1d(np.asarray(num, float))
+        a = np.atleast_1d(np.asarray(den, float))
+        return TransferMatrix(
+            tuple(tuple(tuple(np.polymul(e, b)) for e in row) for row in self.num),
+            tuple(tuple(tuple(np.polymul(e, a)) for e in row) for row in self.den),
+            self.dt,
+        )
+
+    def poles(self) -> NDArray[np.complex128]:
+        """Roots of every entry's denominator (duplicates kept)."""
+        return np.concatenate([np.roots(d) for row in self.den for d in row])
+
+
+# Small LTI kernels in numpy: what scipy.signal would do for these few low-order systems,
+# without the half second that importing scipy.signal (and scipy.linalg) adds to every
+# program that loads a model.
+
+#: Padé (13, 13) coefficients and the 1-norm below which it is accurate to double precision
+#: (Higham, "The scaling and squaring method for the matrix exponential revisited", 2005).
+_PADE13 = (
+    64764752532480000.0, 32382376266240000.0, 7771770303897600.0, 1187353796428800.0,
+    129060195264000.0, 10559470521600.0, 670442572800.0, 33522128640.0, 1323241920.0,
+    40840800.0, 960960.0, 16380.0, 182.0, 1.0,
+)  # fmt: skip
+_THETA13 = 5.371920351148152
+
+
+def balance(M: FloatArray) -> FloatArray:
+    """Diagonal d (powers of two) balancing ``M[i, j] d[j] / d[i]``.
+
+    Parlett and Reinsch's balancing (LAPACK's gebal, scaling only): companion forms of
+    polynomials whose coefficients span many decades are otherwise too badly scaled for an
+    accurate expm.
+    """
+    import scipy.linalg  # here, not at the top: start-up time
+
+    if M.shape[0] == 0:
+        return np.ones(0)
+    _, (d, _) = scipy.linalg.matrix_balance(M, permute=False, separate=True)
+    return np.asarray(d, dtype=float)
+
+
+def expm(A: ArrayLike) -> FloatArray:
+    """Matrix exponential of a small real square matrix.
+
+    Balancing, then scaling and squaring with the Padé (13, 13) approximant.
+    """
+    M = np.asarray(A, dtype=float)
+    n = M.shape[0]
+    if n == 0:
+        return np.zeros((0, 0))
+    d = balance(M)
+    M = M * d[None, :] / d[:, None]
+    norm = float(np.abs(M).sum(axis=0).max())
+    s = max(0, int(np.ceil(np.log2(norm / _THETA13)))) if norm > _THETA13 else 0
+    M = M / 2.0**s
+    b = _PADE13
+    eye = np.eye(n)
+    M2 = M @ M
+    M4 = M2 @ M2
+    M6 = M4 @ M2
+    U = M @ (
+        M6 @ (b[13] * M6 + b[11] * M4 + b[9] * M2) + b[7] * M6 + b[5] * M4 + b[3] * M2 + b[1] * eye
+    )
+    V = M6 @ (b[12] * M6 + b[10] * M4 + b[8] * M2) + b[6] * M6 + b[4] * M4 + b[2] * M2 + b[0] * eye
+    E: FloatArray = np.asarray(np.linalg.solve(V - U, V + U), dtype=float)
+    for _ in range(s):
+        E = E @ E
+    return E * d[:, None] / d[None, :]
+
+
+def proper(num: ArrayLike, den: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """``num`` and ``den`` (descending powers) without exact leading zeros, checked proper.
+
+    Raises
+    ------
+    ModelError
+        The denominator is zero or the numerator's degree exceeds the denominator's.
+    """
+    b = np.trim_zeros(np.atleast_1d(np.asarray(num, dtype=float)), "f")
+    a = np.trim_zeros(np.atleast_1d(np.asarray(den, dtype=float)), "f")
+    if a.size == 0:
+        raise ModelError("denominator is zero")
+    if b.size > a.size:
+        raise ModelError(f"improper transfer function: numerator {tuple(b)} over {tuple(a)}")
+    return b, a
+
+
+def tf2ss(num: ArrayLike, den: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Controllable canonical realisation (A, B, C, D) of a proper SISO ``num/den``.
+
+    Coefficients in descending powers; exact leading zeros are dropped. Unlike
+    ``scipy.signal.tf2ss`` it never warns about small leading numerator coefficients: they
+    are kept as they are (a tiny but non-zero leading term is part of the model).
+    """
+    b, a = proper(num, den)
+    b, a = b / a[0], a / a[0]
+    n = a.size - 1
+    b = np.concatenate([np.zeros(n + 1 - b.size), b])
+    d = b[0]
+    A = np.zeros((n, n))
+    if n:
+        A[0] = -a[1:]
+        A[1:, :-1] = np.eye(n - 1)
+    B = np.zeros((n, 1))
+    if n:
+        B[0, 0] = 1.0
+    C = (b[1:] - d * a[1:])[None, :]
+    return A, B, C, np.array([[d]])

@@ -1,0 +1,273 @@
+"""The nominal description of a multirate loop: :class:`Model`.
+
+Read and written as YAML by :mod:`mr_ident.io.modelfile`; its form (keys marked * are
+required)::
+
+    fs_high: 240.0            # * high sample rate, Hz
+    ratio: 3                  # * F = h_l / h_h, integer >= 1
+    plant:                    # * continuous time, discretised with ZOH at fs_high
+      num: [...]              #   descending powers of s (or z with domain: discrete)
+      den: [...]
+      domain: continuous      #   or "discrete" (sample time 1/fs_high)
+    controller:               #   discrete time at the low rate, descending powers of z
+      num: [0.1, 0.0]         #   omit the whole key for an open-loop experiment
+      den: [1.0, -0.9]
+    noise_std: 0.0            #   output noise std (simulation)
+    reference_std: 1.0        #   white-noise excitation std (simulation)
+    sample_phase: 0           #   high-rate sample (0..F-1) at which the controller samples y
+    control_delay: 0          #   high-rate samples before the held output is applied
+
+Optional extensions (written by ``mr-ident diagnose --out-model``; all default to none;
+their physical meaning is in the README's cause table)::
+
+    plant_gain: 1.0           #   multiplies the plant
+    input_delay_s: 0.0        #   delay between u_h and the plant, s (fractional samples exact)
+    additive_modes:           #   each adds gain w^2/(s^2 + 2 damping w s + w^2) to one entry
+      - {frequency_hz: 97.0, damping: 0.02, gain: 0.01, output: 0, input: 0}
+    mode_changes:             #   the plant's mode nearest from_hz moves; its modal numerator
+      - {from_hz: 80.0, frequency_hz: 88.0, damping: 0.03, residue_scale: 1.0}  # x residue_scale
+    series_dynamics:          #   a low-pass in series: w/(s+w) (damping 0) or w^2/(s^2+2ζws+w^2)
+      - {frequency_hz: 30.0, damping: 0.0, side: output, channel: 0}
+    controller_notches:       #   (s^2+2 depth ζ w s+w^2)/(s^2+2 ζ w s+w^2) after the controller
+      - {frequency_hz: 20.0, damping: 0.3, depth: 0.1}  # (Tustin at fs_low, prewarped)
+    disturbances:             #   sinusoids added to output y (seen by the controller)
+      - {frequency_hz: 13.0, amplitude: 0.01, phase_rad: 0.0, output: 0}
+
+``additive_modes``, ``mode_changes``, ``series_dynamics`` and a fractional
+``input_delay_s`` need a continuous-time plant. Every model is simulated and evaluated in
+state space (:mod:`~mr_ident.numerics.systems.realize`): the polynomials of the file are turned
+into sections once, and nothing past second order goes back to polynomial form.
+
+MIMO: ``num`` is a nested list ``[n_out][n_in][coefficients]``; ``den`` is either
+one coefficient list shared by all entries or nested the same way.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ...errors import ModelError
+from ..arrays import ComplexArray, FloatArray
+from ..results import FRF
+from .lti import StateSpace, TransferMatrix
+from .realize import (
+    balanced,
+    block_diag,
+    diagonal,
+    lowpass,
+    mode_block,
+    notch,
+    parallel,
+    realize,
+    sections,
+    series,
+    shift,
+    split_mode,
+    zoh,
+)
+
+
+@dataclass(frozen=True)
+class Model:
+    """A validated multirate loop model.
+
+    Attributes
+    ----------
+    fs_high : float
+        High sample rate (Hz).
+    ratio : int
+        F.
+    plant : TransferMatrix
+        Continuous (``dt`` None) or discrete at ``1/fs_high``; n_y x n_u.
+    controller : TransferMatrix or None
+        Discrete at ``ratio/fs_high``; n_u x n_y. None: open loop.
+    noise_std, reference_std : float
+    sample_phase, control_delay : int
+    plant_gain : float
+        Multiplies the plant.
+    input_delay : float
+        Seconds between u_h and the plant input.
+    additive_modes : tuple of (frequency_hz, damping, gain, output, input)
+        Each adds ``gain w^2 / (s^2 + 2 damping w s + w^2)`` to plant entry [output][input].
+    mode_changes : tuple of (from_hz, frequency_hz, damping, residue_scale)
+        Each moves the plant's lightly damped mode nearest ``from_hz`` (its pole pair, in
+        every entry that has it) to ``frequency_hz`` and ``damping``, and multiplies its
+        modal numerator ``c1 s + c0`` by ``residue_scale`` (1: the stiffness changed;
+        ``(f / f0)^2``: the mass changed).
+    series_dynamics : tuple of (frequency_hz, damping, side, channel)
+        A low-pass in series with the plant on input (``side`` "input") or output
+        ("output") ``channel``: first order ``w / (s + w)`` when ``damping`` is 0, else
+        ``w^2 / (s^2 + 2 damping w s + w^2)``.
+    controller_notches : tuple of (frequency_hz, damping, depth)
+        Each a notch ``(s^2 + 2 depth damping w s + w^2) / (s^2 + 2 damping w s + w^2)``
+        after the controller on every channel, Tustin-discretised at fs_low, prewarped at
+        its frequency.
+    disturbances : tuple of (frequency_hz, amplitude, phase_rad, output)
+        Sinusoids added to output ``output`` of y (also seen by the controller).
+    """
+
+    fs_high: float
+    ratio: int
+    plant: TransferMatrix
+    controller: TransferMatrix | None = None
+    noise_std: float = 0.0
+    reference_std: float = 1.0
+    sample_phase: int = 0
+    control_delay: int = 0
+    plant_gain: float = 1.0
+    input_delay: float = 0.0
+    additive_modes: tuple[tuple[float, float, float, int, int], ...] = ()
+    mode_changes: tuple[tuple[float, float, float, float], ...] = ()
+    series_dynamics: tuple[tuple[float, float, str, int], ...] = ()
+    controller_notches: tuple[tuple[float, float, float], ...] = ()
+    disturbances: tuple[tuple[float, float, float, int], ...] = ()
+
+    @property
+    def n_y(self) -> int:
+        """Plant outputs."""
+        return self.plant.shape[0]
+
+    @property
+    def n_u(self) -> int:
+        """Plant inputs."""
+        return self.plant.shape[1]
+
+    @property
+    def fs_low(self) -> float:
+        """Controller rate fs_high / F in Hz."""
+        return self.fs_high / self.ratio
+
+    def plant_ss(self) -> StateSpace:
+        """The plant with every extension but the delay, in state space (its own domain).
+
+        The file's polynomials as sections (mode changes applied entry by entry), the gain,
+        the additive modes in parallel, the series dynamics on inputs and outputs.
+        """
+        return plant_ss(self)
+
+    def plant_discrete(self) -> StateSpace:
+        """P_h: the plant at the high rate, extensions and input delay included.
+
+        ZOH in state space (exact for held inputs) when the plant is continuous.
+        """
+        P = self.plant_ss()
+        h = 1.0 / self.fs_high
+        if P.dt is None:
+            return zoh(P, h, delay=self.input_delay)
+        d = int(round(self.input_delay * self.fs_high))
+        return series(shift(self.n_u, d, h), P) if d else P
+
+    def controller_ss(self) -> StateSpace:
+        """K_l in state space at the low rate, with any controller notches after it.
+
+        Raises
+        ------
+        ModelError
+            The model has no controller.
+        """
+        if self.controller is None:
+            raise ModelError("the model has no controller (open loop)")
+        K = realize(self.controller)
+        for f, zeta, depth in self.controller_notches:
+            K = series(K, diagonal(notch(f, zeta, depth, self.ratio / self.fs_high), self.n_u))
+        return K
+
+    def disturbance(self, start: int, n_samples: int) -> FloatArray:
+        """The output disturbance on samples start..start+N-1, shape (N, n_y)."""
+        out = np.zeros((n_samples, self.n_y))
+        if self.disturbances:
+            t = (start + np.arange(n_samples)) / self.fs_high
+            for f, a, ph, o in self.disturbances:
+                out[:, o] += a * np.sin(2.0 * np.pi * f * t + ph)
+        return out
+
+    def plant_frf(self, n_samples: int) -> ComplexArray:
+        """Exact P_h on DFT bins 0..N//2 of an N-sample record, shape (N//2+1, n_y, n_u)."""
+        f = np.arange(n_samples // 2 + 1) * self.fs_high / n_samples
+        return self.plant_discrete().freqresp(f)
+
+    def plant_result(self, n_samples: int) -> FRF:
+        """Exact P_h on the bins (0, fs_high/2] of an N-sample record, as an FRF (std 0)."""
+        P = self.plant_frf(n_samples)[1:]
+        f = np.arange(1, n_samples // 2 + 1) * self.fs_high / n_samples
+        return FRF(f, P, np.zeros(P.shape), "model")
+
+    def controller_frf(self, n_low: int) -> ComplexArray:
+        """K_l on all low-rate bins 0..M-1, shape (M, n_u, n_y)."""
+        if self.controller is None:
+            raise ModelError("the model has no controller (open loop); the PFG needs one")
+        K = self.controller.dft_response(n_low)
+        if self.controller_notches:
+            f_low = np.arange(n_low) * (self.fs_low / n_low)
+            for f, zeta, depth in self.controller_notches:
+                K = notch(f, zeta, depth, self.ratio / self.fs_high).freqresp(f_low)[:, :1, :1] * K
+        return K
+
+    def identify_arguments(self, n_samples: int) -> dict[str, Any]:
+        """The loop arguments of :func:`~mr_ident.numerics.identify.identify` for N samples.
+
+        ``controller_low`` (None in open loop, or when N is not a multiple of F, which
+        identify then reports), ``phase`` and ``delay``.
+        """
+        K = (
+            self.controller_frf(n_samples // self.ratio)
+            if self.controller is not None and n_samples % self.ratio == 0
+            else None
+        )
+        return {"controller_low": K, "phase": self.sample_phase, "delay": self.control_delay}
+
+
+def _mode_pole(frequency_hz: float, damping: float) -> complex:
+    w = 2.0 * np.pi * frequency_hz
+    return complex(-damping * w, w * np.sqrt(max(1.0 - damping * damping, 0.0)))
+
+
+@functools.lru_cache(maxsize=256)
+def _entry(
+    P: TransferMatrix, o: int, i: int, mode_changes: tuple[tuple[float, float, float, float], ...]
+) -> StateSpace:
+    """Plant entry [o][i] as sections, with mode changes applied.
+
+    Cached: the diagnosis builds the same plant many times over.
+    """
+    S = sections(P.num[o][i], P.den[o][i], P.dt)
+    for f0, f, zeta, scale in mode_changes:
+        poles = S.poles()
+        upper = poles[poles.imag > 0]
+        if not upper.size:
+            continue
+        j = int(np.argmin(np.abs(np.abs(upper) - 2.0 * np.pi * f0)))
+        if abs(abs(upper[j]) / (2.0 * np.pi * f0) - 1.0) > 0.05:
+            continue  # this entry does not have the mode
+        c1, c0, rest = split_mode(S, complex(upper[j]))
+        S = parallel(rest, mode_block(f, zeta, scale * c1, scale * c0))
+    return S
+
+
+def plant_ss(model: Model) -> StateSpace:
+    """:meth:`Model.plant_ss` (see there)."""
+    P = model.plant
+    no, ni = P.shape
+    parts, where = [], []
+    for o in range(no):
+        for i in range(ni):
+            if np.any(P.num[o][i]):
+                parts.append(_entry(P, o, i, model.mode_changes))
+                where.append((o, i))
+    S = block_diag(parts, no, ni, where)
+    S = StateSpace(S.A, S.B, model.plant_gain * S.C, model.plant_gain * S.D, P.dt)
+    for f, zeta, gain, o, i in model.additive_modes:
+        w = 2.0 * np.pi * f
+        c0 = np.zeros((no, ni))
+        c0[o, i] = gain * w * w
+        S = parallel(S, mode_block(f, zeta, np.zeros((no, ni)), c0))
+    for f, zeta, side, channel in model.series_dynamics:
+        if side == "input":
+            S = series(diagonal(lowpass(f, zeta), ni, channel=channel), S)
+        else:
+            S = series(S, diagonal(lowpass(f, zeta), no, channel=channel))
+    return balanced(StateSpace(S.A, S.B, S.C, S.D, P.dt))
