@@ -22,8 +22,10 @@ demo: $(STAMP)
 paper: $(STAMP)
 	$(VENV)/bin/mr-ident paper --out-dir out/paper
 
+# the whole suite on every core (pytest-xdist); TEST_ARGS narrows it, e.g. TEST_ARGS=test/test_lpm.py
+TEST_WORKERS ?= auto
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --durations=15 $(TEST_ARGS)
 
 # ruff (lint, format) and mypy (strict on numerics and I/O); .ci/run runs it before the tests
 lint: $(STAMP)
