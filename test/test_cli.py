@@ -178,6 +178,36 @@ def test_start_up_imports_only_what_the_command_needs(setup, heavy):
     assert proc.stdout.strip() == "", f"imported at start-up: {proc.stdout.strip()}"
 
 
+_RUN_AND_LIST = """
+import sys
+from mr_ident.cli.parser import build_parser
+from mr_ident.cli.offline import cmd_identify
+code = cmd_identify(build_parser().parse_args(sys.argv[1:]))
+loaded = [m for m in sys.modules if m.startswith(("mr_ident.diagnosis", "scipy"))]
+print("exit", code, "loaded", ",".join(sorted(loaded)))
+"""
+
+
+def test_identify_with_a_model_imports_no_diagnosis_and_no_scipy(tmp_path, paper_model):
+    """A whole run of ``identify --model`` (P_h, the PFGs, their comparison, the result file)
+    loads neither the diagnosis nor any part of scipy: what is in ``sys.modules`` after it."""
+    import numpy as np
+
+    from mr_ident.numerics.systems.simulate import simulate
+
+    sim = simulate(paper_model, duration=30.0, rng=np.random.default_rng(0))
+    np.savez(tmp_path / "d.npz", r=sim.r, u=sim.u, y=sim.y, fs_high=240.0, ratio=3)
+    args = [str(tmp_path / "d.npz"), "--out", str(tmp_path / "o.npz")]
+    proc = subprocess.run(
+        [sys.executable, "-c", _RUN_AND_LIST, "identify", *args, "--model",
+         str(ROOT / "config" / "paper_example.yaml")],
+        capture_output=True, text=True, timeout=120, cwd=ROOT,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    last = proc.stdout.strip().splitlines()[-1]
+    assert last == "exit 0 loaded", last
+
+
 def test_paper_writes_figures_and_a_table(tmp_path, capsys):
     code, out, err = run(capsys, "paper", "--duration", 30, "--out-dir", tmp_path)
     assert code == 0, err

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from mr_bench.scenarios import draw_loop
-from mr_ident.diagnosis.controller.check import check_controller
 from mr_ident.io.datafile import read_identification, write_result
 from mr_ident.numerics.identify import DATA_PFG_SOURCE, default_n, identify
 from mr_ident.numerics.lifted.alias_range import pfg_alias_range
 from mr_ident.numerics.lifted.pfg import pfg_from_lifted, pfg_of_model
+from mr_ident.numerics.lifted.pfg_check import check_controller
 from mr_ident.numerics.systems.lti import TransferMatrix
 from mr_ident.numerics.systems.model import Model
 from mr_ident.numerics.systems.simulate import simulate

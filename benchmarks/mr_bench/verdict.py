@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 import scipy.stats
 
 from mr_ident.diagnosis.causes.registry import CAUSES
-from mr_ident.diagnosis.controller.check import COVERAGE
+from mr_ident.numerics.lifted.pfg_check import COVERAGE
 
 if TYPE_CHECKING:
     from mr_ident.diagnosis.diagnose import Diagnosis

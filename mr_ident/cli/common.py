@@ -91,7 +91,7 @@ def describe_pfgs(ident: Identification) -> list[str]:
     """Lines on the PFGs of a result: each one's peak and std; with both, their agreement."""
     import numpy as np
 
-    from ..diagnosis.controller.check import COVERAGE, check_controller
+    from ..numerics.lifted.pfg_check import COVERAGE, check_controller
 
     lines = []
     for g, what in ((ident.pfg_data, "from data (lifted r->y)"), (ident.pfg, "from P_h and K_l")):

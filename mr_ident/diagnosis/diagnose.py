@@ -39,12 +39,12 @@ import numpy as np
 from ..errors import ConfigError, DataError
 from ..numerics.excitation.bla import BandLevels, distortion_by_band
 from ..numerics.identify import default_n, min_samples
+from ..numerics.lifted.pfg_check import ControllerCheck, check_controller
 from ..numerics.signals import LoopData
 from ..numerics.systems.model import Model
 from ..numerics.threads import one_blas_thread
 from .causes.cause import CauseFit, PlantData
 from .causes.registry import CAUSES, build
-from .controller.check import ControllerCheck, check_controller
 from .controller.relation import ControllerRelation, relate
 from .criterion.evidence import Evidence, frf_evidence, identify_record
 from .criterion.noise import noise_spectrum
@@ -144,7 +144,7 @@ class Diagnosis:
         Which data were used for what.
     controller : ControllerCheck or None
         The PFG from data against the PFG of the model's controller, on the estimation data
-        (:mod:`~mr_ident.diagnosis.controller.check`); None in open loop or for periodic
+        (:mod:`~mr_ident.numerics.lifted.pfg_check`); None in open loop or for periodic
         data.
     criterion : Objective or None
         The estimation criterion every cause was fitted on (the whitened time-domain

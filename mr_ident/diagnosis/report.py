@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from .controller.check import COVERAGE, MIN_FRACTION
+from ..numerics.lifted.pfg_check import COVERAGE, MIN_FRACTION
 from .controller.relation import EXACT
 from .diagnose import NL_THRESHOLD_DB, Diagnosis
 from .selection.forward import ACCEPT_MARGIN

@@ -134,7 +134,7 @@ def identify_record(
     Lifted maps kept (None for periodic data, which is estimated from its periods instead).
     One run serves :func:`frf_evidence` for any model with the same controller structure and
     :func:`noise_spectrum`; its ``pfg`` is of the model's controller (beside ``pfg_data``,
-    for :mod:`~mr_ident.diagnosis.controller.check`).
+    for :mod:`~mr_ident.numerics.lifted.pfg_check`).
     """
     if rec.period is not None:
         return None

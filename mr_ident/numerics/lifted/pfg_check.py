@@ -20,6 +20,10 @@ with the plant's gain x1.2 instead 0-0.016, with the changed controller 0.003-0.
 gain barely shapes the PFG). Bins within the LPM's half-width of a
 multiple of fs_low are left out: there the lifted fit's one-sided windows turn an
 integrator's 1/f into bias in either PFG.
+
+It sits with the PFG (beneath the diagnosis) because ``identify`` reports it on every
+result with a model; ``diagnose`` uses it too, and its :data:`COVERAGE` is the coverage
+level of the diagnosis's tests and of the benchmark's judge.
 """
 
 from __future__ import annotations
@@ -28,8 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...numerics.arrays import FloatArray
-from ...numerics.results import Identification
+from ..arrays import FloatArray
+from ..results import Identification
 
 #: Standard deviations within which a loosely determined parameter counts as consistent
 #: (the diagnosis's coverage level; the benchmark's verdict uses the same).
