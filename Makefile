@@ -1,8 +1,11 @@
-# Two commands: `make demo` and `make test`. Each creates .venv when missing
-# and installs the pinned dependencies (requirements.txt) plus this package.
+# Two commands: `make demo` and `make test`. Each creates .venv when missing, installs
+# the pinned dependencies (requirements.txt) plus this package, and builds the interface
+# package mr_ident_msgs/ into .venv (again whenever one of its files changes).
 VENV   := .venv
 PY     := $(VENV)/bin/python
-STAMP  := $(VENV)/.installed
+PIP_STAMP := $(VENV)/.installed
+# everything installed: the pinned packages, this package and mr_ident_msgs
+STAMP  := $(VENV)/.msgs_installed
 export ROS_LOG_DIR ?= $(CURDIR)/out/ros_log
 export MPLBACKEND := Agg
 
@@ -10,10 +13,28 @@ export MPLBACKEND := Agg
 
 venv: $(STAMP)
 
-$(STAMP): requirements.txt setup.py setup.cfg
+$(PIP_STAMP): requirements.txt setup.py setup.cfg
 	test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --disable-pip-version-check -r requirements.txt
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation --use-pep517 -e .
+	touch $(PIP_STAMP)
+
+# mr_ident_msgs (ament_cmake + rosidl) built with the ROS 2 wheels of .venv and installed
+# into .venv itself (lib/, share/, site-packages), so nothing needs setting at run time.
+# The files of the previous install go first (a removed interface leaves nothing behind).
+MSGS_SRC   := mr_ident_msgs/CMakeLists.txt mr_ident_msgs/package.xml \
+              $(wildcard mr_ident_msgs/msg/*.msg mr_ident_msgs/srv/*.srv)
+MSGS_BUILD := $(VENV)/build/mr_ident_msgs
+ROS_PREFIX := CMAKE_PREFIX_PATH=$(abspath $(VENV)) AMENT_PREFIX_PATH=$(abspath $(VENV))
+$(STAMP): $(PIP_STAMP) $(MSGS_SRC)
+	if [ -f $(MSGS_BUILD)/install_manifest.txt ]; then \
+	  xargs rm -f < $(MSGS_BUILD)/install_manifest.txt; fi
+	$(ROS_PREFIX) cmake -S mr_ident_msgs -B $(MSGS_BUILD) --log-level=WARNING \
+	  -DCMAKE_INSTALL_PREFIX=$(abspath $(VENV)) -DPython3_EXECUTABLE=$(abspath $(PY)) \
+	  -DBUILD_TESTING=OFF
+	$(ROS_PREFIX) cmake --build $(MSGS_BUILD) -j 2 > $(MSGS_BUILD)/build.log 2>&1 \
+	  || { tail -n 40 $(MSGS_BUILD)/build.log; exit 1; }
+	cmake --install $(MSGS_BUILD) > /dev/null
 	touch $(STAMP)
 
 demo: $(STAMP)
