@@ -8,14 +8,16 @@ The keys are checked against a snapshot of the rosdistro repository in test/data
 from __future__ import annotations
 
 import ast
+import os
 import re
+import subprocess
 import xml.etree.ElementTree as ET
 from functools import cache
 from pathlib import Path
 
 import pytest
 import yaml
-from conftest import ROOT
+from conftest import ROOT, console_script
 
 ROSDISTRO = ROOT / "test" / "data" / "rosdistro"
 PACKAGES = {"mr_ident": ROOT, "mr_ident_msgs": ROOT / "mr_ident_msgs"}
@@ -101,13 +103,16 @@ def pip_only(package: str) -> set[str]:
     return {n.strip() for line in lines for n in line.split(",") if n.strip()}
 
 
+def setup_keyword(name: str):
+    """The literal value of a keyword argument of setup.py's setup() (nothing run)."""
+    for node in ast.walk(ast.parse((ROOT / "setup.py").read_text())):
+        if isinstance(node, ast.keyword) and node.arg == name:
+            return ast.literal_eval(node.value)
+    raise AssertionError(f"setup.py has no {name}")
+
+
 def install_requires() -> list[str]:
-    """setup.py's install_requires, read from its source (nothing run)."""
-    tree = ast.parse((ROOT / "setup.py").read_text())
-    for node in ast.walk(tree):
-        if isinstance(node, ast.keyword) and node.arg == "install_requires":
-            return [re.split(r"[<>=!~\[ ;]", ast.literal_eval(e))[0] for e in node.value.elts]
-    raise AssertionError("setup.py has no install_requires")
+    return [re.split(r"[<>=!~\[ ;]", r)[0] for r in setup_keyword("install_requires")]
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -181,3 +186,16 @@ def test_the_license_is_apache_2_as_declared(package):
     assert text.lstrip().startswith("Apache License")
     assert "Version 2.0, January 2004" in text
     assert "END OF TERMS AND CONDITIONS" in text
+
+
+def test_the_console_scripts_are_found_where_they_are_installed_and_start():
+    """In a venv (make) beside the interpreter, in a colcon workspace under lib/mr_ident."""
+    names = [e.split("=")[0].strip() for e in setup_keyword("entry_points")["console_scripts"]]
+    assert names == ["mr-ident", "mr-ident-node", "mr-ident-sim"]
+    for name in names:
+        assert os.access(console_script(name), os.X_OK)
+    for name in ("mr-ident", "mr-ident-sim"):  # the node has no --help: test_ros_record runs it
+        out = subprocess.run(
+            [console_script(name), "--help"], capture_output=True, text=True, timeout=60
+        )
+        assert out.returncode == 0 and out.stdout.startswith(f"usage: {name}"), out.stderr
