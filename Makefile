@@ -73,7 +73,7 @@ $(COLCON_STAMP): $(STAMP) requirements-colcon.txt
 colcon: $(COLCON_STAMP)
 	rm -rf $(COLCON_WS)
 	mkdir -p $(COLCON_WS)/src/mr_ident
-	git ls-files -z | tar --null -T - -cf - | tar -xf - -C $(COLCON_WS)/src/mr_ident
+	git ls-files -z | tar --null --ignore-failed-read -T - -cf - | tar -xf - -C $(COLCON_WS)/src/mr_ident
 	cd $(COLCON_WS) && $(COLCON) build --merge-install $(COLCON_PATHS) \
 	  --event-handlers console_direct- --cmake-args -DPython3_EXECUTABLE=$(abspath $(PY))
 	cd $(COLCON_WS) && $(COLCON) test --merge-install $(COLCON_PATHS) \
