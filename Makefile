@@ -1,19 +1,40 @@
-# Two commands: `make demo` and `make test`. Each creates .venv when missing
-# and installs the pinned dependencies (requirements.txt) plus this package.
+# Two commands: `make demo` and `make test`. Each creates .venv when missing, installs
+# the pinned dependencies (requirements.txt) plus this package, and builds the interface
+# package mr_ident_msgs/ into .venv (again whenever one of its files changes).
 VENV   := .venv
 PY     := $(VENV)/bin/python
-STAMP  := $(VENV)/.installed
+PIP_STAMP := $(VENV)/.installed
+# everything installed: the pinned packages, this package and mr_ident_msgs
+STAMP  := $(VENV)/.msgs_installed
 export ROS_LOG_DIR ?= $(CURDIR)/out/ros_log
 export MPLBACKEND := Agg
 
-.PHONY: demo paper test lint docs bench lrm-figure bench-structured bench-alias-range bench-bag bench-live bench-diagnose bench-monitor soak motor-bench venv clean
+.PHONY: demo paper test lint docs colcon bench lrm-figure bench-structured bench-alias-range bench-bag bench-live bench-diagnose bench-monitor soak motor-bench venv clean
 
 venv: $(STAMP)
 
-$(STAMP): requirements.txt setup.py setup.cfg
+$(PIP_STAMP): requirements.txt setup.py setup.cfg
 	test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --disable-pip-version-check -r requirements.txt
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation --use-pep517 -e .
+	touch $(PIP_STAMP)
+
+# mr_ident_msgs (ament_cmake + rosidl) built with the ROS 2 wheels of .venv and installed
+# into .venv itself (lib/, share/, site-packages), so nothing needs setting at run time.
+# The files of the previous install go first (a removed interface leaves nothing behind).
+MSGS_SRC   := mr_ident_msgs/CMakeLists.txt mr_ident_msgs/package.xml \
+              $(wildcard mr_ident_msgs/msg/*.msg mr_ident_msgs/srv/*.srv)
+MSGS_BUILD := $(VENV)/build/mr_ident_msgs
+ROS_PREFIX := CMAKE_PREFIX_PATH=$(abspath $(VENV)) AMENT_PREFIX_PATH=$(abspath $(VENV))
+$(STAMP): $(PIP_STAMP) $(MSGS_SRC)
+	if [ -f $(MSGS_BUILD)/install_manifest.txt ]; then \
+	  xargs rm -f < $(MSGS_BUILD)/install_manifest.txt; fi
+	$(ROS_PREFIX) cmake -S mr_ident_msgs -B $(MSGS_BUILD) --log-level=WARNING \
+	  -DCMAKE_INSTALL_PREFIX=$(abspath $(VENV)) -DPython3_EXECUTABLE=$(abspath $(PY)) \
+	  -DBUILD_TESTING=OFF
+	$(ROS_PREFIX) cmake --build $(MSGS_BUILD) -j 2 > $(MSGS_BUILD)/build.log 2>&1 \
+	  || { tail -n 40 $(MSGS_BUILD)/build.log; exit 1; }
+	cmake --install $(MSGS_BUILD) > /dev/null
 	touch $(STAMP)
 
 demo: $(STAMP)
@@ -36,6 +57,35 @@ lint: $(STAMP)
 # the documentation site (docs/, mkdocs.yml) into out/site; --strict: a broken link or anchor fails
 docs: $(STAMP)
 	$(VENV)/bin/mkdocs build --strict --site-dir out/site
+
+# colcon build + colcon test, as a ROS 2 engineer would, in a workspace made from a copy of
+# the tracked files (out/colcon_ws/src/mr_ident; `git add` new files first), with colcon from
+# requirements-colcon.txt and the ROS 2 wheels of .venv as the underlay. The repository root
+# is a package (mr_ident, ament_python) and colcon does not crawl into a package, so the
+# interface package is named as a second base path. colcon test runs a fast subset of the
+# suite (COLCON_TESTS: the interface package, the packaging checks, layers and imports, the
+# CLI, the node's and the recorder's console scripts from colcon's lib/mr_ident; ~1.5 min);
+# `make test` runs it all. .ci/run runs this target.
+COLCON_STAMP := $(VENV)/.colcon_installed
+COLCON_WS    := out/colcon_ws
+COLCON_TESTS := test/test_msgs.py test/test_packaging.py test/test_layers.py \
+                test/test_core_imports_no_ros.py test/test_cli.py test/test_ros_record.py
+COLCON       := $(ROS_PREFIX) $(abspath $(VENV))/bin/colcon
+COLCON_PATHS := --base-paths src/mr_ident src/mr_ident/mr_ident_msgs
+$(COLCON_STAMP): $(STAMP) requirements-colcon.txt
+	$(PY) -m pip install --quiet --disable-pip-version-check -r requirements-colcon.txt
+	touch $(COLCON_STAMP)
+
+colcon: $(COLCON_STAMP)
+	rm -rf $(COLCON_WS)
+	mkdir -p $(COLCON_WS)/src/mr_ident
+	git ls-files -z | tar --null --ignore-failed-read -T - -cf - | tar -xf - -C $(COLCON_WS)/src/mr_ident
+	cd $(COLCON_WS) && $(COLCON) build --merge-install $(COLCON_PATHS) \
+	  --event-handlers console_direct- --cmake-args -DPython3_EXECUTABLE=$(abspath $(PY))
+	cd $(COLCON_WS) && $(COLCON) test --merge-install $(COLCON_PATHS) \
+	  --event-handlers console_direct+ --return-code-on-test-failure \
+	  --pytest-args $(COLCON_TESTS)
+	cd $(COLCON_WS) && $(COLCON) test-result --verbose
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_identify.py
