@@ -108,12 +108,13 @@ class Inputs:
         """ROS time (ns) of sample ``last``: from the sources' stamps, else the output's arrival.
 
         Block contract: the ROS time at which the output block holding the latest sample
-        arrived, less the samples since ``last`` at fs_high.
+        arrived, less the samples since ``last`` at fs_high (the ROS time now, when no block
+        came since the ROS clock runs: use_sim_time before the first /clock).
         """
         feed = self.sources.feed if self.sources is not None else None
         if feed is not None and feed.sampler.t0 is not None:
             return int(grid_stamps(feed.sampler.t0, last, 1, feed.sampler.fs_high)[0])
-        if self._anchor is None:
+        if self._anchor is None or self._anchor[1] <= 0:  # no block since the clock runs
             return self._ros_now()
         index, ns = self._anchor
         return ns - round((index - last) * 1e9 / self.config.fs_high)

@@ -259,7 +259,7 @@ class _Drain:
     The helper is hidden (its name starts with ``_``), named after its owner and unique in
     the process, in the owner's namespace; it takes no global arguments (a launch file's
     ``__node``/``__ns`` remaps name the owner only; its topics come resolved from the owner)
-    and serves no parameters.
+    and serves nothing (no parameter services, no type description service, no rosout).
     """
 
     _count = 0
@@ -269,6 +269,7 @@ class _Drain:
 
         import rclpy
         from rclpy.guard_condition import GuardCondition
+        from rclpy.parameter import Parameter
 
         _Drain._count += 1
         context = owner.context
@@ -279,6 +280,7 @@ class _Drain:
             use_global_arguments=False,
             start_parameter_services=False,
             enable_rosout=False,
+            parameter_overrides=[Parameter("start_type_description_service", value=False)],
         )
         self._context = context
         self._subs: list[tuple[Any, Callable[[bytes, dict[str, Any]], None]]] = []
