@@ -312,3 +312,52 @@ def test_the_node_reads_the_labels_in_the_joint_state_form_with_its_sources(grap
     assert (est.bla.realizations, est.bla.periods) == (M, P - 1), est.periodic
     np.testing.assert_allclose(est.bla.response, -1.0, rtol=0, atol=1e-12)
     assert set(node.inputs.aligner.stats) == {"reference", "input", "output", "excitation_index"}
+
+
+def test_the_publisher_is_started_and_stopped_from_the_graph(graph):
+    """``--paused``: nothing goes out until ~/start (std_srvs/Trigger); then blocks, and the
+    status '<node>: excitation' on /diagnostics says publishing, with realization and period;
+    after ~/stop no more samples, the status says stopped."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from std_srvs.srv import Trigger
+
+    from mr_ident.ros.program import Stop
+
+    ms = design(fs_high=240.0, period=240, band=(1, 100), kind="full", periods=2, realizations=2)
+    pub_node = rclpy.create_node("excite", context=graph.ctx)
+    lis = graph.node("listener")
+    got, status = Blocks(lis, "/cmd"), []
+    lis.create_subscription(
+        DiagnosticArray, "/diagnostics", lambda m: status.extend(m.status), 10
+    )  # fmt: skip
+    stop = Stop()
+    run = dict(fs_high=240.0, period=240, rate=10.0, loops=0, wait=0.0, stop=stop, paused=True)
+    th = threading.Thread(target=publish, args=(pub_node, "/cmd", ms.r), kwargs=run, daemon=True)
+    th.start()
+
+    def call(name: str):
+        cli = lis.create_client(Trigger, f"/excite/{name}")
+        assert cli.wait_for_service(timeout_sec=10), name
+        future = cli.call_async(Trigger.Request())
+        wait_for(future.done, 10, f"the response of ~/{name}")
+        return future.result()
+
+    def said(text: str):
+        return lambda: any(s.name == "/excite: excitation" and text in s.message for s in status)
+
+    try:
+        wait_for(said("stopped"), 10, "the status: stopped")
+        assert got.samples == 0
+        assert call("start").success
+        wait_for(lambda: got.samples > 2400, 20, "samples after ~/start")
+        wait_for(said("publishing: realization"), 10, "the status: publishing")
+        assert call("stop").success
+        status.clear()
+        wait_for(said("stopped"), 10, "the status: stopped again")
+        n = got.samples
+        threading.Event().wait(0.5)
+        assert got.samples == n
+    finally:
+        stop.request()
+        th.join(10)
+        pub_node.destroy_node()
