@@ -154,6 +154,8 @@ def test_record_on_a_full_disk_keeps_the_finished_chunks_and_replay_says_so(grap
 
 
 def test_node_console_script_takes_params_file_and_remaps(graph, tmp_path):
+    """A params file, a remap and record_path from the command line; SIGTERM finalises the
+    recording within 2 s and exits 0."""
     params = tmp_path / "p.yaml"
     params.write_text(
         "mr_ident:\n  ros__parameters:\n    window_s: 5.0\n    min_window_s: 5.0\n"
@@ -183,9 +185,11 @@ def test_node_console_script_takes_params_file_and_remaps(graph, tmp_path):
         wait_for(lambda: lis.estimates, 30, "an estimate from the remapped topic")
         f, _ = lis.plant()
         assert abs(f[0] - 1 / 5.0) < 1e-9  # 5 s window from the params file
-        proc.send_signal(signal.SIGINT)
+        sent = time.time()
+        proc.send_signal(signal.SIGTERM)
         proc.wait(20)
     assert proc.returncode == 0
+    assert rec.stat().st_mtime - sent < 2.0  # finalised within 2 s, before any worker is awaited
     from mcap.reader import make_reader  # SIGINT finalised the node's recording
 
     with open(rec, "rb") as fh:
