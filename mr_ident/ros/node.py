@@ -193,6 +193,7 @@ class IdentNode(LifecycleNode):
         """Release everything; back to unconfigured."""
         self.get_logger().error("a transition raised: the node goes back to unconfigured")
         self.shutdown()
+        self._release()
         self._stopping = False
         return SUCCESS
 
