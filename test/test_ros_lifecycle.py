@@ -117,7 +117,7 @@ def _noisy(model):
     return replace(model, noise_std=0.02 * float(np.std(y)))
 
 
-def test_lifecycle_and_every_service(graph, tmp_path):
+def test_lifecycle_and_every_service(graph, tmp_path, monkeypatch):
     """Unconfigured until told (autostart false); configure; activate (subscribed, estimates
     published); ~/reset: every estimate holding a sample after the reset holds no sample
     before it; ~/snapshot: the file reads back equal to the published estimate on its bins;
@@ -201,7 +201,16 @@ def test_lifecycle_and_every_service(graph, tmp_path):
         wait_for(lambda: c.plant()[0] == 1, 60, "WARN after the gain change")
         assert "drift" in c.plant()[1]
 
-        # ~/diagnose: on a worker, the estimates go on meanwhile
+        # ~/diagnose: on a worker, the estimates go on meanwhile (it is made to take 2 s more)
+        import mr_ident.ros.services as services
+
+        real = services.window_report
+
+        def slow(model, window):
+            time.sleep(2.0)
+            return real(model, window)
+
+        monkeypatch.setattr(services, "window_report", slow)
         wait_for(lambda: c.estimates[-1].window_first >= at, 30, "a window after the change")
         n = len(c.estimates)
         res = c.call(Diagnose, "diagnose", timeout=120)

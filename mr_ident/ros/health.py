@@ -21,6 +21,11 @@ from .excitation import bla_values
 from .sources import SourceSubscriber
 
 WARN_HOLD_S = 10.0  # an anomaly keeps the level at WARN this long
+#: Why no estimate comes with use_sim_time before the first /clock.
+NO_CLOCK = (
+    "use_sim_time is true and no /clock has come: estimates wait for it "
+    "(update_period_s runs on the ROS clock)"
+)
 
 
 @dataclass(frozen=True)
@@ -135,3 +140,13 @@ def identification_status(h: Health, name: str, hardware_id: str) -> DiagnosticS
     )
     status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
     return status
+
+
+def unconfigured_status(fqn: str, error: str) -> DiagnosticStatus:
+    """The status of a node not configured (yet), with why its configure failed."""
+    return DiagnosticStatus(
+        level=DiagnosticStatus.WARN,
+        name=f"{fqn}: identification",
+        message="unconfigured" + (f": {error}" if error else ""),
+        hardware_id=fqn,
+    )

@@ -21,6 +21,7 @@ Lifecycle (``rclpy.lifecycle``; ros2/demos' ``lifecycle_py`` talker is the model
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import sys
 import threading
@@ -44,7 +45,7 @@ from ..io.config import IdentConfig
 from ..live.estimate import Estimate, estimate, warm_up
 from ..numerics.signals import LoopData
 from . import params
-from .health import Health, identification_status
+from .health import NO_CLOCK, Health, identification_status, unconfigured_status
 from .inputs import Inputs
 from .monitoring import PlantMonitoring
 from .outputs import Outputs
@@ -98,6 +99,7 @@ class IdentNode(LifecycleNode):
         self._pending: tuple[IdentConfig, Any] | None = None
         self._active = False
         self._stopping = False
+        self._joined = False  # shutdown has waited for the threads
         self._notes: list[tuple[float, str]] = []
         self._started = time.monotonic()
         self._published: Published | None = None
@@ -136,7 +138,7 @@ class IdentNode(LifecycleNode):
             return FAILURE
         self.configure_error = ""
         self.config, self._monitoring = cfg, monitoring
-        self._stopping = False
+        self._stopping = self._joined = False
         self.inputs = Inputs(self, cfg, self._recording, self._note, self._steady)
         self._outputs = Outputs(self, params.flag(self, "legacy_array_topics"))
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
@@ -375,26 +377,12 @@ class IdentNode(LifecycleNode):
         return self._active
 
     # -- diagnostics --------------------------------------------------------------------
-    def _clock_problem(self) -> str:
-        if self.get_parameter("use_sim_time").value and self.get_clock().now().nanoseconds == 0:
-            return (
-                "use_sim_time is true and no /clock has come: estimates wait for it "
-                "(update_period_s runs on the ROS clock)"
-            )
-        return ""
-
     def diagnostic_status(self) -> DiagnosticStatus:
         """The node's status for /diagnostics: level, message, every counter."""
         fqn = self.get_fully_qualified_name()
         cfg, inputs = self.config, self.inputs
         if cfg is None or inputs is None:
-            return DiagnosticStatus(
-                level=DiagnosticStatus.WARN,
-                name=f"{fqn}: identification",
-                message="unconfigured"
-                + (f": {self.configure_error}" if self.configure_error else ""),
-                hardware_id=fqn,
-            )
+            return unconfigured_status(fqn, self.configure_error)
         with self._lock:
             pub, err, err_t = self._published, self._last_error, self._last_error_time
             n_est, est_t = self._estimates, self._last_estimate_wall
@@ -418,7 +406,9 @@ class IdentNode(LifecycleNode):
             record_error=self._recording.error,
             recording=path.as_posix() if path is not None else "",
             warm_up=self._warm_up,
-            clock=self._clock_problem(),
+            clock=NO_CLOCK
+            if self.get_parameter("use_sim_time").value and self.get_clock().now().nanoseconds == 0
+            else "",
             active=self._active,
         )
         return identification_status(health, fqn, fqn)
@@ -439,8 +429,11 @@ class IdentNode(LifecycleNode):
     def shutdown(self, timeout: float = JOIN_S) -> None:
         """Stop estimating, finalise the recording, then wait a bounded time for the workers.
 
-        Idempotent; any state. The MCAP is closed before any thread is waited on.
+        Idempotent (the threads are waited on once); any state. The MCAP is closed before
+        any thread is waited on.
         """
+        if self._stopping and self._recording.path is None and self._joined:
+            return
         self._stopping = True
         self._active = False
         if self.inputs is not None and self.inputs.sources is not None:
@@ -453,6 +446,7 @@ class IdentNode(LifecycleNode):
             self._monitoring.shutdown(timeout)
         if self._srv is not None:
             self._srv.shutdown(timeout)
+        self._joined = True
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -482,6 +476,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 executor.shutdown()
             finally:
                 if node is not None:
+                    with contextlib.suppress(Exception):  # finalized already
+                        node.trigger_shutdown()  # the lifecycle's own shutdown transition
                     node.shutdown()
                     node.destroy_node()
     except (
