@@ -31,6 +31,9 @@ setup(
         "matplotlib",
         "mcap",
         "mcap-ros2-support",
+        # read directly (MCAP chunks, compressed rosbag2 files); both also come with mcap
+        "zstandard",
+        "lz4",
         "plotly",
     ],
     extras_require={"cluster": ["dask[distributed]>=2024.1"]},
@@ -40,7 +43,7 @@ setup(
     description="Frequency-domain identification of multirate control loops (lifted LPM).",
     license="Apache-2.0",
     python_requires=">=3.10",
-    tests_require=["pytest"],
+    tests_require=["pytest", "hypothesis", "rosbags"],
     entry_points={
         "console_scripts": [
             "mr-ident = mr_ident.cli:main",

@@ -4,6 +4,8 @@ the environment of a ROS process in its own domain."""
 from __future__ import annotations
 
 import os
+import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +27,33 @@ def ros_settings() -> dict[str, str]:
 def domain_env(dom: int) -> dict[str, str]:
     """The environment of a ROS child process in domain ``dom`` (:func:`ros_settings`)."""
     return dict(os.environ, **ros_settings(), ROS_DOMAIN_ID=str(dom))
+
+
+def console_script(name: str) -> str:
+    """The path of this package's console script ``name`` (``mr-ident``, ``mr-ident-node``...).
+
+    Searched on PATH, then in the lib/mr_ident of the prefixes a colcon workspace names
+    (COLCON_PREFIX_PATH, AMENT_PREFIX_PATH: where `colcon build` installs an ament_python
+    package's scripts; before the interpreter's own bin, which in `colcon test` is the venv's
+    and may hold another install's), then beside the interpreter (a venv's bin: `make test`).
+    """
+    found = shutil.which(name)
+    if found:
+        return found
+    prefixes = [
+        p
+        for var in ("COLCON_PREFIX_PATH", "AMENT_PREFIX_PATH")
+        for p in os.environ.get(var, "").split(os.pathsep)
+        if p
+    ]
+    candidates = [Path(p) / "lib" / "mr_ident" / name for p in prefixes]
+    candidates.append(Path(sys.executable).parent / name)
+    for path in candidates:
+        if path.is_file() and os.access(path, os.X_OK):
+            return str(path)
+    raise FileNotFoundError(
+        f"console script {name!r} not found on PATH nor in {[str(c) for c in candidates]}"
+    )
 
 
 @pytest.fixture(scope="session")

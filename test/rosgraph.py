@@ -10,14 +10,13 @@ from __future__ import annotations
 import contextlib
 import os
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import domain_env, ros_settings
+from conftest import console_script, domain_env, ros_settings
 
 os.environ.update(ros_settings())  # the nodes of this process too
 
@@ -240,7 +239,8 @@ def publish_sim(pubs, model, seconds: float, *, block=1000, skip=None, seed=3, w
 
 
 def venv_bin(name: str) -> str:
-    return str(Path(sys.executable).parent / name)
+    """Where this package's console script ``name`` is installed (conftest.console_script)."""
+    return console_script(name)
 
 
 @contextlib.contextmanager

@@ -14,7 +14,6 @@ import json
 import shutil
 import socket
 import subprocess
-import sys
 import time
 import urllib.error
 import urllib.request
@@ -22,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import domain_env
+from conftest import console_script, domain_env
 
 from mr_ident.errors import ConfigError
 from mr_ident.view.server import ViewServer
@@ -163,7 +162,6 @@ def _wait_for_estimate(url: str, procs: dict, tmp_path: Path) -> None:
 def test_the_page_in_a_real_browser_plots_the_nodes_estimate(tmp_path):
     from domain_coordinator import domain_id
 
-    bindir = Path(sys.executable).parent
     port = _free_port()
     with domain_id() as dom:
         env = domain_env(dom)
@@ -174,10 +172,10 @@ def test_the_page_in_a_real_browser_plots_the_nodes_estimate(tmp_path):
         ]  # fmt: skip
         logs = {k: open(tmp_path / f"{k}.log", "w") for k in ("sim", "node", "view")}
         commands = {
-            "node": [bindir / "mr-ident-node", *params],
-            "sim": [bindir / "mr-ident-sim", PAPER, "--rate", "20", "--wait", "20"],
+            "node": [console_script("mr-ident-node"), *params],
+            "sim": [console_script("mr-ident-sim"), PAPER, "--rate", "20", "--wait", "20"],
             "view": [
-                bindir / "mr-ident",
+                console_script("mr-ident"),
                 "view",
                 "--port",
                 port,
@@ -267,7 +265,7 @@ def test_a_bag_replays_its_estimates_into_the_view(tmp_path):
     sim = simulate(model, duration=40.0, rng=np.random.default_rng(4))
     bag = joint_state_bag(tmp_path / "js", sim, stamps(sim.n_samples, 240.0))
     port = _free_port()
-    argv = [str(Path(sys.executable).parent / "mr-ident"), "view", str(bag), "--model", str(PAPER)]
+    argv = [console_script("mr-ident"), "view", str(bag), "--model", str(PAPER)]
     argv += ["--r", R, "--u", U, "--y", Y, "--speed", "0", "--port", str(port)]
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
@@ -299,7 +297,7 @@ def test_a_bag_replays_its_estimates_into_the_view(tmp_path):
 def test_bad_input_is_one_line_and_exit_2(tmp_path):
     from domain_coordinator import domain_id
 
-    mr = str(Path(sys.executable).parent / "mr-ident")
+    mr = console_script("mr-ident")
     state = ViewState()
     server = ViewServer(state, port=0).start()
     taken = str(server.server_address[1])
