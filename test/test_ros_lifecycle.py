@@ -32,6 +32,7 @@ from mr_ident.ros.messages import RESULT_QOS, block_msg  # noqa: E402
 from mr_ident.ros.node import IdentNode  # noqa: E402
 from mr_ident.ros.outputs import estimate_arrays  # noqa: E402
 from mr_ident_msgs.msg import Estimate as EstimateMsg  # noqa: E402
+from mr_ident_msgs.msg import Summary as SummaryMsg  # noqa: E402
 from mr_ident_msgs.srv import Diagnose, Record, SaveEstimate  # noqa: E402
 
 
@@ -76,9 +77,13 @@ class Client:
         self.node = graph.node("client")
         self.ns = ns
         self.estimates: list = []
+        self.summaries: list = []
         self.status: list = []
         self.node.create_subscription(
             EstimateMsg, f"{ns}/estimate", self.estimates.append, RESULT_QOS
+        )
+        self.node.create_subscription(
+            SummaryMsg, f"{ns}/summary", self.summaries.append, RESULT_QOS
         )
         self.node.create_subscription(
             DiagnosticArray, "/diagnostics", lambda m: self.status.extend(m.status), 10
@@ -200,6 +205,13 @@ def test_lifecycle_and_every_service(graph, tmp_path, monkeypatch):
         at = feed.switch(replace(nominal, plant_gain=1.3), seed=6)
         wait_for(lambda: c.plant()[0] == 1, 60, "WARN after the gain change")
         assert "drift" in c.plant()[1]
+        wait_for(
+            lambda: c.summaries[-1].window_last >= at + 1200, 10, "a summary after the change"
+        )
+        sm = c.summaries[-1]  # ~/summary: the drift and the PFG peaks as scalars
+        assert sm.drift_max_relative > 0.25 and sm.drift_max_sigma > 3, sm  # the largest bin
+        assert sm.pfg_peak > 0 and 0 < sm.pfg_peak_frequency < 120 and sm.pfg_data_peak > 0, sm
+        assert 0 < sm.median_relative_std < 0.1, sm
 
         # ~/diagnose: on a worker, the estimates go on meanwhile (it is made to take 2 s more)
         import mr_ident.ros.services as services

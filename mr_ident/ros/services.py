@@ -15,8 +15,11 @@
 =========================  ==========================  ======================================
 
 ``~/diagnose`` runs on a thread of its own: its callback is a coroutine that awaits a
-future the thread completes (with the node's single-threaded executor, the other callbacks
-and the estimates go on meanwhile). Adapter only: the work is the node's and the library's.
+future the thread completes, in a callback group of its own (rclpy holds a callback's
+group while its coroutine is pending: in the node's default group it would stop the
+timers and subscriptions). So with the node's single-threaded executor the other
+callbacks and the estimates go on meanwhile. Adapter only: the work is the node's and the
+library's.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.parameter import Parameter
 from rclpy.task import Future
 from std_srvs.srv import Trigger
@@ -71,7 +75,14 @@ class NodeServices:
             made += [
                 node.create_service(SaveEstimate, "~/snapshot", self._snapshot),
                 node.create_service(SaveEstimate, "~/capture_reference", self._capture),
-                node.create_service(Diagnose, "~/diagnose", self._diagnose),
+                # its own group: while the coroutine awaits the worker, the node's default
+                # (mutually exclusive) group - timers, subscriptions - goes on
+                node.create_service(
+                    Diagnose,
+                    "~/diagnose",
+                    self._diagnose,
+                    callback_group=MutuallyExclusiveCallbackGroup(),
+                ),
                 node.create_service(Record, "~/start_recording", self._start_recording),
             ]
         else:
