@@ -29,6 +29,7 @@ from std_msgs.msg import Float64MultiArray  # noqa: E402
 from mr_ident.numerics.excitation.sources import SimSource  # noqa: E402
 from mr_ident.ros.messages import BLOCK_QOS, BODE_TOPICS, RESULT_QOS, block_msg  # noqa: E402
 from mr_ident.ros.node import IdentNode  # noqa: E402
+from mr_ident.ros.outputs import EstimateMsg, estimate_arrays  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "config" / "paper_example.yaml"
@@ -90,8 +91,11 @@ class Graph:
     def node(self, name: str):
         return self.add(rclpy.create_node(name, context=self.ctx))
 
-    def ident(self, params):
-        return self.add(IdentNode(context=self.ctx, parameter_overrides=params))
+    def ident(self, params, **kwargs):
+        """An IdentNode, configured and activated as mr-ident-node does (``autostart``)."""
+        node = self.add(IdentNode(context=self.ctx, parameter_overrides=params, **kwargs))
+        assert node.autostart(), node.configure_error
+        return node
 
     def close(self):
         for n in self.nodes:
@@ -117,6 +121,7 @@ class Listener:
     def __init__(self, g: Graph):
         self.node = g.node("listener")
         self.msgs: dict[str, Float64MultiArray] = {}
+        self.estimates: list = []
         self.diag = []
         names = ("frequencies", "plant_frf", "plant_frf_std", "pfg", "pfg_std", "pfg_data")
         for name in (*names, "pfg_data_std", *BODE_TOPICS):
@@ -131,8 +136,25 @@ class Listener:
         self.node.create_subscription(
             DiagnosticArray, "/diagnostics", lambda m: self.diag.append(m.status[0]), 10
         )
+        if EstimateMsg is not None:  # the node's ~/estimate (mr_ident_msgs)
+            self.node.create_subscription(
+                EstimateMsg, "/mr_ident/estimate", self.estimates.append, RESULT_QOS
+            )
+
+    @property
+    def estimate(self):
+        """The latest ~/estimate as arrays (outputs.EstimateArrays), or None."""
+        return estimate_arrays(self.estimates[-1]) if self.estimates else None
 
     def plant(self):
+        """(f, P) of the latest estimate: ~/estimate, else the legacy arrays."""
+        if self.estimates:
+            e = self.estimate
+            return e.frequency, e.response
+        return self.plant_arrays()
+
+    def plant_arrays(self):
+        """(f, P) of the legacy arrays (legacy_array_topics)."""
         m = self.msgs["plant_frf"]
         P = np.frombuffer(m.data).reshape([d.size for d in m.layout.dim])
         return np.frombuffer(self.msgs["frequencies"].data), np.transpose(

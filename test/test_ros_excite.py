@@ -79,16 +79,15 @@ def test_published_multisine_drives_the_sim_and_the_node_estimates_the_exact_pla
 
     from mr_ident.live.estimate import publish_grid
     from mr_ident.ros.messages import RESULT_QOS, frf_of
-    from mr_ident.ros.node import IdentNode
 
     N, P, M, fs = 2400, 3, 2, 240.0
     total = N * P * M
     model = load_model(PAPER)
     node = graph.ident(fast_params(window_s=10.0))
-    periodic = fast_params(window_s=30.0, excitation_index_topic=index_topic("reference"))
-    bla_node = graph.add(
-        IdentNode("mr_ident_bla", context=graph.ctx, parameter_overrides=periodic)
+    periodic = fast_params(
+        window_s=30.0, excitation_index_topic=index_topic("reference"), legacy_array_topics=True
     )
+    bla_node = graph.ident(periodic, name="mr_ident_bla")
     lis = graph.node("listener")
     got: dict[str, object] = {}
     for name in ("frequencies", "plant_frf"):
@@ -99,7 +98,7 @@ def test_published_multisine_drives_the_sim_and_the_node_estimates_the_exact_pla
     status: list = []
     lis.create_subscription(
         DiagnosticArray, "/diagnostics",
-        lambda m: status.extend(s for s in m.status if s.name == "mr_ident_bla: identification"),
+        lambda m: status.extend(s for s in m.status if s.name == "/mr_ident_bla: identification"),
         10,
     )  # fmt: skip
     streams = {
@@ -138,7 +137,7 @@ def test_published_multisine_drives_the_sim_and_the_node_estimates_the_exact_pla
         )
         assert sim.poll() is None, sim.stdout.read() if sim.stdout else ""
     est = node.last_estimate
-    assert est.n_samples == N and all(s.gaps == 0 for s in node._aligner.stats.values())
+    assert est.n_samples == N and all(s.gaps == 0 for s in node.inputs.aligner.stats.values())
     plant = est.identification.plant
     Ptrue = model.plant_discrete().freqresp(plant.frequency)
     rel = np.abs(plant.response - Ptrue) / np.abs(Ptrue)
@@ -160,8 +159,8 @@ def test_published_multisine_drives_the_sim_and_the_node_estimates_the_exact_pla
     live = bla_node.last_estimate  # the node's BLA of its last window
     assert live.bla is not None and live.n_samples == P * N, live.periodic
     assert live.periodic.startswith(f"BLA from 1 realization(s) x {P - 1} period(s) of {N}")
-    assert all(st.gaps == 0 for st in bla_node._aligner.stats.values())
-    assert "excitation_index" in bla_node._aligner.stats
+    assert all(st.gaps == 0 for st in bla_node.inputs.aligner.stats.values())
+    assert "excitation_index" in bla_node.inputs.aligner.stats
     Pb = model.plant_discrete().freqresp(live.bla.lines * fs / N)[:, 0, 0]
     assert np.max(np.abs(live.bla.response - Pb) / np.abs(Pb)) < 1e-9
     last = slice(-(P - 1) * N, None)  # realization 1 after its transient: the record's too
@@ -284,8 +283,6 @@ def test_the_node_reads_the_labels_in_the_joint_state_form_with_its_sources(grap
     BLA of y = -u: -1 at every line, exactly."""
     from rclpy.parameter import Parameter
 
-    from mr_ident.ros.node import IdentNode
-
     fs, N, P, M = 240.0, 24, 2, 2
     ms = design(fs_high=fs, period=N, band=(1, 100), kind="full", periods=P, realizations=M)
     r = np.concatenate([ms.r, -ms.r], axis=2)
@@ -299,7 +296,7 @@ def test_the_node_reads_the_labels_in_the_joint_state_form_with_its_sources(grap
             excitation_index_topic="/cmd/excitation_index",
         ).items()
     ]  # fmt: skip
-    node = graph.add(IdentNode(context=graph.ctx, parameter_overrides=params))
+    node = graph.ident(params)
     pub_node = rclpy.create_node("excite", context=graph.ctx)
     try:
         assert _play(pub_node, r, fs, N, "jointstate", loops=2).samples == 2 * cycle
@@ -314,4 +311,53 @@ def test_the_node_reads_the_labels_in_the_joint_state_form_with_its_sources(grap
     assert est.bla is not None, est.periodic
     assert (est.bla.realizations, est.bla.periods) == (M, P - 1), est.periodic
     np.testing.assert_allclose(est.bla.response, -1.0, rtol=0, atol=1e-12)
-    assert set(node._aligner.stats) == {"reference", "input", "output", "excitation_index"}
+    assert set(node.inputs.aligner.stats) == {"reference", "input", "output", "excitation_index"}
+
+
+def test_the_publisher_is_started_and_stopped_from_the_graph(graph):
+    """``--paused``: nothing goes out until ~/start (std_srvs/Trigger); then blocks, and the
+    status '<node>: excitation' on /diagnostics says publishing, with realization and period;
+    after ~/stop no more samples, the status says stopped."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from std_srvs.srv import Trigger
+
+    from mr_ident.ros.program import Stop
+
+    ms = design(fs_high=240.0, period=240, band=(1, 100), kind="full", periods=2, realizations=2)
+    pub_node = rclpy.create_node("excite", context=graph.ctx)
+    lis = graph.node("listener")
+    got, status = Blocks(lis, "/cmd"), []
+    lis.create_subscription(
+        DiagnosticArray, "/diagnostics", lambda m: status.extend(m.status), 10
+    )  # fmt: skip
+    stop = Stop()
+    run = dict(fs_high=240.0, period=240, rate=10.0, loops=0, wait=0.0, stop=stop, paused=True)
+    th = threading.Thread(target=publish, args=(pub_node, "/cmd", ms.r), kwargs=run, daemon=True)
+    th.start()
+
+    def call(name: str):
+        cli = lis.create_client(Trigger, f"/excite/{name}")
+        assert cli.wait_for_service(timeout_sec=10), name
+        future = cli.call_async(Trigger.Request())
+        wait_for(future.done, 10, f"the response of ~/{name}")
+        return future.result()
+
+    def said(text: str):
+        return lambda: any(s.name == "/excite: excitation" and text in s.message for s in status)
+
+    try:
+        wait_for(said("stopped"), 10, "the status: stopped")
+        assert got.samples == 0
+        assert call("start").success
+        wait_for(lambda: got.samples > 2400, 20, "samples after ~/start")
+        wait_for(said("publishing: realization"), 10, "the status: publishing")
+        assert call("stop").success
+        status.clear()
+        wait_for(said("stopped"), 10, "the status: stopped again")
+        n = got.samples
+        threading.Event().wait(0.5)
+        assert got.samples == n
+    finally:
+        stop.request()
+        th.join(10)
+        pub_node.destroy_node()

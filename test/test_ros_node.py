@@ -42,7 +42,7 @@ def test_sim_to_node_estimate_matches_the_exact_plant(graph):
     with the bin spacing to the power R+1: 1.6e-5 here against 3e-10 for the 600 s paper
     record.)"""
     model = load_model(PAPER)
-    node = graph.ident(fast_params())
+    node = graph.ident(fast_params(legacy_array_topics=True))
     lis = Listener(graph)
     publish_sim(publishers(graph), model, 24.0)
     wait_for(
@@ -57,7 +57,7 @@ def test_sim_to_node_estimate_matches_the_exact_plant(graph):
         "an estimate",
     )
     wait_for(lambda: "bode_phase_deg" in lis.msgs, 10, "the plot topics")
-    f, P = lis.plant()
+    f, P = lis.plant_arrays()
     est = node.last_estimate
     assert est.n_samples == IdentConfig(window_s=20.0).window_samples
     Ptrue = model.plant_discrete().freqresp(f)
@@ -70,7 +70,7 @@ def test_sim_to_node_estimate_matches_the_exact_plant(graph):
         """The plot topics equal the plant_frf they came with: log10 f (1e-12), dB (1e-9
         relative), unwrapped phase (1e-9 rad). Waited for, because the executor thread
         delivers the next estimate's messages one topic at a time while more data arrives."""
-        f, P = lis.plant()
+        f, P = lis.plant_arrays()
         b = {k: np.frombuffer(lis.msgs[k].data) for k in BODE_TOPICS}
         return (
             b["bode_mag_db"].size == f.size
@@ -90,6 +90,22 @@ def test_sim_to_node_estimate_matches_the_exact_plant(graph):
     ]
     assert est.phase_source == "auto" and est.phase == model.sample_phase
 
+    def estimate_equals_the_arrays() -> bool:
+        """~/estimate carries the same estimate as the legacy arrays, with its window."""
+        e, (f, P) = lis.estimate, lis.plant_arrays()
+        return (
+            e is not None
+            and np.array_equal(e.frequency, f)
+            and np.array_equal(e.response, P)
+            and np.array_equal(e.pfg_data, np.frombuffer(lis.msgs["pfg_data"].data))
+        )
+
+    wait_for(estimate_equals_the_arrays, 10, "~/estimate equal to the legacy arrays")
+    e = lis.estimate
+    assert e.window_last - e.window_first + 1 == est.n_samples and e.window_first % 3 == 0
+    assert e.stamp_ns > 1e18 and e.halfwidth.size == e.frequency.size and e.halfwidth.min() >= 8
+    assert (e.fs_high, e.ratio, e.method, e.local_model) == (240.0, 3, "freq-lifted", "polynomial")
+
 
 def test_dropped_block_is_reported_and_excluded(graph):
     """One output block never arrives: /diagnostics says gap (WARN), the window restarts after it
@@ -108,7 +124,7 @@ def test_dropped_block_is_reported_and_excluded(graph):
         30,
         "an estimate of the final window",
     )
-    st = node._aligner.stats["output"]
+    st = node.inputs.aligner.stats["output"]
     assert (st.gaps, st.gap_samples) == (1, 240)
     wait_for(
         lambda: lis.diag and lis.last_diag()[2].get("output.gaps") == "1",
@@ -224,7 +240,7 @@ def test_node_survives_faults_reports_each_and_never_estimates_across_one(graph,
     feed.send(60)
     await_estimate_ending_at(node, feed.src.next_index, 20)
 
-    stats = node._aligner.stats
+    stats = node.inputs.aligner.stats
     assert stats["output"].nonfinite == 1 and stats["input"].malformed == 1
     assert stats["reference"].malformed == 1 and stats["output"].malformed == 1
     assert all(stats[s].duplicates >= 1 for s in stats) and stats["reference"].restarts >= 2
@@ -305,11 +321,12 @@ def test_live_and_replay_take_the_same_path_for_every_block_bad_ones_included(gr
         + CONTROLLER,
     )
     try:
+        assert node.autostart()
         for s, raw in raws:
-            node._on_block(s, raw)
-        node._ingest.expire(float("inf"), 0.0)
-        live_stats = {k: v.as_dict() for k, v in node._aligner.stats.items()}
-        window = node._aligner.window(node.config.min_samples)
+            node.inputs.on_block(s, raw)
+        node.inputs.ingest.expire(float("inf"), 0.0)
+        live_stats = {k: v.as_dict() for k, v in node.inputs.aligner.stats.items()}
+        window = node.inputs.aligner.window(node.config.min_samples)
     finally:
         node.shutdown()
         node.destroy_node()

@@ -58,7 +58,9 @@ def test_node_on_joint_states_identifies_the_plant_with_no_sample_lost(graph):
     js = pub_node.create_publisher(sensor_msgs.JointState, "/joint_states", QOS)
     ref = pub_node.create_publisher(sensor_msgs.JointState, "/ident/reference", QOS)
     wait_for(
-        lambda: node._sources.sources is not None, 15, "the node to find the topics and subscribe"
+        lambda: node.inputs.sources.sources is not None,
+        15,
+        "the node to find the topics and subscribe",
     )
     wait_for(
         lambda: js.get_subscription_count() > 0 and ref.get_subscription_count() > 0,
@@ -82,13 +84,13 @@ def test_node_on_joint_states_identifies_the_plant_with_no_sample_lost(graph):
         time.sleep(max(0.0, start + n / 2400.0 - time.monotonic()))
     rate = n / (time.monotonic() - start)
     await_estimate_ending_at(node, n)
-    stats = node._sources.feed.stats
+    stats = node.inputs.sources.feed.stats
     assert rate >= 1000.0, rate
     assert all(
         st.messages == n and st.samples == n and st.off_grid == 0 and st.unmatched == 0
         for st in stats
     ), [st.as_dict() for st in stats]
-    assert all(s.gaps == 0 and s.samples == n for s in node._aligner.stats.values())
+    assert all(s.gaps == 0 and s.samples == n for s in node.inputs.aligner.stats.values())
     P = node.last_estimate.identification.plant
     Ptrue = model.plant_discrete().freqresp(P.frequency)
     assert np.median(np.abs(P.response - Ptrue) / np.abs(Ptrue)) < 1e-3
@@ -122,7 +124,9 @@ def test_node_on_float64_topics_places_samples_by_the_source_timestamp(graph):
     pub_node = graph.node("robot")
     pubs = [pub_node.create_publisher(Float64, t, QOS) for t in ("/r", "/u", "/y")]
     wait_for(
-        lambda: node._sources.sources is not None, 15, "the node to find the topics and subscribe"
+        lambda: node.inputs.sources.sources is not None,
+        15,
+        "the node to find the topics and subscribe",
     )
     wait_for(lambda: all(p.get_subscription_count() > 0 for p in pubs), 10, "matching")
     time.sleep(0.5)
@@ -140,9 +144,11 @@ def test_node_on_float64_topics_places_samples_by_the_source_timestamp(graph):
             while time.monotonic() < start + n / fs:
                 time.sleep(0.0005)
     wait_for(
-        lambda: sum(st.messages for st in node._sources.feed.stats) == 3 * n, 10, "every message"
+        lambda: sum(st.messages for st in node.inputs.sources.feed.stats) == 3 * n,
+        10,
+        "every message",
     )
-    stats = node._sources.feed.stats
+    stats = node.inputs.sources.feed.stats
     assert all(st.samples + st.off_grid == n for st in stats), [st.as_dict() for st in stats]
     # the claims below are about the node, not about a loaded machine's publisher
     if len(late) > 0.05 * n:
@@ -172,7 +178,7 @@ def test_replay_of_the_nodes_recording_equals_its_estimate(graph, tmp_path):
     pub_node = graph.node("robot")
     js = pub_node.create_publisher(sensor_msgs.JointState, "/joint_states", QOS)
     ref = pub_node.create_publisher(sensor_msgs.JointState, "/ident/reference", QOS)
-    wait_for(lambda: node._sources.sources is not None, 15, "the node to subscribe")
+    wait_for(lambda: node.inputs.sources.sources is not None, 15, "the node to subscribe")
     wait_for(
         lambda: js.get_subscription_count() > 0 and ref.get_subscription_count() > 0,
         10,

@@ -107,6 +107,12 @@ def add_excite_parser(sub: Any) -> None:
         default=1,
         help="subscribers to wait for on TOPIC (default 1)",
     )
+    x.add_argument(
+        "--paused",
+        action="store_true",
+        help="start stopped: publish from a call of the node's ~/start service (std_srvs/"
+        "Trigger; ~/stop stops; the status is on /diagnostics)",
+    )
 
 
 def cmd_excite(args: argparse.Namespace) -> int:
@@ -201,6 +207,7 @@ def _publish(args: argparse.Namespace, r: Any, fs: float, period: int) -> int:
                 wait=args.wait,
                 subscribers=args.subscribers,
                 stop=stop,
+                paused=args.paused,
             )
         finally:
             node.destroy_node()

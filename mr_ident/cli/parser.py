@@ -339,7 +339,11 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         help="result NPZ (identify/replay --out): drawn with the sigma-error instead of a model",
     )
-    v.add_argument("--node", default="mr_ident", help="the node's name (default mr_ident)")
+    v.add_argument(
+        "--node",
+        default="mr_ident",
+        help="the node's name, with its namespace: /arm/mr_ident (default mr_ident)",
+    )
     v.add_argument(
         "--wait",
         type=positive_float,

@@ -3,7 +3,9 @@
 Grammar (a subset of Foxglove's message paths, one extension, one modifier)::
 
     source  := topic path? modifier?
-    topic   := "/" name ("/" name)*                      (ROS topic characters)
+    topic   := "/"? name ("/" name)*                     (ROS topic characters; relative:
+                                                   the node resolves it in its namespace
+                                                   with its remaps, ``~/x`` under its name)
     path    := step*
     step    := "." field                          a field of a message
              | "[" integer "]"                    an element of an array (< 0: from the end)
@@ -72,7 +74,7 @@ def _error(text: str, pos: int, what: str) -> ConfigError:
     return ConfigError(f"source {text!r}: {what} at position {pos + 1}\n  {text}\n  {' ' * pos}^")
 
 
-_TOPIC = re.compile(r"/[A-Za-z_~][\w~]*(/[A-Za-z_][\w]*)*")
+_TOPIC = re.compile(r"/?[A-Za-z_~][\w~]*(/[A-Za-z_][\w]*)*")
 _NAME = re.compile(r"[A-Za-z_]\w*")
 _INT = re.compile(r"-?\d+")
 _NUMBER = re.compile(r"-?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
@@ -96,7 +98,7 @@ def parse_source(text: str) -> SourceSpec:
         raise ConfigError(f"a source must be a non-empty string, got {text!r}")
     m = _TOPIC.match(text)
     if m is None:
-        raise _error(text, 0, "expected a topic name starting with '/'")
+        raise _error(text, 0, "expected a topic name (/robot/js, or relative: js, ~/js)")
     topic = m.group(0)
     pos = m.end()
     # A topic name may contain '/' segments, a path never does: the topic ends at the first

@@ -142,39 +142,36 @@ class _Live:
         self.pfg: np.ndarray | None = None
         self.pfg_std: np.ndarray | None = None
         self.diag: dict[str, str] = {}
+        self.window: tuple[int, int] | None = None  # (first, samples) of the latest estimate
         self.history: list[np.ndarray] = []
         self.t_converged: float | None = None
 
 
 def _listener(rclpy, live: _Live):
-    """A node that keeps the node's latest estimate and diagnostics in ``live``."""
+    """A node that keeps the node's latest estimate (~/estimate) and diagnostics in ``live``."""
     from diagnostic_msgs.msg import DiagnosticArray
-    from std_msgs.msg import Float64MultiArray
 
-    from .messages import RESULT_QOS, frf_of, status_values, std_of
+    from .messages import RESULT_QOS, status_values
+    from .outputs import EstimateMsg, estimate_arrays
 
+    if EstimateMsg is None:
+        raise MrIdentError("mr_ident_msgs is not installed (make venv builds it)")
     n = rclpy.create_node("mr_ident_demo")
 
-    def frf(m: Float64MultiArray) -> None:
-        live.P = frf_of(m)
+    def estimate(m) -> None:
+        e = estimate_arrays(m)
+        live.freq, live.P, live.P_std, live.pfg, live.pfg_std = (
+            e.frequency, e.response, e.std, e.pfg, e.pfg_std
+        )  # fmt: skip
+        live.window = (e.window_first, e.window_last + 1 - e.window_first)
         live.history.append(live.P)
-
-    def setter(name: str):
-        return lambda m: setattr(live, name, np.frombuffer(m.data, dtype=float).copy())
-
-    def std(m: Float64MultiArray) -> None:
-        live.P_std = std_of(m)
 
     def diag(m: DiagnosticArray) -> None:
         for s in m.status:
-            if s.name.startswith("mr_ident"):
+            if s.name == "/mr_ident: identification":
                 live.diag = status_values(s)
 
-    n.create_subscription(Float64MultiArray, "/mr_ident/plant_frf", frf, RESULT_QOS)
-    n.create_subscription(Float64MultiArray, "/mr_ident/plant_frf_std", std, RESULT_QOS)
-    n.create_subscription(Float64MultiArray, "/mr_ident/frequencies", setter("freq"), RESULT_QOS)
-    n.create_subscription(Float64MultiArray, "/mr_ident/pfg", setter("pfg"), RESULT_QOS)
-    n.create_subscription(Float64MultiArray, "/mr_ident/pfg_std", setter("pfg_std"), RESULT_QOS)
+    n.create_subscription(EstimateMsg, "/mr_ident/estimate", estimate, RESULT_QOS)
     n.create_subscription(DiagnosticArray, "/diagnostics", diag, 10)
     return n
 
@@ -200,7 +197,7 @@ def _listen(
                 f"{'node' if node_proc.poll() is not None else 'simulator'} exited early; "
                 "see its log in the demo directory"
             )
-        full = live.diag.get("estimate_samples") == str(cfg.window_samples)
+        full = live.window is not None and live.window[1] == cfg.window_samples
         if full and len(live.history) >= 2 and live.history[-1].shape == live.history[-2].shape:
             a, b = live.history[-1], live.history[-2]
             change = float(np.median(np.abs(a - b) / np.abs(b)))
@@ -218,13 +215,8 @@ def _settle(rclpy, n, live: _Live, timeout: float, stop: Stop) -> None:
     t0 = time.monotonic()
     while time.monotonic() - t0 < timeout and not stop.requested:
         rclpy.spin_once(n, timeout_sec=0.1)
-        d = live.diag
-        if (
-            d.get("estimate_first_index")
-            and d.get("window_end_index")
-            and int(d["estimate_first_index"]) + int(d["estimate_samples"])
-            == int(d["window_end_index"])
-        ):
+        d, w = live.diag, live.window
+        if w is not None and d.get("window_end_index") and sum(w) == int(d["window_end_index"]):
             # one more diagnostics round so the published estimate is the one described
             t1 = time.monotonic()
             while time.monotonic() - t1 < 1.5 and not stop.requested:
@@ -237,9 +229,9 @@ def _report(out_dir: Path, cfg, model, recording: Path, live: _Live, node_rc: in
     from ..numerics.lifted.pfg import pfg_of_model
     from ..plots import plot_bode, plot_pfg
 
-    if live.P is None or live.freq is None or live.P_std is None:
+    if live.P is None or live.freq is None or live.P_std is None or live.window is None:
         raise MrIdentError("no estimate was received from the node")
-    first, count = int(live.diag["estimate_first_index"]), int(live.diag["estimate_samples"])
+    first, count = live.window
     res = replay(recording, cfg, stop=first + count)
     est = res.estimate
     if (est.first, est.n_samples) != (first, count):

@@ -183,6 +183,7 @@ def publish(
     wait: float = 5.0,
     subscribers: int = 1,
     stop: Stop | None = None,
+    paused: bool = False,
 ) -> Played:
     """Stream the design ``r`` (M, P·N, n_in) on ``topic`` (module docstring) from ``node``.
 
@@ -200,10 +201,15 @@ def publish(
     wait, subscribers :
         Wait up to ``wait`` s for ``subscribers`` on the signal topic before the first
         sample (then 0.5 s more: matching is not symmetric).
+    paused : bool
+        Start stopped: nothing goes out before a call of ``~/start``
+        (:mod:`~mr_ident.ros.excite_control`: ``~/start``, ``~/stop``, the status on
+        /diagnostics).
     """
     from rclpy.duration import Duration
     from rclpy.executors import SingleThreadedExecutor
 
+    from .excite_control import ExciteControl
     from .messages import BLOCK_QOS
 
     sched = Schedule.of(r, period)
@@ -223,6 +229,7 @@ def publish(
     if tick is None:
         tick = max(1.0 / (fs_high * rate), 1e-3) if fm.per_sample else 0.01
     stop = stop if stop is not None else Stop()
+    control = ExciteControl(node, topic, running=not paused)
     sig = node.create_publisher(fm.msg_type, topic, BLOCK_QOS)
     idx = node.create_publisher(fm.msg_type, index_topic(topic), BLOCK_QOS)
     deadline = time.monotonic() + wait
@@ -245,6 +252,12 @@ def publish(
             due = min(due, total)
         first = state["next"]
         state["ticks"] += 1
+        if not control.running:  # stopped from the graph: the due samples are not sent
+            state["next"] = due
+            if total is not None and due >= total:
+                control.done = True
+                stop.request()
+            return
         if due - first > max(2, int(2 * tick * fs_high * rate)):
             state["late"] += 1  # the timer fell behind by more than a tick: a burst
         while first < due:
@@ -258,8 +271,11 @@ def publish(
                 idx.publish(k)
             state["messages"] += len(msgs)
             first += n
+            control.sent += n
+            control.labels = tuple(int(v) for v in labels[-1])  # type: ignore[assignment]
         state["next"] = first
         if total is not None and first >= total:
+            control.done = True
             stop.request()
 
     executor = SingleThreadedExecutor(context=node.context)
@@ -270,6 +286,7 @@ def publish(
     finally:
         timer.cancel()
         node.destroy_timer(timer)
+        control.destroy()
         executor.remove_node(node)
     for pub in (sig, idx):  # reliable delivery: do not exit before the readers have it
         pub.wait_for_all_acked(Duration(seconds=1 if stop.signal is not None else 5))

@@ -21,6 +21,11 @@ from .excitation import bla_values
 from .sources import SourceSubscriber
 
 WARN_HOLD_S = 10.0  # an anomaly keeps the level at WARN this long
+#: Why no estimate comes with use_sim_time before the first /clock.
+NO_CLOCK = (
+    "use_sim_time is true and no /clock has come: estimates wait for it "
+    "(update_period_s runs on the ROS clock)"
+)
 
 
 @dataclass(frozen=True)
@@ -45,6 +50,8 @@ class Health:
     record_error: str
     recording: str
     warm_up: str
+    clock: str = ""  # why the ROS clock stands still ("" when it runs)
+    active: bool = True
 
 
 def _level(h: Health) -> tuple[Any, str, list[str]]:
@@ -58,6 +65,10 @@ def _level(h: Health) -> tuple[Any, str, list[str]]:
     fill = max(0, hi - lo) / cfg.window_samples
     if h.record_error:
         return DiagnosticStatus.ERROR, h.record_error, recent
+    if not h.active:
+        return DiagnosticStatus.OK, "inactive (lifecycle): activate it to subscribe", recent
+    if h.clock:
+        return DiagnosticStatus.WARN, h.clock, recent
     if src_problem:
         return DiagnosticStatus.ERROR, src_problem, recent
     if src is not None and src.sources is None:
@@ -87,7 +98,10 @@ def _level(h: Health) -> tuple[Any, str, list[str]]:
 
 
 def identification_status(h: Health, name: str, hardware_id: str) -> DiagnosticStatus:
-    """The status ``<name>: identification`` of ``h`` with every counter as a value."""
+    """The status ``<name>: identification`` of ``h`` with every counter as a value.
+
+    ``name``: the node's fully qualified name, so that two nodes never share a status.
+    """
     level, reason, recent = _level(h)
     cfg, est = h.config, h.estimate
     lo, hi = h.span
@@ -102,6 +116,7 @@ def identification_status(h: Health, name: str, hardware_id: str) -> DiagnosticS
         "window_restarts": h.restarts,
         "warm_up_s": h.warm_up or "running",
         "recent_anomalies": " | ".join(recent[-8:]),
+        "lifecycle": "active" if h.active else "inactive",
     }
     if h.sources is not None:
         values.update(h.sources.values())
@@ -125,3 +140,13 @@ def identification_status(h: Health, name: str, hardware_id: str) -> DiagnosticS
     )
     status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
     return status
+
+
+def unconfigured_status(fqn: str, error: str) -> DiagnosticStatus:
+    """The status of a node not configured (yet), with why its configure failed."""
+    return DiagnosticStatus(
+        level=DiagnosticStatus.WARN,
+        name=f"{fqn}: identification",
+        message="unconfigured" + (f": {error}" if error else ""),
+        hardware_id=fqn,
+    )

@@ -201,8 +201,10 @@ def bode_msgs(frequency: NDArray, response: NDArray) -> tuple[Float64MultiArray,
 class ResultPublishers:
     """The node's result topics (under its name) and how an estimate goes out on them."""
 
-    def __init__(self, node: Any) -> None:
+    def __init__(self, node: Any, make: Any = None) -> None:
         def pub(name: str) -> Any:
+            if make is not None:  # e.g. a lifecycle publisher of the node's
+                return make(Float64MultiArray, f"~/{name}")
             return node.create_publisher(Float64MultiArray, f"~/{name}", RESULT_QOS)
 
         self._frf = [pub(t) for t in ("frequencies", "plant_frf", "plant_frf_std")]

@@ -31,8 +31,12 @@ from ..errors import MrIdentError
 from ..io.config import IdentConfig
 from ..io.datafile import write_data
 from ..live.estimate import Estimate, publish_grid
+from ..numerics.systems.model import Model
 from ..numerics.signals import LoopData
 from .messages import RESULT_QOS, multiarray
+
+#: :meth:`PlantMonitoring.load`: the watch in use stays.
+KEEP = object()
 
 _LEVEL = {
     "ok": DiagnosticStatus.OK,
@@ -64,28 +68,48 @@ class PlantMonitoring:
         """Whether a reference is configured."""
         return self._watch is not None
 
-    def reconfigure(self, cfg: IdentConfig) -> None:
-        """New parameters: the watch reloaded when a monitor_* value or the rates changed.
+    def load(self, cfg: IdentConfig) -> Any:
+        """The watch ``cfg`` asks for, loaded when a monitor_* value or the rates changed.
 
-        Raises what :func:`~mr_ident.diagnosis.monitoring.monitor.load_watch` raises (the parameter
-        set is then refused).
+        Else :data:`KEEP`. Raises what
+        :func:`~mr_ident.diagnosis.monitoring.monitor.load_watch` raises (the parameter set
+        is then refused); :meth:`install` puts it in place.
         """
         keys = (
             *("monitor_model", "monitor_reference", "monitor_alpha", "monitor_error_db"),
             *("monitor_hold", "fs_high", "ratio", "method", "n", "degree"),
         )
         if any(getattr(cfg, k) != getattr(self._config, k) for k in keys):
-            watch = load_watch(cfg)
+            return load_watch(cfg)
+        return KEEP
+
+    def install(self, cfg: IdentConfig, watch: Any) -> None:
+        """Use ``cfg`` and the watch :meth:`load` gave (from now on)."""
+        if watch is not KEEP:
             with self._lock:
                 self._watch, self._state, self._found = watch, None, None
         self._config = cfg
 
+    @property
+    def model(self) -> Model | None:
+        """The model that names causes (monitor_model), or None."""
+        watch = self._watch
+        return watch.model if watch is not None else None
+
+    def destroy(self) -> None:
+        """The publishers destroyed (the node's cleanup)."""
+        self._node.destroy_publisher(self._pub_drift)
+        self._node.destroy_publisher(self._pub_diag)
+
     # -- the estimating thread ----------------------------------------------------------
-    def observe(self, est: Estimate, window: LoopData, cfg: IdentConfig) -> None:
-        """Hold ``est`` against the reference; publish; start a diagnosis when one is due."""
+    def observe(self, est: Estimate, window: LoopData, cfg: IdentConfig) -> MonitorState | None:
+        """Hold ``est`` against the reference; publish; start a diagnosis when one is due.
+
+        The monitor's state (None without a reference).
+        """
         watch = self._watch
         if watch is None:
-            return
+            return None
         state = watch.observe(est)
         with self._lock:
             self._state, self._state_wall = state, time.monotonic()
@@ -103,6 +127,7 @@ class PlantMonitoring:
                 name="mr_ident-diagnose",
             )
             self._thread.start()
+        return state
 
     def _diagnose(self, watch: PlantWatch, window: LoopData, est: Estimate, record: str) -> None:
         event = ""

@@ -1,238 +1,331 @@
-"""``mr-ident-node``: live identification of a multirate loop on a ROS 2 graph.
+"""``mr-ident-node``: live identification of a multirate loop on a ROS 2 graph (a managed node).
 
 A thin adapter: messages -> :func:`~mr_ident.ros.messages.decode_raw` ->
 :class:`~mr_ident.live.ingest.Ingest` (the path replay takes too) -> the
-:class:`~mr_ident.live.align.Aligner` (executor thread); every ``update_period_s`` the
-latest aligned window goes to a worker thread that runs
-:func:`~mr_ident.live.estimate.estimate` and publishes (the first one waits for a
-:func:`~mr_ident.live.estimate.warm_up` started with the node). Parameters are the fields
-of :class:`~mr_ident.io.config.IdentConfig`, validated through it on every set.
+:class:`~mr_ident.live.align.Aligner` (executor thread); every ``update_period_s`` (ROS
+clock) the latest aligned window goes to a worker thread that runs
+:func:`~mr_ident.live.estimate.estimate` and publishes. Parameters are the fields of
+:class:`~mr_ident.io.config.IdentConfig`, validated through it on every set.
+
+Lifecycle (``rclpy.lifecycle``; ros2/demos' ``lifecycle_py`` talker is the model):
+
+* ``configure``: the parameters checked, the monitoring reference loaded, publishers,
+  services and timers made, the warm-up identification started;
+* ``activate``: the inputs subscribed, ``record_path`` opened, estimates published;
+* ``deactivate``: the subscriptions dropped, the window dropped, the recording finalised;
+* ``cleanup``: back to unconfigured; ``shutdown``: the recording finalised first, then a
+  running identification awaited at most :data:`JOIN_S`.
+
+``mr-ident-node`` configures and activates itself (parameter ``autostart``, default true).
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import sys
 import threading
 import time
-from collections.abc import Sequence
+import traceback
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
-from std_msgs.msg import Float64MultiArray
 
 from ..allocator import keep_freed_memory
-from ..errors import MrIdentError
-from ..io.blocks import STREAMS, Block
+from ..errors import ConfigError, MrIdentError
 from ..io.config import IdentConfig
-from ..live.align import Aligner
-from ..live.estimate import Estimate, estimate, publish_grid, warm_up
-from ..live.feed import SignalSources, SourceFeed
-from ..live.ingest import Ingest
+from ..live.estimate import Estimate, estimate, warm_up
 from ..numerics.signals import LoopData
 from . import params
-from .health import Health, identification_status
-from .messages import BLOCK_QOS, BLOCK_TYPE, ResultPublishers, decode_raw
+from .health import NO_CLOCK, Health, identification_status, unconfigured_status
+from .inputs import Inputs
 from .monitoring import PlantMonitoring
+from .outputs import Outputs
 from .program import handle_signals, ros_context, spin_until_stopped
 from .recorder import NodeRecorder
-from .sources import BATCH_S, SourceSubscriber
+from .services import NodeServices
 
-REORDER_WAIT_S = 0.5  # blocks wait this long (wall clock) for a missing one before it is a gap
+JOIN_S = 1.0  # at shutdown, a running identification is awaited this long (after the MCAP)
+
+SUCCESS = TransitionCallbackReturn.SUCCESS
+FAILURE = TransitionCallbackReturn.FAILURE
+ERROR = TransitionCallbackReturn.ERROR
 
 
-class IdentNode(Node):
-    """The identification node (see the module docstring and the README)."""
+def _logged(transition: Callable[..., Any]) -> Callable[..., Any]:
+    """A transition whose exception is logged with its traceback (rclpy only says ERROR)."""
+
+    @functools.wraps(transition)
+    def run(node: IdentNode, state: LifecycleState) -> TransitionCallbackReturn:
+        try:
+            return transition(node, state)
+        except Exception:
+            node.get_logger().error(f"{transition.__name__} raised:\n{traceback.format_exc()}")
+            return ERROR
+
+    return run
+
+
+@dataclass(frozen=True)
+class Published:
+    """The latest estimate as it went out: the estimate, its stamp (ns), its window's data."""
+
+    estimate: Estimate
+    stamp_ns: int
+    window: LoopData
+    message: Any
+
+
+class IdentNode(LifecycleNode):
+    """The identification node (see the module docstring and docs/node.md)."""
 
     def __init__(self, name: str = "mr_ident", **kwargs: Any):
         super().__init__(name, **kwargs)
-        self.config = params.declare(self)  # raises ConfigError on a bad params file
+        params.declare(self)  # values are checked at configure
         self.add_on_set_parameters_callback(self._on_set)
-
+        self.add_post_set_parameters_callback(self._after_set)
+        self.config: IdentConfig | None = None
+        self.configure_error = ""
+        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._lock = threading.Lock()  # guards the estimate state below
-        self._aligner = self._new_aligner(self.config)
-        self._ingest = Ingest(self._aligner)
+        self._pending: tuple[IdentConfig, Any] | None = None
+        self._active = False
+        self._stopping = False
+        self._joined = False  # shutdown has waited for the threads
         self._notes: list[tuple[float, str]] = []
-        self._arrivals = [0.0] * len(self._aligner.names)
-        self._samples_in = 0
         self._started = time.monotonic()
-        self._last_estimate: Estimate | None = None
+        self._published: Published | None = None
         self._last_estimate_wall = 0.0
         self._estimates = 0
         self._last_error = ""
         self._last_error_time = 0.0
-        self._last_end = -1
-        self._warm_up = ""  # "" while running, then its result
+        self._warm_up = ""
         self._busy = False
-        self._stopping = False
         self._worker_thread: threading.Thread | None = None
         self._recording = NodeRecorder(self)
+        self._node_timers: list[Any] = []
+        self.inputs: Inputs | None = None  # subscriptions and window, made at configure
+        self._outputs: Outputs | None = None
+        self._monitoring: PlantMonitoring | None = None
+        self._srv: NodeServices | None = None
+        self._pub_diag: Any = None
 
-        self._subs = []
-        self._sources: SourceSubscriber | None = None
-        if self.config.sources is None:  # the block contract on reference, input, output
-            labels = self.config.excitation_index_topic  # and the excitation's labels
-            for s, topic in enumerate(STREAMS + ((labels,) if labels else ())):
-                self._subs.append(
-                    self.create_subscription(
-                        Float64MultiArray,
-                        topic,
-                        functools.partial(self._on_block, s),
-                        BLOCK_QOS,
-                        raw=True,
-                    )
-                )
-        else:  # per-sample sources: subscribed once their topics are on the graph
-            self._sources = SourceSubscriber(
-                self,
-                dict(self.config.sources),
-                self._new_feed,
-                self._recording.source,
-                self.config.fs_high,
-                labels=self.config.excitation_index_topic,
-            )
-            self._sources.poll()
-            self.create_timer(0.5, self._sources.poll)
-            self.create_timer(BATCH_S, self._on_sources)
-        self._results = ResultPublishers(self)
-        self._monitoring = PlantMonitoring(self, self.config)  # raises on a bad reference
+    # -- lifecycle ----------------------------------------------------------------------
+    def autostart(self) -> bool:
+        """Configure and activate when the parameter ``autostart`` says so; whether it worked."""
+        if not params.flag(self, "autostart"):
+            self.get_logger().info("autostart is false: waiting for lifecycle transitions")
+            return True
+        return self.trigger_configure() == SUCCESS and self.trigger_activate() == SUCCESS
+
+    @_logged
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Check the parameters, load the reference, make the outputs, start the warm-up."""
+        try:
+            cfg = params.read(self)
+            monitoring = PlantMonitoring(self, cfg)  # loads the reference
+        except MrIdentError as err:
+            self.configure_error = str(err)
+            self.get_logger().error(f"configure failed: {err}")
+            return FAILURE
+        self.configure_error = ""
+        self.config, self._monitoring = cfg, monitoring
+        self._stopping = self._joined = False
+        self.inputs = Inputs(self, cfg, self._recording, self._note, self._steady)
+        self._outputs = Outputs(self, params.flag(self, "legacy_array_topics"))
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self._update_timer = self.create_timer(self.config.update_period_s, self._on_update)
-        self.create_timer(1.0, self._publish_diagnostics)
-        if self.config.record_path:
-            self._recording.open(self.config.record_path)
+        self._srv = NodeServices(self)
+        self._update_timer = self.create_timer(cfg.update_period_s, self._on_update)  # ROS clock
+        self._node_timers = [
+            self._update_timer,
+            self.create_timer(1.0, self._publish_diagnostics, clock=self._steady),
+        ]
         # One identification of a synthetic full-size window, so that the first real one
         # does not pay the one-time costs (see live.warm_up); estimates wait for it.
-        self._busy = True
+        self._busy, self._warm_up = True, ""
         self._worker_thread = threading.Thread(
-            target=self._warm, args=(self.config,), daemon=True, name="mr_ident-warm-up"
+            target=self._warm, args=(cfg,), daemon=True, name="mr_ident-warm-up"
         )
         self._worker_thread.start()
+        return super().on_configure(state)
 
-    # -- parameters ------------------------------------------------------------------
+    @_logged
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Subscribe to the inputs, open ``record_path``, publish estimates."""
+        cfg = self.config
+        assert cfg is not None
+        assert self.inputs is not None
+        self.inputs.subscribe()
+        if cfg.record_path:
+            self._recording.open(cfg.record_path)
+        self._active = True
+        return super().on_activate(state)
+
+    @_logged
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Unsubscribe, finalise the recording, drop the window."""
+        self._active = False
+        if self.inputs is not None:
+            self.inputs.unsubscribe()
+            self.inputs.new_window(self.inputs.config)
+        self._recording.close()
+        return super().on_deactivate(state)
+
+    @_logged
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Undo the configure (back to unconfigured)."""
+        self._release()
+        return super().on_cleanup(state)
+
+    @_logged
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Finalise the recording, then wait a bounded time for the workers."""
+        self.shutdown()
+        return super().on_shutdown(state)
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Release everything; back to unconfigured."""
+        self.get_logger().error("a transition raised: the node goes back to unconfigured")
+        self.shutdown()
+        self._release()
+        self._stopping = False
+        return SUCCESS
+
+    def _release(self) -> None:
+        """Everything configure made, undone (the recording finalised first)."""
+        self._active = False
+        self._stopping = True
+        if self.inputs is not None:
+            self.inputs.destroy()
+            self.inputs = None
+        self._recording.close()
+        for t in self._node_timers:
+            self.destroy_timer(t)
+        self._node_timers = []
+        if self._srv is not None:
+            self._srv.destroy()
+            self._srv = None
+        if self._outputs is not None:
+            self._outputs.destroy()
+            self._outputs = None
+        if self._monitoring is not None:
+            self._monitoring.destroy()
+            self._monitoring = None
+        if self._pub_diag is not None:
+            self.destroy_publisher(self._pub_diag)
+            self._pub_diag = None
+        self.config = None
+
+    # -- parameters: checked in _on_set, applied in _after_set -----------------------------
     def _on_set(self, changed: list[Parameter]) -> SetParametersResult:
         changes = params.changes(changed)
+        if not changes:
+            return SetParametersResult(successful=True)
         try:
-            new = self.config.replace(**changes)
+            base = self.config
+            if base is None:
+                try:
+                    base = params.read(self)
+                except ConfigError:
+                    base = IdentConfig()
+            new = base.replace(**changes)
+            watch = self._monitoring.load(new) if self._monitoring is not None else None
         except MrIdentError as err:
             return SetParametersResult(successful=False, reason=str(err))
-        if (new.sources, new.excitation_index_topic) != (
-            self.config.sources,
-            self.config.excitation_index_topic,
-        ):
-            return SetParametersResult(
-                successful=False,
-                reason="r_source, u_source, y_source and excitation_index_topic are read at "
-                "start; restart the node to change them",
-            )
-        try:
-            self._monitoring.reconfigure(new)
-        except MrIdentError as err:
-            return SetParametersResult(successful=False, reason=str(err))
-        old, self.config = self.config, new
+        self._pending = (new, watch)
+        return SetParametersResult(successful=True)
+
+    def _after_set(self, changed: list[Parameter]) -> None:
+        pending, self._pending = self._pending, None
+        old = self.config
+        if pending is None or old is None:  # unconfigured: read at configure
+            return
+        new, watch = pending
+        assert self._monitoring is not None
+        self._monitoring.install(new, watch)
+        self.config = new
+        if self.inputs is not None:
+            self.inputs.config = new
         if (new.fs_high, new.ratio, new.window_samples, new.reorder_blocks) != (
             old.fs_high,
             old.ratio,
             old.window_samples,
             old.reorder_blocks,
         ):
-            self._aligner = self._new_aligner(new)
-            self._ingest = Ingest(self._aligner)
-            if self._sources is not None:
-                self._sources.fs_high = new.fs_high
-                if self._sources.sources is not None:
-                    self._sources.feed = self._new_feed(self._sources.sources)
+            assert self.inputs is not None
+            self.inputs.new_window(new)
             self._note("parameters changed (rate, F, window or reorder): window restarts")
         if new.update_period_s != old.update_period_s:
-            self._update_timer.cancel()
             self.destroy_timer(self._update_timer)
             self._update_timer = self.create_timer(new.update_period_s, self._on_update)
-        if new.record_path != old.record_path:
+            self._node_timers[0] = self._update_timer
+        if new.record_path != old.record_path and self._active:
             self._recording.close()
             self._recording.error = ""
             if new.record_path:
                 self._recording.open(new.record_path)
-        return SetParametersResult(successful=True)
 
-    @staticmethod
-    def _new_aligner(c: IdentConfig) -> Aligner:
-        return Aligner(
-            c.window_samples, c.ratio, c.reorder_blocks, labels=bool(c.excitation_index_topic)
-        )
+    # -- the window -------------------------------------------------------------------------
+    def reset_window(self) -> None:
+        """Drop the window now: the next estimate holds only samples that come after."""
+        assert self.inputs is not None
+        self.inputs.reset()
+        self._note("window dropped (~/reset)")
 
-    # -- ingestion (executor thread) ----------------------------------------------------
+    def current_window(self) -> LoopData | None:
+        """The window the next estimate would take (executor thread), or None."""
+        if self.inputs is None or self.config is None:
+            return None
+        return self.inputs.aligner.window(self.config.min_samples)
+
     def _note(self, text: str) -> None:
         self._notes.append((time.monotonic(), text))
         del self._notes[:-50]
         self.get_logger().warning(text, throttle_duration_sec=1.0)
 
-    def _on_block(self, stream: int, raw: bytes) -> None:
-        now = time.monotonic()
-        self._arrivals[stream] = now
-        self._recording.message(self._subs[stream].topic_name, BLOCK_TYPE, raw)
-        item = decode_raw(raw)  # a Block or a BlockError, never an exception
-        if isinstance(item, Block):
-            self._samples_in += item.samples.shape[0]
-        note = self._ingest.offer(stream, item, now)
-        if note:
-            self._note(note)
-
-    def _new_feed(self, sources: SignalSources) -> SourceFeed:
-        c = self.config
-        return SourceFeed(
-            sources, self._ingest, fs_high=c.fs_high, ratio=c.ratio, tolerance=c.stamp_tolerance
-        )
-
-    def _on_sources(self) -> None:
-        """Decode the messages the sources received meanwhile (a timer, every BATCH_S)."""
-        assert self._sources is not None
-        now = time.monotonic()
-        before = [st.samples for st in self._sources.feed.stats] if self._sources.feed else []
-        for note in self._sources.flush(now):
-            self._note(note)
-        if self._sources.feed is not None and self._sources.sources is not None:
-            for (stream, _, _), st, b in zip(
-                self._sources.sources.all, self._sources.feed.stats, before, strict=True
-            ):
-                if st.samples > b:
-                    self._arrivals[stream] = now
-                    self._samples_in += st.samples - b
-
     # -- estimation ---------------------------------------------------------------------
     def _on_update(self) -> None:
-        for note in self._ingest.expire(time.monotonic(), REORDER_WAIT_S):
-            self._note(note)
-        if self._busy or self._stopping:
+        if self._busy or self._stopping or not self._active:
             return
-        cfg = self.config
-        lo, hi = self._aligner.span()
-        if hi - lo < cfg.min_samples or hi == self._last_end:
-            return
-        window = self._aligner.window(cfg.min_samples)
+        cfg, inputs = self.config, self.inputs
+        assert cfg is not None and inputs is not None
+        window = inputs.window(cfg.min_samples)
         if window is None:
             return
-        self._last_end = window.end
         self._busy = True
         self._worker_thread = threading.Thread(
-            target=self._work, args=(window, cfg), daemon=True, name="mr_ident-estimate"
+            target=self._work,
+            args=(window, cfg, inputs.stamp(window.end - 1), inputs.generation),
+            daemon=True,
+            name="mr_ident-estimate",
         )
         self._worker_thread.start()
 
-    def _work(self, window: LoopData, cfg: IdentConfig) -> None:
+    def _work(self, window: LoopData, cfg: IdentConfig, stamp: int, generation: int) -> None:
         try:
             est = estimate(window, cfg)
-            if not self._stopping:
-                self._publish(est, cfg)
-                self._monitoring.observe(est, window, cfg)
-            with self._lock:
-                self._last_estimate = est
-                self._last_estimate_wall = time.monotonic()
-                self._estimates += 1
+            inputs = self.inputs
+            current = (
+                not self._stopping
+                and self._active
+                and inputs is not None
+                and generation == inputs.generation
+            )
+            if current and self._outputs is not None and self._monitoring is not None:
+                state = self._monitoring.observe(est, window, cfg)
+                msg = self._outputs.publish(est, cfg, stamp, state)
+                with self._lock:
+                    self._published = Published(est, stamp, window, msg)
+                    self._last_estimate_wall = time.monotonic()
+                    self._estimates += 1
         except Exception as err:  # keep the node alive; report on /diagnostics
             with self._lock:
                 self._last_error, self._last_error_time = (
@@ -256,73 +349,113 @@ class IdentNode(Node):
         finally:
             self._busy = False
 
-    def _publish(self, est: Estimate, cfg: IdentConfig) -> None:
-        ident = est.identification
-        self._results.publish(ident, publish_grid(ident.plant.frequency.size, cfg.publish_points))
+    @property
+    def published(self) -> Published | None:
+        """The latest estimate as published (None before the first)."""
+        with self._lock:
+            return self._published
 
     @property
     def last_estimate(self) -> Estimate | None:
         """The latest estimate (None before the first)."""
-        with self._lock:
-            return self._last_estimate
+        p = self.published
+        return p.estimate if p is not None else None
+
+    @property
+    def recording(self) -> NodeRecorder:
+        """The node's recording of its inputs."""
+        return self._recording
+
+    @property
+    def monitoring(self) -> PlantMonitoring | None:
+        """The plant monitoring (None while unconfigured)."""
+        return self._monitoring
+
+    @property
+    def active(self) -> bool:
+        """Whether the node is active (subscribed, estimating)."""
+        return self._active
 
     # -- diagnostics --------------------------------------------------------------------
     def diagnostic_status(self) -> DiagnosticStatus:
         """The node's status for /diagnostics: level, message, every counter."""
+        fqn = self.get_fully_qualified_name()
+        cfg, inputs = self.config, self.inputs
+        if cfg is None or inputs is None:
+            return unconfigured_status(fqn, self.configure_error)
         with self._lock:
-            est, err, err_t = self._last_estimate, self._last_error, self._last_error_time
+            pub, err, err_t = self._published, self._last_error, self._last_error_time
             n_est, est_t = self._estimates, self._last_estimate_wall
         path = self._recording.path
         health = Health(
             now=time.monotonic(),
-            config=self.config,
-            stats=self._aligner.stats,
-            span=self._aligner.span(),
-            restarts=self._aligner.restarts,
-            estimate=est,
+            config=cfg,
+            stats=inputs.aligner.stats,
+            span=inputs.aligner.span(),
+            restarts=inputs.aligner.restarts,
+            estimate=pub.estimate if pub is not None else None,
             estimates=n_est,
             estimate_wall=est_t,
             error=err,
             error_time=err_t,
             notes=list(self._notes),
-            arrivals=list(self._arrivals),
+            arrivals=list(inputs.arrivals),
             started=self._started,
-            samples_in=self._samples_in,
-            sources=self._sources,
+            samples_in=inputs.samples_in,
+            sources=inputs.sources,
             record_error=self._recording.error,
             recording=path.as_posix() if path is not None else "",
             warm_up=self._warm_up,
+            clock=NO_CLOCK
+            if self.get_parameter("use_sim_time").value and self.get_clock().now().nanoseconds == 0
+            else "",
+            active=self._active,
         )
-        return identification_status(health, self.get_name(), self.get_fully_qualified_name())
+        return identification_status(health, fqn, fqn)
 
     def _publish_diagnostics(self) -> None:
+        if self._pub_diag is None or self.config is None or self._monitoring is None:
+            return
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = [self.diagnostic_status()]
         stale = max(3.0 * self.config.update_period_s, self.config.stall_timeout_s)
-        plant = self._monitoring.status(self.get_name(), self.get_fully_qualified_name(), stale)
+        fqn = self.get_fully_qualified_name()
+        plant = self._monitoring.status(fqn, fqn, stale)
         if plant is not None:
             msg.status.append(plant)
         self._pub_diag.publish(msg)
 
-    def shutdown(self, timeout: float = 30.0) -> None:
-        """Stop estimating, wait for a running identification, finalise the recording."""
+    def shutdown(self, timeout: float = JOIN_S) -> None:
+        """Stop estimating, finalise the recording, then wait a bounded time for the workers.
+
+        Idempotent (the threads are waited on once); any state. The MCAP is closed before
+        any thread is waited on.
+        """
+        if self._stopping and self._recording.path is None and self._joined:
+            return
         self._stopping = True
-        if self._sources is not None:
-            self._sources.close()
+        self._active = False
+        if self.inputs is not None and self.inputs.sources is not None:
+            self.inputs.sources.close()
+        self._recording.close()
         t = self._worker_thread
         if t is not None:
             t.join(timeout)
-        self._monitoring.shutdown(timeout)
-        self._recording.close()
+        if self._monitoring is not None:
+            self._monitoring.shutdown(timeout)
+        if self._srv is not None:
+            self._srv.shutdown(timeout)
+        self._joined = True
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Console script ``mr-ident-node`` (accepts ``--ros-args ...``).
 
     SIGINT and SIGTERM stop it at any moment through one path
-    (:mod:`mr_ident.ros.program`): the running identification is awaited, the
-    recording finalised, then rclpy shut down; exit 0.
+    (:mod:`mr_ident.ros.program`): the recording finalised, a running identification awaited
+    at most a second, then rclpy shut down; exit 0. With ``autostart`` (default) a
+    configure that fails (a bad params file, an unreadable reference) exits 2.
     """
     stop = handle_signals()
     args = list(sys.argv if argv is None else argv)
@@ -332,6 +465,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             node = None
             try:
                 node = IdentNode()
+                if not node.autostart():
+                    raise ConfigError(node.configure_error or "the node did not start")
                 # Not rclpy.experimental.EventsExecutor: in rclpy 7.1.6 its spin() starves other
                 # Python threads (measured: the identification thread and publishers from other
                 # threads stall), and the identification must run off the executor thread.
@@ -341,6 +476,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 executor.shutdown()
             finally:
                 if node is not None:
+                    with contextlib.suppress(Exception):  # finalized already
+                        node.trigger_shutdown()  # the lifecycle's own shutdown transition
                     node.shutdown()
                     node.destroy_node()
     except (

@@ -41,6 +41,21 @@ QUEUE_DEPTH = 20000
 RATE_WINDOW = 400
 
 
+def topic_of(spec: str) -> str:
+    """The topic part of a source (what comes before its first field, element or filter)."""
+    return spec.split(".")[0].split("{")[0].split("[")[0]
+
+
+def resolved(node: Any, spec: str) -> str:
+    """``spec`` with its topic resolved as ``node`` resolves its own topic names.
+
+    A relative topic is in the node's namespace, ``~/x`` under the node's name, and the
+    node's remaps apply (``-r joint_states:=/robot/joint_states``).
+    """
+    topic = topic_of(spec)
+    return node.resolve_topic_name(topic) + spec[len(topic) :]
+
+
 class SourceSubscriber:
     """Subscribe and decode per-sample sources for ``node`` (see the module docstring).
 
@@ -62,8 +77,8 @@ class SourceSubscriber:
         labels: str = "",
     ):
         self.node = node
-        self.specs = specs
-        self.labels = "/" + labels.strip("/") if labels else ""
+        self.specs = {k: tuple(resolved(node, s) for s in v) for k, v in specs.items()}
+        self.labels = node.resolve_topic_name(labels) if labels else ""
         self.make_feed = make_feed
         self.record = record
         self.fs_high = fs_high
@@ -85,11 +100,9 @@ class SourceSubscriber:
         if self.sources is not None:
             return
         graph = {name: types for name, types in self.node.get_topic_names_and_types()}
-        wanted = {
-            spec.split(".")[0].split("{")[0].split("[")[0]
-            for group in self.specs.values()
-            for spec in group
-        } | ({self.labels} if self.labels else set())
+        wanted = {topic_of(spec) for group in self.specs.values() for spec in group} | (
+            {self.labels} if self.labels else set()
+        )
         candidates = set(wanted) | {
             f"{t}/{s}" for t in wanted for s in ("full", "values", "names")
         }
@@ -144,7 +157,7 @@ class SourceSubscriber:
                 record(topic, type_name, raw, info)
 
         if self._drain is None:
-            self._drain = _Drain(self.node.context)
+            self._drain = _Drain(self.node)
         # the callback is called by the drain thread, not by an executor
         sub = self._drain.node.create_subscription(
             message_class(type_name), topic, lambda _: None, qos, raw=True
@@ -242,13 +255,33 @@ class _Drain:
     subscriptions live on a helper node that no executor spins; this thread waits on them
     (rclpy's wait set, as :func:`rclpy.wait_for_message.wait_for_message` does) and takes
     every message queued on each ready one.
+
+    The helper is hidden (its name starts with ``_``), named after its owner and unique in
+    the process, in the owner's namespace; it takes no global arguments (a launch file's
+    ``__node``/``__ns`` remaps name the owner only; its topics come resolved from the owner)
+    and serves nothing (no parameter services, no type description service, no rosout).
     """
 
-    def __init__(self, context: Any):
+    _count = 0
+
+    def __init__(self, owner: Any):
+        import os
+
         import rclpy
         from rclpy.guard_condition import GuardCondition
+        from rclpy.parameter import Parameter
 
-        self.node = rclpy.create_node("mr_ident_sources", context=context)
+        _Drain._count += 1
+        context = owner.context
+        self.node = rclpy.create_node(
+            f"_{owner.get_name()}_sources_{os.getpid()}_{_Drain._count}",
+            namespace=owner.get_namespace(),
+            context=context,
+            use_global_arguments=False,
+            start_parameter_services=False,
+            enable_rosout=False,
+            parameter_overrides=[Parameter("start_type_description_service", value=False)],
+        )
         self._context = context
         self._subs: list[tuple[Any, Callable[[bytes, dict[str, Any]], None]]] = []
         self._wake = GuardCondition(None, None, context=context)

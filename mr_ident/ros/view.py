@@ -1,7 +1,9 @@
 """``mr-ident view`` on a live graph.
 
-Subscribes to the node's estimate, its drift (monitoring) and /diagnostics and hands them to
-the view's state; the HTTP server (:mod:`mr_ident.view.server`) shows them.
+Subscribes to the node's ``~/estimate`` (one ``mr_ident_msgs/Estimate`` per estimate), its
+drift (monitoring) and /diagnostics, and hands them to the view's state; the HTTP server
+(:mod:`mr_ident.view.server`) shows them. ``--node`` is the node's name, fully qualified
+with its namespace (``/arm/mr_ident``) or relative to the root (``mr_ident``).
 """
 
 from __future__ import annotations
@@ -17,91 +19,67 @@ from ..view.state import ViewState
 from .program import Stop, ros_context
 
 
-class _Collector:
-    """The node's result topics joined into one estimate (same K), then the state."""
-
-    def __init__(self, state: ViewState) -> None:
-        self.state = state
-        self.parts: dict[str, Any] = {}
-        self.window: dict[str, Any] = {}
-
-    def put(self, name: str, value: Any) -> None:
-        self.parts[name] = value
-        if name not in ("P_std", "pfg_std", "pfg_data_std"):
-            return  # the node publishes f, P, std, then the PFGs, each value before its std
-        f, P, S = (self.parts.get(k) for k in ("freq", "P", "P_std"))
-        if f is None or P is None or S is None or not (f.size == P.shape[0] == S.shape[0]):
-            return
-        pfgs = {}
-        for key in ("pfg", "pfg_data"):
-            g, gs = self.parts.get(key), self.parts.get(f"{key}_std")
-            ok = g is not None and gs is not None and g.size == gs.size == f.size
-            pfgs[key], pfgs[f"{key}_std"] = (g, gs) if ok else (None, None)
-        self.state.set_estimate(
-            f,
-            P,
-            S,
-            pfgs["pfg"],
-            pfgs["pfg_std"],
-            self.window,
-            pfg_data=pfgs["pfg_data"],
-            pfg_data_std=pfgs["pfg_data_std"],
-        )
+def node_name(name: str) -> str:
+    """The fully qualified name of ``--node`` (a leading ``/`` added)."""
+    return "/" + name.strip("/")
 
 
-def _listen(rclpy: Any, node_name: str, collector: _Collector) -> Any:
+def _listen(rclpy: Any, name: str, state: ViewState) -> Any:
     from diagnostic_msgs.msg import DiagnosticArray
     from std_msgs.msg import Float64MultiArray
 
-    from .messages import RESULT_QOS, frf_of, status_values, std_of
+    from .messages import RESULT_QOS, status_values
+    from .outputs import EstimateMsg, estimate_arrays
 
+    if EstimateMsg is None:
+        raise MrIdentError("mr_ident_msgs is not installed (make venv builds it)")
     n = rclpy.create_node("mr_ident_view")
-    base = "/" + node_name.strip("/")
+    base = node_name(name)
 
-    def vec(name: str):
-        return lambda m: collector.put(name, np.frombuffer(m.data, dtype=float).copy())
+    def on_estimate(m: Any) -> None:
+        e = estimate_arrays(m)
+        state.set_estimate(
+            e.frequency,
+            e.response,
+            e.std,
+            e.pfg,
+            e.pfg_std,
+            {
+                "estimate_first": e.window_first,
+                "estimate_samples": e.window_last - e.window_first + 1,
+                "stamp_s": e.stamp_ns * 1e-9,
+            },
+            pfg_data=e.pfg_data,
+            pfg_data_std=e.pfg_data_std,
+        )
 
     def diag(m: DiagnosticArray) -> None:
         for s in m.status:
-            if not s.name.startswith(node_name.strip("/")):
+            if not s.name.startswith(base + ": "):  # "<fully qualified name>: <what>"
                 continue
             values = status_values(s)
             if s.name.endswith(": plant"):  # the monitoring status, beside the identification
-                collector.state.set_plant(values)
-                continue
-            collector.window = {
-                k: values[k] for k in ("estimate_first", "estimate_samples") if k in values
-            }
-            collector.state.set_health(values)
+                state.set_plant(values)
+            else:
+                state.set_health(values)
 
     def drift(m: Float64MultiArray) -> None:
         rows = np.frombuffer(m.data, dtype=float).reshape(4, -1)  # f, deviation, z, threshold
         with np.errstate(invalid="ignore"):
-            collector.state.set_drift(rows[0], rows[2] > rows[3])
+            state.set_drift(rows[0], rows[2] > rows[3])
 
-    subs = {
-        "frequencies": vec("freq"),
-        "plant_frf": lambda m: collector.put("P", frf_of(m)),
-        "plant_frf_std": lambda m: collector.put("P_std", std_of(m)),
-        "pfg": vec("pfg"),
-        "pfg_std": vec("pfg_std"),
-        "pfg_data": vec("pfg_data"),
-        "pfg_data_std": vec("pfg_data_std"),
-    }
-    for topic, cb in subs.items():
-        n.create_subscription(Float64MultiArray, f"{base}/{topic}", cb, RESULT_QOS)
+    n.create_subscription(EstimateMsg, f"{base}/estimate", on_estimate, RESULT_QOS)
     n.create_subscription(Float64MultiArray, f"{base}/drift", drift, RESULT_QOS)
     n.create_subscription(DiagnosticArray, "/diagnostics", diag, 10)
     return n
 
 
-def run_live_view(server: ViewServer, node_name: str, wait_s: float, stop: Stop) -> int:
+def run_live_view(server: ViewServer, name: str, wait_s: float, stop: Stop) -> int:
     """Serve the page while the node runs; MrIdentError if no node appears in ``wait_s``."""
-    state = server.state
     with ros_context() as rclpy:
-        n = _listen(rclpy, node_name, _Collector(state))
+        n = _listen(rclpy, name, server.state)
         try:
-            topic = "/" + node_name.strip("/") + "/plant_frf"
+            topic = node_name(name) + "/estimate"
             t0 = time.monotonic()
             while n.count_publishers(topic) == 0:
                 if stop.requested:
@@ -109,10 +87,10 @@ def run_live_view(server: ViewServer, node_name: str, wait_s: float, stop: Stop)
                 if time.monotonic() - t0 > wait_s:
                     raise MrIdentError(
                         f"no node publishes {topic} (waited {wait_s:g} s): start mr-ident-node, "
-                        "or name it with --node"
+                        "or name it with --node (e.g. --node /arm/mr_ident)"
                     )
                 rclpy.spin_once(n, timeout_sec=0.1)
-            print(f"listening to {node_name}", flush=True)
+            print(f"listening to {node_name(name)}", flush=True)
             while not stop.requested:
                 rclpy.spin_once(n, timeout_sec=0.1)
         finally:

@@ -20,6 +20,7 @@ from __future__ import annotations
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -34,6 +35,9 @@ from ...numerics.local.lpm import dof as lpm_dof
 from ...numerics.signals import LoopData
 from ...numerics.systems.model import Model
 from .drift import LEVELS, Drift, Reference, drift
+
+if TYPE_CHECKING:
+    from ..diagnose import Diagnosis
 
 #: A drift whose size moved by more than this (dB) since the last diagnosis is diagnosed again.
 RESIZE_DB = 3.0
@@ -225,13 +229,8 @@ class PlantWatch:
         """The cause of the drift in ``window`` (the estimate's), or None without a model."""
         if self.model is None:
             return None
-        from ..diagnose import diagnose  # the heavy part, only when a drift is diagnosed
-
         t0 = time.perf_counter()
-        m = self.model
-        local = replace(m, sample_phase=(m.sample_phase - window.first) % m.ratio)
-        data = replace(window, fs_high=m.fs_high, ratio=m.ratio, first=0)
-        d = diagnose(local, data)
+        d = diagnose_window(self.model, window)
         return WindowDiagnosis(
             d.cause,
             dict(d.parameters),
@@ -243,6 +242,29 @@ class PlantWatch:
             int(window.n_samples),
             time.perf_counter() - t0,
         )
+
+
+def diagnose_window(model: Model, window: LoopData) -> Diagnosis:
+    """The diagnosis of ``model`` on one live window (its ``first`` an absolute index).
+
+    The model's sampling phase is taken relative to the window's first sample.
+    """
+    from ..diagnose import diagnose  # the heavy part, only when a window is diagnosed
+
+    local = replace(model, sample_phase=(model.sample_phase - window.first) % model.ratio)
+    data = replace(window, fs_high=model.fs_high, ratio=model.ratio, first=0)
+    return diagnose(local, data)
+
+
+def window_report(model: Model, window: LoopData, alpha: float = 0.01) -> dict[str, object]:
+    """:func:`diagnose_window` as the JSON report of ``mr-ident diagnose --json``.
+
+    With the window's absolute span added (``window_first``, ``window_samples``).
+    """
+    from ..report import report_dict
+
+    report = report_dict(diagnose_window(model, window), extended_model=None, alpha=alpha)
+    return report | {"window_first": int(window.first), "window_samples": int(window.n_samples)}
 
 
 def load_watch(cfg: IdentConfig) -> PlantWatch | None:
