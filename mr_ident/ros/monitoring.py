@@ -31,8 +31,8 @@ from ..errors import MrIdentError
 from ..io.config import IdentConfig
 from ..io.datafile import write_data
 from ..live.estimate import Estimate, publish_grid
-from ..numerics.systems.model import Model
 from ..numerics.signals import LoopData
+from ..numerics.systems.model import Model
 from .messages import RESULT_QOS, multiarray
 
 #: :meth:`PlantMonitoring.load`: the watch in use stays.
