@@ -9,7 +9,9 @@
 2. Latency: 1.44 M samples are streamed at 1 M samples/s to a fresh node; the
    time from the last block's publication to the arrival of the estimate of the
    window ending with it (update_period_s = 0.05 s). Three runs, each with a new
-   node; the worst and the median are reported.
+   node; the worst and the median are reported, and the node's CPU time over the run.
+   Run at the default settings (n = auto) and with n = 8 (the fixed window that was the
+   default before the automatic one), one after the other.
 
 3. Per-sample messages: a publisher process streams ``sensor_msgs/JointState`` on two
    topics (``/joint_states`` with y and u, ``/ident/reference`` with r; stamps on a
@@ -156,9 +158,9 @@ class _Listen:
     def __init__(self) -> None:
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
-        from std_msgs.msg import Float64MultiArray
 
         from mr_ident.ros.messages import RESULT_QOS
+        from mr_ident_msgs.msg import Estimate
 
         self.rclpy = rclpy
         rclpy.init()
@@ -167,8 +169,8 @@ class _Listen:
         self.frf_times: list[float] = []
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._diag, 10)
         self.node.create_subscription(
-            Float64MultiArray,
-            "/mr_ident/plant_frf",
+            Estimate,
+            "/mr_ident/estimate",
             lambda m: self.frf_times.append(time.time()),
             RESULT_QOS,
         )
@@ -219,6 +221,50 @@ def _run_publisher(
     return int(n), float(t_last)
 
 
+def latency(env: dict, label: str, extra: tuple[str, ...]) -> None:
+    """Part 2 for one setting: three fresh nodes, latency and the node's CPU time each."""
+    import psutil
+
+    latencies, cpus = [], []
+    for run in range(LATENCY_RUNS):
+        node = _node(env, 0.05, *extra)
+        lis = _Listen()
+        try:
+            lis.spin(1.0)
+            sent, t_last = _run_publisher(env, 1e6, WINDOW / 1e6, lis)
+            t_wait = time.monotonic()
+            while time.monotonic() - t_wait < 60 and not [t for t in lis.frf_times if t > t_last]:
+                lis.spin(0.1)
+            after = [t for t in lis.frf_times if t > t_last]
+            lis.spin(1.5)
+            d = lis.diag
+            latencies.append((after[0] - t_last) if after else float("nan"))
+            ct = psutil.Process(node.pid).cpu_times()
+            cpus.append(ct.user + ct.system)
+            print(
+                f"  (diagnostics: {d.get('window_end_index')} aligned, gaps "
+                f"{[d.get(s + '.gaps') for s in ('reference', 'input', 'output')]}, "
+                f"warm-up {d.get('warm_up_s')} s)"
+            )
+            print(
+                f"{label}: latency {run + 1}/{LATENCY_RUNS}, last block published -> estimate "
+                f"of the {WINDOW}-sample window received: {latencies[-1]:.2f} s (identification "
+                f"{d.get('compute_s')} s, window [{d.get('estimate_first_index')}, "
+                f"+{d.get('estimate_samples')}); node CPU {cpus[-1]:.1f} s",
+                flush=True,
+            )
+        finally:
+            lis.close()
+            node.terminate()
+            node.wait(30)
+    print(
+        f"{label}: latency over {LATENCY_RUNS} fresh nodes: worst {np.max(latencies):.2f} s, "
+        f"median {float(np.median(latencies)):.2f} s; node CPU median "
+        f"{float(np.median(cpus)):.1f} s (load {os.getloadavg()[0]:.2f})",
+        flush=True,
+    )
+
+
 def main() -> None:
     from domain_coordinator import domain_id
 
@@ -229,6 +275,10 @@ def main() -> None:
             f"# live benchmark: blocks of {BLOCK} samples, 3 topics, window {WINDOW} samples, "
             f"SingleThreadedExecutor, localhost DDS (domain {dom})"
         )
+        if "--latency" in sys.argv:  # part 2 alone
+            for label, extra in (("default settings (n = auto)", ()), ("n = 8", ("n:=8",))):
+                latency(env, label, extra)
+            return
         best = 0.0
         for rate in (250e3, 500e3, 1e6, 2e6, 3e6, 4e6, 6e6):
             node = _node(env, update=2.0)
@@ -259,43 +309,8 @@ def main() -> None:
             "topic"
         )
 
-        latencies = []
-        for run in range(LATENCY_RUNS):
-            node = _node(env, update=0.05)
-            lis = _Listen()
-            try:
-                lis.spin(1.0)
-                sent, t_last = _run_publisher(env, 1e6, WINDOW / 1e6, lis)
-                t_wait = time.monotonic()
-                while time.monotonic() - t_wait < 60 and not [
-                    t for t in lis.frf_times if t > t_last
-                ]:
-                    lis.spin(0.1)
-                after = [t for t in lis.frf_times if t > t_last]
-                lis.spin(1.5)
-                d = lis.diag
-                latencies.append((after[0] - t_last) if after else float("nan"))
-                print(
-                    f"  (diagnostics: {d.get('window_end_index')} aligned, gaps "
-                    f"{[d.get(s + '.gaps') for s in ('reference', 'input', 'output')]}, "
-                    f"warm-up {d.get('warm_up_s')} s)"
-                )
-                print(
-                    f"latency {run + 1}/{LATENCY_RUNS}, last block published -> estimate of the "
-                    f"{WINDOW}-sample "
-                    f"window received: {latencies[-1]:.2f} s (identification "
-                    f"{d.get('compute_s')} s, "
-                    f"window [{d.get('estimate_first_index')}, +{d.get('estimate_samples')}))",
-                    flush=True,
-                )
-            finally:
-                lis.close()
-                node.terminate()
-                node.wait(30)
-        print(
-            f"latency over {LATENCY_RUNS} fresh nodes: worst {np.max(latencies):.2f} s, "
-            f"median {float(np.median(latencies)):.2f} s"
-        )
+        for label, extra in (("default settings (n = auto)", ()), ("n = 8", ("n:=8",))):
+            latency(env, label, extra)
 
         best_js = 0.0
         for rate in (1e3, 2e3, 4e3, 8e3, 16e3):
