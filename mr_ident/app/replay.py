@@ -4,7 +4,9 @@
 file, the options that replace its values, the rates) and runs
 :func:`~mr_ident.live.replay.replay` (block contract) or
 :func:`~mr_ident.live.replay.replay_bag` (per-sample sources); :func:`plant_events` the
-plant status changes the node would have shown (monitoring, the diagnosis loaded then).
+plant status changes the node would have shown (monitoring, the diagnosis loaded then);
+:func:`estimates_in_time` every estimate the node would have published (``mr-ident view
+--bag``).
 """
 
 from __future__ import annotations
@@ -17,7 +19,9 @@ from .requests import Notice, Notify, ReplayRequest, ignore
 
 if TYPE_CHECKING:
     from ..io.config import IdentConfig
+    from ..live.estimate import Estimate
     from ..live.replay import ReplayResult
+    from ..numerics.systems.model import Model
 
 #: Anomalies of a replay told at most (the rest are counted in the result's ``anomalies``).
 SHOWN_ANOMALIES = 20
@@ -119,3 +123,36 @@ def plant_events(replayed: Replayed, what: str) -> Iterator[str]:
     assert watch is not None and signals is not None
     for ev in watch_windows(loop_windows(signals, cfg, what), watch):
         yield f"plant at {ev.time_s:.1f} s: {ev.level.upper()} {ev.text}"
+
+
+def estimates_in_time(
+    req: ReplayRequest, model: Model | None = None
+) -> tuple[IdentConfig, Iterator[tuple[float, Estimate]]]:
+    """The configuration, and the estimates the node would have published over time.
+
+    (loop time in s, estimate) while the recording was made, lazily
+    (:func:`~mr_ident.live.replay.bag_estimates`).
+
+    ``model``: its rates, and its controller for the PFG where the parameters give none.
+    """
+    from ..live.replay import bag_estimates
+    from ..live.spans import DEFAULT_SPAN
+
+    reading = req.reading
+    specs = reading.specs()
+    cfg = replay_config(req)
+    if model is not None:
+        cfg = cfg.replace(fs_high=model.fs_high, ratio=model.ratio)
+        if model.controller is not None and not cfg.controller_num:
+            cfg = cfg.with_controller(model.controller)  # the PFG from the model's K_l
+    estimates = bag_estimates(
+        reading.path,
+        cfg,
+        specs,
+        topics=reading.topics,
+        fs_high=req.fs_high or (model.fs_high if model else None),
+        ratio=req.ratio or (model.ratio if model else None),
+        span=reading.span or DEFAULT_SPAN,
+        msg_path=reading.msg_path,
+    )
+    return cfg, estimates

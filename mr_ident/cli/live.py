@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 
 from ..errors import ConfigError
-from .common import describe_pfgs, reading, recording, show, source_specs, write_plots
+from .common import describe_pfgs, recording, show, write_plots
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
@@ -112,23 +112,20 @@ def cmd_view(args: argparse.Namespace) -> int:
             from ..ros.view import run_live_view
 
             return run_live_view(server, args.node, args.wait, stop)
-        from ..io.config import IdentConfig, load_params
+        from ..app.replay import estimates_in_time
+        from ..app.requests import ReplayRequest
         from ..live.estimate import publish_grid
-        from ..live.replay import bag_estimates
 
-        specs = source_specs(args)
-        cfg = load_params(args.params) if args.params else IdentConfig()
-        if model is not None:
-            cfg = cfg.replace(fs_high=model.fs_high, ratio=model.ratio)
-            if model.controller is not None and not cfg.controller_num:
-                cfg = cfg.with_controller(model.controller)  # the PFG from the model's K_l
+        req = ReplayRequest(
+            recording(args, args.bag, args.topics),
+            params=args.params,
+            fs_high=args.fs_high,
+            ratio=args.ratio,
+        )
+        cfg, estimates = estimates_in_time(req, model)
         t_wall = time.monotonic()
         n = 0
-        fs_high = args.fs_high or (model.fs_high if model else None)
-        ratio = args.ratio or (model.ratio if model else None)
-        for t_loop, est in bag_estimates(
-            args.bag, cfg, specs, topics=args.topics, fs_high=fs_high, ratio=ratio, **reading(args)
-        ):
+        for t_loop, est in estimates:
             if args.speed > 0:
                 stop.wait(t_wall + t_loop / args.speed - time.monotonic())
             if stop.requested:
