@@ -35,6 +35,7 @@ from .live.recordings import BAG_SUFFIXES, DATA_SUFFIXES, is_bag
 from .live.spans import DEFAULT_SPAN, check_span
 
 if TYPE_CHECKING:
+    from .app.requests import Notice, Reading
     from .numerics.results import FRF
     from .numerics.systems.model import Model
 
@@ -236,68 +237,95 @@ def run_job(job: Job, opts: BatchOptions) -> dict[str, str]:
 
 
 def _run(job: Job, opts: BatchOptions) -> dict[str, str]:
-    from dataclasses import replace
-
-    from .live.recordings import load_recording, settle_rates
+    """One job through the application (:mod:`mr_ident.app`): its result written, its row."""
+    from .app.requests import Reading
 
     path = Path(job.recording)
-    model = opts.model
     bag = is_bag(path)  # the sources apply to the bags of a batch, data files give r, u, y
-    loaded = load_recording(
-        path,
-        specs=opts.specs if bag else None,
-        topics=opts.topics,
-        fs_high=opts.fs_high or (model.fs_high if model and bag else None),
-        ratio=opts.ratio or (model.ratio if model and bag else None),
-        span=opts.span,
-        msg_path=opts.msg_path,
+    reading = Reading(
+        path, opts.specs if bag else None, opts.topics, opts.span, tuple(opts.msg_path)
     )
-    data = loaded.data
-    fs, F = settle_rates(
-        data,
-        fs_high=opts.fs_high if not bag else None,
-        ratio=opts.ratio if not bag else None,
-        model=model,
-    )
-    data = replace(data, fs_high=fs, ratio=F, period=opts.period)
-    row = {
-        "notes": " | ".join(loaded.notes),
-        "first": str(data.first),
-        "n_samples": str(data.n_samples),
-        "duration_s": _fmt(data.n_samples / fs),
+    if opts.task == "identify":
+        return _identify(job, opts, reading)
+    return _diagnose(job, opts, reading)
+
+
+def _row(job: Job, opts: BatchOptions, first: int, N: int, fs: float, F: int) -> dict[str, str]:
+    """The columns every task fills: the record read and its rates."""
+    return {
+        "first": str(first),
+        "n_samples": str(N),
+        "duration_s": _fmt(N / fs),
         "fs_high": _fmt(fs),
         "ratio": str(F),
         "method": opts.method,
         "result": job.result,
     }
-    if opts.task == "identify":
-        from .io.datafile import write_result
-        from .numerics.identify import identify
 
-        loop = model.identify_arguments(data.n_samples) if model is not None else {}
-        ident = identify(
-            data.r, data.u, data.y, fs_high=fs, ratio=F, method=opts.method, n=opts.n,
-            degree=opts.degree, local=opts.local, keep_lifted=False, workers=opts.threads,
-            y_phase=data.y_phase, **loop,
-        )  # fmt: skip
-        write_result(job.result, ident)
-        pl, pd = ident.plant, ident.pfg_data
-        row.update(_frf_columns(opts, pl.frequency, pl.response, pl.std))
-        if pd is not None:  # the PFG from data alone, no controller needed
-            for f in opts.frequencies:
-                row[f"pfg_data@{f:g}Hz"] = _fmt(float(_at(pd.frequency, pd.gain, f)))
-                row[f"pfg_data_std@{f:g}Hz"] = _fmt(float(_at(pd.frequency, pd.std, f)))
-        return row
+
+def _warnings(notices: Iterable[Notice]) -> str:
+    """What the reading noticed, for the table's ``notes`` column."""
+    return " | ".join(n.text for n in notices if n.kind == "warning")
+
+
+def _identify(job: Job, opts: BatchOptions, reading: Reading) -> dict[str, str]:
+    from .app.identify import Identified, identify_recording
+    from .app.requests import IdentifyRequest
+    from .io.datafile import write_result
+
+    req = IdentifyRequest(
+        reading,
+        opts.model,
+        fs_high=opts.fs_high,
+        ratio=opts.ratio,
+        method=opts.method,
+        n=opts.n,
+        degree=opts.degree,
+        local=opts.local,
+        workers=opts.threads,
+    )
+    got = identify_recording(req)
+    assert isinstance(got, Identified)  # no period: no BLA
+    ident = got.identification
+    write_result(job.result, ident)
+    row = _row(job, opts, got.first, got.n_samples, got.fs_high, got.ratio)
+    row["notes"] = _warnings(got.notices)
+    pl, pd = ident.plant, ident.pfg_data
+    row.update(_frf_columns(opts, pl.frequency, pl.response, pl.std))
+    if pd is not None:  # the PFG from data alone, no controller needed
+        for f in opts.frequencies:
+            row[f"pfg_data@{f:g}Hz"] = _fmt(float(_at(pd.frequency, pd.gain, f)))
+            row[f"pfg_data_std@{f:g}Hz"] = _fmt(float(_at(pd.frequency, pd.std, f)))
+    return row
+
+
+def _diagnose(job: Job, opts: BatchOptions, reading: Reading) -> dict[str, str]:
     import json
 
-    from .diagnosis import diagnose
+    from .app.diagnose import diagnose_recording
+    from .app.requests import DiagnoseRequest
     from .diagnosis.report import report_dict
     from .io.atomic import atomic_write
 
-    assert model is not None  # checked by BatchOptions
-    d = diagnose(model, data, None, n=opts.n, degree=opts.degree, names=(job.recording, ""))
+    assert opts.model is not None  # checked by BatchOptions
+    req = DiagnoseRequest(
+        reading,
+        opts.model,
+        period=opts.period,
+        n=opts.n,
+        degree=opts.degree,
+        fs_high=opts.fs_high,
+        ratio=opts.ratio,
+        rates="agree",
+        names=(job.recording, ""),
+    )
+    got = diagnose_recording(req)
+    d, data = got.diagnosis, got.data
     summary = report_dict(d, extended_model=None, alpha=0.01)
     atomic_write(job.result, lambda fh: json.dump(summary, fh, indent=2), binary=False)
+    fs, F = data.rates()
+    row = _row(job, opts, data.first, data.n_samples, fs, F)
+    row["notes"] = _warnings(got.notices)
     ev = d.evidence_before
     row.update(_frf_columns(opts, ev.frequency, ev.P_hat, ev.P_std))
     row.update(

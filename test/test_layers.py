@@ -2,7 +2,8 @@
 no private name imported across modules, no module past ~500 lines.
 
 Layers, lowest first: errors (and the allocator helper) -> numerics -> io -> live ->
-diagnosis -> adapters (ros/, view/, cli, plots, paper, htmlreport). Inside numerics and
+diagnosis -> app (a request in, a result out) -> adapters (ros/, view/, cli, batch, plots,
+paper, htmlreport). Inside numerics and
 diagnosis, rooms (subpackages: numerics/local, lifted, excitation, systems; diagnosis/
 criterion, causes, selection, controller, monitoring) belong to their layer; their
 ``__init__`` imports nothing. A module may import modules of its own layer or lower ones
@@ -29,8 +30,9 @@ LAYERS = {
     "io": 2,
     "live": 3,
     "diagnosis": 4,
+    "app": 5,
 }
-ADAPTER = 5
+ADAPTER = 6
 
 
 def module_name(path: Path) -> str:

@@ -1,38 +1,29 @@
-"""What the command groups share: the --r/--u/--y sources, reading a recording, rates, plots."""
+"""What the command groups share: the recording as asked, notices, plots, the PFGs told."""
 
 from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..errors import ConfigError, DataError
-
 if TYPE_CHECKING:
+    from ..app.requests import Notice, Reading
     from ..numerics.results import Identification
-    from ..numerics.signals import LoopData
     from ..numerics.systems.model import Model
 
 
-def resolve_rates(
-    args: argparse.Namespace, data: LoopData, model: Model | None
-) -> tuple[float, int]:
-    """fs_high and F from the flags, the data file, the model, or the samples' stamps."""
-    from ..live.recordings import settle_rates
-
-    return settle_rates(data, fs_high=args.fs_high, ratio=args.ratio, model=model)
+def sources(args: argparse.Namespace) -> dict[str, list[str]]:
+    """The --r/--u/--y sources as given (empty lists for those not given)."""
+    return {sig: list(getattr(args, f"{sig}_source", None) or []) for sig in ("r", "u", "y")}
 
 
 def source_specs(args: argparse.Namespace) -> dict[str, list[str]] | None:
     """The --r/--u/--y sources, or None when none was given (all three needed otherwise)."""
-    specs = {sig: getattr(args, f"{sig}_source", None) or [] for sig in ("r", "u", "y")}
-    if not any(specs.values()):
-        return None
-    missing = [f"--{sig}" for sig, v in specs.items() if not v]
-    if missing:
-        raise ConfigError(f"give all of --r, --u, --y with a bag; missing {', '.join(missing)}")
-    return specs
+    from ..app.requests import source_specs as checked
+
+    return checked(sources(args))
 
 
 def reading(args: argparse.Namespace) -> dict[str, Any]:
@@ -43,26 +34,24 @@ def reading(args: argparse.Namespace) -> dict[str, Any]:
     return out
 
 
-def read_loop(
-    path: Path,
-    specs: dict[str, list[str]] | None,
-    fs_high: float | None,
-    ratio: int | None,
-    topics: list[str] | None = None,
-    **options: Any,
-) -> LoopData:
-    """r, u, y of a data file or a bag (per-sample sources, or the block contract: ``topics``).
+def recording(
+    args: argparse.Namespace, path: Path, topics: Sequence[str] | None = None
+) -> Reading:
+    """The recording at ``path`` and how to read it: the sources, --span, --msg-path."""
+    from ..app.requests import Reading
 
-    ``options``: :func:`reading`. What the reading noticed goes to stderr as warnings.
-    """
-    from ..live.recordings import load_recording
-
-    loaded = load_recording(
-        path, specs=specs, topics=topics, fs_high=fs_high, ratio=ratio, **options
+    return Reading(
+        path,
+        sources(args),
+        topics,
+        getattr(args, "span", None),
+        tuple(getattr(args, "msg_path", None) or ()),
     )
-    for note in loaded.notes:
-        print(f"warning: {note}", file=sys.stderr)
-    return loaded.data
+
+
+def show(notice: Notice) -> None:
+    """A notice of the application: about the reading to stderr, about the result to stdout."""
+    print(notice.line(), file=sys.stderr if notice.about == "reading" else sys.stdout)
 
 
 def write_plots(
@@ -112,27 +101,3 @@ def describe_pfgs(ident: Identification) -> list[str]:
             "of the band (log axis)" + ("; " + check.text().split(":")[0] if check.differs else "")
         )
     return lines
-
-
-def read_for_diagnosis(
-    path: Path,
-    model: Model,
-    period: int | None,
-    topics: list[str] | None,
-    specs: dict[str, list[str]] | None = None,
-    **options: Any,
-) -> LoopData:
-    """Data for diagnose from a file or a bag; rates from the file where given, else the model."""
-    from dataclasses import replace
-
-    from ..live.recordings import is_bag
-
-    data = read_loop(path, specs, model.fs_high, model.ratio, topics, **options)
-    if is_bag(path):  # a bag's rates are the model's
-        fs, F = model.fs_high, model.ratio
-    else:
-        fs = data.fs_high if data.fs_high is not None else model.fs_high
-        F = data.ratio if data.ratio is not None else model.ratio
-    if data.n_samples % F:
-        raise DataError(f"{path}: N = {data.n_samples} samples is not a multiple of ratio F={F}")
-    return replace(data, fs_high=float(fs), ratio=int(F), period=period)

@@ -3,13 +3,9 @@
 from __future__ import annotations
 
 import argparse
-from typing import TYPE_CHECKING
 
 from ..errors import ConfigError
-from .common import read_for_diagnosis, reading, source_specs
-
-if TYPE_CHECKING:
-    pass
+from .common import recording, show
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
@@ -18,36 +14,29 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
     import yaml
 
-    from ..diagnosis import diagnose
+    from ..app.diagnose import diagnose_recording
+    from ..app.requests import DiagnoseRequest
     from ..diagnosis.report import report_dict
     from ..htmlreport import report_html
     from ..io.atomic import atomic_write
-    from ..io.modelfile import load_model, model_to_dict
+    from ..io.modelfile import model_to_dict
 
     if args.json.suffix.lower() != ".json":
         raise ConfigError(f"--json must be a .json file, got {str(args.json)!r}")
     if args.report is not None and args.report.suffix.lower() not in (".html", ".htm"):
         raise ConfigError(f"--report must be an .html file, got {str(args.report)!r}")
-    if not 0.0 < args.alpha < 1.0:
-        raise ConfigError(f"--alpha must be in (0, 1), got {args.alpha}")
-    model = load_model(args.model)
-    specs = source_specs(args)
-    data = read_for_diagnosis(args.data, model, args.period, args.topics, specs, **reading(args))
-    val = (
-        read_for_diagnosis(args.validate, model, args.period, args.topics, specs, **reading(args))
-        if args.validate
-        else None
-    )
-    d = diagnose(
-        model,
-        data,
-        val,
+    req = DiagnoseRequest(
+        recording(args, args.data, args.topics),
+        args.model,
+        validate=args.validate,
+        period=args.period,
         n=args.n,
         degree=args.degree,
         alpha=args.alpha,
         max_causes=args.max_causes,
-        names=(str(args.data), str(args.validate)),
     )
+    outcome = diagnose_recording(req, show)
+    d = outcome.diagnosis
     summary = report_dict(
         d, extended_model=str(args.out_model) if args.out_model else None, alpha=args.alpha
     )

@@ -6,22 +6,16 @@ Imports are lazy (inside each command); rclpy is imported only by the ROS ones.
 from __future__ import annotations
 
 import argparse
-import sys
-from typing import TYPE_CHECKING
 
 from ..errors import ConfigError
-from .common import describe_pfgs, reading, source_specs, write_plots
-
-if TYPE_CHECKING:
-    from ..io.config import IdentConfig
-    from ..numerics.signals import LoopData
+from .common import describe_pfgs, recording, show, write_plots
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
     """``mr-ident replay``: a recording through the node's steps, or re-published."""
-    from ..io.config import IdentConfig, load_params
+    from ..app.replay import plant_events, replay_recording
+    from ..app.requests import ReplayRequest
     from ..io.datafile import write_result
-    from ..live.replay import replay
 
     if args.publish:
         from ..ros.record import publish_recording
@@ -33,50 +27,18 @@ def cmd_replay(args: argparse.Namespace) -> int:
         raise ConfigError("replay needs --out RESULT.npz (or --publish)")
     if args.out.suffix.lower() != ".npz":
         raise ConfigError(f"--out must be a .npz file, got {str(args.out)!r}")
-    cfg = load_params(args.params) if args.params else IdentConfig()
-    if args.y_rate:
-        cfg = cfg.replace(y_rate=args.y_rate)
-    if args.excitation_index:
-        cfg = cfg.replace(excitation_index_topic=args.excitation_index)
-    specs = source_specs(args)
-    monitoring = bool(cfg.monitor_model or cfg.monitor_reference)
-    if specs is not None:
-        from ..live.replay import replay_bag
-
-        fs = args.fs_high or (cfg.fs_high if args.params else None)
-        F = args.ratio or (cfg.ratio if args.params else None)
-        res = replay_bag(
-            args.recording,
-            cfg,
-            specs,
-            fs_high=fs,
-            ratio=F,
-            stop=args.stop,
-            keep_signals=monitoring,
-            **reading(args),
-        )
-        cfg = cfg.replace(
-            fs_high=res.estimate.identification.fs_high, ratio=res.estimate.identification.ratio
-        )
-    else:
-        res = replay(
-            args.recording,
-            cfg,
-            topics=args.topics,
-            stop=args.stop,
-            span=args.span,
-            keep_signals=monitoring,
-        )
+    req = ReplayRequest(
+        recording(args, args.recording, args.topics),
+        params=args.params,
+        fs_high=args.fs_high,
+        ratio=args.ratio,
+        stop=args.stop,
+        y_rate=args.y_rate,
+        excitation_index=args.excitation_index,
+    )
+    replayed = replay_recording(req, show)
+    res, cfg = replayed.result, replayed.config
     info, est = res.info, res.estimate
-    if info.truncated:
-        print(
-            f"warning: {args.recording} is cut short; recovered {sum(info.messages.values())} "
-            "messages "
-            f"({info.bytes_read} of {info.file_bytes} bytes) ({info.reason})",
-            file=sys.stderr,
-        )
-    for note in res.anomalies[:20]:
-        print(f"note: {note}", file=sys.stderr)
     counts = ", ".join(f"{k} {v}" for k, v in info.messages.items())
     print(
         f"read {counts} messages; window [{est.first}, {est.first + est.n_samples}) "
@@ -101,24 +63,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
         model = load_model(args.model) if args.model else None
         write_plots(est.identification, args.plot, cfg.fs_high, cfg.ratio, est.n_samples, model)
-    if monitoring:
-        assert res.signals is not None
-        _replay_monitoring(res.signals, cfg, str(args.recording))
+    for line in plant_events(replayed, str(args.recording)):
+        print(line)
     return 0
-
-
-def _replay_monitoring(signals: LoopData, cfg: IdentConfig, what: str) -> None:
-    """The plant status changes the node would have shown (monitor_* in --params).
-
-    Over the span the replay read (not read again), window by window as the node.
-    """
-    from ..diagnosis.monitoring.monitor import load_watch, watch_windows
-    from ..live.replay import loop_windows
-
-    watch = load_watch(cfg)
-    assert watch is not None
-    for ev in watch_windows(loop_windows(signals, cfg, what), watch):
-        print(f"plant at {ev.time_s:.1f} s: {ev.level.upper()} {ev.text}")
 
 
 def cmd_record(args: argparse.Namespace) -> int:
@@ -165,23 +112,20 @@ def cmd_view(args: argparse.Namespace) -> int:
             from ..ros.view import run_live_view
 
             return run_live_view(server, args.node, args.wait, stop)
-        from ..io.config import IdentConfig, load_params
+        from ..app.replay import estimates_in_time
+        from ..app.requests import ReplayRequest
         from ..live.estimate import publish_grid
-        from ..live.replay import bag_estimates
 
-        specs = source_specs(args)
-        cfg = load_params(args.params) if args.params else IdentConfig()
-        if model is not None:
-            cfg = cfg.replace(fs_high=model.fs_high, ratio=model.ratio)
-            if model.controller is not None and not cfg.controller_num:
-                cfg = cfg.with_controller(model.controller)  # the PFG from the model's K_l
+        req = ReplayRequest(
+            recording(args, args.bag, args.topics),
+            params=args.params,
+            fs_high=args.fs_high,
+            ratio=args.ratio,
+        )
+        cfg, estimates = estimates_in_time(req, model)
         t_wall = time.monotonic()
         n = 0
-        fs_high = args.fs_high or (model.fs_high if model else None)
-        ratio = args.ratio or (model.ratio if model else None)
-        for t_loop, est in bag_estimates(
-            args.bag, cfg, specs, topics=args.topics, fs_high=fs_high, ratio=ratio, **reading(args)
-        ):
+        for t_loop, est in estimates:
             if args.speed > 0:
                 stop.wait(t_wall + t_loop / args.speed - time.monotonic())
             if stop.requested:

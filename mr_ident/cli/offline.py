@@ -7,20 +7,13 @@ from __future__ import annotations
 
 import argparse
 import math
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
-from ..errors import ConfigError, DataError
-from .common import (
-    describe_pfgs,
-    read_loop,
-    reading,
-    resolve_rates,
-    source_specs,
-    write_plots,
-)
+from ..errors import ConfigError
+from .common import describe_pfgs, reading, recording, show, source_specs, write_plots
 
 if TYPE_CHECKING:
-    pass
+    from ..app.requests import IdentifyRequest
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -40,74 +33,53 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_identify(args: argparse.Namespace) -> int:
-    """``mr-ident identify``: identify P_h (and the PFG) from a data file or a bag."""
-    from ..io.datafile import write_result
-    from ..io.modelfile import load_model
-    from ..numerics.identify import identify
-    from ..numerics.signals import LoopData
+def identify_request(args: argparse.Namespace) -> IdentifyRequest:
+    """The request of ``mr-ident identify``'s arguments."""
+    from ..app.requests import IdentifyRequest
 
-    if args.out.suffix.lower() != ".npz":
-        raise ConfigError(f"--out must be a .npz file, got {str(args.out)!r}")
-    if args.period is not None:
-        from .periodic import identify_periodic
-
-        return identify_periodic(args)
-    if args.excitation_index:
-        raise ConfigError("--excitation-index goes with --period (the BLA of periodic data)")
-    model = load_model(args.model) if args.model else None
-    data = read_loop(
-        args.data,
-        source_specs(args),
-        args.fs_high or (model.fs_high if model else None),
-        args.ratio or (model.ratio if model else None),
-        **reading(args),
-    )
-    fs, F = resolve_rates(args, data, model)
-    N = data.n_samples
-    y_phase = 0
-    if args.y_rate == "low" and data.y_step == 1:  # a bag's low-rate y, held on the grid
-        from ..live.estimate import low_rate_output
-
-        y_low, y_phase = low_rate_output(data.first, data.y, F)
-        data = LoopData(data.r, data.u, y_low, data.fs_high, data.ratio, data.first)
-        print(f"note: y at the low rate: its samples at sample {y_phase} of each period (F = {F})")
-    elif args.y_rate == "high" and data.y_step != 1:
-        raise ConfigError(f"--y-rate high, but y has N/F = {data.y.shape[0]} samples")
-    elif data.y_step != 1:
-        y_phase = data.y_phase
-        print(
-            f"note: y has {data.y.shape[0]} samples, r and u {N}: y is taken as the output at "
-            f"the low rate (y_h at samples {y_phase}, {y_phase} + F, ...; F = {F})"
-        )
-    loop: dict[str, Any] = {}
-    if model is not None:
-        if model.n_y != data.y.shape[1] or model.n_u != data.u.shape[1]:
-            raise DataError(
-                f"model is {model.n_y}x{model.n_u} (n_y x n_u) but the data has "
-                f"{data.y.shape[1]} output and {data.u.shape[1]} input channel(s)"
-            )
-        loop = model.identify_arguments(N)
-    ident = identify(
-        data.r,
-        data.u,
-        data.y,
-        fs_high=fs,
-        ratio=F,
+    return IdentifyRequest(
+        recording(args, args.data),
+        model=args.model,
+        fs_high=args.fs_high,
+        ratio=args.ratio,
         method=args.method,
         n=args.n,
         degree=args.degree,
         local=args.local,
-        keep_lifted=False,
-        y_phase=y_phase,
-        **loop,
-    )  # the result holds P_h and the PFG
+        y_rate=args.y_rate,
+        period=args.period,
+        transient_periods=args.transient_periods,
+        excitation_index=args.excitation_index,
+    )
+
+
+def cmd_identify(args: argparse.Namespace) -> int:
+    """``mr-ident identify``: identify P_h (and the PFG) from a data file or a bag."""
+    from ..app.identify import Identified, identify_recording
+    from ..app.periodic import PeriodicBLA
+    from ..io.datafile import write_result
+
+    if args.out.suffix.lower() != ".npz":
+        raise ConfigError(f"--out must be a .npz file, got {str(args.out)!r}")
+    outcome = identify_recording(identify_request(args), show)
+    if isinstance(outcome, PeriodicBLA):
+        from .periodic import report_periodic
+
+        report_periodic(args.out, outcome, args.plot)
+        return 0
+    if not isinstance(outcome, Identified):
+        from .periodic import report_slow
+
+        report_slow(args.out, outcome, args.plot)
+        return 0
+    ident = outcome.identification
     write_result(args.out, ident)
-    print(f"wrote {args.out} ({ident.plant.frequency.size} bins, method {args.method})")
+    print(f"wrote {args.out} ({ident.plant.frequency.size} bins, method {outcome.method})")
     for line in describe_pfgs(ident):
         print(line)
     if args.plot:
-        write_plots(ident, args.plot, fs, F, N, model)
+        fs, F, N = outcome.fs_high, outcome.ratio, outcome.n_samples
+        write_plots(ident, args.plot, fs, F, N, outcome.model)
     return 0
 
 

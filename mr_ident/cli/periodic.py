@@ -1,161 +1,52 @@
-"""``identify --period``: the best linear approximation of periodic data; its report.
+"""``identify --period`` and ``replay`` of periodic data: the BLA's report, written and told.
 
-An NPZ holds r, u, y of shape (M realizations, n), periods counted from each row's start.
-A bag is cut by the excitation's labels recorded beside r (``TOPIC/excitation_index`` of
-``mr-ident excite --publish TOPIC``, read in the signals' form and aligned with them;
-``--period auto`` reads the period off them); without them, with ``--period N``, its record
-is one realization counted from its first sample. Both go through
-:mod:`mr_ident.live.periodic`, as ``replay`` and the node do.
+The computing is the application's (:mod:`mr_ident.app.periodic`); here the result files
+are written and what they hold is printed.
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..errors import ConfigError, DataError
-from .common import read_loop, reading, source_specs
-
 if TYPE_CHECKING:
-    from ..io.periodicfile import Realizations
-    from ..live.periodic import Periods
+    from ..app.periodic import PeriodicBLA, SlowPlant
     from ..numerics.excitation.bla import BLA
 
 
-def identify_periodic(args: argparse.Namespace) -> int:
-    """``identify --period``: the BLA of an NPZ of realizations or of a bag."""
-    from ..live.periodic import cut_by_count, periodic_bla
-    from ..live.recordings import is_bag
-    from ..numerics.excitation.bla import distortion_by_band
-
-    if is_bag(args.data):
-        cut, fs, F = _bag_periods(args)
-    else:
-        data, fs, F = _read_npz(args)
-        if data.low_rate_y:
-            return _npz_slow(args, data, fs, F)
-        cut = cut_by_count(data.r, data.u, data.y, args.period, args.transient_periods)
-    bla = periodic_bla(cut, F)
-    print(f"periods: {cut.describe()}")
-    bands = distortion_by_band(cut.r, cut.y, cut.period, fs, ratio=F) if bla.periods > 1 else []
-    write_bla_report(args.out, bla, cut.period, fs, F, plot=args.plot, bands=bands)
-    return 0
+def report_periodic(out: Path, outcome: PeriodicBLA, plot: Path | None) -> None:
+    """The BLA of ``identify --period``: the cut told, the result written, its report."""
+    print(f"periods: {outcome.periods.describe()}")
+    write_bla_report(
+        out,
+        outcome.bla,
+        outcome.periods.period,
+        outcome.fs_high,
+        outcome.ratio,
+        plot=plot,
+        bands=list(outcome.bands),
+    )
 
 
-def _npz_slow(args: argparse.Namespace, data: Realizations, fs: float, F: int) -> int:
-    """P_h from an NPZ whose y holds the low-rate samples only.
-
-    Through :func:`~mr_ident.numerics.lifted.slow_periodic.slow_output_plant` (a rotated lifted
-    design: ``mr-ident excite --lifted --rotate``), written as an identification result.
-    """
+def report_slow(out: Path, outcome: SlowPlant, plot: Path | None) -> None:
+    """P_h from an NPZ whose y holds the low-rate samples only: written, told, plotted."""
     import numpy as np
 
     from ..io.datafile import write_result
-    from ..numerics.lifted.slow_periodic import SLOW_PFG_SOURCE, slow_output_plant
-    from ..numerics.results import FRF, PFG, Identification
 
-    r, u, y, q = data.r, data.u, data.y, data.y_phase
-    N, T = int(args.period), int(args.transient_periods)
-    if N % F or r.shape[1] % N or r.shape[1] // N <= T:
-        raise DataError(
-            f"{args.data}: --period {N} must be a multiple of F = {F} and divide the "
-            f"{r.shape[1]} samples per realization into more than the {T} transient period(s)"
-        )
-    sp = slow_output_plant(r[:, T * N :], u[:, T * N :], y[:, T * N // F :], N, F, phase=q)
-    lines, P, sd = sp.lines, sp.response, sp.std
-    if lines.size == 0:
-        raise DataError(
-            f"{args.data}: y holds the low-rate samples only, and no lifted bin has all its "
-            f"F = {F} aliases excited over the {r.shape[0]} realization(s): P_h needs a "
-            "rotated lifted design (mr-ident excite --lifted --rotate --kind full "
-            f"--ratio {F} --realizations {F})"
-        )
-    f = lines * fs / N
-    ident = Identification(
-        FRF(f, P[:, None, None], sd[:, None, None], "periodic:slow y"),
-        None,
-        None,
-        None,
-        fs,
-        F,
-        pfg_data=PFG(f, sp.pfg, sp.pfg_std, SLOW_PFG_SOURCE),
-    )
-    write_result(args.out, ident)
+    ident = outcome.identification
+    f, P, sd = ident.plant.frequency, ident.plant.response[:, 0, 0], ident.plant.std[:, 0, 0]
+    write_result(out, ident)
     print(
-        f"wrote {args.out} (P_h from y at the low rate on {lines.size} lines, "
-        f"{f.min():.4g}-{f.max():.4g} Hz; {r.shape[0]} realizations x "
-        f"{r.shape[1] // N - T} periods; median std {np.nanmedian(sd / np.abs(P)):.2g} of |P|; "
+        f"wrote {out} (P_h from y at the low rate on {f.size} lines, "
+        f"{f.min():.4g}-{f.max():.4g} Hz; {outcome.realizations} realizations x "
+        f"{outcome.periods} periods; median std {np.nanmedian(sd / np.abs(P)):.2g} of |P|; "
         "with the PFG from data, J = diag(P_h) S measured)"
     )
-    if args.plot:
+    if plot:
         from ..plots import plot_bode
 
-        print(f"wrote {plot_bode(ident.plant, args.plot)}")
-    return 0
-
-
-def _read_npz(args: argparse.Namespace) -> tuple[Realizations, float, int]:
-    """The NPZ of realizations, read once, with fs_high and F settled (the flags first)."""
-    from ..io.periodicfile import read_realizations
-
-    if args.period == "auto":
-        raise ConfigError(
-            "--period auto reads the period off the excitation's labels in a bag; "
-            f"{args.data} is an NPZ: give --period N"
-        )
-    if args.excitation_index:
-        raise ConfigError(f"--excitation-index names a topic of a bag; {args.data} is an NPZ")
-    data = read_realizations(args.data, args.ratio)
-    fs = args.fs_high or data.fs_high
-    if fs is None:
-        raise ConfigError(f"{args.data} has no fs_high: pass --fs-high")
-    return data, fs, args.ratio or data.ratio or 1
-
-
-def _default_labels(specs: dict[str, list[str]] | None) -> str:
-    """The labels' topic beside r's: the first r source's topic, or the block topic."""
-    from ..io.blocks import STREAMS
-    from ..io.labels import index_topic
-    from ..io.paths import parse_source
-
-    return index_topic(parse_source(specs["r"][0]).topic if specs else STREAMS[0])
-
-
-def _bag_periods(args: argparse.Namespace) -> tuple[Periods, float, int]:
-    from ..io.modelfile import load_model
-    from ..live.periodic import cut_by_labels, record_by_count
-    from ..live.recordings import find_topic
-
-    specs = source_specs(args)
-    model = load_model(args.model) if args.model else None
-    fs = args.fs_high or (model.fs_high if model else None)
-    F = args.ratio or (model.ratio if model else None)
-    want = args.excitation_index or _default_labels(specs)
-    opts = reading(args)
-    topic, names = find_topic(args.data, want, exact=specs is not None, msg_path=opts["msg_path"])
-    period = None if args.period == "auto" else int(args.period)
-    if topic is None:
-        if period is None:
-            raise DataError(
-                f"{args.data}: no topic {want} with the excitation's labels (the bag holds "
-                f"{', '.join(names) or 'none'}); --period auto reads the period off them: "
-                "give --excitation-index TOPIC, or --period N to count periods from the "
-                "record's first sample"
-            )
-        data = read_loop(args.data, specs, fs, F, **opts)
-        print(
-            f"note: no topic {want} with the excitation's labels: whole periods of {period} "
-            f"samples counted from the record's first sample (index {data.first})",
-            file=sys.stderr,
-        )
-        cut = record_by_count(data, period, args.transient_periods)
-    else:
-        data = read_loop(args.data, specs, fs, F, labels=topic, **opts)
-        cut = cut_by_labels(data, period, args.transient_periods)
-    fs_got, F_got = data.rates()
-    return cut, fs_got, F_got
+        print(f"wrote {plot_bode(ident.plant, plot)}")
 
 
 def write_bla_report(

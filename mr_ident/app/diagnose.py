@@ -1,0 +1,78 @@
+"""``diagnose``: where and why a model disagrees with a recording.
+
+:func:`diagnose_recording` is the one path of ``mr-ident diagnose`` and of every
+``mr-ident batch --task diagnose`` job. The diagnosis is imported here, inside the call:
+``identify`` never loads it (start-up, ``test_cli``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
+
+from ..errors import ConfigError
+from .reading import read_for_diagnosis, read_settled
+from .requests import DiagnoseRequest, Heard, Notice, Notify, ignore, load
+
+if TYPE_CHECKING:
+    from ..diagnosis.diagnose import Diagnosis
+    from ..numerics.signals import LoopData
+    from ..numerics.systems.model import Model
+    from .requests import Reading, Specs
+
+
+@dataclass(frozen=True)
+class Diagnosed:
+    """The diagnosis, the model it was of, and the record diagnosed (rates settled)."""
+
+    diagnosis: Diagnosis
+    model: Model
+    data: LoopData
+    notices: tuple[Notice, ...] = ()
+
+
+def diagnose_recording(req: DiagnoseRequest, notify: Notify = ignore) -> Diagnosed:
+    """The diagnosis a request asks for (the report files are the caller's to write).
+
+    ``notify`` hears each notice when it happens (the outcome keeps them all).
+
+    Raises
+    ------
+    ConfigError
+        ``alpha`` outside (0, 1), rates that disagree (``rates`` "agree").
+    DataError
+        What the readers and :func:`~mr_ident.diagnosis.diagnose` raise.
+    """
+    from ..diagnosis import diagnose
+
+    if not 0.0 < req.alpha < 1.0:
+        raise ConfigError(f"--alpha must be in (0, 1), got {req.alpha}")
+    heard = Heard(notify)
+    model = load(req.model)
+    assert model is not None
+    specs = req.reading.specs()
+    data = _read(req, req.reading, model, specs, heard)
+    val = None
+    if req.validate is not None:
+        val = _read(req, replace(req.reading, path=req.validate), model, specs, heard)
+    d = diagnose(
+        model,
+        data,
+        val,
+        n=req.n,
+        degree=req.degree,
+        alpha=req.alpha,
+        max_causes=req.max_causes,
+        names=req.names or (str(req.reading.path), str(req.validate)),
+    )
+    return Diagnosed(d, model, data, tuple(heard.notices))
+
+
+def _read(
+    req: DiagnoseRequest, reading: Reading, model: Model, specs: Specs | None, notify: Notify
+) -> LoopData:
+    """One recording of the request, its rates settled as ``req.rates`` says."""
+    if req.rates == "file":
+        return read_for_diagnosis(reading, model, req.period, specs, notify)
+    data, fs, F = read_settled(reading, specs, req.fs_high, req.ratio, model, notify)
+    return replace(data, fs_high=fs, ratio=F, period=req.period)

@@ -1,0 +1,102 @@
+"""A request's recording as loop data: read once, the rates settled, what was noticed said.
+
+Over :func:`~mr_ident.live.recordings.load_recording` (files and bags alike); its notes come
+back as warnings (:class:`~.requests.Notice`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from ..errors import DataError
+from .requests import Notice, Notify, Reading, Specs
+
+if TYPE_CHECKING:
+    from ..numerics.signals import LoopData
+    from ..numerics.systems.model import Model
+
+
+def read_loop(
+    reading: Reading,
+    specs: Specs | None,
+    fs_high: float | None,
+    ratio: int | None,
+    notify: Notify,
+    *,
+    labels: str = "",
+    path: Path | None = None,
+) -> LoopData:
+    """r, u, y of ``reading`` (``path`` instead of its own: a second recording read alike).
+
+    ``specs``: the checked sources (None: a data file, or a bag's block contract);
+    ``fs_high``/``ratio``: the rates a bag needs; ``labels``: an excitation's labels' topic.
+    What the reading noticed goes to ``notify`` as warnings.
+    """
+    from ..live.recordings import load_recording
+    from ..live.spans import DEFAULT_SPAN
+
+    loaded = load_recording(
+        path or reading.path,
+        specs=specs,
+        topics=reading.topics,
+        fs_high=fs_high,
+        ratio=ratio,
+        span=reading.span or DEFAULT_SPAN,
+        msg_path=reading.msg_path,
+        labels=labels,
+    )
+    for note in loaded.notes:
+        notify(Notice("warning", note))
+    return loaded.data
+
+
+def read_for_diagnosis(
+    reading: Reading,
+    model: Model,
+    period: int | None,
+    specs: Specs | None,
+    notify: Notify,
+    *,
+    path: Path | None = None,
+) -> LoopData:
+    """Data for diagnose from a file or a bag; rates from the file where given, else the model."""
+    from ..live.recordings import is_bag
+
+    where = path or reading.path
+    data = read_loop(reading, specs, model.fs_high, model.ratio, notify, path=where)
+    if is_bag(where):  # a bag's rates are the model's
+        fs, F = model.fs_high, model.ratio
+    else:
+        fs = data.fs_high if data.fs_high is not None else model.fs_high
+        F = data.ratio if data.ratio is not None else model.ratio
+    if data.n_samples % F:
+        raise DataError(f"{where}: N = {data.n_samples} samples is not a multiple of ratio F={F}")
+    return replace(data, fs_high=float(fs), ratio=int(F), period=period)
+
+
+def read_settled(
+    reading: Reading,
+    specs: Specs | None,
+    fs_high: float | None,
+    ratio: int | None,
+    model: Model | None,
+    notify: Notify,
+) -> tuple[LoopData, float, int]:
+    """r, u, y and (fs_high, F) that the flags, the file, the model and the stamps agree on.
+
+    A bag is read at the flags' rates, else the model's
+    (:func:`~mr_ident.live.recordings.settle_rates` then checks they all agree).
+    """
+    from ..live.recordings import settle_rates
+
+    data = read_loop(
+        reading,
+        specs,
+        fs_high or (model.fs_high if model else None),
+        ratio or (model.ratio if model else None),
+        notify,
+    )
+    fs, F = settle_rates(data, fs_high=fs_high, ratio=ratio, model=model)
+    return data, fs, F
