@@ -59,7 +59,8 @@ def test_two_nodes_in_two_namespaces_each_on_its_own_loop(graph, tmp_path):
     lis.create_subscription(
         DiagnosticArray, "/diagnostics", lambda m: status.update(s.name for s in m.status), 10
     )
-    sim = ("mr-ident-sim", "--rate", "10", "--wait", "20", "--duration", "30")
+    # the sims outlive every check below (300 s of data at 10x: 30 s), the context ends them
+    sim = ("mr-ident-sim", "--rate", "10", "--wait", "20", "--duration", "300")
     b_args = ("--ros-args", "-r", "__ns:=/b", "-r", "output:=y_meas")
     with (
         child(graph, *sim[:1], str(PAPER), *sim[1:], "--ros-args", "-r", "__ns:=/a", **QUIET),
