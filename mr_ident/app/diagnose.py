@@ -1,8 +1,9 @@
 """``diagnose``: where and why a model disagrees with a recording.
 
 :func:`diagnose_recording` is the one path of ``mr-ident diagnose`` and of every
-``mr-ident batch --task diagnose`` job. The diagnosis is imported here, inside the call:
-``identify`` never loads it (start-up, ``test_cli``).
+``mr-ident batch --task diagnose`` job; :func:`window_report` that of the node's
+``~/diagnose`` service (a window it holds in memory). The diagnosis is imported inside
+the calls: ``identify`` never loads it (start-up, ``test_cli``).
 """
 
 from __future__ import annotations
@@ -76,3 +77,17 @@ def _read(
         return read_for_diagnosis(reading, model, req.period, specs, notify)
     data, fs, F = read_settled(reading, specs, req.fs_high, req.ratio, model, notify)
     return replace(data, fs_high=fs, ratio=F, period=req.period)
+
+
+def window_report(model: Model, window: LoopData, alpha: float = 0.01) -> dict[str, object]:
+    """The diagnosis of a live window as the JSON report of ``mr-ident diagnose --json``.
+
+    ``window.first`` is the window's absolute sample index (the model's sampling phase is
+    taken relative to it); the window's absolute span is added (``window_first``,
+    ``window_samples``).
+    """
+    from ..diagnosis.monitoring.monitor import diagnose_window
+    from ..diagnosis.report import report_dict
+
+    report = report_dict(diagnose_window(model, window), extended_model=None, alpha=alpha)
+    return report | {"window_first": int(window.first), "window_samples": int(window.n_samples)}

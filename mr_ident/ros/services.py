@@ -36,7 +36,7 @@ from rclpy.parameter import Parameter
 from rclpy.task import Future
 from std_srvs.srv import Trigger
 
-from ..diagnosis.monitoring.monitor import window_report
+from ..app.diagnose import window_report
 from ..errors import MrIdentError
 from ..io.datafile import write_result
 

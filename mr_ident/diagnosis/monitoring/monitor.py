@@ -256,17 +256,6 @@ def diagnose_window(model: Model, window: LoopData) -> Diagnosis:
     return diagnose(local, data)
 
 
-def window_report(model: Model, window: LoopData, alpha: float = 0.01) -> dict[str, object]:
-    """:func:`diagnose_window` as the JSON report of ``mr-ident diagnose --json``.
-
-    With the window's absolute span added (``window_first``, ``window_samples``).
-    """
-    from ..report import report_dict
-
-    report = report_dict(diagnose_window(model, window), extended_model=None, alpha=alpha)
-    return report | {"window_first": int(window.first), "window_samples": int(window.n_samples)}
-
-
 def load_watch(cfg: IdentConfig) -> PlantWatch | None:
     """The watch ``cfg``'s monitor_* parameters ask for, or None (monitoring off).
 
