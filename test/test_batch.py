@@ -130,15 +130,27 @@ def test_diagnose_rows_carry_the_cause(tmp_path, capsys):
         (["nothing-here-*.npz"], "no recording found for 'nothing-here-"),
         (["{d}", "--task", "diagnose", "--at", "1"], "diagnose needs a model"),
         (["{d}"], "pass --at"),
-        (["{d}", "--at", "1", "--model", "{paper}", "--scheduler", "tcp://127.0.0.1:1"], ""),
+        (
+            ["{d}", "--at", "1", "--model", "{paper}", "--scheduler", "tcp://127.0.0.1:1"],
+            "no Dask scheduler answered",
+        ),
     ],
     ids=["no-match", "diagnose-without-model", "no-frequencies", "no-scheduler"],
 )
 def test_a_batch_that_cannot_start_is_an_error_with_exit_2(
-    recordings, tmp_path, capsys, argv, match
+    recordings, tmp_path, capsys, monkeypatch, argv, match
 ):
     if "--scheduler" in argv:
-        pytest.importorskip("distributed", reason="Dask distributed not installed")
+        distributed = pytest.importorskip("distributed", reason="Dask distributed not installed")
+
+        class QuickClient(distributed.Client):
+            """The real client, giving up on a scheduler after 1 s instead of the CLI's 10 s
+            (the same OSError: "Timed out trying to connect ... after 1 s")."""
+
+            def __init__(self, address, timeout=None, **kw):
+                super().__init__(address, timeout=1, **kw)
+
+        monkeypatch.setattr(distributed, "Client", QuickClient)
     recs, _ = recordings
     argv = [a.format(d=recs, paper=PAPER) for a in argv]
     code = main(["batch", *argv, "--out-dir", str(tmp_path / "o")])

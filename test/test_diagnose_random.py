@@ -5,13 +5,17 @@ hundreds of cases from) must give stable plants under stabilising controllers at
 stated fraction of the critical gain, the stated SNR, hidden causes that keep the loop
 stable and change it, and the same scenario for the same seed.
 
-The diagnosis cases: 30 s records at 240 Hz. Expectations are the benchmark's
+The diagnosis cases: 15 s records at 240 Hz. Expectations are the benchmark's
 (verdict.judge): the hidden cause named first (a pair: both applied and nothing
 else; nothing hidden: nothing applied), every parameter within verdict.TOLERANCES
 (gain 2 %, delay 0.1 sample, frequency 2 %, damping 25 %, modal gain 15 %, residue
 scale 10 %, notch depth 0.05, integers exact, disturbance frequency 0.5 % and
 amplitude 15 %) and a validation fit of y within 1 point of the true model's. Causes
 the diagnosis does not know yet (not in its CAUSES) are skipped with the reason.
+At 15 s (the draws differ from 30 s: the reference's length enters the stream) every case
+passes with the largest error 0.39 of its tolerance (the pair's low-pass frequency; the
+others <= 0.09; at 30 s <= 0.04), at most 1.9 of its std (30 s: 1.9) and a fit gap of at
+most 0.005 (of 1); the ten diagnoses take 26 s instead of 44 s alone on the 2-core machine.
 """
 
 from __future__ import annotations
@@ -37,8 +41,8 @@ from mr_ident.numerics.systems.lti import TransferMatrix
 from mr_ident.numerics.systems.model import Model
 from mr_ident.numerics.systems.simulate import loop_poles, simulate
 
-FS = (240.0,)  # the shortest records (7200 samples): diagnose time grows with N
-DURATION = 30.0
+FS = (240.0,)  # the shortest records (3600 samples): diagnose time grows with N
+DURATION = 15.0
 #: Which Model field each cause may change (everything else stays the nominal's).
 FIELDS = {
     "gain_error": "plant_gain",

@@ -57,13 +57,17 @@ def test_frequencies_cover_zero_exclusive_to_nyquist(paper_model):
 
 @pytest.mark.parametrize("method", ["freq-lifted", "time-lifted", "lpm", "structured"])
 def test_the_reported_std_matches_the_spread_over_noisy_runs(paper_model, method):
-    """50 runs, same excitation, fresh noise: empirical std / reported std within 20 %."""
+    """20 runs, same excitation, fresh noise: empirical std / reported std within 20 %.
+
+    Both statistics pool 1000 bins, so 20 runs pin them as well as 50 did (measured,
+    over the four methods: 0.98-1.01 at 20 runs, 1.00-1.01 at 50; 0.99-1.00 at 10), in
+    4.7 s instead of 11.2 s alone on the 2-core machine."""
     model = replace(paper_model, noise_std=2e-5)
     rng = np.random.default_rng(11)
     N = 3 * 2000
     r = rng.standard_normal((N, 1))
     est, var = [], []
-    for _ in range(50):
+    for _ in range(20):
         sim = simulate(model, reference=r, rng=rng)
         res = identify(sim.r, sim.u, sim.y, fs_high=240.0, ratio=3, method=method)
         est.append(res.plant.response[:, 0, 0])
