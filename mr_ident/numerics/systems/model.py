@@ -38,6 +38,10 @@ their physical meaning is in the README's cause table)::
 state space (:mod:`~mr_ident.numerics.systems.realize`): the polynomials of the file are turned
 into sections once, and nothing past second order goes back to polynomial form.
 
+The plant may instead be in modal form (``direct``, ``modes``, ``real_poles``: written by
+``mr-ident fit``; :class:`~mr_ident.numerics.systems.modal.ModalPlant`, read by
+:mod:`mr_ident.io.modal_yaml`).
+
 MIMO: ``num`` is a nested list ``[n_out][n_in][coefficients]``; ``den`` is either
 one coefficient list shared by all entries or nested the same way.
 """
