@@ -15,8 +15,8 @@ Domains (sample time ``h``, delay ``τ = m h + ε``, ``0 <= ε < h``, bins ``z =
 - ``"discrete"``: ``z^{-m} / (z - λ)`` (whole samples of delay only).
 
 Stable by construction: a continuous pole is ``ω_ref (-e^{a} + j e^{b})`` (``-ω_ref e^{a}``
-when real); a discrete pair is the image ``e^{hp}`` of such a p, a discrete real pole
-``tanh(a)``.
+when real); a discrete pair ``e^{-h ω_ref e^{a}} e^{jπ/(1 + e^{-b})}`` (radius below 1,
+angle in (0, π): it stays a pair), a discrete real pole ``tanh(a)``.
 """
 
 from __future__ import annotations
@@ -42,8 +42,11 @@ def to_params(poles: ComplexArray, domain: str, h: float, w_ref: float) -> Float
             continue
         s = complex(p) if domain == "continuous" else complex(np.log(p)) / h
         out.append(float(np.log(max(-s.real, 1e-9 * w_ref) / w_ref)))
-        if p.imag > 0:
+        if p.imag > 0 and domain == "continuous":
             out.append(float(np.log(max(s.imag, 1e-9 * w_ref) / w_ref)))
+        elif p.imag > 0:  # the angle in (0, π) through a logistic
+            t = float(np.clip(np.angle(p) / np.pi, 1e-9, 1 - 1e-9))
+            out.append(float(np.log(t / (1 - t))))
     return np.array(out)
 
 
@@ -55,12 +58,16 @@ def from_params(
     j = 0
     for k, is_pair in enumerate(pair):
         if domain == "discrete" and not is_pair:
-            out[k] = np.tanh(u[j])
+            out[k] = np.tanh(u[j]) * (1.0 - 1e-12)  # strictly inside when tanh saturates
             j += 1
             continue
-        s = complex(-w_ref * np.exp(u[j]), w_ref * np.exp(u[j + 1]) if is_pair else 0.0)
+        if domain == "discrete":  # radius e^{-h w_ref e^a}, angle π / (1 + e^{-b})
+            angle = np.pi / (1.0 + np.exp(-u[j + 1]))
+            out[k] = np.exp(-h * w_ref * np.exp(u[j]) - 1e-12 + 1j * angle)
+            j += 2
+            continue
+        out[k] = complex(-w_ref * np.exp(u[j]), w_ref * np.exp(u[j + 1]) if is_pair else 0.0)
         j += 2 if is_pair else 1
-        out[k] = s if domain == "continuous" else np.exp(s * h)
     return out
 
 

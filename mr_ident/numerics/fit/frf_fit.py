@@ -208,14 +208,25 @@ def _fit_order(
     best: tuple[float, ComplexArray, float] | None = None
     for tau in delays:
         H = prob.P * np.exp(2j * np.pi * f * tau)[:, None]
-        lam = relocate(prob.z, H, prob.W, initial_poles(order, f[0], f[-1], "discrete", h))
-        poles = lam if prob.domain == "discrete" else _continuous_poles(lam, fs)
-        poles = poles[np.argsort(np.abs(poles))]
-        v = cost(prob, poles, tau)
+        probe = 5 if len(delays) > 1 else 20  # a few relocations tell the delays apart
+        lam = relocate(
+            prob.z, H, prob.W, initial_poles(order, f[0], f[-1], "discrete", h), iterations=probe
+        )
+        v = cost(prob, _domain_poles(lam, prob.domain, fs), tau)
         if best is None or v < best[0]:
-            best = (v, poles, tau)
+            best = (v, lam, tau)
     assert best is not None
-    return refine(prob, best[1], best[2], free_delay=free_delay, max_delay=max_delay)
+    lam, tau = best[1], best[2]
+    if len(delays) > 1:
+        H = prob.P * np.exp(2j * np.pi * f * tau)[:, None]
+        lam = relocate(prob.z, H, prob.W, lam, iterations=15)
+    poles = _domain_poles(lam, prob.domain, fs)
+    return refine(prob, poles, tau, free_delay=free_delay, max_delay=max_delay)
+
+
+def _domain_poles(lam: ComplexArray, domain: str, fs: float) -> ComplexArray:
+    poles = lam if domain == "discrete" else _continuous_poles(lam, fs)
+    return np.asarray(poles[np.argsort(np.abs(poles))], dtype=complex)
 
 
 def fit_frf(

@@ -65,6 +65,102 @@ def _stack(res: ComplexArray) -> FloatArray:
     return np.asarray(np.sqrt(2.0) * np.concatenate([r.real, r.imag]), dtype=float)
 
 
+class _Projected:
+    """The projected residual of parameters x and its Jacobian (Kaufman's form).
+
+    ``x`` = [pole parameters, delay / h (when free)]. Per entry a QR of the weighted
+    columns gives the residues and the projector ``P⊥ = I - Q Qᵀ``; the Jacobian column of
+    a parameter is ``-√2 P⊥ (∂A/∂x_j) c`` (the term through ∂c dropped: Kaufman 1975), the
+    derivative of a pole's own columns taken by central differences (cheap: one pole).
+    """
+
+    def __init__(self, prob: Problem, pair: list[bool], n_u: int, delay: float | None) -> None:
+        self.prob, self.pair, self.n_u, self.delay = prob, pair, n_u, delay
+        self._x: FloatArray | None = None
+        self._r = np.zeros(0)
+        self._state: tuple[list[FloatArray], FloatArray, ComplexArray, float] | None = None
+        widths = [2 if q else 1 for q in pair]  # parameters and columns per pole
+        self.offsets = np.concatenate([[0], np.cumsum(widths)]).astype(int)
+
+    def unpack(self, x: FloatArray) -> tuple[ComplexArray, float]:
+        """Poles and delay of x."""
+        prob = self.prob
+        u = np.clip(x[: self.n_u], -40.0, 40.0)
+        tau = self.delay if self.delay is not None else float(x[-1]) * prob.h
+        return from_params(u, self.pair, prob.domain, prob.h, prob.w_ref), tau
+
+    def _solve(self, x: FloatArray) -> None:
+        if self._x is not None and np.array_equal(x, self._x):
+            return
+        prob = self.prob
+        poles, tau = self.unpack(x)
+        Phi = columns(poles, prob.z, prob.domain, prob.h, tau, direct=prob.direct)
+        E = prob.P.shape[1]
+        Qs, coef = [], np.zeros((Phi.shape[1], E))
+        res = np.empty(prob.P.shape, dtype=complex)
+        for e in range(E):
+            w = prob.W[:, e]
+            A = w[:, None] * Phi
+            Ar = np.vstack([A.real, A.imag])
+            scale = np.linalg.norm(Ar, axis=0)
+            scale[scale == 0] = 1.0
+            Q, R = np.linalg.qr(Ar / scale)
+            y = w * prob.P[:, e]
+            yr = np.concatenate([y.real, y.imag])
+            c = np.linalg.lstsq(R, Q.T @ yr, rcond=None)[0] / scale
+            coef[:, e] = c
+            res[:, e] = y - A @ c
+            Qs.append(Q)
+        self._x, self._r = x.copy(), _stack(res)
+        self._state = (Qs, coef, Phi, tau)
+
+    def fun(self, x: FloatArray) -> FloatArray:
+        """The projected residual (unit-variance reals)."""
+        self._solve(x)
+        return self._r
+
+    def jac(self, x: FloatArray) -> FloatArray:
+        """Its Jacobian, (2 K E, x.size)."""
+        self._solve(x)
+        assert self._state is not None
+        Qs, coef, Phi, tau = self._state
+        prob = self.prob
+        K, E = prob.P.shape
+        u = np.clip(x[: self.n_u], -40.0, 40.0)
+        dA: list[tuple[int, ComplexArray, slice]] = []  # (parameter, d columns, which columns)
+        for k in range(len(self.pair)):
+            sl = slice(int(self.offsets[k]), int(self.offsets[k + 1]))
+            for j in range(sl.start, sl.stop):
+                step = 1e-6 * max(abs(u[j]), 1.0)
+                cols = []
+                for sgn in (1.0, -1.0):
+                    uu = u[sl].copy()
+                    uu[j - sl.start] += sgn * step
+                    p = from_params(uu, [self.pair[k]], prob.domain, prob.h, prob.w_ref)
+                    cols.append(columns(p, prob.z, prob.domain, prob.h, tau))
+                dA.append((j, (cols[0] - cols[1]) / (2 * step), sl))
+        if self.delay is None:
+            st = 1e-4
+            poles, _ = self.unpack(x)
+            hi = columns(poles, prob.z, prob.domain, prob.h, tau + st * prob.h, direct=prob.direct)
+            lo = columns(
+                poles, prob.z, prob.domain, prob.h, max(tau - st * prob.h, 0.0), direct=prob.direct
+            )
+            span = (tau + st * prob.h - max(tau - st * prob.h, 0.0)) / prob.h  # x is τ / h
+            dA.append((x.size - 1, (hi - lo) / span, slice(0, Phi.shape[1])))
+        J = np.zeros((2 * K * E, x.size))
+        for e in range(E):
+            D = np.zeros((2 * K, x.size))
+            w = prob.W[:, e]
+            for j, dcols, sl in dA:
+                d = w * (dcols @ coef[sl, e])
+                D[:, j] = np.concatenate([d.real, d.imag])
+            D -= Qs[e] @ (Qs[e].T @ D)
+            J[e : K * E : E] = -np.sqrt(2.0) * D[:K]
+            J[K * E + e :: E] = -np.sqrt(2.0) * D[K:]
+        return J
+
+
 def refine(
     prob: Problem,
     poles: ComplexArray,
@@ -72,7 +168,7 @@ def refine(
     *,
     free_delay: bool,
     max_delay: float,
-    max_nfev: int = 200,
+    max_nfev: int = 100,
 ) -> tuple[ComplexArray, float]:
     """Poles (and the delay when ``free_delay``) at the minimum of the projected cost."""
     import scipy.optimize  # noqa: PLC0415 (the fit alone needs it)
@@ -80,27 +176,18 @@ def refine(
     pair = [bool(p.imag > 0) for p in poles]
     u0 = to_params(poles, prob.domain, prob.h, prob.w_ref)
     x0 = np.concatenate([u0, [delay / prob.h]]) if free_delay else u0
+    if x0.size == 0:
+        return poles, delay
     lo = np.full(x0.size, -np.inf)
     hi = np.full(x0.size, np.inf)
     if free_delay:
         lo[-1], hi[-1] = 0.0, max(max_delay / prob.h, 1e-9)
         x0[-1] = np.clip(x0[-1], lo[-1], hi[-1])
-
-    def unpack(x: FloatArray) -> tuple[ComplexArray, float]:
-        u = np.clip(x[: u0.size], -40.0, 40.0)
-        tau = float(x[-1]) * prob.h if free_delay else delay
-        return from_params(u, pair, prob.domain, prob.h, prob.w_ref), tau
-
-    def fun(x: FloatArray) -> FloatArray:
-        p, tau = unpack(x)
-        return _stack(solve_linear(prob, p, tau)[1])
-
-    if x0.size == 0:
-        return poles, delay
+    f = _Projected(prob, pair, u0.size, None if free_delay else delay)
     sol = scipy.optimize.least_squares(
-        fun, x0, bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=max_nfev
+        f.fun, x0, jac=f.jac, bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=max_nfev
     )
-    return unpack(sol.x)
+    return f.unpack(sol.x)
 
 
 def covariance(
