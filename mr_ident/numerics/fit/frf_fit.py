@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -24,7 +24,6 @@ from ...errors import ConfigError, DataError
 from ..arrays import ComplexArray, FloatArray
 from ..results import FRF
 from ..systems.modal import ModalPlant
-from ..threads import one_blas_thread
 from .basis import DOMAINS, columns, from_params, initial_poles, n_states, residues_of
 from .refine import Problem, cost, covariance, refine, solve_linear
 from .start import relocate
@@ -274,7 +273,7 @@ def fit_frf(
     ConfigError
         An option out of range. DataError: too few usable bins.
     """
-    with one_blas_thread():  # small least-squares problems: BLAS threads only compete
+    with _one_blas_thread():  # small least-squares problems: BLAS threads only compete
         return _fit(
             frf,
             fs,
@@ -288,6 +287,24 @@ def fit_frf(
             noise_dof,
             noise_kernel,
         )
+
+
+_BLAS: list[Any] = []
+
+
+def _one_blas_thread() -> Any:
+    """Every loaded BLAS (SciPy's own included) on one thread.
+
+    :func:`~mr_ident.numerics.threads.one_blas_thread` knows the libraries loaded when it
+    was imported; SciPy's, loaded with ``scipy.optimize``, ran least-squares' SVDs on
+    competing threads (0.5 s for a 2000 x 20 SVD on the shared 2-core machine).
+    """
+    if not _BLAS:
+        import scipy.optimize  # noqa: F401, PLC0415 (loads SciPy's BLAS before the scan)
+        from threadpoolctl import ThreadpoolController  # noqa: PLC0415
+
+        _BLAS.append(ThreadpoolController())
+    return _BLAS[0].limit(limits=1, user_api="blas")
 
 
 def _fit(
