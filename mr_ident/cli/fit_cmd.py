@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -97,6 +98,18 @@ def cmd_fit(args: argparse.Namespace) -> int:
             f"order {r.order:2d}: cost {r.cost:12.6g}  expected {r.expected:.6g} ± "
             f"{2 * r.sd:.3g}  AIC {r.aic:.6g}  MDL {r.mdl:.6g}  "
             f"{'stable' if r.stable else 'UNSTABLE'}{mark}"
+        )
+    if not fit.in_band:
+        how = (
+            "no order tried brings"
+            if args.order == "auto"
+            else f"order {fit.order} does not bring"
+        )
+        print(
+            f"warning: {how} the cost into its expected band; the residual is more than "
+            "the std explains (dynamics the model lacks, nonlinear distortion, or a std too "
+            f"small){'; the order of least MDL is taken' if args.order == 'auto' else ''}",
+            file=sys.stderr,
         )
     for k, p in enumerate(fit.plant.poles):
         s = p if fit.domain == "continuous" else np.log(p) * fs

@@ -14,9 +14,9 @@ Domains (sample time ``h``, delay ``τ = m h + ε``, ``0 <= ε < h``, bins ``z =
   the file's continuous plant the same way, so the fitted model reproduces P_h.
 - ``"discrete"``: ``z^{-m} / (z - λ)`` (whole samples of delay only).
 
-Stable by construction: a continuous pole is ``ω_ref (-e^{a} + j e^{b})`` (``-ω_ref e^{a}``
-when real); a discrete pair ``e^{-h ω_ref e^{a}} e^{jπ/(1 + e^{-b})}`` (radius below 1,
-angle in (0, π): it stays a pair), a discrete real pole ``tanh(a)``.
+Stable by construction, with a margin (:func:`from_params`): a pair's damping lies in
+``(ζ_min, 1)``, a real pole is faster than ``ω_min``; a discrete pair's angle stays in
+``(0, π)``.
 """
 
 from __future__ import annotations
@@ -33,41 +33,71 @@ def n_states(poles: ComplexArray) -> int:
     return int(np.sum(np.where(poles.imag > 0, 2, 1)))
 
 
+#: Least damping of a fitted pair, and slowest real pole relative to ω_ref: a pole on the
+#: stability boundary is never fitted (a rigid body or integrator becomes a slow pole).
+ZETA_MIN = 1e-4
+RATE_MIN = 1e-5
+
+
+def _logit(t: float) -> float:
+    t = float(np.clip(t, 1e-12, 1 - 1e-12))
+    return float(np.log(t / (1 - t)))
+
+
+def _sigmoid(a: float) -> float:
+    return float(1.0 / (1.0 + np.exp(-a)))
+
+
 def to_params(poles: ComplexArray, domain: str, h: float, w_ref: float) -> FloatArray:
     """The unconstrained parameters of a stable pole set (inverse of :func:`from_params`)."""
     out: list[float] = []
+    w_min = RATE_MIN * w_ref
     for p in poles:
-        if domain == "discrete" and p.imag == 0:
-            out.append(float(np.arctanh(np.clip(p.real, -0.999999, 0.999999))))
-            continue
-        s = complex(p) if domain == "continuous" else complex(np.log(p)) / h
-        out.append(float(np.log(max(-s.real, 1e-9 * w_ref) / w_ref)))
-        if p.imag > 0 and domain == "continuous":
-            out.append(float(np.log(max(s.imag, 1e-9 * w_ref) / w_ref)))
-        elif p.imag > 0:  # the angle in (0, π) through a logistic
-            t = float(np.clip(np.angle(p) / np.pi, 1e-9, 1 - 1e-9))
-            out.append(float(np.log(t / (1 - t))))
+        if p.imag > 0:
+            s = complex(p) if domain == "continuous" else complex(np.log(p)) / h
+            zeta = -s.real / abs(s)
+            out.append(_logit((zeta - ZETA_MIN) / (1 - ZETA_MIN)))
+            if domain == "continuous":
+                out.append(float(np.log(abs(s) / w_ref)))
+            else:
+                out.append(_logit(float(np.angle(p)) / np.pi))
+        elif domain == "continuous":
+            out.append(float(np.log(max(-p.real - w_min, 1e-9 * w_ref) / w_ref)))
+        else:
+            r = float(p.real) / np.exp(-h * w_min)
+            out.append(float(np.arctanh(np.clip(r, -1 + 1e-12, 1 - 1e-12))))
     return np.array(out)
 
 
 def from_params(
     u: FloatArray, pair: list[bool], domain: str, h: float, w_ref: float
 ) -> ComplexArray:
-    """The pole set of parameters ``u``; ``pair[k]``: pole k is a complex pair."""
+    """The pole set of parameters ``u``; ``pair[k]``: pole k is a complex pair.
+
+    Pair: damping ``ζ = ζ_min + (1 - ζ_min) σ(a)``; continuous ``|p| = ω_ref e^{b}``,
+    discrete angle ``π σ(b)`` (so it stays a pair) and radius ``e^{-ζ θ / sqrt(1 - ζ²)}``.
+    Real: ``-(ω_min + ω_ref e^{a})``, discrete ``tanh(a) e^{-h ω_min}``.
+    """
     out = np.empty(len(pair), dtype=complex)
+    w_min = RATE_MIN * w_ref
     j = 0
     for k, is_pair in enumerate(pair):
-        if domain == "discrete" and not is_pair:
-            out[k] = np.tanh(u[j]) * (1.0 - 1e-12)  # strictly inside when tanh saturates
-            j += 1
-            continue
-        if domain == "discrete":  # radius e^{-h w_ref e^a}, angle π / (1 + e^{-b})
-            angle = np.pi / (1.0 + np.exp(-u[j + 1]))
-            out[k] = np.exp(-h * w_ref * np.exp(u[j]) - 1e-12 + 1j * angle)
+        if is_pair:
+            zeta = ZETA_MIN + (1 - ZETA_MIN) * _sigmoid(u[j])
+            c = np.sqrt(max(1 - zeta * zeta, 1e-300))
+            if domain == "continuous":
+                w = w_ref * np.exp(u[j + 1])
+                out[k] = complex(-zeta * w, c * w)
+            else:
+                theta = np.pi * _sigmoid(u[j + 1])
+                out[k] = np.exp(-zeta * theta / c + 1j * theta)
             j += 2
-            continue
-        out[k] = complex(-w_ref * np.exp(u[j]), w_ref * np.exp(u[j + 1]) if is_pair else 0.0)
-        j += 2 if is_pair else 1
+        elif domain == "continuous":
+            out[k] = -(w_min + w_ref * np.exp(u[j]))
+            j += 1
+        else:
+            out[k] = np.tanh(u[j]) * np.exp(-h * w_min)
+            j += 1
     return out
 
 
@@ -155,7 +185,8 @@ def residues_of(
 def initial_poles(order: int, f_lo: float, f_hi: float, domain: str, h: float) -> ComplexArray:
     """Starting poles: lightly damped pairs log-spaced over the band (+ one real pole)."""
     n_pairs = order // 2
-    f = np.geomspace(max(f_lo, 1e-6), f_hi, n_pairs) if n_pairs else np.zeros(0)
+    lo = max(f_lo, 1e-6)
+    f = lo * (f_hi / lo) ** ((np.arange(n_pairs) + 0.5) / max(n_pairs, 1))  # log mid-points
     w = 2.0 * np.pi * f
     s = np.concatenate([(-0.01 * w + 1j * w), [-2.0 * np.pi * np.sqrt(f_lo * f_hi)]])
     if order % 2 == 0:
