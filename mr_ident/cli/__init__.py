@@ -1,4 +1,4 @@
-"""Command line: ``mr-ident simulate | identify | paper | diagnose | replay | record | demo``.
+"""Command line: ``mr-ident simulate | identify | fit | paper | diagnose | replay | demo``.
 
 ``record``, ``replay --publish``, ``excite --publish`` and ``demo`` need rclpy (imported
 only for them).
@@ -36,7 +36,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         handle_signals()  # before anything slow: a signal from now on stops cleanly
     args = build_parser().parse_args(argv)
     keep_freed_memory()
-    from . import diagnose_cmd, excite, live, offline
+    from . import diagnose_cmd, excite, fit_cmd, live, offline
 
     commands = {
         "simulate": offline.cmd_simulate,
@@ -49,6 +49,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "demo": live.cmd_demo,
         "diagnose": diagnose_cmd.cmd_diagnose,
         "excite": excite.cmd_excite,
+        "fit": fit_cmd.cmd_fit,
     }
     try:
         with warnings.catch_warnings():

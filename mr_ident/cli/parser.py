@@ -10,6 +10,7 @@ from ..live.spans import DEFAULT_SPAN, SPANS
 from ..numerics.catalog import LOCAL_MODELS, METHOD_NAMES
 from .argtypes import frequencies, int_at_least, period_or_auto, positive_float, window_n
 from .excite import add_excite_parser
+from .fit_cmd import add_fit_parser
 
 EXIT_USAGE = 2
 
@@ -366,6 +367,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
 
     add_excite_parser(sub)
+    add_fit_parser(sub)
 
     d = sub.add_parser(
         "demo", help="live demo: simulated loop + node over DDS, recording, replay, plots"

@@ -16,8 +16,10 @@ import yaml
 
 from ..errors import ModelError, yaml_problem
 from ..numerics.systems.lti import TransferMatrix
+from ..numerics.systems.modal import ModalPlant
 from ..numerics.systems.model import Model
 from ..numerics.systems.simulate import loop_poles
+from .modal_yaml import modal_from_dict, modal_to_dict
 
 _KEYS = {
     "fs_high",
@@ -153,7 +155,12 @@ def model_from_dict(d: Any, *, source: str = "model") -> Model:
             f'{source}: plant.domain must be "continuous" or "discrete", got {domain!r}'
         )
     try:  # _system's messages name the key; add the file
-        plant = _system(pd, "plant", None if domain == "continuous" else 1.0 / float(fs))
+        dt = None if domain == "continuous" else 1.0 / float(fs)
+        plant: TransferMatrix | ModalPlant
+        if isinstance(pd, dict) and ("direct" in pd or "modes" in pd or "real_poles" in pd):
+            plant = modal_from_dict(pd, "plant", dt)  # the modal form (mr-ident fit)
+        else:
+            plant = _system(pd, "plant", dt)
         controller = None
         if d.get("controller") is not None:
             cd = d["controller"]
@@ -232,7 +239,7 @@ def _extensions(
     d: dict[str, Any],
     source: str,
     fs: float,
-    plant: TransferMatrix,
+    plant: TransferMatrix | ModalPlant,
     ratio: int,
     has_controller: bool,
 ) -> dict[str, Any]:
@@ -386,7 +393,9 @@ def model_to_dict(model: Model) -> dict[str, Any]:
     d: dict[str, Any] = {
         "fs_high": float(model.fs_high),
         "ratio": int(model.ratio),
-        "plant": sysd(model.plant, "continuous" if model.plant.dt is None else "discrete"),
+        "plant": modal_to_dict(model.plant)
+        if isinstance(model.plant, ModalPlant)
+        else sysd(model.plant, "continuous" if model.plant.dt is None else "discrete"),
     }
     if model.controller is not None:
         d["controller"] = sysd(model.controller, None)

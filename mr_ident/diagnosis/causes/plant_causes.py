@@ -16,8 +16,7 @@ import numpy as np
 import scipy.optimize
 
 from ...numerics.arrays import FloatArray
-from ...numerics.systems.model import Model
-from ...numerics.systems.realize import realize
+from ...numerics.systems.model import Model, plant_poles
 from .cause import Cause, Choice, Context, Params, PlantData, clip, hz, percent
 
 
@@ -29,7 +28,7 @@ def plant_modes(model: Model) -> list[tuple[float, float]]:
     if model.plant.dt is not None:
         return []
     out = set()
-    for p in realize(model.plant).poles():
+    for p in plant_poles(model):
         if p.imag > 0:
             w = abs(p)
             z = -p.real / w

@@ -38,6 +38,10 @@ their physical meaning is in the README's cause table)::
 state space (:mod:`~mr_ident.numerics.systems.realize`): the polynomials of the file are turned
 into sections once, and nothing past second order goes back to polynomial form.
 
+The plant may instead be in modal form (``direct``, ``modes``, ``real_poles``: written by
+``mr-ident fit``; :class:`~mr_ident.numerics.systems.modal.ModalPlant`, read by
+:mod:`mr_ident.io.modal_yaml`).
+
 MIMO: ``num`` is a nested list ``[n_out][n_in][coefficients]``; ``den`` is either
 one coefficient list shared by all entries or nested the same way.
 """
@@ -54,6 +58,7 @@ from ...errors import ModelError
 from ..arrays import ComplexArray, FloatArray
 from ..results import FRF
 from .lti import StateSpace, TransferMatrix
+from .modal import ModalPlant
 from .realize import (
     balanced,
     block_diag,
@@ -81,8 +86,10 @@ class Model:
         High sample rate (Hz).
     ratio : int
         F.
-    plant : TransferMatrix
-        Continuous (``dt`` None) or discrete at ``1/fs_high``; n_y x n_u.
+    plant : TransferMatrix or ModalPlant
+        Continuous (``dt`` None) or discrete at ``1/fs_high``; n_y x n_u. A
+        :class:`~mr_ident.numerics.systems.modal.ModalPlant` (written by ``mr-ident fit``)
+        is realised mode by mode.
     controller : TransferMatrix or None
         Discrete at ``ratio/fs_high``; n_u x n_y. None: open loop.
     noise_std, reference_std : float
@@ -112,7 +119,7 @@ class Model:
 
     fs_high: float
     ratio: int
-    plant: TransferMatrix
+    plant: TransferMatrix | ModalPlant
     controller: TransferMatrix | None = None
     noise_std: float = 0.0
     reference_std: float = 1.0
@@ -248,18 +255,51 @@ def _entry(
     return S
 
 
+def _modal_changed(
+    P: ModalPlant, mode_changes: tuple[tuple[float, float, float, float], ...]
+) -> ModalPlant:
+    """A modal plant with its mode nearest each ``from_hz`` moved (as :func:`_entry`)."""
+    for f0, f, zeta, scale in mode_changes:
+        x = P.poles if P.dt is None else np.log(P.poles.astype(complex)) / P.dt
+        hz = np.where(P.poles.imag > 0, np.abs(x) / (2.0 * np.pi), np.inf)
+        if not np.isfinite(hz).any():
+            continue
+        j = int(np.argmin(np.abs(hz - f0)))
+        if abs(hz[j] / f0 - 1.0) > 0.05:
+            continue
+        p = _mode_pole(f, zeta)
+        P = P.with_mode(j, p if P.dt is None else complex(np.exp(p * P.dt)), scale)
+    return P
+
+
+def plant_poles(model: Model) -> ComplexArray:
+    """The poles of the file's plant (no extension), every conjugate included."""
+    if isinstance(model.plant, ModalPlant):
+        return model.plant.all_poles()
+    return realize(model.plant).poles()
+
+
 def plant_ss(model: Model) -> StateSpace:
     """:meth:`Model.plant_ss` (see there)."""
     P = model.plant
     no, ni = P.shape
+    if isinstance(P, ModalPlant):
+        S = _modal_changed(P, model.mode_changes).state_space()
+        return _extended(model, S)
     parts, where = [], []
     for o in range(no):
         for i in range(ni):
             if np.any(P.num[o][i]):
                 parts.append(_entry(P, o, i, model.mode_changes))
                 where.append((o, i))
-    S = block_diag(parts, no, ni, where)
-    S = StateSpace(S.A, S.B, model.plant_gain * S.C, model.plant_gain * S.D, P.dt)
+    return _extended(model, block_diag(parts, no, ni, where))
+
+
+def _extended(model: Model, S: StateSpace) -> StateSpace:
+    """The file's plant ``S`` with gain, additive modes and series dynamics."""
+    dt = model.plant.dt
+    no, ni = model.plant.shape
+    S = StateSpace(S.A, S.B, model.plant_gain * S.C, model.plant_gain * S.D, dt)
     for f, zeta, gain, o, i in model.additive_modes:
         w = 2.0 * np.pi * f
         c0 = np.zeros((no, ni))
@@ -270,4 +310,4 @@ def plant_ss(model: Model) -> StateSpace:
             S = series(diagonal(lowpass(f, zeta), ni, channel=channel), S)
         else:
             S = series(S, diagonal(lowpass(f, zeta), no, channel=channel))
-    return balanced(StateSpace(S.A, S.B, S.C, S.D, P.dt))
+    return balanced(StateSpace(S.A, S.B, S.C, S.D, dt))

@@ -1,0 +1,7 @@
+"""A parametric model from an identified FRF: weighted, stable, MIMO with common poles.
+
+``basis`` (poles, their stable parametrisation, the partial-fraction columns of each
+domain), ``start`` (vector fitting's pole relocation), ``refine`` (variable projection,
+Levenberg–Marquardt, the parameters' covariance), ``frf_fit`` (the public
+:func:`~mr_ident.numerics.fit.frf_fit.fit_frf`, the expected cost band and the order).
+"""

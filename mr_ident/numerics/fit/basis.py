@@ -1,0 +1,194 @@
+"""Poles, their stable parametrisation, and the partial-fraction columns of each domain.
+
+A pole set is one array: real poles and one pole of each complex pair (``Im p > 0``).
+Each real pole gives one column, each pair two (``b_p + b_p̄`` and ``j(b_p - b_p̄)``, whose
+coefficients are ``Re R`` and ``Im R`` of the pair's residue), so the model is linear in
+real coefficients.
+
+Domains (sample time ``h``, delay ``τ = m h + ε``, ``0 <= ε < h``, bins ``z = e^{jωh}``):
+
+- ``"continuous"``: ``G(s) e^{-sτ}`` behind a zero-order hold, exactly: the held input's
+  response of ``1/(s - p)`` is ``z^{-m} (Γ0 + Γ1 z^{-1}) / (z - e^{ph})`` with
+  ``Γ0 = (e^{p(h-ε)} - 1)/p`` and ``Γ1 = e^{p(h-ε)} (e^{pε} - 1)/p`` (the modified
+  z-transform). The identified P_h is this hold-equivalent, and the simulator discretises
+  the file's continuous plant the same way, so the fitted model reproduces P_h.
+- ``"discrete"``: ``z^{-m} / (z - λ)`` (whole samples of delay only).
+
+Stable by construction, with a margin (:func:`from_params`): a pair's damping lies in
+``(ζ_min, 1)``, a real pole is faster than ``ω_min``; a discrete pair's angle stays in
+``(0, π)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..arrays import ComplexArray, FloatArray
+
+DOMAINS = ("continuous", "discrete")
+
+
+def n_states(poles: ComplexArray) -> int:
+    """Order: a real pole counts one, a pair two."""
+    return int(np.sum(np.where(poles.imag > 0, 2, 1)))
+
+
+#: Least damping of a fitted pair, and slowest real pole relative to ω_ref: a pole on the
+#: stability boundary is never fitted (a rigid body or integrator becomes a slow pole).
+ZETA_MIN = 1e-4
+RATE_MIN = 1e-5
+
+
+def _logit(t: float) -> float:
+    t = float(np.clip(t, 1e-12, 1 - 1e-12))
+    return float(np.log(t / (1 - t)))
+
+
+def _sigmoid(a: float) -> float:
+    return float(1.0 / (1.0 + np.exp(-a)))
+
+
+def to_params(poles: ComplexArray, domain: str, h: float, w_ref: float) -> FloatArray:
+    """The unconstrained parameters of a stable pole set (inverse of :func:`from_params`)."""
+    out: list[float] = []
+    w_min = RATE_MIN * w_ref
+    for p in poles:
+        if p.imag > 0:
+            s = complex(p) if domain == "continuous" else complex(np.log(p)) / h
+            zeta = -s.real / abs(s)
+            out.append(_logit((zeta - ZETA_MIN) / (1 - ZETA_MIN)))
+            if domain == "continuous":
+                out.append(float(np.log(abs(s) / w_ref)))
+            else:
+                out.append(_logit(float(np.angle(p)) / np.pi))
+        elif domain == "continuous":
+            out.append(float(np.log(max(-p.real - w_min, 1e-9 * w_ref) / w_ref)))
+        else:
+            r = float(p.real) / np.exp(-h * w_min)
+            out.append(float(np.arctanh(np.clip(r, -1 + 1e-12, 1 - 1e-12))))
+    return np.array(out)
+
+
+def from_params(
+    u: FloatArray, pair: list[bool], domain: str, h: float, w_ref: float
+) -> ComplexArray:
+    """The pole set of parameters ``u``; ``pair[k]``: pole k is a complex pair.
+
+    Pair: damping ``ζ = ζ_min + (1 - ζ_min) σ(a)``; continuous ``|p| = ω_ref e^{b}``,
+    discrete angle ``π σ(b)`` (so it stays a pair) and radius ``e^{-ζ θ / sqrt(1 - ζ²)}``.
+    Real: ``-(ω_min + ω_ref e^{a})``, discrete ``tanh(a) e^{-h ω_min}``.
+    """
+    out = np.empty(len(pair), dtype=complex)
+    w_min = RATE_MIN * w_ref
+    j = 0
+    for k, is_pair in enumerate(pair):
+        if is_pair:
+            zeta = ZETA_MIN + (1 - ZETA_MIN) * _sigmoid(u[j])
+            c = np.sqrt(max(1 - zeta * zeta, 1e-300))
+            if domain == "continuous":
+                w = w_ref * np.exp(u[j + 1])
+                out[k] = complex(-zeta * w, c * w)
+            else:
+                theta = np.pi * _sigmoid(u[j + 1])
+                out[k] = np.exp(-zeta * theta / c + 1j * theta)
+            j += 2
+        elif domain == "continuous":
+            out[k] = -(w_min + w_ref * np.exp(u[j]))
+            j += 1
+        else:
+            out[k] = np.tanh(u[j]) * np.exp(-h * w_min)
+            j += 1
+    return out
+
+
+def stabilise(poles: ComplexArray, domain: str) -> ComplexArray:
+    """Unstable poles mirrored into the stable region (``-conj p`` or ``1/conj λ``)."""
+    p = np.asarray(poles, dtype=complex).copy()
+    if domain == "continuous":
+        bad = p.real >= 0
+        p[bad] = -np.abs(p[bad].real) - 1e-6 * np.abs(p[bad]) + 1j * p[bad].imag
+    else:
+        r = np.abs(p)
+        bad = r >= 1
+        p[bad] = 0.999 * p[bad] / r[bad] ** 2
+    return p
+
+
+def split_pairs(values: ComplexArray, tol: float = 1e-9) -> ComplexArray:
+    """Eigenvalues as a pole set: real ones real, one of each pair (Im > 0)."""
+    v = np.asarray(values, dtype=complex)
+    scale = np.maximum(np.abs(v), 1e-12)
+    real = np.abs(v.imag) <= tol * scale
+    out = np.concatenate([v[real].real.astype(complex), v[~real & (v.imag > 0)]])
+    return np.asarray(out[np.argsort(np.abs(out))], dtype=complex)
+
+
+def columns(
+    poles: ComplexArray,
+    z: ComplexArray,
+    domain: str,
+    h: float,
+    delay: float = 0.0,
+    *,
+    direct: bool = False,
+) -> ComplexArray:
+    """The partial-fraction columns at bins ``z = e^{jωh}``, shape (K, order [+1]).
+
+    Column order: per pole its one (real) or two (pair) columns, then the direct term.
+    """
+    m = int(np.floor(delay / h + 1e-9))
+    eps = max(delay - m * h, 0.0)
+    if eps < 1e-12 * h:
+        eps = 0.0
+    shift = z ** (-m)
+    cols: list[ComplexArray] = []
+
+    def one(p: complex) -> ComplexArray:
+        if domain == "discrete":
+            return shift / (z - p)
+        e = np.exp(p * (h - eps))
+        g0 = (e - 1.0) / p
+        g1 = e * (np.exp(p * eps) - 1.0) / p
+        return np.asarray(shift * (g0 + g1 / z) / (z - np.exp(p * h)), dtype=complex)
+
+    for p in poles:
+        b = one(complex(p))
+        if p.imag > 0:
+            bc = one(complex(p).conjugate())
+            cols += [b + bc, 1j * (b - bc)]
+        else:
+            cols.append(b)
+    if direct:
+        cols.append(shift / z if (domain == "continuous" and eps > 0) else shift)
+    if not cols:
+        return np.zeros((z.size, 0), dtype=complex)
+    return np.column_stack(cols)
+
+
+def residues_of(
+    coef: FloatArray, poles: ComplexArray, n_out: int, n_in: int, *, direct: bool
+) -> tuple[ComplexArray, FloatArray]:
+    """Residues (n_p, n_out, n_in) and direct term from coefficients (n_cols, n_out, n_in)."""
+    R = np.empty((poles.size, n_out, n_in), dtype=complex)
+    j = 0
+    for k, p in enumerate(poles):
+        if p.imag > 0:
+            R[k] = coef[j] + 1j * coef[j + 1]
+            j += 2
+        else:
+            R[k] = coef[j]
+            j += 1
+    D = coef[j] if direct else np.zeros((n_out, n_in))
+    return R, np.asarray(D, dtype=float)
+
+
+def initial_poles(order: int, f_lo: float, f_hi: float, domain: str, h: float) -> ComplexArray:
+    """Starting poles: lightly damped pairs log-spaced over the band (+ one real pole)."""
+    n_pairs = order // 2
+    lo = max(f_lo, 1e-6)
+    f = lo * (f_hi / lo) ** ((np.arange(n_pairs) + 0.5) / max(n_pairs, 1))  # log mid-points
+    w = 2.0 * np.pi * f
+    s = np.concatenate([(-0.01 * w + 1j * w), [-2.0 * np.pi * np.sqrt(f_lo * f_hi)]])
+    if order % 2 == 0:
+        s = s[:-1]
+    return s if domain == "continuous" else np.exp(s * h)

@@ -1,0 +1,487 @@
+"""A stable MIMO model of an identified FRF: :func:`fit_frf` and :class:`FitResult`.
+
+The cost is ``V = Σ |P̂ - G(θ)|² / σ²`` over the bins and entries (the ML cost for the
+LPM's circular Gaussian errors); poles common to every entry; started by vector fitting
+(:mod:`.start`), refined by variable projection (:mod:`.refine`). The expected cost at the
+true order, N complex terms and p real parameters, errors independent with known σ:
+``2V ~ χ²(2N - p)``, so ``E{V} = N - p/2``, ``sd{V} = sqrt(N - p/2)``. With the LPM's σ̂
+estimated from q residual dof, ``E{1/σ̂²} = q/(q-1) / σ²`` scales both; the LPM's
+neighbouring bins share their windows, which multiplies the variance by the correlation
+length ``L = Σ_l ρ(l)²`` (:func:`lpm_kernel`, :func:`correlation_length`), and widens the
+parameters' covariance the same way (a sandwich). The order chosen is the smallest whose
+V lies within ``E{V} + 2 sd{V}``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from ...errors import ConfigError, DataError
+from ..arrays import ComplexArray, FloatArray
+from ..results import FRF
+from ..systems.modal import ModalPlant
+from .basis import DOMAINS, columns, from_params, initial_poles, n_states, residues_of
+from .refine import Problem, cost, covariance, refine, solve_linear
+from .start import relocate
+
+
+@dataclass(frozen=True)
+class OrderReport:
+    """One order tried: its cost, the expected band, AIC, MDL and the delay found."""
+
+    order: int
+    cost: float
+    expected: float
+    sd: float
+    aic: float
+    mdl: float
+    delay: float
+    stable: bool
+
+    @property
+    def in_band(self) -> bool:
+        """Whether the cost lies within ``expected ± 2 sd``."""
+        return abs(self.cost - self.expected) <= 2.0 * self.sd
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """A fitted model of P_h with its uncertainty.
+
+    Attributes
+    ----------
+    plant : ModalPlant
+        Continuous (``domain`` "continuous": behind a ZOH at ``1/fs``) or discrete.
+    delay : float
+        Input delay in s (whole samples when discrete).
+    domain : str
+    fs : float
+    frequency : ndarray, shape (K,)
+        The bins fitted.
+    residual : ndarray, shape (K, n_out, n_in), complex
+        ``(P̂ - G) / σ`` on those bins.
+    cost, expected, expected_sd : float
+        V, E{V}, sd{V} at the fitted order.
+    n_data, n_params : int
+        Complex residual terms N and real parameters p.
+    pole_std : ndarray, shape (n_p, 2)
+        Std of Re and Im of each pole (in s or z).
+    frequency_std, damping_std : ndarray, shape (n_p,)
+        Std of each pole's natural frequency (Hz) and damping (of s = ln(z) fs if discrete).
+    residue_std : ndarray, shape (n_p, n_out, n_in, 2)
+        Std of Re and Im of each residue.
+    c1_std, c0_std : ndarray, shape (n_p, n_out, n_in)
+        Std of the modal numerator ``c1 x + c0`` of each pair (NaN for a real pole).
+    delay_std : float
+        0 when the delay was given.
+    orders : tuple of OrderReport
+        Every order tried (one when the order was given).
+    """
+
+    plant: ModalPlant
+    delay: float
+    domain: str
+    fs: float
+    frequency: FloatArray
+    residual: ComplexArray
+    cost: float
+    expected: float
+    expected_sd: float
+    n_data: int
+    n_params: int
+    pole_std: FloatArray
+    frequency_std: FloatArray
+    damping_std: FloatArray
+    residue_std: FloatArray
+    c1_std: FloatArray
+    c0_std: FloatArray
+    delay_std: float
+    orders: tuple[OrderReport, ...]
+
+    @property
+    def order(self) -> int:
+        """States per input."""
+        return self.plant.order
+
+    @property
+    def in_band(self) -> bool:
+        """Whether the cost lies within ``expected ± 2 expected_sd``."""
+        return abs(self.cost - self.expected) <= 2.0 * self.expected_sd
+
+    @property
+    def dof(self) -> int:
+        """Real residual degrees of freedom ``2N - p``."""
+        return 2 * self.n_data - self.n_params
+
+    def response(self, frequency: FloatArray) -> ComplexArray:
+        """The model's P_h (hold and delay included) at ``frequency`` Hz, (K, n_out, n_in)."""
+        return hold_response(self.plant, self.delay, self.domain, self.fs, frequency)
+
+
+def hold_response(
+    plant: ModalPlant, delay: float, domain: str, fs: float, frequency: FloatArray
+) -> ComplexArray:
+    """P_h of a modal plant with input delay (ZOH at 1/fs when continuous)."""
+    h = 1.0 / fs
+    z = np.exp(2j * np.pi * np.asarray(frequency, dtype=float) * h)
+    Phi = columns(plant.poles, z, domain, h, delay, direct=True)
+    no, ni = plant.shape
+    coef = []
+    for p, R in zip(plant.poles, plant.residues, strict=True):
+        coef += [R.real, R.imag] if p.imag > 0 else [R.real]
+    coef.append(plant.direct)
+    C = np.array(coef).reshape(len(coef), no * ni)
+    return np.asarray((Phi @ C).reshape(z.size, no, ni), dtype=complex)
+
+
+def lpm_kernel(n: int, degree: int = 2) -> FloatArray:
+    """Correlation ``ρ(l)``, l = 0..2n, of LPM estimates l bins apart (window 2n+1, degree R).
+
+    The centre value of a local polynomial is a weighted sum of the window's bins (the
+    Savitzky–Golay weights a); neighbouring estimates share bins: ``ρ(l) = Σ a_r a_{r+l} /
+    Σ a_r²``. ``[1]`` for n = 0 (independent bins).
+    """
+    if n <= 0:
+        return np.ones(1)
+    r = np.arange(-n, n + 1, dtype=float)
+    a = np.linalg.pinv(np.vander(r / n, degree + 1, increasing=True))[0]
+    rho = np.correlate(a, a, mode="full") / np.dot(a, a)
+    return np.asarray(rho[2 * n :], dtype=float)
+
+
+def correlation_length(kernel: FloatArray | None) -> float:
+    """``Σ_l ρ(l)²`` over both signs of l: the variance factor of a sum of |errors|²."""
+    if kernel is None:
+        return 1.0
+    k = np.asarray(kernel, dtype=float)
+    return float(k[0] ** 2 + 2.0 * np.sum(k[1:] ** 2))
+
+
+def expected_band(
+    n_data: int, n_params: int, noise_dof: float | None, correlation: float
+) -> tuple[float, float]:
+    """``(E{V}, sd{V})`` (module docstring)."""
+    k = 1.0 if noise_dof is None or noise_dof <= 1 else noise_dof / (noise_dof - 1.0)
+    nu = max(n_data - n_params / 2.0, 1.0)
+    return k * nu, k * math.sqrt(nu * max(correlation, 1.0))
+
+
+def _continuous_poles(lam: ComplexArray, fs: float) -> ComplexArray:
+    """Discrete poles as continuous ones (a negative real λ stays a real pole)."""
+    lam = np.where(np.abs(lam) < 1e-9, 1e-9, lam)
+    out = np.log(lam.astype(complex)) * fs
+    real = lam.imag == 0
+    out[real] = np.log(np.abs(lam[real])) * fs
+    return np.asarray(out, dtype=complex)
+
+
+def _select(
+    frf: FRF, band: tuple[float, float] | None
+) -> tuple[FloatArray, ComplexArray, FloatArray]:
+    f, P, S = frf.frequency, frf.response, frf.std
+    ok = (f > 0) & np.all(np.isfinite(P) & np.isfinite(S) & (S > 0), axis=(1, 2))
+    if band is not None:
+        lo, hi = band
+        if not (0 <= lo < hi):
+            raise ConfigError(f"band must be LO,HI with 0 <= LO < HI (Hz), got {band!r}")
+        ok &= (f >= lo) & (f <= hi)
+    if ok.sum() < 4:
+        raise DataError(
+            f"the FRF has {int(ok.sum())} bins with a positive finite std"
+            f"{' in the band ' + repr(band) if band else ''}; a fit needs at least 4"
+        )
+    no, ni = P.shape[1:]
+    return f[ok], P[ok].reshape(-1, no * ni), S[ok].reshape(-1, no * ni)
+
+
+def _fit_order(
+    prob: Problem,
+    f: FloatArray,
+    order: int,
+    fs: float,
+    delays: list[float],
+    free_delay: bool,
+    max_delay: float,
+) -> tuple[ComplexArray, float]:
+    """Poles and delay of one order: the better of two starts, each refined.
+
+    Vector fitting weighted by 1/σ (the cost's own weights) and by 1/|P̂| (relative: where
+    σ peaks at a resonance, the 1/σ start can miss the resonance, measured on the motor
+    bench); per start the delay candidates told apart by five relocations, the best one
+    relocated further.
+    """
+    h = 1.0 / fs
+    rel = 1.0 / np.maximum(np.abs(prob.P), 1e-300 + np.abs(prob.P).max() * 1e-12)
+    out: tuple[float, ComplexArray, float] | None = None
+    for W in (prob.W, rel):
+        best: tuple[float, ComplexArray, float] | None = None
+        for tau in delays:
+            H = prob.P * np.exp(2j * np.pi * f * tau)[:, None]
+            probe = 5 if len(delays) > 1 else 20  # a few relocations tell the delays apart
+            start = initial_poles(order, f[0], f[-1], "discrete", h)
+            lam = relocate(prob.z, H, W, start, iterations=probe)
+            v = cost(prob, _domain_poles(lam, prob.domain, fs), tau)
+            if best is None or v < best[0]:
+                best = (v, lam, tau)
+        assert best is not None
+        lam, tau = best[1], best[2]
+        if len(delays) > 1:
+            H = prob.P * np.exp(2j * np.pi * f * tau)[:, None]
+            lam = relocate(prob.z, H, W, lam, iterations=15)
+        poles, tau = refine(
+            prob, _domain_poles(lam, prob.domain, fs), tau, free_delay=free_delay,
+            max_delay=max_delay,
+        )  # fmt: skip
+        v = cost(prob, poles, tau)
+        if out is None or v < out[0]:
+            out = (v, poles, tau)
+    assert out is not None
+    return out[1], out[2]
+
+
+def _domain_poles(lam: ComplexArray, domain: str, fs: float) -> ComplexArray:
+    poles = lam if domain == "discrete" else _continuous_poles(lam, fs)
+    return np.asarray(poles[np.argsort(np.abs(poles))], dtype=complex)
+
+
+def fit_frf(
+    frf: FRF,
+    *,
+    fs: float,
+    order: int | Literal["auto"] = "auto",
+    domain: str = "continuous",
+    delay: float | Literal["auto"] = 0.0,
+    band: tuple[float, float] | None = None,
+    direct: bool = False,
+    max_order: int = 20,
+    max_delay: float | None = None,
+    noise_dof: float | None = None,
+    noise_kernel: FloatArray | None = None,
+) -> FitResult:
+    """Fit ``G(θ)`` (stable, common poles) to ``frf`` weighted by its std.
+
+    Parameters
+    ----------
+    frf : FRF
+        P_h on (0, fs/2], response and std (n_freq, n_out, n_in); bins without a
+        positive finite std are left out.
+    fs : float
+        The FRF's sample rate (Hz): the hold (continuous) or z (discrete).
+    order : int or "auto"
+        States per input (a pair counts two); "auto": the smallest order in
+        1..``max_order`` whose cost is within its expected band.
+    domain : "continuous" or "discrete"
+    delay : float or "auto"
+        Input delay in s (whole samples when discrete); "auto": a grid of half samples
+        (whole when discrete) up to ``max_delay`` (default 4 samples), then refined.
+    band : (lo, hi) or None
+        Hz; the bins fitted.
+    direct : bool
+        Fit a direct term D (default: strictly proper).
+    noise_dof : float or None
+        The LPM's residual dof q (scales the expected cost by q/(q-1)).
+    noise_kernel : array or None
+        ρ(l) of the errors of bins l apart (:func:`lpm_kernel`): widens the cost band and
+        the parameters' covariance (a sandwich); None: independent bins.
+
+    Raises
+    ------
+    ConfigError
+        An option out of range. DataError: too few usable bins.
+    """
+    with _one_blas_thread():  # small least-squares problems: BLAS threads only compete
+        return _fit(
+            frf,
+            fs,
+            order,
+            domain,
+            delay,
+            band,
+            direct,
+            max_order,
+            max_delay,
+            noise_dof,
+            noise_kernel,
+        )
+
+
+_BLAS: list[Any] = []
+
+
+def _one_blas_thread() -> Any:
+    """Every loaded BLAS (SciPy's own included) on one thread.
+
+    :func:`~mr_ident.numerics.threads.one_blas_thread` knows the libraries loaded when it
+    was imported; SciPy's, loaded with ``scipy.optimize``, ran least-squares' SVDs on
+    competing threads (0.5 s for a 2000 x 20 SVD on the shared 2-core machine).
+    """
+    if not _BLAS:
+        import scipy.optimize  # noqa: F401, PLC0415 (loads SciPy's BLAS before the scan)
+        from threadpoolctl import ThreadpoolController  # noqa: PLC0415
+
+        _BLAS.append(ThreadpoolController())
+    return _BLAS[0].limit(limits=1, user_api="blas")
+
+
+def _fit(
+    frf: FRF,
+    fs: float,
+    order: int | Literal["auto"],
+    domain: str,
+    delay: float | Literal["auto"],
+    band: tuple[float, float] | None,
+    direct: bool,
+    max_order: int,
+    max_delay: float | None,
+    noise_dof: float | None,
+    noise_kernel: FloatArray | None,
+) -> FitResult:
+    if domain not in DOMAINS:
+        raise ConfigError(f'domain must be "continuous" or "discrete", got {domain!r}')
+    if not (isinstance(fs, (int, float)) and math.isfinite(fs) and fs > 0):
+        raise ConfigError(f"fs must be a positive number (Hz), got {fs!r}")
+    h = 1.0 / fs
+    max_delay = 4.0 * h if max_delay is None else float(max_delay)
+    if order != "auto" and (isinstance(order, bool) or not isinstance(order, int) or order < 1):
+        raise ConfigError(f'order must be "auto" or an integer >= 1, got {order!r}')
+    if delay == "auto":
+        step = h if domain == "discrete" else h / 2
+        delays = [float(t) for t in np.arange(0.0, max_delay + 1e-12 * h, step)]
+        free_delay = domain == "continuous"
+    else:
+        if isinstance(delay, bool) or not isinstance(delay, (int, float)) or not delay >= 0:
+            raise ConfigError(f'delay must be "auto" or a number of seconds >= 0, got {delay!r}')
+        if domain == "discrete" and abs(delay * fs - round(delay * fs)) > 1e-9:
+            raise ConfigError(
+                f"a discrete fit's delay must be whole samples of 1/fs, got {delay!r} s"
+            )
+        delays, free_delay = [float(delay)], False
+    f, P, S = _select(frf, band)
+    no, ni = frf.response.shape[1:]
+    prob = Problem(np.exp(2j * np.pi * f * h), P, 1.0 / S, domain, h, 2.0 * np.pi * f[-1], direct)
+    N = P.size
+    orders = range(1, max_order + 1) if order == "auto" else [order]
+    reports: list[OrderReport] = []
+    fits: dict[int, tuple[ComplexArray, float]] = {}
+    chosen = None
+    for n in orders:
+        poles, tau = _fit_order(prob, f, n, fs, delays, free_delay, max_delay)
+        v = cost(prob, poles, tau)
+        p = n + n * no * ni + (no * ni if direct else 0) + (1 if free_delay else 0)
+        e, sd = expected_band(N, p, noise_dof, correlation_length(noise_kernel))
+        stable = bool(
+            np.all(poles.real < 0) if domain == "continuous" else np.all(np.abs(poles) < 1)
+        )
+        reports.append(
+            OrderReport(n, v, e, sd, 2 * v + 2 * p, 2 * v + p * math.log(2 * N), tau, stable)
+        )
+        fits[n] = (poles, tau)
+        if order == "auto" and chosen is None and v <= e + 2.0 * sd:
+            chosen = n
+        if chosen is not None and n >= chosen + 2:
+            break
+    if chosen is None:
+        chosen = min(reports, key=lambda r: r.mdl).order if order == "auto" else orders[0]
+    poles, tau = fits[chosen]
+    rep = next(r for r in reports if r.order == chosen)
+    return _result(
+        prob,
+        poles,
+        tau,
+        free_delay,
+        f,
+        frf.response.shape[1:],
+        fs,
+        rep,
+        tuple(reports),
+        noise_kernel,
+    )
+
+
+def _result(
+    prob: Problem,
+    poles: ComplexArray,
+    tau: float,
+    free_delay: bool,
+    f: FloatArray,
+    shape: tuple[int, ...],
+    fs: float,
+    rep: OrderReport,
+    reports: tuple[OrderReport, ...],
+    kernel: FloatArray | None,
+) -> FitResult:
+    no, ni = int(shape[0]), int(shape[1])
+    coef, res = solve_linear(prob, poles, tau)
+    R, D = residues_of(coef.reshape(-1, no, ni), poles, no, ni, direct=prob.direct)
+    plant = ModalPlant(poles, R, D, None if prob.domain == "continuous" else prob.h)
+    x, cov, _ = covariance(prob, poles, tau, free_delay=free_delay, kernel=kernel)
+    nu = x.size - coef.size
+    E = no * ni
+    pair = [bool(p.imag > 0) for p in poles]
+
+    def natural(xx: FloatArray) -> FloatArray:
+        nq = sum(2 if q else 1 for q in pair)
+        pp = from_params(xx[:nq], pair, prob.domain, prob.h, prob.w_ref)
+        cc = xx[nu:].reshape(E, -1).T.reshape(-1, no, ni)
+        RR, _ = residues_of(cc, pp, no, ni, direct=prob.direct)
+        s = pp if prob.domain == "continuous" else np.log(pp.astype(complex)) * fs
+        w = np.abs(s)
+        c1 = 2.0 * RR.real
+        c0 = -2.0 * (RR * np.conj(pp)[:, None, None]).real
+        return np.concatenate(
+            [
+                pp.real,
+                pp.imag,
+                w / (2 * np.pi),
+                -s.real / w,
+                RR.real.ravel(),
+                RR.imag.ravel(),
+                c1.ravel(),
+                c0.ravel(),
+            ]
+        )
+
+    q0 = natural(x)
+    G = np.empty((q0.size, x.size))
+    for j in range(x.size):
+        step = 1e-7 * max(
+            abs(x[j]), 1e-3 * np.max(np.abs(x[nu:]), initial=1.0) if j >= nu else 1.0
+        )
+        xp, xm = x.copy(), x.copy()
+        xp[j] += step
+        xm[j] -= step
+        G[:, j] = (natural(xp) - natural(xm)) / (2 * step)
+    std = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", G, cov, G), 0.0))
+    n_p = poles.size
+    parts = np.split(std, np.cumsum([n_p, n_p, n_p, n_p, n_p * E, n_p * E, n_p * E]))
+    real = ~np.array(pair, dtype=bool)
+    c1s, c0s = parts[6].reshape(n_p, no, ni), parts[7].reshape(n_p, no, ni)
+    c1s[real], c0s[real] = np.nan, np.nan
+    delay_std = float(np.sqrt(max(cov[nu - 1, nu - 1], 0.0))) if free_delay else 0.0
+    return FitResult(
+        plant=plant,
+        delay=float(tau),
+        domain=prob.domain,
+        fs=float(fs),
+        frequency=f,
+        residual=(res / 1.0).reshape(-1, no, ni),
+        cost=rep.cost,
+        expected=rep.expected,
+        expected_sd=rep.sd,
+        n_data=int(prob.P.size),
+        n_params=n_states(poles) * (1 + E) + (E if prob.direct else 0) + (1 if free_delay else 0),
+        pole_std=np.column_stack([parts[0], parts[1]]),
+        frequency_std=parts[2],
+        damping_std=parts[3],
+        residue_std=np.stack(
+            [parts[4].reshape(n_p, no, ni), parts[5].reshape(n_p, no, ni)], axis=-1
+        ),
+        c1_std=c1s,
+        c0_std=c0s,
+        delay_std=delay_std,
+        orders=reports,
+    )
