@@ -16,7 +16,7 @@ Printed per case, over the runs:
 "interpolated" fills the holes by linear interpolation and identifies as if complete.
 Noise-free with 1 % holes: the median relative error of every LPM method (600 s).
 
-    .venv/bin/python benchmarks/bench_missing.py [--runs 50] [--duration 300]
+    .venv/bin/python benchmarks/bench_missing.py [--runs 50] [--duration 600]
 """
 
 from __future__ import annotations
@@ -137,7 +137,7 @@ def noise_free() -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=50)
-    ap.add_argument("--duration", type=float, default=300.0)
+    ap.add_argument("--duration", type=float, default=600.0)
     args = ap.parse_args()
     print(f"load average at start: {os.getloadavg()[0]:.2f} ({os.cpu_count()} CPUs)")
     t0 = time.time()
