@@ -187,3 +187,37 @@ def test_the_rational_local_model_fits_the_filled_record(paper_model):
     truth = paper_model.plant_frf(sim.n_samples)[1:]
     assert median_rel(full.plant.response, truth) < 1e-8
     assert median_rel(res.plant.response, truth) < 1e-8
+
+
+@pytest.mark.parametrize("suffix", ["npz", "csv"])
+def test_a_data_file_with_holes_is_identified_whole(tmp_path, capsys, paper_model, suffix):
+    from mr_ident.cli import main
+    from mr_ident.io.datafile import read_data, read_identification, write_data
+
+    sim = simulate(paper_model, duration=30.0, rng=np.random.default_rng(12))
+    mask = drop(sim.n_samples, 0.01, np.random.default_rng(13))
+    mask[1:3] = False
+    u, y = with_holes(sim, mask)
+    y[1] = np.nan  # y[1] alone: rows 0, 2 given, yet a high-rate y (rows 2, 3 are adjacent)
+    path = tmp_path / f"d.{suffix}"
+    write_data(path, sim.r, u, y, fs_high=240.0, ratio=3)
+    data = read_data(path)
+    assert data.y.shape == y.shape and np.isnan(data.y).sum() == np.isnan(y).sum()
+    res = tmp_path / "res.npz"
+    code = main(["identify", str(path), "--ratio", "3", "--out", str(res)])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    n_y, n_u = int(np.isnan(y).sum()), int(mask.sum())
+    assert f"note: {n_y} samples of y and {n_u} of u missing (NaN) of 7200" in out
+    assert read_identification(res).n_missing.tolist() == [n_y, n_u]
+    if suffix == "csv":  # an empty cell of u is a missing sample too; inf is refused
+        lines = path.read_text().splitlines()
+        cells = lines[5].split(",")
+        lines[5] = ",".join(cells[:2] + [""] + cells[3:])
+        path.write_text("\n".join(lines) + "\n")
+        assert np.isnan(read_data(path).u[4, 0])
+        cells[2] = "inf"
+        lines[5] = ",".join(cells)
+        path.write_text("\n".join(lines) + "\n")
+        with pytest.raises(DataError, match="line 6, column 'u': inf"):
+            read_data(path)

@@ -102,6 +102,13 @@ def cmd_identify(args: argparse.Namespace) -> int:
         y_phase=y_phase,
         **loop,
     )  # the result holds P_h and the PFG
+    if ident.n_missing is not None and ident.n_missing.any():
+        ny = data.y.shape[1]
+        print(
+            f"note: {int(ident.n_missing[:ny].sum())} samples of y and "
+            f"{int(ident.n_missing[ny:].sum())} of u missing (NaN) of {N}: estimated as "
+            "unknowns of the fit"
+        )
     write_result(args.out, ident)
     print(f"wrote {args.out} ({ident.plant.frequency.size} bins, method {args.method})")
     for line in describe_pfgs(ident):
