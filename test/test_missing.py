@@ -133,7 +133,7 @@ def test_the_fast_solver_equals_the_stacked_least_squares(paper_model):
     u, y = sim.u.copy(), sim.y.copy()
     y[mask_y], u[mask_u] = np.nan, np.nan
     holes, theta = brute_force_theta(sim.r, u, y, 3, 6, 1)  # q = 13 - 2 * 4 = 5 > 3
-    fill = estimate_missing(sim.r, u, y, 3, 6, 1, rtol=1e-14, stride=1, reweight=False, ridge=0)
+    fill = estimate_missing(sim.r, u, y, 3, 6, 1, rtol=1e-14, stride=1, reweight=False, ftol=0)
     yu = np.concatenate([fill.y, fill.u], axis=1)
     got = np.array([yu[m, c] for m, c in holes])
     np.testing.assert_allclose(got, theta, rtol=1e-10, atol=1e-10 * np.abs(theta).max())
