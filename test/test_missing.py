@@ -221,3 +221,14 @@ def test_a_data_file_with_holes_is_identified_whole(tmp_path, capsys, paper_mode
         path.write_text("\n".join(lines) + "\n")
         with pytest.raises(DataError, match="line 6, column 'u': inf"):
             read_data(path)
+
+
+def test_diagnose_asks_for_a_complete_record(paper_model):
+    from mr_ident.diagnosis.diagnose import check_record
+    from mr_ident.numerics.signals import LoopData
+
+    sim = simulate(paper_model, duration=30.0, rng=np.random.default_rng(14))
+    u, y = with_holes(sim, drop(sim.n_samples, 0.01, np.random.default_rng(15)))
+    rec = LoopData(sim.r, u, y, 240.0, 3)
+    with pytest.raises(DataError, match=r"u and y miss \d+ samples \(NaN\); diagnose"):
+        check_record(paper_model, rec, what="d.npz")

@@ -179,7 +179,11 @@ def identify(
         Reference, plant input and plant output at the high rate; N a multiple of F. ``y``
         may instead hold N/F samples: the output at the low rate only, ``y_h[m F + q]``
         (``freq-lifted`` only; P_h still on every bin: see the README, "Outputs at the low
-        rate").
+        rate"). A NaN of u or of a high-rate y is a missing sample: estimated as an unknown
+        of the lifted fit r -> [y; u]
+        (:func:`~mr_ident.numerics.lifted.missing.estimate_missing`), the method then fits
+        the whole record with its std corrected (``Identification.n_missing`` counts them;
+        the method page, "Missing samples"). r is the excitation: never missing.
     fs_high : float
         High sample rate in Hz.
     ratio : int
@@ -229,7 +233,8 @@ def identify(
     Raises
     ------
     DimensionError, DataError, ConfigError
-        Bad shapes, NaN/inf, N not a multiple of F, too little data, bad options.
+        Bad shapes, NaN in r, inf anywhere, more missing samples than the windows carry,
+        N not a multiple of F, too little data, bad options.
 
     Examples
     --------
