@@ -114,9 +114,14 @@ def test_bad_data_is_named():
     with pytest.raises(DimensionError, match="y has 297 samples: neither N = 300"):
         identify(x, x, x[:297], fs_high=240.0, ratio=3)
     bad = x.copy()
-    bad[5] = np.nan
-    with pytest.raises(DataError, match="y contains NaN or inf .first at sample 5"):
+    bad[5] = np.inf  # a NaN of u or y is a missing sample (test_missing.py)
+    with pytest.raises(
+        DataError, match=r"y contains inf \(a missing sample is NaN\); first at sample 5"
+    ):
         identify(x, x, bad, fs_high=240.0, ratio=3)
+    bad[5] = np.nan
+    with pytest.raises(DataError, match="r contains NaN or inf: r is the excitation"):
+        identify(bad, x, x, fs_high=240.0, ratio=3)
     with pytest.raises(DataError, match="too few samples for the LPM window"):
         identify(x[:30], x[:30], x[:30], fs_high=240.0, ratio=3)
 

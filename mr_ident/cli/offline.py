@@ -73,6 +73,13 @@ def cmd_identify(args: argparse.Namespace) -> int:
         report_slow(args.out, outcome, args.plot)
         return 0
     ident = outcome.identification
+    missing = ident.n_missing
+    if missing is not None and missing.any():
+        ny = ident.plant.response.shape[1]
+        print(
+            f"note: {int(missing[:ny].sum())} samples of y and {int(missing[ny:].sum())} of u "
+            f"missing (NaN) of {outcome.n_samples}: estimated as unknowns of the fit"
+        )
     write_result(args.out, ident)
     print(f"wrote {args.out} ({ident.plant.frequency.size} bins, method {outcome.method})")
     for line in describe_pfgs(ident):

@@ -86,6 +86,13 @@ def check_record(model: Model, rec: LoopData, *, n: int = 8, what: str = "data")
             f"{what}: y has {rec.y.shape[0]} samples, the low rate; diagnose simulates y at the "
             f"high rate and needs all N = {rec.n_samples} (identify takes a low-rate y)"
         )
+    missing = int(np.isnan(rec.u).sum() + np.isnan(rec.y).sum())
+    if missing:
+        raise DataError(
+            f"{what}: u and y miss {missing} samples (NaN); diagnose simulates the loop sample "
+            "by sample and needs a complete record for now (identify estimates missing "
+            "samples: the method page, 'Missing samples')"
+        )
     if rec.u.shape[1] != model.n_u or rec.y.shape[1] != model.n_y:
         raise DataError(
             f"{what} has {rec.u.shape[1]} input and {rec.y.shape[1]} output channels; "

@@ -6,18 +6,22 @@ CSV
     fs_high is taken from ``t`` (uniform spacing required); F from the caller. An output
     measured at the low rate leaves its y cells empty (or ``nan``) but on the rows q,
     q + F, q + 2F, ... to the end: y is then those N/F rows, taken at sample q of each
-    period (the caller checks that the step is F).
+    period (the caller checks that the step is F). Otherwise an empty (or ``nan``) cell of
+    u or y is a **missing sample** (a dropped message): ``identify`` estimates it as an
+    unknown of the fit (the method page, "Missing samples"); r and t are complete.
 NPZ (data)
     Arrays ``r``, ``u``, ``y`` of shape (N,) or (N, channels), and scalars
     ``fs_high`` (Hz) and ``ratio`` (F). ``y`` may hold N/F rows instead: the output measured
     at the low rate only, y_h at samples q, q + F, ... (exactly N/F; another length is an
-    error naming the lengths), q the optional scalar ``y_phase`` (default 0).
+    error naming the lengths), q the optional scalar ``y_phase`` (default 0). A NaN of u
+    or of a high-rate y is a missing sample, as in the CSV.
 NPZ (result, written by ``mr-ident identify``)
     ``frequency`` (K,), ``P`` (K, n_y, n_u) complex, ``P_std`` (K, n_y, n_u);
     ``pfg_data``, ``pfg_data_std`` (K,), the PFG identified from data alone (the lifted
     r -> y map), where the data give it; with a controller ``pfg``, ``pfg_std`` (K,), the
     PFG of P_h under that controller; plus ``method``, ``fs_high``, ``ratio`` and ``n`` (K,),
-    the LPM window half-width used per bin (0: none; files written before it read the same).
+    the LPM window half-width used per bin (0: none; files written before it read the same);
+    ``n_missing`` (n_y + n_u,), the missing samples of every channel of y then u, when any.
 
 Writers go through a temporary file and a rename: a failed write leaves nothing.
 """
@@ -44,13 +48,19 @@ _SIGNALS = ("r", "u", "y")
 
 
 def _check_finite(
-    name: str, a: FloatArray, where: str, csv: bool = False, rows: IntArray | None = None
+    name: str,
+    a: FloatArray,
+    where: str,
+    csv: bool = False,
+    rows: IntArray | None = None,
+    holes: bool = False,
 ) -> None:
     """Raise at the first NaN/inf: a CSV's line number (header = line 1), else the array index.
 
-    ``rows``: the CSV row of each row of ``a`` (a low-rate y's), default 0, 1, ...
+    ``rows``: the CSV row of each row of ``a`` (a low-rate y's), default 0, 1, ...;
+    ``holes``: NaN is a missing sample (u, a high-rate y), only inf is refused.
     """
-    bad = ~np.isfinite(a)
+    bad = np.isinf(a) if holes else ~np.isfinite(a)
     if bad.any():
         row, col = np.argwhere(bad)[0]
         value = a[row, col]
@@ -126,7 +136,9 @@ def read_csv(path: str | Path) -> LoopData:
     if header == [""]:
         raise DataError(f"{p}: empty file (expected a header line t,r,u,y)")
     cols = _columns(header, str(p))
-    empty_is_nan: dict[int | str, Callable[[str], Any]] = dict.fromkeys(cols["y"], _cell_or_nan)
+    empty_is_nan: dict[int | str, Callable[[str], Any]] = dict.fromkeys(
+        cols["u"] + cols["y"], _cell_or_nan
+    )
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)  # "no data": reported below
@@ -153,9 +165,10 @@ def read_csv(path: str | Path) -> LoopData:
             arrays[s], y_phase = _low_rate_y(arrays[s], str(p))
             step = table.shape[0] // arrays[s].shape[0]
             rows = y_phase + step * np.arange(arrays[s].shape[0])
+        holes = s == "u" or (s == "y" and arrays[s].shape[0] == table.shape[0])
         for c, j in enumerate(cols[s]):
             name = header[j].strip()
-            _check_finite(name, arrays[s][:, c : c + 1], str(p), csv=True, rows=rows)
+            _check_finite(name, arrays[s][:, c : c + 1], str(p), True, rows, holes)
     fs = None
     if t.size >= 2:
         dt = np.diff(t)
@@ -167,7 +180,7 @@ def read_csv(path: str | Path) -> LoopData:
 
 
 def _cell_or_nan(cell: str) -> float:
-    """A CSV cell as a number, an empty one as NaN (a y not measured at that sample)."""
+    """A CSV cell as a number, an empty one as NaN (not measured, or missing, there)."""
     return float(cell) if cell.strip() else np.nan
 
 
@@ -175,7 +188,7 @@ def _low_rate_y(y: FloatArray, where: str) -> tuple[FloatArray, int]:
     """A CSV's y with empty (NaN) cells: its rows q, q + s, ... to the end, and q.
 
     DataError naming the first line that breaks that pattern (header = line 1); y as it is
-    when its first two given rows are adjacent (a high-rate y with holes).
+    when most of its given rows are adjacent (a high-rate y with missing samples).
     """
     N = y.shape[0]
     given = ~np.isnan(y)
@@ -185,7 +198,7 @@ def _low_rate_y(y: FloatArray, where: str) -> tuple[FloatArray, int]:
         "y at the low rate must be given on one row of every low-rate period (rows q, q + F, "
         "q + 2F, ... to the end) and left empty on the others"
     )
-    if rows.size >= 2 and rows[1] == rows[0] + 1:  # a high-rate y with holes: named after
+    if rows.size >= 2 and (np.diff(rows) == 1).mean() > 0.5:  # high rate, missing samples
         return y, 0
     if mixed.size:
         raise DataError(f"{where}: line {mixed[0] + 2}: y is empty in some columns only; {rule}")
@@ -247,7 +260,7 @@ def read_npz(path: str | Path) -> LoopData:
         a = a.astype(float)
         if a.ndim == 1:
             a = a[:, None]
-        _check_finite(s, a, str(p))
+        _check_finite(s, a, str(p), holes=s != "r")  # a low-rate y: checked below
         arrays[s] = a
     fs = ratio = None
     if "fs_high" in z:
@@ -263,6 +276,8 @@ def read_npz(path: str | Path) -> LoopData:
     lens = {s: arrays[s].shape[0] for s in _SIGNALS}
     if lens["u"] != lens["r"]:
         raise DataError(f"{p}: r, u, y have unequal lengths {lens}")
+    if lens["y"] != lens["r"]:
+        _check_finite("y", arrays["y"], str(p))  # a low-rate y has no missing samples
     y_phase = 0
     if "y_phase" in z:
         v = np.asarray(z["y_phase"])
@@ -356,6 +371,8 @@ def write_result(path: str | Path, ident: Identification) -> None:
         "fs_high": ident.fs_high,
         "ratio": ident.ratio,
     }
+    if ident.n_missing is not None and ident.n_missing.any():
+        arrays["n_missing"] = ident.n_missing
     for key, g in (("pfg", ident.pfg), ("pfg_data", ident.pfg_data)):
         if g is not None:
             arrays[key] = g.gain
@@ -397,4 +414,5 @@ def read_identification(path: str | Path) -> Identification:
         ratio=int(z["ratio"]),
         n_used=z["n"] if "n" in z else None,
         pfg_data=pfgs["pfg_data"],
+        n_missing=z["n_missing"] if "n_missing" in z else None,
     )

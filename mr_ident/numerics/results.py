@@ -200,6 +200,9 @@ class Identification:
         ``n="auto"``; constant otherwise; 0 for a method without a window).
     local : str
         The local model of the windows: ``"polynomial"`` (LPM) or ``"rational"`` (LRM).
+    n_missing : ndarray of int, shape (n_y + n_u,)
+        Missing samples (NaN in the input) of every channel of y, then of u; each was
+        estimated as an unknown of the fit (zeros when the record was complete).
     """
 
     plant: FRF
@@ -211,8 +214,16 @@ class Identification:
     n_used: IntArray | None = None
     local: str = "polynomial"
     pfg_data: PFG | None = None
+    n_missing: IntArray | None = None
 
     def __post_init__(self) -> None:
+        n_ch = sum(self.plant.response.shape[1:])
+        counts = readonly(
+            np.zeros(n_ch, np.int64) if self.n_missing is None else self.n_missing, np.int64
+        )
+        if counts.shape != (n_ch,):
+            raise DimensionError(f"n_missing must be (n_y + n_u = {n_ch},), got {counts.shape}")
+        object.__setattr__(self, "n_missing", counts)
         for name, g in (("pfg", self.pfg), ("pfg_data", self.pfg_data)):
             if g is not None and g.frequency.shape != self.plant.frequency.shape:
                 raise DimensionError(

@@ -33,8 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...errors import DimensionError
-from .. import batched
-from ..arrays import BoolArray, ComplexArray, FloatArray, IntArray
+from ..arrays import ComplexArray, FloatArray, IntArray
 from ..budget import block_bins
 from ..lifting import (
     dft,
@@ -65,6 +64,7 @@ from ..local.segments import (
 )
 from ..results import LiftedFRF
 from ..threads import thread_map
+from .indirect import indirect_diag, indirect_on, time_den_variance
 from .pfg_data import empty_pfg, store_lifted_pfg
 from .spectra import Spectra
 from .structured import structured_block
@@ -83,6 +83,8 @@ class FitRequest:
     ``lpm``); None: every bin with ``n``. Bins
     outside the runs are NaN in the result; the lifted maps are kept only when the runs
     cover every bin. ``spectra``: shared between the fits of one record (else computed).
+    ``missing``: the share of filled (estimated) samples of every channel of [y; u]
+    (:mod:`mr_ident.numerics.lifted.missing`), None when the record was complete.
     """
 
     r: FloatArray
@@ -99,6 +101,19 @@ class FitRequest:
     y_phase: int = 0
     runs: tuple[Run, ...] | None = None
     spectra: Spectra | None = field(default=None, compare=False)
+    missing: FloatArray | None = None
+
+    def share(self, lift: int, part: str = "yu") -> FloatArray | None:
+        """:attr:`missing` of the outputs of a fit: y, u or [y; u], each ``lift`` times.
+
+        Lifted outputs are alias-major (``l c + ch``) or sample-major: both tile.
+        """
+        if self.missing is None:
+            return None
+        ny = self.y.shape[1]
+        parts = {"y": [self.missing[:ny]], "u": [self.missing[ny:]]}
+        parts["yu"] = parts["y"] + parts["u"]
+        return np.concatenate([np.tile(p, lift) for p in parts[part]])
 
     @property
     def n_samples(self) -> int:
@@ -176,73 +191,6 @@ class Method:
         return 2 * (2 * n + 1) * self.lift(ratio) if self.uses_lpm else ratio
 
 
-def _indirect_full(
-    G: ComplexArray, Cv: ComplexArray, Ainv: ComplexArray, n_y: int
-) -> tuple[ComplexArray, ComplexArray, ComplexArray]:
-    """Indirect step ``P = J S^-1`` on a joint LPM fit of [J; S] (bins-first arrays).
-
-    Returns P (K, n_y, n_u) and the Kronecker covariance factors of P:
-    ``row = E C_v E^H`` with ``E = [I, -P]`` and ``col = S^-T A^-1 conj(S^-1)``.
-    """
-    J, S = G[:, :n_y], G[:, n_y:]
-    Sinv = np.linalg.inv(S)
-    P: ComplexArray = J @ Sinv
-    E = np.concatenate([np.broadcast_to(np.eye(n_y), P.shape[:1] + (n_y, n_y)), -P], axis=2)
-    row: ComplexArray = E @ Cv @ np.conj(np.swapaxes(E, 1, 2))
-    col: ComplexArray = np.swapaxes(Sinv, 1, 2) @ Ainv @ np.conj(Sinv)
-    return P, row, col
-
-
-def _indirect_diag(
-    fit: LocalFit, n_y: int
-) -> tuple[ComplexArray, FloatArray, FloatArray, FloatArray | None]:
-    """:func:`_indirect_full` bins-last, keeping only the diagonals of the covariance factors.
-
-    ``fit`` of [J; S]: G (n_y + n_u, n_u, K), C_v (n_y + n_u, n_y + n_u, K), A^-1 (n_u, n_u,
-    K). Returns P (n_y, n_u, K), ``diag(E C_v E^H)`` (n_y, K) and
-    ``diag(S^-T A^-1 conj(S^-1))`` (n_u, K): enough for the standard deviation of every
-    entry of P; and, for a rational fit, the denominator's share of it (n_y, n_u, K)
-    (:func:`_den_variance`), else None.
-    """
-    G, Cv, Ainv = fit.G, fit.noise_cov, fit.inv_gram
-    J, S = G[:n_y], G[n_y:]
-    Sinv = batched.inv(S)
-    P = batched.matmul(J, Sinv)
-    # diag(E Cv E^H)_a = Cv_yy[a,a] - 2 Re(Cv_yu[a,:] P[a,:]^H) + P[a,:] Cv_uu P[a,:]^H
-    d = np.arange(n_y)
-    row = (
-        Cv[d, d].real
-        - 2.0 * batched.real_dot(Cv[:n_y, n_y:], P, axis=1)
-        + batched.real_dot(batched.matmul(P, Cv[n_y:, n_y:]), P, axis=1)
-    )
-    # diag(S^-T A^-1 conj(S^-1))_b = Re sum_j (S^-T A^-1)[b, j] conj(S^-1[j, b])
-    col = batched.real_dot(
-        batched.matmul(Sinv.transpose(1, 0, 2), Ainv), Sinv.transpose(1, 0, 2), axis=1
-    )
-    extra = None if fit.den is None else _den_variance(_den_gain(fit.den, P, Sinv, n_y), fit.den)
-    return P, np.maximum(row, 0.0), np.maximum(col, 0.0), extra
-
-
-def _den_gain(den: DenominatorTerm, P: ComplexArray, Sinv: ComplexArray, n_y: int) -> ComplexArray:
-    """How the denominator's error moves P = J S^-1, bins last: g (n_y, n_u, R_d, K).
-
-    ``dG[o, j] = -sum_t C0[o, j, t] dd_t``, so ``dP = E dG S^-1 = -g dd`` with
-    ``g[a, b, t] = sum_{o, j} E[a, o] C0[o, j, t] S^-1[j, b]``, ``E = [I, -P]``.
-    """
-    C0 = den.gain
-    EC = C0[:n_y] - np.einsum("ack,cjtk->ajtk", P, C0[n_y:])
-    g: ComplexArray = np.einsum("ajtk,jbk->abtk", EC, Sinv)
-    return g
-
-
-def _den_variance(g: ComplexArray, den: DenominatorTerm) -> FloatArray:
-    """``E|g dd|^2 = Re sum_{t,s} g_t S_d[t, s] conj(g_s)`` per entry: g (..., R_d, K)."""
-    v: FloatArray = np.maximum(
-        np.einsum("...tk,tsk,...sk->...k", g, den.cov, np.conj(g)).real, 0.0
-    )
-    return v
-
-
 def _store_half(
     P_half: ComplexArray,
     var_half: FloatArray,
@@ -300,9 +248,10 @@ def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
             np.concatenate([Yl, freq_lift_half(Uh, window, F, N)], axis=1),
             seg.n,
             req.degree,
+            missing=req.share(F),
         )  # bins-last
         fit = _fit_segment(seg, fit)
-        P, rdiag, cdiag, extra = _indirect_diag(fit, n_row)
+        P, rdiag, cdiag, extra = indirect_diag(fit, n_row)
         if slow:
             Pk = unlift_row(P.transpose(2, 0, 1), F, kb, N, req.y_phase)
             var = unlift_row_variance(rdiag.T, cdiag.T, F)
@@ -356,6 +305,7 @@ def _time_lifted(req: FitRequest) -> PlantFit:
             seg.n,
             req.degree,
             req.workers,
+            req.share(F),
         )
         fits.append(_fit_segment(seg, fit))
     warn_rank_deficient(sum(f.n_bad for f in fits), n_centres(plan), stacklevel=4)
@@ -364,7 +314,7 @@ def _time_lifted(req: FitRequest) -> PlantFit:
     else:
         fit = merge_fits([seg.bins for seg in segs], fits, Kc + 1)
     G, Cv, Ainv = (a.transpose(2, 0, 1) for a in (fit.G, fit.noise_cov, fit.inv_gram))
-    P, row, col = _indirect_on(G, Cv, Ainv, F * ny, fitted_mask(segs, Kc + 1))
+    P, row, col = indirect_on(G, Cv, Ainv, F * ny, fitted_mask(segs, Kc + 1))
     # The lifted system is real: its FRF on bins 0..M//2 gives all M bins, and unlifting
     # those gives every high-rate bin k + l M.
     full = [half_to_full(a, M) for a in (P, row, col)]
@@ -373,47 +323,12 @@ def _time_lifted(req: FitRequest) -> PlantFit:
     )
     var = unlift_variance(full[1], full[2], F, domain="time")
     if fit.den is not None:
-        var = var + _time_den_variance(fit.den, P, G[:, F * ny :], F * ny, F, M)
+        var = var + time_den_variance(fit.den, P, G[:, F * ny :], F * ny, F, M)
     var_half = var.transpose(1, 0, 2, 3).reshape(N, ny, nu)[: half + 1]
     if not req.keep_lifted or not covers(plan, Kc + 1):
         return PlantFit(P_half, var_half)
     q = min(f.dof for f in fits)
     return PlantFit(P_half, var_half, *_lifted_maps(G, Cv, Ainv, F * ny, "time", req, q))
-
-
-def _indirect_on(
-    G: ComplexArray, Cv: ComplexArray, Ainv: ComplexArray, n_y: int, fitted: BoolArray
-) -> tuple[ComplexArray, ComplexArray, ComplexArray]:
-    """:func:`_indirect_full` on the ``fitted`` bins; NaN on the others."""
-    if fitted.all():
-        return _indirect_full(G, Cv, Ainv, n_y)
-    parts = _indirect_full(G[fitted], Cv[fitted], Ainv[fitted], n_y)
-    out = []
-    for a in parts:
-        full = np.full((G.shape[0],) + a.shape[1:], np.nan + 0j)
-        full[fitted] = a
-        out.append(full)
-    return out[0], out[1], out[2]
-
-
-def _time_den_variance(
-    den: DenominatorTerm, P: ComplexArray, S: ComplexArray, n_y: int, ratio: int, M: int
-) -> FloatArray:
-    """The denominator's variance of the time-lifted P_h: (M, F, n_y, n_u) as unlift_variance.
-
-    P (K, F n_y, F n_u) and S on the lifted bins 0..M//2; each coefficient's gain g_t
-    extended to all M bins by conjugate symmetry (with S_d conjugated there, which leaves
-    the variance real and mirrored) and unlifted like P.
-    """
-    Sinv = np.asarray(np.linalg.inv(S), dtype=np.complex128)
-    g = _den_gain(den, P.transpose(1, 2, 0), Sinv.transpose(1, 2, 0), n_y)
-    g_full = half_to_full(np.moveaxis(g, -1, 0), M)  # (M, F n_y, F n_u, R_d)
-    cov = half_to_full(np.moveaxis(den.cov, -1, 0), M)  # (M, R_d, R_d)
-    h = np.stack(
-        [unlift_frf(g_full[..., t], ratio, domain="time") for t in range(g.shape[2])], axis=-1
-    )  # (M, F, n_y, n_u, R_d)
-    v: FloatArray = np.maximum(np.einsum("mlabt,mts,mlabs->mlab", h, cov, np.conj(h)).real, 0.0)
-    return v
 
 
 def _lifted_maps(
@@ -451,11 +366,11 @@ def _structured(req: FitRequest) -> PlantFit:
     def block(seg: Segments) -> int:
         """Both stages and the indirect step on one segment of low-rate bins (own bins only)."""
         Rl, Yl, Ul = (freq_lift_half(X, seg.window, F, N) for X in (Rh, Yh, Uh))
-        fit = structured_block(Rl, Yl, Ul, F, seg.n, req.degree, req.local)
+        fit = structured_block(Rl, Yl, Ul, F, seg.n, req.degree, req.local, req.missing)
         if not seg.whole:  # bins ordered l * W + j over the W centres; keep the segment's
             W = seg.window.size - 2 * seg.pad
             fit = fit.take((np.arange(F)[:, None] * W + seg.keep[None, :]).ravel())
-        P, rdiag, cdiag, extra = _indirect_diag(fit, ny)  # bins ordered l * B + j
+        P, rdiag, cdiag, extra = indirect_diag(fit, ny)  # bins ordered l * B + j
         B = seg.bins.size
         P = P.reshape(ny, nu, F, B).transpose(3, 2, 0, 1)
         var = (

@@ -85,6 +85,7 @@ def fit_data_pfg(
     degree: int,
     local: str = "polynomial",
     workers: int = 1,
+    missing: FloatArray | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """The PFG from the lifted local fit of r -> [y; u]: gain and variance on bins 0..N//2.
 
@@ -100,6 +101,8 @@ def fit_data_pfg(
         The local model (:func:`~mr_ident.numerics.local.fit.local_fit`), the method's.
     workers : int
         Threads over blocks of bins.
+    missing : ndarray, shape (n_y + n_u,), optional
+        The share of filled samples of every channel of [y; u] (std correction).
 
     Returns
     -------
@@ -113,13 +116,21 @@ def fit_data_pfg(
     gain_half, var_half = empty_pfg(N)
     ny = y.shape[1]
     step = block_bins(F, r.shape[1], max(ny, u.shape[1]))
+    share = None
+    if missing is not None:
+        share = np.concatenate([np.tile(missing[:ny], F), np.tile(missing[ny:], F)])
 
     def block(b0: int) -> int:
         kb = range(b0, min(b0 + step, M // 2 + 1))
         window = range(kb.start - n, kb.stop + n)
         Yl, Ul = (freq_lift_half(X, window, F, N) for X in (Yh, Uh))
         fit = local_fit(
-            local, freq_lift_half(Rh, window, F, N), np.concatenate([Yl, Ul], axis=1), n, degree
+            local,
+            freq_lift_half(Rh, window, F, N),
+            np.concatenate([Yl, Ul], axis=1),
+            n,
+            degree,
+            missing=share,
         )
         d, rows = fit.den, slice(0, F * ny)
         den = None if d is None else DenominatorTerm(d.gain[rows], d.cov)

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..arrays import ComplexArray
+from ..arrays import ComplexArray, FloatArray
 from ..local.fit import LocalFit, local_fit
 from ..local.lrm import DenominatorTerm
 
@@ -78,6 +78,7 @@ def structured_block(
     n: int,
     degree: int,
     local: str = "polynomial",
+    missing: FloatArray | None = None,
 ) -> LocalFit:
     """Both stages on one block of B consecutive low-rate bins.
 
@@ -90,6 +91,9 @@ def structured_block(
     ratio, n, degree : int
         F, the window half-width (both stages) and the polynomial degree R (the second
         stage; the first uses :func:`instrument_degree`).
+    missing : ndarray, shape (n_y + n_u,), optional
+        The share of filled samples of every channel of [y; u] (std correction,
+        :func:`~mr_ident.numerics.local.fit.local_fit`).
     local : {"polynomial", "rational"}
         The local model of both stages (:mod:`mr_ident.numerics.local.fit`); a rational first
         stage keeps the order R (its denominator follows the loop's modes).
@@ -122,7 +126,7 @@ def structured_block(
     Yc = Y_lifted[ext].reshape(W, F, ny).transpose(1, 0, 2)
     Uc = U_lifted[ext].reshape(W, F, nu).transpose(1, 0, 2)
     Oc = np.concatenate([Yc, Uc], axis=2).reshape(F * W, ny + nu)
-    fit = local_fit(local, Zc, Oc, n, degree)
+    fit = local_fit(local, Zc, Oc, n, degree, missing=missing)
     keep = (np.arange(F)[:, None] * W + np.arange(B)[None, :]).ravel()
     G = fit.G[..., keep]
     den = fit.den

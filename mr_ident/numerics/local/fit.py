@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import ConfigError
-from ..arrays import ComplexArray, IntArray
+from ..arrays import ComplexArray, FloatArray, IntArray
 from ..catalog import LOCAL_MODELS
 from . import lpm, lrm
 from .lrm import DenominatorTerm
@@ -87,21 +87,54 @@ class LocalFit:
 
 
 def local_fit(
-    local: str, U: ComplexArray, Y: ComplexArray, n: int, degree: int, workers: int = 1
+    local: str,
+    U: ComplexArray,
+    Y: ComplexArray,
+    n: int,
+    degree: int,
+    workers: int = 1,
+    missing: FloatArray | None = None,
 ) -> LocalFit:
     """Fit ``local`` at every centre bin of padded spectra U (K+2n, n_in), Y (K+2n, n_out).
 
     Options are checked by the caller (:func:`check_options`); every output of Y is
-    fitted in one pass (for ``rational``: with one denominator).
+    fitted in one pass (for ``rational``: with one denominator). ``missing`` (n_out,): the
+    share of estimated (filled) samples in each output's signal; the noise covariance
+    (and a rational fit's denominator term) is scaled by
+    :func:`~mr_ident.numerics.local.fit.missing_factor` for them.
     """
     n_in, n_out = U.shape[1], Y.shape[1]
     if local == "rational":
         q = lrm.dof(n, degree, n_in, n_out)
         G, Cv, Ainv, n_bad, den = lrm.lrm_bins_last(U, Y, n, degree, q, workers)
+        if missing is not None:
+            f = missing_factor(missing, n, q)
+            Cv = Cv * np.sqrt(f[:, None, None] * f[None, :, None])
+            den = DenominatorTerm(den.gain, den.cov * float(f.max()))
         return LocalFit(G, Cv, Ainv, n_bad, q, den)
     q = lpm.dof(n, degree, n_in)
     G, Cv, Ainv, n_bad = lpm.lpm_bins_last(U, Y, n, degree, q, workers)
+    if missing is not None:
+        f = missing_factor(missing, n, q)
+        Cv = Cv * np.sqrt(f[:, None, None] * f[None, :, None])
     return LocalFit(G, Cv, Ainv, n_bad, q)
+
+
+def missing_factor(share: FloatArray, n: int, dof: int) -> FloatArray:
+    """The scale of a filled record's noise covariance, per output (n_out,).
+
+    ``share``: p, the share of missing (estimated) samples of each output's signal. Their
+    estimates take ``p (2n+1)`` of the q residual degrees of freedom of a window (of one
+    window-equivalent of 2n+1 bins: the record's ``N q / (2n+1)`` real residual degrees of
+    freedom lose ``p N``), and the joint fit's G lose the share p of their information::
+
+        f = q / (q - (2n+1) p) / (1 - p)
+
+    (1 where nothing is missing; the method page, "Missing samples").
+    """
+    p = np.asarray(share, dtype=float)
+    f: FloatArray = dof / (dof - (2 * n + 1) * p) / (1.0 - p)
+    return f
 
 
 def merge_fits(bins: list[IntArray], fits: list[LocalFit], n_bins: int) -> LocalFit:
