@@ -81,6 +81,15 @@ def test_the_order_and_a_fractional_delay_come_from_the_data():
     assert fit.residual.shape == (fit.frequency.size, 1, 1)
 
 
+def test_a_2x2_plant_gets_its_order_and_common_poles():
+    truth = _mimo()
+    fit = fit_frf(_data(truth, 0.4 / FS, 11), fs=FS, order="auto", delay="auto", max_order=8)
+    assert fit.order == 4 and fit.plant.shape == (2, 2) and fit.in_band
+    p, R, ps, rs = _sorted(fit)
+    np.testing.assert_array_less(np.abs((R - truth.residues).real), 4 * rs[..., 0] + 1e-12)
+    np.testing.assert_array_less(np.abs((R - truth.residues).imag), 4 * rs[..., 1] + 1e-12)
+
+
 def test_the_reported_std_is_the_spread_over_seeds_mimo():
     truth, tau = _mimo(), 0.7 / FS
     t = truth.poles[np.argsort(np.abs(truth.poles))]
