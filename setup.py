@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Build script (ament_python for colcon, plain setuptools for pip)."""
 
 import re

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Benchmark: where the PFG from data and P_h from a low-rate y reach 1e-4, noise-free.
 
 Seeded random loops (``scenarios.draw_loop`` at 240/500 Hz; F in {2, 3, 5} for the PFG,

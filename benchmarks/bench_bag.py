@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Bag decoding speed: ours beside rosbags and mcap_ros2, on a bag none of them wrote for us.
 
     make bench-bag        # .venv/bin/python benchmarks/bench_bag.py [--hours 1] [--rate 1000]

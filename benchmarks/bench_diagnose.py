@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Benchmark: diagnose on seeded random loops with hidden causes.
 
 Every case is a loop drawn by ``mr_bench.scenarios.draw_scenario`` (fs_high in

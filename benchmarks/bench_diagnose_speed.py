@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Speed of one diagnosis at the issue's size: 300 s of 240 Hz data (72 000 samples).
 
 The paper's plant (config/paper_example.yaml) under a softer lead controller (half gain),

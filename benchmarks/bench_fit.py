@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Benchmark: ``fit_frf`` on drawn modal plants against the Cramér–Rao bound.
 
 Plants: ``m`` modes (order 2m, m drawn 1..15: order 2-30), frequencies log-uniform over

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Benchmark: the paper's full size, identified with freq-lifted and structured (P_h, std, PFG).
 
 First the default path as a user meets it: the whole process ``mr-ident identify DATA.npz

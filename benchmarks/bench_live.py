@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Live benchmark (`make bench-live`): node throughput and estimate latency over localhost DDS.
 
 1. Throughput: a publisher process streams 1000-sample blocks on reference,

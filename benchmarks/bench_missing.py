@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Benchmark: missing samples as unknowns of the fit, against none dropped and interpolation.
 
 The paper's loop (config/paper_example.yaml), F = 3, one white r (seed 0), output noise

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """False alarms of the plant monitoring: the loop as modelled, watched over a long run.
 
 One long record of each loop (the paper's plant at 34 dB SNR, and loops drawn at random by

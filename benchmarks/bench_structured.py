@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Benchmark: accuracy of every LPM method, fixed window (n = 8) and automatic (n = auto).
 
 1. The paper's loop (config/paper_example.yaml), 600 s at 240 Hz, F = 3, white r, seeds

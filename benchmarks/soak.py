@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Soak (`make soak`, not in `make test`): sim + node + recorder at a high rate for a long time.
 
 Three processes over localhost DDS in a domain of their own:

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Launch the simulated loop and the identification node (ros2 launch mr_ident mr_ident.launch.py).
 
 Arguments: model (model YAML for mr-ident-sim), params (node params file),

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The identification node alone, for a robot (ros2 launch mr_ident mr_ident_node.launch.py).
 
 Arguments:

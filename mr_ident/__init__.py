@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """mr_ident: frequency-domain identification of multirate control loops.
 
 Layers, each importing only those beneath it: :mod:`~mr_ident.numerics` (pure

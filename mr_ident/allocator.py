@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Process-wide memory allocator setting for mr_ident's programs.
 
 The LPM works on blocks of bins with temporaries of 1-10 MB. glibc's malloc serves

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``mr-ident batch``: identify or diagnose many recordings, one summary table.
 
 Every recording is one job, run in a worker process (a local process pool by default, or

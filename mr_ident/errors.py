@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Exceptions of mr_ident.
 
 Every exception derives from :class:`MrIdentError` *and* from the matching

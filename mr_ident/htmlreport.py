@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The diagnosis as a self-contained HTML page with embedded figures (an adapter).
 
 Plotting only: the numbers come from :mod:`mr_ident.diagnosis`, the summary it shows

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The paper's example end to end (van Haren, Blanken, Oomen, CDC 2022).
 
 Simulate the multirate loop of ``config/paper_example.yaml``, identify P_h with

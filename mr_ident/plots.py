@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Figures a person can read (matplotlib, Agg, no global pyplot state).
 
 Compute and plot are separate: every function takes result objects and a path.

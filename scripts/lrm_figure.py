@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """docs/lrm.png: polynomial and rational local models on a lightly damped mode, one plot.
 
 The paper's loop (F = 3, 240 Hz) with a mode added to its plant at 45.8 Hz, damping

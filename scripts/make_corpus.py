@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Write the bad-input corpus under test/corpus/ (run: .venv/bin/python scripts/make_corpus.py).
 
 Every file breaks the file formats of docs/formats.md in exactly one way; test/test_corpus.py

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The motor bench case (issue: model validation on real data), reproducible in one command.
 
 Reads ../shared/data/motor_bench/MultisineType{A,B}.mat (MATLAB files from the FdiTools

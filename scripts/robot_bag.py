@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Write a simulated loop as a robot's rosbag2 bag (run: .venv/bin/python scripts/robot_bag.py).
 
 The tutorial's data (docs/tutorial.md): a data file of ``mr-ident simulate`` (r, u, y at

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Signal each ROS program of mr_ident at random moments; every run must exit 0, print no
 traceback and leave its outputs finalised.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Bags this project did not write: rosbag2 bags made with the independent ``rosbags`` library.
 
 The loop is simulated by mr_ident (the exact truth is known); serialisation, the bag

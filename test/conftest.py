@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Shared fixtures: the paper model, a brute-force per-sample loop simulator, periodic runs,
 the environment of a ROS process in its own domain."""
 

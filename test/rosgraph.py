@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Helpers of the tests that start ROS nodes: a graph in its own domain, publishers, feeds.
 
 Every graph gets its own DDS domain (ros-jazzy-domain-coordinator) and rclpy context;

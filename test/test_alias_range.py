@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The alias range rho: a brute-force per-bin loop, and the lifted state space of the loop."""
 
 from dataclasses import replace

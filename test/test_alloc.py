@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The programs' allocator setting: harmless to call, idempotent, reports whether it applied."""
 
 import importlib

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The application layer (``mr_ident.app``): a request in, a result out, nothing printed.
 
 The command line, ``batch`` and ``view --bag`` go through it; here the layer itself: what

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Every MCAP layout the spec allows reads completely, and files cut short read their prefix.
 
 The files are written by the ``mcap`` library's own writer (not by this project) with every

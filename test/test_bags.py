@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Identify from bags this project did not write: rosbag2 bags made with ``rosbags``.
 
 The loop is the paper's example (240 Hz, F = 3) simulated by mr_ident, so the exact P_h is

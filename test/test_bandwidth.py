@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Automatic local bandwidth: candidates, the moving mean, the choice against known truth.
 
 The choice is checked on an LPM of a known FRF (a sharp resonance in one part of the

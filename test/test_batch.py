@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``mr-ident batch``: many recordings of different kinds, one table; a bad one is a row.
 
 The recordings: NPZ and CSV files of the paper's loop with the plant gain drawn at random

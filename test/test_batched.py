@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Stacks of small matrices, bins-last: against numpy's per-matrix LAPACK results."""
 
 import importlib

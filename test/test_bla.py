@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The best linear approximation with its noise and nonlinear parts
 (mr_ident.numerics.excitation.bla).
 

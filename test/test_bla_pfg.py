@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The PFG from data at the lines of a lifted design
 (mr_ident.numerics.excitation.bla.lifted_line_pfg).
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The command line: round trips and argument errors (bad files: test_corpus.py).
 
 `error:`, exit 2, no traceback.

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The controller's own equation (diagnosis.controller.relation) on loops drawn at random.
 
 The machine's loop is run sample by sample here, its controller the nominal K_l followed

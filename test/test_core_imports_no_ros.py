@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The numeric core, I/O, live, diagnosis, the CLI, the plots and the offline replay import
 no ROS code: only ``mr_ident.ros`` does."""
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The bad-input corpus (test/corpus/, made by scripts/make_corpus.py): one test per file.
 
 Every file must give ``error: <file>: <what, where>`` on stderr, exit status 2, no

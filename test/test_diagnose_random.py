@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Randomized diagnosis: the generator of the benchmark, and a few fast seeded cases of it.
 
 The generator (mr_bench.scenarios, which benchmarks/bench_diagnose.py draws

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The documentation keeps its promises: the tutorial's commands run, the README stays short.
 
 Every shell command of ``docs/tutorial.md`` (its fenced ``bash`` and ``console`` blocks; in a

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Drift against a reference and the monitor's hysteresis
 (mr_ident.diagnosis.monitoring.drift, .monitor).
 

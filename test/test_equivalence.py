@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Equivalent explanations: causes the data cannot tell apart are stated, not hidden.
 
 A loop drawn by the scenario generator (not made here: seed 1020000 of the benchmark's

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """mr_ident.numerics.fit and ``mr-ident fit``: a stable modal model of an identified FRF.
 
 Truths are modal plants sampled behind a zero-order hold (exact: the hold-equivalent of

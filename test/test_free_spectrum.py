@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The closed-form DFT of the loop's free responses (LoopStream.free_y_spectrum) against
 free responses simulated sample by sample.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Identification against analytic truth on the paper's example.
 
 Tolerances (noise-free, 600 s = 144 000 samples, n = auto (the default), R = 2):

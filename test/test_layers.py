@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The package's shape: layers that import only those beneath them, no import circle,
 no private name imported across modules, no module past ~500 lines.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Lifting: round trips are the identity; the two lifted domains agree (to 1e-12)."""
 
 import numpy as np

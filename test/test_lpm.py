@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """LPM: the batched engine equals a per-bin least-squares loop; exact on polynomial data."""
 
 import numpy as np

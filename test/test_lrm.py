@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The local rational method (numerics/local/lrm.py) against a per-window brute force and exact
 models.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Missing samples of u and y as unknowns of the lifted local fit.
 
 Tolerances: the conjugate-gradient solver equals a brute-force least squares (every

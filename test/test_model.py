@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Model files: the shipped example loads; bad files are rejected with a reason."""
 
 import numpy as np

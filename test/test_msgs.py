@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The interface package mr_ident_msgs: built from this repository's files, its messages
 round-trip through CDR, and an Estimate crosses DDS from one process to another."""
 

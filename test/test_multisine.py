@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Multisine designs checked line by line (mr_ident.numerics.excitation.multisine, mr-ident
 excite).
 

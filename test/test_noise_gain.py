@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The loop's noise gain (mr_ident.diagnosis.criterion.noise.loop_noise_gain) against what a
 simulation of the loop does with white output noise.
 

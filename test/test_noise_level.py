@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The criterion's noise level (mr_ident.diagnosis.criterion.objective.Objective) against the noise
 the record was made with.
 

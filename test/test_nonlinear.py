@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Diagnose names nonlinear distortion in periodic data and does not fit it as a linear cause.
 
 A mass with viscous damping, m dv/dt = f - b v, driven in open loop at 1 kHz by an

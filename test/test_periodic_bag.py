@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The BLA of a bag cut by the excitation's labels recorded with it (mr_ident.live.periodic).
 
 Bags written with the independent ``rosbags`` library (test/bagmaker.py), holding r, u, y

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """PFG against a brute-force single-sine simulation of the loop (within 1 %)."""
 
 from dataclasses import replace

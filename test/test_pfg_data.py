@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The PFG from data alone (the lifted map r -> y) against the model's, and the controller check.
 
 Loops drawn at random (``scenarios.draw_loop``: plants of order 2-6, lead/PI/PID controllers,

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """objective.project_out (normal equations where well conditioned, else the SVD) against
 numpy's least squares: the same residual to 1e-12 relative (1e-8 for nearly equal
 columns, where the problem itself holds no more), for columns of norms 1e-3 to

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Property tests (hypothesis) on the core: lifting round trips, LPM scaling, block alignment.
 
 Derandomized (the same examples every run, so CI is reproducible); set

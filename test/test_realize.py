@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """State-space realisations (numerics/systems/realize.py) against closed forms and direct
 evaluation.
 

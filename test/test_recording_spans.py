@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Which span of a recording with gaps is used (``--span``), and errors that say what is
 wrong with the data (too few messages, a topic with nothing on it, the spans and the gaps).
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The excitation publisher over DDS: `mr-ident excite --publish` drives the simulated loop
 (`mr-ident-sim --reference-topic`), the node identifies it, and the labels that travel with
 the samples cut the record back into realizations and periods.

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The managed node over DDS: its lifecycle, every service, and the ROS clock.
 
 Own domain, localhost only, every wait bounded (test/rosgraph.py). The loop is the paper's

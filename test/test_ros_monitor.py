@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Plant monitoring over DDS: the node holds its estimates against a reference (issue 27).
 
 Own domain, localhost only, every wait bounded (the helpers of test_ros_node). The loop is

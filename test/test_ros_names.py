@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Names over DDS: two nodes in two namespaces on one domain, and the sources' helper node.
 
 Own domain, localhost only, every wait bounded (test/rosgraph.py).

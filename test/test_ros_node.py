@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The node over real DDS (rclpy, FastDDS, localhost): estimates, faults, parameters.
 
 Every test gets its own DDS domain and rclpy context (test/rosgraph.py); discovery is

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Recording and replay over real DDS: MCAP files, signals, a full disk, console scripts.
 
 Every test gets its own DDS domain and rclpy context (test/rosgraph.py); discovery is

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The node on the topics real stacks publish (sensor_msgs/JointState, std_msgs/Float64), over DDS.
 
 Each test in its own domain (localhost only), every wait bounded. The publisher is

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """A design played in a loop: labels by index, cutting a record back, stamps from the index,
 and the loop that follows a reference arriving block by block."""
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Fitting centre bins in runs of their own width equals fitting each width on every bin.
 
 The automatic window fits a few candidate widths on a probe of bins, then every bin with

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """SIGINT/SIGTERM at chosen moments: every ROS program exits 0 with its outputs finalised.
 
 A few runs of ``scripts/stress_signals.py`` (which runs >= 50 per program, outside the suite),

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The lifted simulator equals a per-sample simulation of the loop's definition."""
 
 from dataclasses import replace

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """y measured at the low rate only: P_h on every high-rate bin from fast r, u and slow y.
 
 The rule (docs/method.md, "Outputs at the low rate"): for ``y_l[m] = y_h[m F + q]``,

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """P_h from a low-rate output on a rotated lifted multisine
 (mr_ident.numerics.lifted.slow_periodic).
 

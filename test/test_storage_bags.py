@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """SQLite3 bags and file-compressed bags, written by writers this project did not write.
 
 SQLite3: ``rosbags.rosbag2.Writer`` with SQLite3 storage, rosbag2 format versions 8 and 9;

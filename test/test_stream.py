@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Topic contract, index alignment, phase detection, config and MCAP reading (no ROS)."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The structured lifted estimator against a per-bin brute force and analytic truth.
 
 Tolerances: the batched two-stage fit equals a per-bin ``lstsq`` loop to 1e-8 relative

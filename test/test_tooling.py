@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The files the ROS tools read: the Foxglove layout names what the node publishes."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Model validation: hide an effect in the data, require diagnose to find it.
 
 Set-up: the paper's plant under a softer lead controller (half the gain of

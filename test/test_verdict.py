@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The judge of the diagnosis benchmark (mr_bench.verdict).
 
 A parameter outside its fixed tolerance counts as *credible* only when the truth's

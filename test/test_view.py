@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The live view: its server against an analytic estimate, and the page in a real browser.
 
 The browser test starts mr-ident-sim, mr-ident-node and mr-ident view (own domain,

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The loop's y over a window in the frequency domain (numerics.systems.window_response) against
 the loop simulated sample by sample.
 

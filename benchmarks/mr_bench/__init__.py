@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The diagnosis benchmark's generator and judge: not part of the product.
 
 :mod:`~mr_bench.scenarios` (seeded random loops with hidden causes),

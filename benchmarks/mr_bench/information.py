@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """What a record can determine of the hidden causes, before any diagnosis answers.
 
 :func:`truth_std` is the Cramér-Rao bound of the hidden values at the truth on a

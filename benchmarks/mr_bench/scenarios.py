@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Seeded random loops with hidden causes, for the diagnosis' tests and benchmark.
 
 :func:`draw_scenario` draws a loop (:func:`draw_loop`), hides none, one or two causes in

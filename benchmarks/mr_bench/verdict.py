@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Whether a diagnosis found what a scenario hides: tolerances, the verdict, the judge.
 
 :func:`judge` compares what :func:`~mr_ident.diagnosis.diagnose` applied against the causes

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The application layer: a request (a recording, its sources, options) in, a result out.
 
 One path for the command line, ``mr-ident batch`` and replay (the node's turn comes):

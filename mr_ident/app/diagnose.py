@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``diagnose``: where and why a model disagrees with a recording.
 
 :func:`diagnose_recording` is the one path of ``mr-ident diagnose`` and of every

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``identify``: P_h and the PFG from a recording, or the BLA of periodic data.
 
 :func:`identify_recording` is the one path of ``mr-ident identify`` and of every

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``identify --period``: the best linear approximation of periodic data.
 
 An NPZ holds r, u, y of shape (M realizations, n), periods counted from each row's start.

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """A request's recording as loop data: read once, the rates settled, what was noticed said.
 
 Over :func:`~mr_ident.live.recordings.load_recording` (files and bags alike); its notes come

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``replay``: a recording through the node's own steps, offline.
 
 :func:`replay_recording` settles the node's configuration from the request (its parameters

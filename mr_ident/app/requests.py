@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """What the application is asked: frozen requests, and the notices that come back.
 
 Plain data, importable without numpy (the command line builds them at once). A model is

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Command line: ``mr-ident simulate | identify | fit | paper | diagnose | replay | demo``.
 
 ``record``, ``replay --publish``, ``excite --publish`` and ``demo`` need rclpy (imported

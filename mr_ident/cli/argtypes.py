@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Argument types of the command line: each parses one option's text or names what came."""
 
 from __future__ import annotations

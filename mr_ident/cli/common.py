@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """What the command groups share: the recording as asked, notices, plots, the PFGs told."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``mr-ident diagnose``: where and why a model disagrees with data."""
 
 from __future__ import annotations

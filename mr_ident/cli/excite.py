@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``mr-ident excite``: design a multisine excitation, write it (NPZ or CSV), stream it.
 
 ``--publish TOPIC`` streams a design (``--design FILE.npz`` or the one designed here) on

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``mr-ident fit``: a stable parametric model of an identified plant, as a model file."""
 
 from __future__ import annotations

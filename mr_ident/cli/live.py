@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Commands around ROS and recordings: ``replay``, ``record``, ``view``, ``demo``.
 
 Imports are lazy (inside each command); rclpy is imported only by the ROS ones.

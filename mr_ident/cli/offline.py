@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Offline commands: ``simulate``, ``identify``, ``paper``, ``batch``.
 
 Imports are lazy (inside each command), so that ``mr-ident --help`` starts at once.

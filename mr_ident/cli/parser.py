@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The argument parser of ``mr-ident``: every subcommand, its options and their checks."""
 
 from __future__ import annotations

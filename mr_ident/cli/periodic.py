@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``identify --period`` and ``replay`` of periodic data: the BLA's report, written and told.
 
 The computing is the application's (:mod:`mr_ident.app.periodic`); here the result files

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Diagnosis: where and why a nominal model disagrees with measured data.
 
 And the gain of an extended model (``mr-ident diagnose``).

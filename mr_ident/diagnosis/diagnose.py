@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Model validation: where a nominal model is wrong, why, and how much a fix gains.
 
 Given measured r_h, u_h, y_h (a :class:`~mr_ident.numerics.signals.LoopData` with its

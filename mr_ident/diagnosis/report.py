@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The diagnosis as a JSON-ready summary.
 
 Every field is listed in the README's "Model validation" section. The HTML page is an

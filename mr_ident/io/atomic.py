@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Writing a file whole or not at all.
 
 Through a temporary file in the same directory and a rename, so that a failed write (an error, a

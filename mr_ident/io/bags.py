@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Bags: rosbag2 directories, MCAP files of any layout, SQLite3 bags, zstd-compressed files.
 
 A bag is a rosbag2 directory (``metadata.yaml`` lists its files in ``relative_file_paths``;

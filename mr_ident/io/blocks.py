@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The block contract: blocks of high-rate samples on a topic (the package's own dialect).
 
 A ``std_msgs/msg/Float64MultiArray`` carries one block of consecutive high-rate

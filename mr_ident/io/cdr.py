@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """CDR (ROS 2's serialization) read for a batch of messages at once.
 
 A :class:`Batch` holds the serialized payloads of n messages of one type in one byte

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Identification settings shared by the ROS node, ``mr-ident replay`` and the CLI.
 
 One frozen dataclass, :class:`IdentConfig`, validated on construction; the

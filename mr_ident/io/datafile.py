@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Data files: measured or simulated r_h, u_h, y_h, and identification results.
 
 CSV

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Excitation files: a multisine design written as NPZ or CSV (``mr-ident excite``)."""
 
 from __future__ import annotations

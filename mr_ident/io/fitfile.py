@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """A fitted plant (``mr-ident fit``) as a model file, and its uncertainty beside it.
 
 The model file holds the plant in modal form (:mod:`~mr_ident.io.modal_yaml`), the fitted

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """An excitation's labels beside its signal: their topic, and the sources that read them.
 
 ``mr-ident excite --publish TOPIC`` puts each sample's labels (realization, period,

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The fixed-layout fast path of reading a source: one read per value for a whole batch.
 
 Most topics keep their layout message after message (JointState with the same joints,

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """MCAP files read completely, whatever their layout: the data section walked in file order.
 
 The MCAP specification leaves a writer free in what it indexes: chunks or none, message

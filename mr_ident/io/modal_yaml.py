@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The modal form of a model file's plant (written by ``mr-ident fit``), read and written.
 
 ::

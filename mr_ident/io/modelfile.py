@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Model files (YAML): read, validate and write a :class:`~mr_ident.numerics.systems.model.Model`.
 
 The form is the one in :mod:`mr_ident.numerics.systems.model`'s docstring and the README. Every

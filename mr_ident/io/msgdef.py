@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """ROS 2 message definitions (``ros2msg``): the schema text a bag embeds, parsed.
 
 A bag written by rosbag2 (MCAP storage), ``rosbags`` or ``mr-ident record`` carries, per

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Signal sources: a topic and a field path, in Foxglove's message-path syntax.
 
 Grammar (a subset of Foxglove's message paths, one extension, one modifier)::

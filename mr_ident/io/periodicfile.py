@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Periodic multi-realization data (r, u, y of shape (M, n)) and the BLA result file."""
 
 from __future__ import annotations

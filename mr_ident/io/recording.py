@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """MCAP recordings in rosbag2 (Jazzy) form, and their offline replay. No ROS import.
 
 Writing (:class:`McapRecorder`) takes CDR bytes that rclpy produced (a raw

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Sources resolved against the topics they read, and their samples out of a bag.
 
 A :class:`~mr_ident.io.paths.SourceSpec` names a topic and a path; :func:`resolve` finds

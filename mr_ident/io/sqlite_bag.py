@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """rosbag2 SQLite3 bags (``.db3``, the default storage up to Iron), read with Python's sqlite3.
 
 rosbag2's SQLite storage keeps its topics in a ``topics`` table (id, name, type,

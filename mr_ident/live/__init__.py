@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Live: from decoded messages to estimates, the same for the node and for replay.
 
 :mod:`~mr_ident.live.align` (the aligned window), :mod:`~mr_ident.live.ingest` (the one

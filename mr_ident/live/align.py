@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Alignment of three sample streams (r, u, y) by sample index: :class:`Aligner`.
 
 Blocks (:class:`~mr_ident.io.blocks.Block`) are put together by sample index, never by

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """One estimate from one aligned window: the step the node repeats and replay runs once.
 
 :func:`estimate` takes a window (:class:`~mr_ident.numerics.signals.LoopData` with its

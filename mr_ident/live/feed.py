@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Per-sample sources into the aligned window: the one path for the node and for replay.
 
 Both hand :class:`SourceFeed` the stamps and values their sources gave - replay for a

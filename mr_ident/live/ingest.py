@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The one ingest path from decoded messages to the aligned window, for the node and replay.
 
 "Replay equals live" holds because both hand every decoded item - a good block or a

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """A periodic excitation's record cut into realizations x whole periods, and its BLA.
 
 The one path from a periodic record to the best linear approximation, for ``identify

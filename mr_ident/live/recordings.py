@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """A recording of any kind as loop data.
 
 A CSV or NPZ file, or a bag (rosbag2 directory or ``.mcap``) read through sources or the

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Offline replay: a recording through the node's own steps, without a ROS graph.
 
 :func:`replay` reads the block messages of a recording

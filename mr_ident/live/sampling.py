@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Stamps to samples: per-message values on the high-rate grid, as blocks for the aligner.
 
 Rules (README, "How stamps become samples"), the same for the node and for replay:

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Which gap-free span of a recording is used: ``--span latest|longest|all``.
 
 A recording with gaps (dropped cycles, a restarted publisher, samples off the grid) holds

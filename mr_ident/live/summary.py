@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """A few scalars per estimate, for plotting tools that take scalars (the node's ``~/summary``).
 
 Plotting tools such as PlotJuggler and rqt_plot draw one number per message and field;

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Numerics: the lowest layer (pure numpy/scipy, no I/O, no ROS).
 
 Lifting (:mod:`~mr_ident.numerics.lifting`), identification

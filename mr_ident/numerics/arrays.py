@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Array type aliases used across the package (all NumPy arrays, dtype stated)."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Stacks of small matrices laid out bins-last, shape (rows, cols, K).
 
 With K (frequency bins) in the last, contiguous axis every operation is a few

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Working-memory budget: how many frequency bins a pass over the data takes at once.
 
 Every batched kernel works on blocks of bins, so that its temporaries do not grow with the

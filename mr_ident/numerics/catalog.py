@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Names offered on the command line, importable without numpy or scipy.
 
 The parser needs the method names to build ``--method``; importing the methods themselves

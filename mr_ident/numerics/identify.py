@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Identification of the high-rate plant of a multirate loop from r_h, u_h, y_h.
 
 :func:`identify` checks its input, runs one method of the table

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Lifting of signals, spectra and FRFs, and their inverses: every lifting rule in one place.
 
 Conventions (see DEVELOPERS.md):

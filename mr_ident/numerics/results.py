@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Frozen result types of mr_ident.
 
 Shapes follow one convention throughout the package:

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The one container of a loop's signals: r_h, u_h, y_h and what is known about them.
 
 Data files, simulations, the live window and the diagnosis all hand r, u, y around as

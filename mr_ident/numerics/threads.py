@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Threads over independent blocks of frequency bins.
 
 NumPy and SciPy release the GIL inside their loops, so blocks of bins run in

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``mr-ident demo`` (``make demo``): the live pipeline end to end on localhost DDS.
 
 Starts ``mr-ident-sim`` (paper example, accelerated, output noise) and

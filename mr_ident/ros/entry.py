@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Console-script entry points of the ROS programs: signal handling first, then the imports.
 
 Importing the node or the simulator takes a second (rclpy, numpy, scipy); a SIGINT or

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """What a periodic excitation adds to the node's status: the BLA's parts.
 
 With ``excitation_index_topic`` set, the labels (``mr-ident excite --publish TOPIC`` puts

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``mr-ident excite --publish`` driven from the graph: ``~/start``, ``~/stop`` and a status.
 
 The publisher node serves ``~/start`` and ``~/stop`` (``std_srvs/Trigger``) and puts a

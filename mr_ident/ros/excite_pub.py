@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``mr-ident excite --publish TOPIC``: stream an excitation design on a topic at fs_high.
 
 The design (M realizations of P periods of N samples, ``mr-ident excite``) is played

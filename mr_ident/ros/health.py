@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The node's ``/diagnostics`` status ``<node>: identification``: level, reason, counters.
 
 :func:`identification_status` turns a :class:`Health` snapshot (taken by the node under its

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The node's inputs: its subscriptions and the window they fill (executor thread).
 
 The block contract (``reference``, ``input``, ``output``, relative names: the node's

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Float64MultiArray <-> blocks and estimates; the QoS profiles of the topic contract."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The node's plant monitoring: ``~/drift``, ``~/diagnosis`` and the status ``<node>: plant``.
 
 A thin adapter around :class:`~mr_ident.diagnosis.monitoring.monitor.PlantWatch`: each estimate is

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``mr-ident-node``: live identification of a multirate loop on a ROS 2 graph (a managed node).
 
 A thin adapter: messages -> :func:`~mr_ident.ros.messages.decode_raw` ->

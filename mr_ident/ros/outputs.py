@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The node's result topics: one ``mr_ident_msgs/Estimate`` per estimate, and a Summary.
 
 ``~/estimate`` (reliable, transient local, depth 1: a late subscriber gets the latest)

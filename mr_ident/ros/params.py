@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The node's parameters: the fields of IdentConfig and the node's own, declared, read back.
 
 Every field of :class:`~mr_ident.io.config.IdentConfig` is a parameter with its description

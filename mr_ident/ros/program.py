@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """One shutdown path for the package's ROS programs.
 
 ``mr-ident record``, ``mr-ident-node``, ``mr-ident-sim``, ``mr-ident demo`` and

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``mr-ident record`` and ``mr-ident replay --publish``: MCAP to and from a ROS 2 graph.
 
 Recording subscribes raw (the CDR bytes rclpy received, never re-serialized) to

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The node's recording (``record_path``): every raw message of its inputs into one MCAP.
 
 Messages are written as they arrive (raw CDR, never decoded again), with the publishers'

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The node's services (made at configure, gone at cleanup).
 
 =========================  ==========================  ======================================

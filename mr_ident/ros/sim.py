@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``mr-ident-sim``: the simulated loop of a model file, published per the topic contract.
 
 Publishes blocks of r_h, u_h, y_h on ``reference``, ``input``, ``output``

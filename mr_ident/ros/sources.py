@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The node's per-sample sources: subscriptions with the types found on the graph.
 
 :class:`SourceSubscriber` waits until the sources' topics appear on the graph, resolves

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``mr-ident view`` on a live graph.
 
 Subscribes to the node's ``~/estimate`` (one ``mr_ident_msgs/Estimate`` per estimate), its

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The live view: a page on localhost that plots the node's estimate as it arrives.
 
 :mod:`.state` holds the latest estimate and stream health (no ROS, no HTTP); :mod:`.server`

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The view's HTTP server (standard library only): the page, its scripts, JSON, events.
 
 ``GET /``                the page (``page/index.html``)

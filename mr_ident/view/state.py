@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """What the view shows: the latest estimate, the model beside it, the streams' health.
 
 Thread-safe: the ROS listener or the bag replay writes, the HTTP handlers read and wait

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Causes: why a model is wrong, one class per cause.
 
 :mod:`~mr_ident.diagnosis.causes.cause` (what a cause is, what a fitted one holds),

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Why a model is wrong: what a cause is (:class:`Cause`) and what a fitted one holds.
 
 Every cause is a parametric extension of the model: its name and parameters, when it can

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Causes outside the plant: in the controller's path (timing, filters) and on the output.
 
 They leave P_h as it is (the lifted identification does not use the controller), so the

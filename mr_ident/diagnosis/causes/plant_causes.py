@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Causes between u and y: they change P_h itself.
 
 Each starts from the identified plant: a weighted least-squares fit of the cause's

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The cause vocabulary, by name (:data:`CAUSES`).
 
 A new cause is one more class and one more entry here.

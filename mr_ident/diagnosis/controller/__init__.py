@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The controller on the machine against the model's: its own equation.
 
 :mod:`~mr_ident.diagnosis.controller.relation` (the controller's own equation: whether

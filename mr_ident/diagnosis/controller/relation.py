@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The controller's own equation: whether the logged u follows from the logged y and r.
 
 In closed loop the record holds both sides of the controller: the y it sampled and the u

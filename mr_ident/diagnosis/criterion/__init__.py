@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The criterion: the model on the data, the per-bin evidence, the noise, the objective.
 
 :mod:`~mr_ident.diagnosis.criterion.prediction` (the model simulated on the data),

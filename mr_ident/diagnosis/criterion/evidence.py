@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Where a model is wrong: the model against the identified FRFs, bin by bin, in σ units.
 
 The identified P̂_h with its std is held against the model's P_h, per bin the error in

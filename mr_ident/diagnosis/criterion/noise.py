@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The noise spectrum of a record, from the data alone (no model)."""
 
 from __future__ import annotations

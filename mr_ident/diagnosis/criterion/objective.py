@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The criterion every cause is fitted and ranked by: whitened residuals and the BIC."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The model simulated on measured data, and how well it fits in time.
 
 With a controller, the loop is simulated from the measured r_h; without one (open loop),

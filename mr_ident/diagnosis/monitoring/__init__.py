@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Monitoring: the plant held against a reference, estimate after estimate.
 
 :mod:`~mr_ident.diagnosis.monitoring.drift` (an estimate against a reference, bin by bin)

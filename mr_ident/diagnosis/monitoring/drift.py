@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Has the plant drifted from a reference? An estimate held against it, bin by bin.
 
 The reference is a model's exact P_h (std 0) or an earlier identification (with its std).

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Monitoring a running loop: drift levels held against alarm storms, and when to diagnose.
 
 Each estimate gives a :class:`~mr_ident.diagnosis.monitoring.drift.Drift`. :class:`Monitor`

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Selection: causes fitted to the criterion, chosen together, and their equivalents.
 
 :mod:`~mr_ident.diagnosis.selection.fitting` (one cause alone, several jointly, their

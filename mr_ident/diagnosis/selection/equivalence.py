@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Equivalent explanations: other causes the data cannot tell apart from a chosen one.
 
 Some effects look alike over the band a record excites: a pure input delay of 4.6 ms and

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Fitting causes to the criterion: one cause alone, several jointly, and their std.
 
 The pieces :mod:`~mr_ident.diagnosis.selection.forward` and

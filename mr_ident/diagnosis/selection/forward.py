@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Which causes, together: forward selection with joint re-fits and an information criterion.
 
 The criterion is the BIC of the time-domain residual

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Excitation and periodic records: multisines, schedules, block sources and the BLA.
 
 :mod:`~mr_ident.numerics.excitation.multisine` (periodic multisines),

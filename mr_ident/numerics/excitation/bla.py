@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Best linear approximation from periodic multisine data: noise and nonlinear distortion.
 
 Data: M realizations (independent random phases) of P periods of N samples of r, u, y

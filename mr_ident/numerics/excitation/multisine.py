@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Periodic multisine excitation: lines, random phases, a low crest factor.
 
 A multisine of period N samples at fs excites DFT lines k (frequency ``k fs / N``) with

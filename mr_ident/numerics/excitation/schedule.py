@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """A periodic excitation played in a loop: its samples and the labels of every index.
 
 A design of M realizations of P periods of N samples (``mr-ident excite``) is played

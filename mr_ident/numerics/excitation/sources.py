@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Excitation signals and an endless simulated loop, block by block (pure numpy).
 
 :class:`Excitation` is the reference r_h: white noise or a random-phase multisine

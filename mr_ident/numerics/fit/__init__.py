@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """A parametric model from an identified FRF: weighted, stable, MIMO with common poles.
 
 ``basis`` (poles, their stable parametrisation, the partial-fraction columns of each

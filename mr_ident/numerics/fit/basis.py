@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Poles, their stable parametrisation, and the partial-fraction columns of each domain.
 
 A pole set is one array: real poles and one pole of each complex pair (``Im p > 0``).

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """A stable MIMO model of an identified FRF: :func:`fit_frf` and :class:`FitResult`.
 
 The cost is ``V = Σ |P̂ - G(θ)|² / σ²`` over the bins and entries (the ML cost for the

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Variable projection: the poles (and delay) by Levenberg–Marquardt, residues solved linearly.
 
 The cost ``V = Σ_k Σ_e |P̂_e(k) - G_e(k, θ)|² / σ_e(k)²`` is, for fixed poles and delay,

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Starting poles by vector fitting's pole relocation (Gustavsen & Semlyen 1999).
 
 In z (bins on the unit circle, so the partial fractions ``1/(z - λ)`` are well scaled

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The lifted maps: identification methods on the lifted loop, and the PFG.
 
 :mod:`~mr_ident.numerics.lifted.methods` (the methods as a table),

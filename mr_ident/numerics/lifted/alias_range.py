@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The alias range: how far a lifted row's other responses exceed the one a bin's estimate needs.
 
 One record of a white r excites all F aliases of every lifted bin k at once, so the

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The indirect closed-loop step ``P = J S^-1`` on a joint local fit of r -> [y; u].
 
 Shared by the methods (:mod:`mr_ident.numerics.lifted.methods`): P and the Kronecker

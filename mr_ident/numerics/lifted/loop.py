@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The multirate loop in the frequency-lifted domain.
 
 Loop (DEVELOPERS.md): ``u_h = r_h - H_u K_l S_d y_h``, ``y_h = P_h u_h``.

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The identification methods as a table: one function per method, :data:`METHODS`.
 
 Every method takes checked signals (a :class:`FitRequest`) and returns the high-rate plant

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Missing samples of u and y as unknowns of the lifted local fit (not interpolated).
 
 Ugryumova, Pintelon, Vandersteen, "Frequency response function estimation in the presence

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Performance Frequency Gain (PFG) of a multirate loop r_h -> y_h.
 
 Following Oomen et al. (2007), as used by van Haren et al. (2022): an input

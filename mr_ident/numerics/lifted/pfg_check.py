@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Is the controller on the machine the model's? The PFG from data against the PFG from K_l.
 
 One identification gives two PFGs (:class:`~mr_ident.numerics.results.Identification`):

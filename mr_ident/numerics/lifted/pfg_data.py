@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The PFG straight from data: the lifted closed-loop map r -> y, no controller model.
 
 The PFG at high-rate bin ``k + l M`` is the 2-norm of block column l of the

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """P_h from an output sampled at the low rate only, on a rotated lifted multisine.
 
 With y measured at samples q, q + F, ... only, its M-point DFT (M = N/F, one period of

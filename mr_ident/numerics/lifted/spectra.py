@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The spectra of r, u, y that the methods fit, computed once per identification."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The structured lifted estimator: the lifted loop's diagonal plant used, not re-estimated.
 
 In frequency lifting the loop ``Ỹ = J̃ R̃``, ``Ũ = S̃ R̃`` has a *diagonal* plant,

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Local models: the per-bin fits every identification method rests on.
 
 :mod:`~mr_ident.numerics.local.lpm` (the local polynomial method),

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Automatic local bandwidth: the LPM window half-width n chosen per frequency from the data.
 
 A wider window averages more bins (variance falls about as 1/n) but lets more of the

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The local model of every LPM method, one call: polynomial (the LPM) or rational (the LRM).
 
 ``polynomial`` (:mod:`mr_ident.numerics.local.lpm`, the default) fits G and the transient as

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Local rational method (LRM), MIMO, batched over all frequency bins.
 
 Model in the window ``r = -n..n`` around every centre bin k, ``x = r/n``

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Which centre bins a method fits, and with which window: runs, gathered into padded segments.
 
 A method fits its local model at centre bins k = 0..K-1 of its spectrum (the low-rate

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Sums over sliding windows of frequency bins: the LPM's moment sums, batched.
 
 Every entry of the LPM's normal equations (``K^H K``, ``K^H Y``, ``Y^H Y``) is a sum over

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Systems: LTI systems, their realisations, the loop model and its simulation.
 
 :mod:`~mr_ident.numerics.systems.lti` (transfer-function matrices and state space),

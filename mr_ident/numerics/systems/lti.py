@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Linear time-invariant systems: transfer-function matrices and state space.
 
 A :class:`TransferMatrix` holds one numerator per (output, input) entry and one

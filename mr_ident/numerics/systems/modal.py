@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """A plant in modal form: :class:`ModalPlant` (poles, matrix residues, direct term).
 
 ``G(x) = D + Σ_k R_k / (x - p_k)`` over real poles and complex pairs (each pair once, with

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The nominal description of a multirate loop: :class:`Model`.
 
 Read and written as YAML by :mod:`mr_ident.io.modelfile`; its form (keys marked * are

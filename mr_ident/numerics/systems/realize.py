@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """State-space realisations that keep their digits: sections, connections, exact ZOH, modes.
 
 Polynomial coefficients of a high-order system lose digits fast: the ZOH of a sixth-order

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Fast simulation of the multirate loop by lifting.
 
 One low-rate period of the loop (plant at the high rate, controller at the low

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The loop's y over a window of a record, in the frequency domain, up to free responses.
 
 Over a window of L whole low-rate periods, the lifted loop (:func:`~.simulate.lifted_loop`,

@@ -1,3 +1,4 @@
+// SPDX-License-Identifier: Apache-2.0
 // mr_ident live view: draws the state the server sends (server-sent events, /events).
 "use strict";
 
