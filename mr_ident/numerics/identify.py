@@ -31,7 +31,7 @@ from .local.fit import check_options as check_local_options
 from .local.segments import Run, runs_of
 from .results import FRF, PFG, Identification
 from .signals import y_at_low_rate
-from .threads import one_blas_thread, resolve_workers
+from .threads import one_blas_thread, resolve_workers, thread_map
 
 __all__ = ["AUTO", "METHODS", "check_options", "default_n", "identify", "min_samples"]
 
@@ -302,7 +302,9 @@ def identify(
         ua, ya, share = _fill(ra, ua, ya, method, F, n0, degree, local, n_missing, len(ns) > 1)
     spectra = Spectra(ra, ua, ya, n_workers)
 
-    def fit_with(nj: int, keep: bool, data_pfg: bool, runs: tuple[Run, ...] | None) -> PlantFit:
+    def fit_with(
+        nj: int, keep: bool, data_pfg: bool, runs: tuple[Run, ...] | None, workers: int
+    ) -> PlantFit:
         qj = check_options(method, nj, degree, F, ra.shape[1], max(ny, nu), local)
         return m.fit(
             FitRequest(
@@ -314,7 +316,7 @@ def identify(
                 degree,
                 qj,
                 keep,
-                n_workers,
+                workers,
                 local,
                 data_pfg,
                 int(y_phase),
@@ -328,10 +330,10 @@ def identify(
     with one_blas_thread():
         runs = None
         if len(ns) > 1:  # the automatic window: candidates on a probe, then one fit
-            widths = _choose_widths(ns, m.lift(F), N, fit_with)
+            widths = _choose_widths(ns, m.lift(F), N, fit_with, n_workers)
             runs = runs_of(widths)
             n_used = widths[centre_bins(N, m.lift(F))]
-        fit = fit_with(n0, keep_lifted, True, runs)
+        fit = fit_with(n0, keep_lifted, True, runs, n_workers)
         pfg_data = (
             None
             if slow
@@ -429,18 +431,24 @@ def _choose_widths(
     ns: tuple[int, ...],
     lift: int,
     n_samples: int,
-    fit_with: Callable[[int, bool, bool, tuple[Run, ...] | None], PlantFit],
+    fit_with: Callable[[int, bool, bool, tuple[Run, ...] | None, int], PlantFit],
+    workers: int,
 ) -> IntArray:
     """The half-width of every centre bin: each candidate fitted on the probe, then the rule.
 
     :func:`~mr_ident.numerics.local.bandwidth.probe_runs` and
     :func:`~mr_ident.numerics.local.bandwidth.choose_widths`; only the probed bins of each
-    candidate are kept meanwhile.
+    candidate are kept meanwhile. The candidates run side by side on ``workers`` threads (each
+    fit serially: a probe is one engine call per candidate, which threads cannot split).
     """
     n_centres = (n_samples // lift) // 2 + 1
     probe = probe_runs(n_centres, ns[-1])
     centre_of = centre_bins(n_samples, lift)
-    fits = [fit_with(nj, False, False, tuple((a, b, nj) for a, b in probe)) for nj in ns]
+    fits = thread_map(
+        lambda nj: fit_with(nj, False, False, tuple((a, b, nj) for a, b in probe), 1),
+        ns,
+        workers,
+    )
     probed = np.flatnonzero(np.isfinite(fits[0].P_half).all(axis=(1, 2)))
     return choose_widths(
         ns,

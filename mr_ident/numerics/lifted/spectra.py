@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import threading
+
 from ..arrays import ComplexArray, FloatArray
 from ..lifting import dft, half_spectrum, time_lift
 
@@ -11,7 +13,8 @@ class Spectra:
     """The spectra of r, u, y a method needs, computed once per identification.
 
     :func:`~mr_ident.numerics.identify.identify` fits several windows on the same record
-    (the automatic window's candidates, then the chosen widths); they share these.
+    (the automatic window's candidates, then the chosen widths); they share these. The
+    candidates may run on threads of their own: each spectrum is computed once, under a lock.
     """
 
     def __init__(self, r: FloatArray, u: FloatArray, y: FloatArray, workers: int) -> None:
@@ -19,17 +22,20 @@ class Spectra:
         self._workers = workers
         self._half: dict[str, list[ComplexArray]] = {}
         self._time: dict[tuple[str, int], ComplexArray] = {}
+        self._lock = threading.Lock()
 
     def half(self, name: str) -> list[ComplexArray]:
         """:func:`~mr_ident.numerics.lifting.half_spectrum` of signal ``name`` (r, u or y)."""
-        if name not in self._half:
-            self._half[name] = half_spectrum(self._signals[name], workers=self._workers)
-        return self._half[name]
+        with self._lock:
+            if name not in self._half:
+                self._half[name] = half_spectrum(self._signals[name], workers=self._workers)
+            return self._half[name]
 
     def time_lifted(self, name: str, ratio: int) -> ComplexArray:
         """The M-point DFT of the time-lifted signal ``name`` (M, F c)."""
         key = (name, ratio)
-        if key not in self._time:
-            x = time_lift(self._signals[name], ratio)
-            self._time[key] = dft(x, workers=self._workers)
-        return self._time[key]
+        with self._lock:
+            if key not in self._time:
+                x = time_lift(self._signals[name], ratio)
+                self._time[key] = dft(x, workers=self._workers)
+            return self._time[key]
