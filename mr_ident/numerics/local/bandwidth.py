@@ -49,6 +49,7 @@ one window per centre bin; of ``structured`` 0.0091 and 0.0088.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -156,7 +157,7 @@ def select(
             f"responses and variances must both be (J={J}, K, n_out, n_in), got "
             f"{P.shape} and {V.shape}"
         )
-    mse = _mse(P, V, halfwidth)
+    mse = _mse(P, V, lambda x: moving_mean(x, halfwidth))
     bad = ~np.isfinite(P).all(axis=(2, 3)) | ~np.isfinite(mse)
     mse = np.where(bad, np.inf, mse)
     j = np.argmin(mse, axis=0)  # all inf -> 0, the smallest window (NaN stays NaN)
@@ -170,11 +171,15 @@ def select(
     )
 
 
-def _mse(P: ComplexArray, V: FloatArray, h: int) -> FloatArray:
-    """``<|P_j - P_0|^2> + 2 <v_j> - <v_0>`` summed over entries: (J, K) from (J, K, o, i)."""
+def _mse(P: ComplexArray, V: FloatArray, mean: Callable[[FloatArray], FloatArray]) -> FloatArray:
+    """``<|P_j - P_0|^2> + 2 <v_j> - <v_0>`` summed over entries: (J, K) from (J, K, o, i).
+
+    ``mean`` is ``<.>`` along the last axis: :func:`moving_mean`, or within the probe's
+    segments (:func:`_segmented_mean`).
+    """
     var = V.sum(axis=(2, 3))
     d = (np.abs(P - P[:1]) ** 2).sum(axis=(2, 3))
-    mse: FloatArray = moving_mean(d, h) + 2.0 * moving_mean(var, h) - moving_mean(var[:1], h)
+    mse: FloatArray = mean(d) + 2.0 * mean(var) - mean(var[:1])
     return mse
 
 
@@ -276,10 +281,12 @@ def choose_widths(
     # consecutive bins, so a neighbour in the compressed order is a neighbour in frequency
     # within a segment; the means are cut at the segments' ends)
     sub = P[:, probed]
-    mse = _mse_segmented(sub, V[:, probed], probed, halfwidth)
-    scale = _segmented_mean(
-        (V[0, probed] + 1e-24 * np.abs(sub[0]) ** 2).sum(axis=(1, 2))[None], probed, halfwidth
-    )[0]
+
+    def mean(x: FloatArray) -> FloatArray:
+        return _segmented_mean(x, probed, halfwidth)
+
+    mse = _mse(sub, V[:, probed], mean)
+    scale = mean((V[0, probed] + 1e-24 * np.abs(sub[0]) ** 2).sum(axis=(1, 2))[None])[0]
     with np.errstate(divide="ignore", invalid="ignore"):  # a zero level: no criterion there
         rel = mse / scale
     ok = np.isfinite(rel).all(axis=0)
@@ -313,18 +320,6 @@ def _segmented_mean(x: FloatArray, bins: IntArray, h: int) -> FloatArray:
     for a, b in zip(np.r_[0, breaks], np.r_[breaks, bins.size], strict=True):
         out[..., a:b] = moving_mean(x[..., a:b], h)
     return out
-
-
-def _mse_segmented(P: ComplexArray, V: FloatArray, bins: IntArray, h: int) -> FloatArray:
-    """:func:`_mse` with the moving means cut at the probe's segments (:func:`_segmented_mean`)."""
-    var = V.sum(axis=(2, 3))
-    d = (np.abs(P - P[:1]) ** 2).sum(axis=(2, 3))
-    mse: FloatArray = (
-        _segmented_mean(d, bins, h)
-        + 2.0 * _segmented_mean(var, bins, h)
-        - _segmented_mean(var[:1], bins, h)
-    )
-    return mse
 
 
 def _merge_short(widths: IntArray, min_run: int) -> IntArray:
