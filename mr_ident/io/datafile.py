@@ -258,7 +258,7 @@ def read_npz(path: str | Path) -> LoopData:
             raise DataError(
                 f"{p}: array {s!r} must have shape (N,) or (N, channels) with N > 0, got {a.shape}"
             )
-        a = a.astype(float)
+        a = a.astype(float, copy=False)  # float64 as stored: no copy
         if a.ndim == 1:
             a = a[:, None]
         _check_finite(s, a, str(p), holes=s != "r")  # a low-rate y: checked below
