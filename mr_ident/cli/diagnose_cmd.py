@@ -77,6 +77,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         print(f"  found: {a.description}" + (f" (std: {spread})" if spread else ""))
         for q in a.equivalents:
             print(f"    or, as well (BIC {q.delta_bic:+.1f}): {q.description}")
+    if d.correction is not None:
+        print(f"  found: {d.correction.text()}")
     if d.nonlinear:
         print(f"  found: {d.distortion_text()}")
     if d.relation is not None:
