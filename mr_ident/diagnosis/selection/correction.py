@@ -19,8 +19,13 @@ the criterion of the causes (:class:`~mr_ident.diagnosis.criterion.objective.Obj
 whitened by the validation data's own noise level) as ``BIC = 2 J + p ln n``, p the
 correction's real parameters. The best candidate is accepted when its BIC is lower than
 both the nominal's and the extended model's ``2 J`` by more than the selection's
-:data:`~mr_ident.diagnosis.selection.forward.ACCEPT_MARGIN`, and its validation fit of y
-is higher than both; otherwise it is reported as a candidate that did not validate.
+:data:`~mr_ident.diagnosis.selection.forward.ACCEPT_MARGIN`, its validation fit of y is
+higher than both, and its gain holds over the bins: per bin the drop of the whitened
+squared residual ``d_k``, its mean over the bins at least :data:`MIN_T` of its standard
+error above 0 (a t statistic, blind to the noise level's scale: where unmodelled
+nonlinear distortion outweighs the noise estimate, the BIC's differences are inflated
+alike for any change, the t statistic is not). Otherwise it is reported as a candidate
+that did not validate.
 """
 
 from __future__ import annotations
@@ -32,7 +37,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ...errors import MrIdentError
-from ...numerics.arrays import ComplexArray
+from ...numerics.arrays import ComplexArray, FloatArray
 from ...numerics.fit.frf_fit import fit_frf
 from ...numerics.results import FRF, Identification
 from ...numerics.signals import LoopData
@@ -47,6 +52,8 @@ from .forward import ACCEPT_MARGIN
 
 #: Highest order (states) of a correction tried.
 MAX_ORDER = 4
+#: Least t statistic of the per-bin drop of the validation residual (about 1e-3 one-sided).
+MIN_T = 3.0
 
 
 @dataclass(frozen=True)
@@ -84,6 +91,8 @@ class Correction:
         ``best`` validates better than the nominal and than the causes (module docstring).
     score_nominal, score_causes : float
         ``2 J`` of the nominal and of the extended model on the validation criterion.
+    t_nominal, t_causes : float
+        The best candidate's t statistic of the per-bin drop against each (module docstring).
     fit_nominal, fit_causes : float
         Their validation fits of y (%).
     """
@@ -96,6 +105,8 @@ class Correction:
     score_causes: float
     fit_nominal: float
     fit_causes: float
+    t_nominal: float = math.nan
+    t_causes: float = math.nan
 
     @property
     def model(self) -> Model | None:
@@ -122,7 +133,8 @@ class Correction:
         b = self.best
         fits = (
             f"validation fit of y {self.fit_nominal:.1f} % (nominal), {self.fit_causes:.1f} % "
-            f"(causes), {b.fit_y:.1f} % (with it); validation BIC {-self.gain:+.1f}"
+            f"(causes), {b.fit_y:.1f} % (with it); validation BIC {-self.gain:+.1f}, t "
+            f"{min(self.t_nominal, self.t_causes):.1f}"
         )
         what = f"not a listed cause at {where}: {describe(b.kind, b.correction)}"
         if self.accepted:
@@ -145,6 +157,8 @@ class Correction:
             "fit_nominal": _finite(self.fit_nominal),
             "fit_causes": _finite(self.fit_causes),
             "fit_corrected": None if b is None else _finite(b.fit_y),
+            "t_nominal": _finite(self.t_nominal),
+            "t_causes": _finite(self.t_causes),
             "candidates": [
                 {
                     "kind": c.kind,
@@ -156,7 +170,9 @@ class Correction:
             ],
             "criterion": "2 J + p ln n on the validation data's whitened residual (J of the "
             f"causes' criterion); accepted when below the nominal's and the causes' 2 J by "
-            f"more than {ACCEPT_MARGIN:g} and the validation fit of y is higher than both",
+            f"more than {ACCEPT_MARGIN:g}, the validation fit of y higher than both, and the "
+            f"per-bin drop of the whitened squared residual at least {MIN_T:g} standard errors "
+            "above 0 against both (t)",
         }
 
 
@@ -297,12 +313,36 @@ def correction(
             fy = time_fit(model, val, start).y
         cands.append(Candidate(kind, order, C, model, p, bic, fy if math.isfinite(fy) else -1e9))
     best = min(cands, key=lambda c: c.bic, default=None)
+    t_nom = t_cur = math.nan
+    if best is not None:
+        power = _bin_power(crit, best.model)
+        t_nom = drop_t(_bin_power(crit, nominal), power)
+        t_cur = t_nom if current is nominal else drop_t(_bin_power(crit, current), power)
     accepted = (
         best is not None
         and best.bic < min(score_nom, score_cur) - ACCEPT_MARGIN
         and best.fit_y > max(fit_nom, fit_cur)
+        and min(t_nom, t_cur) >= MIN_T
     )
-    return Correction(bands, best, tuple(cands), accepted, score_nom, score_cur, fit_nom, fit_cur)
+    return Correction(
+        bands, best, tuple(cands), accepted, score_nom, score_cur, fit_nom, fit_cur, t_nom, t_cur
+    )
+
+
+def _bin_power(crit: Objective, model: Model) -> FloatArray:
+    """Per bin (and output) the whitened squared residual ``|E_k|² / S_k`` of ``model``."""
+    r = crit.residuals(model)
+    half = r.size // 2
+    return np.asarray(r[:half] ** 2 + r[half:] ** 2, float)
+
+
+def drop_t(before: FloatArray, after: FloatArray) -> float:
+    """The t statistic of the mean per-bin drop ``before - after`` (bins with weight only)."""
+    d = (before - after)[(before > 0) | (after > 0)]
+    if d.size < 2:
+        return math.nan
+    se = float(np.std(d, ddof=1)) / math.sqrt(d.size)
+    return float(np.mean(d)) / se if se > 0 else math.inf * float(np.sign(np.mean(d)))
 
 
 def _n_params(C: ModalPlant, direct: bool) -> int:
