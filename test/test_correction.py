@@ -95,6 +95,31 @@ def test_the_corrected_model_is_written_and_loads_back(tmp_path):
     assert np.all(np.isfinite(simulate(back, duration=1.0, rng=np.random.default_rng(2)).y))
 
 
+def test_the_cli_writes_the_correction_to_the_model_file_and_the_report(tmp_path, capsys):
+    import json
+
+    from mr_ident.cli import main
+
+    _, data, val, _ = _out_of_vocabulary()
+    for name, rec in (("data", data), ("val", val)):
+        np.savez(tmp_path / f"{name}.npz", r=rec.r, u=rec.u, y=rec.y, fs_high=FS, ratio=2)
+    (tmp_path / "nominal.yaml").write_text(yaml.safe_dump(model_to_dict(_model())))
+    out = [str(tmp_path / x) for x in ("r.json", "r.html", "ext.yaml")]
+    code = main(
+        ["diagnose", str(tmp_path / "nominal.yaml"), str(tmp_path / "data.npz"),
+         "--validate", str(tmp_path / "val.npz"), "--max-causes", "1",
+         "--json", out[0], "--report", out[1], "--out-model", out[2]]
+    )  # fmt: skip
+    assert code == 0
+    assert "found: not a listed cause" in capsys.readouterr().out
+    rep = json.loads((tmp_path / "r.json").read_text())
+    assert rep["correction"]["accepted"] and rep["correction"]["t_causes"] >= 3.0
+    text = (tmp_path / "ext.yaml").read_text()
+    assert "a plant correction" in text.splitlines()[1] and "plant_corrections:" in text
+    assert load_model(tmp_path / "ext.yaml").plant_corrections
+    assert "not a listed cause" in (tmp_path / "r.html").read_text()
+
+
 def test_a_loop_matching_its_model_gets_no_correction():
     model = dataclasses.replace(_model(), noise_std=5e-4)
     data = simulate(model, duration=10.0, rng=np.random.default_rng(3))
@@ -136,3 +161,16 @@ def test_a_bad_correction_in_a_model_file_is_refused(change, match):
     d["plant_corrections"][0].update(change)
     with pytest.raises(ModelError, match=match):
         model_from_dict(d)
+
+
+def test_a_dead_zones_distortion_gets_no_correction():
+    """A dead zone (level 1: 2 σ_u wide) in a random loop under a periodic odd multisine,
+    a second realization as the validation record: whatever is fitted to what the causes
+    leave does not hold over the validation bins (the distortion is no linear effect), so
+    no correction is applied."""
+    from mr_bench.beyond import draw_beyond
+
+    b = draw_beyond("dead_zone", np.random.default_rng(7), level=1.0, realizations=2)
+    d = diagnose(b.nominal, b.data, b.validation, max_causes=1)
+    assert d.correction is None or not d.correction.accepted, d.correction.text()
+    assert not d.extended.plant_corrections
