@@ -17,15 +17,16 @@ Every kind and order 1..:data:`MAX_ORDER` (states; a pair counts two) is a candi
 is judged on data it was not fitted on (the validation record, or the held-out part):
 the criterion of the causes (:class:`~mr_ident.diagnosis.criterion.objective.Objective`,
 whitened by the validation data's own noise level) as ``BIC = 2 J + p ln n``, p the
-correction's real parameters. The best candidate is accepted when its BIC is lower than
-both the nominal's and the extended model's ``2 J`` by more than the selection's
+correction's real parameters. A candidate validates when its BIC is lower than both the
+nominal's and the extended model's ``2 J`` by more than the selection's
 :data:`~mr_ident.diagnosis.selection.forward.ACCEPT_MARGIN`, its validation fit of y is
 higher than both, and its gain holds over the bins: per bin the drop of the whitened
 squared residual ``d_k``, its mean over the bins at least :data:`MIN_T` of its standard
-error above 0 (a t statistic, blind to the noise level's scale: where unmodelled
-nonlinear distortion outweighs the noise estimate, the BIC's differences are inflated
-alike for any change, the t statistic is not). Otherwise it is reported as a candidate
-that did not validate.
+error above 0 against both (a t statistic, blind to the noise level's scale: where
+unmodelled nonlinear distortion outweighs the noise estimate, the BIC's differences are
+inflated alike for any change, the t statistic is not). Of those that validate, the one
+of lowest BIC is applied (the order thus chosen on the validation data); when none does,
+the lowest of all is reported as a candidate that did not validate.
 """
 
 from __future__ import annotations
@@ -63,7 +64,8 @@ class Candidate:
     ``kind`` "additive" or "multiplicative"; ``order`` its states; ``correction`` C
     (discrete at 1/fs_high); ``model`` the extended model with it; ``n_params`` its real
     parameters; ``bic`` ``2 J + p ln n`` on the validation criterion; ``fit_y`` the
-    validation fit of y in %.
+    validation fit of y in %; ``t_nominal``, ``t_causes`` the t statistics of its per-bin
+    drop against the nominal and the extended model (module docstring).
     """
 
     kind: str
@@ -73,6 +75,8 @@ class Candidate:
     n_params: int
     bic: float
     fit_y: float
+    t_nominal: float = math.nan
+    t_causes: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -84,7 +88,8 @@ class Correction:
     bands : list of (float, float)
         Hz: where the extended model was still significantly wrong on the estimation data.
     best : Candidate or None
-        The candidate of lowest validation BIC (None: no candidate could be fitted).
+        Of the candidates that validate, the one of lowest validation BIC; when none does,
+        the lowest of all (None: no candidate could be fitted).
     candidates : tuple of Candidate
         Every kind and order tried.
     accepted : bool
@@ -299,33 +304,38 @@ def correction(
     ident_val = identify_record(val_part, nominal, n=n, degree=degree)
     noise = noise_spectrum(val_part, nominal, n=n, degree=degree, ident=ident_val)
     crit = Objective(val_part, nominal, noise)
-    score_nom, score_cur = 2.0 * crit.cost(nominal), 2.0 * crit.cost(current)
     fit_nom = time_fit(nominal, val, start).y
     fit_cur = fit_nom if current is nominal else time_fit(current, val, start).y
+    power_nom = _bin_power(crit, nominal)
+    power_cur = power_nom if current is nominal else _bin_power(crit, current)
+    score_nom, score_cur = 2.0 * float(power_nom.sum()), 2.0 * float(power_cur.sum())
     cands = []
     for kind, order, C, p in fits:
         model = replace(current, plant_corrections=(*current.plant_corrections, (kind, C)))
         if not _stable(model):
             continue
-        bic = 2.0 * crit.cost(model) + p * math.log(crit.n_bins)
+        power = _bin_power(crit, model)
+        bic = 2.0 * float(power.sum()) + p * math.log(crit.n_bins)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             fy = time_fit(model, val, start).y
-        cands.append(Candidate(kind, order, C, model, p, bic, fy if math.isfinite(fy) else -1e9))
-    best = min(cands, key=lambda c: c.bic, default=None)
-    t_nom = t_cur = math.nan
-    if best is not None:
-        power = _bin_power(crit, best.model)
-        t_nom = drop_t(_bin_power(crit, nominal), power)
-        t_cur = t_nom if current is nominal else drop_t(_bin_power(crit, current), power)
-    accepted = (
-        best is not None
-        and best.bic < min(score_nom, score_cur) - ACCEPT_MARGIN
-        and best.fit_y > max(fit_nom, fit_cur)
-        and min(t_nom, t_cur) >= MIN_T
-    )
+        t = (drop_t(power_nom, power), drop_t(power_cur, power))
+        cands.append(
+            Candidate(kind, order, C, model, p, bic, fy if math.isfinite(fy) else -1e9, *t)
+        )
+
+    def validates(c: Candidate) -> bool:
+        return (
+            c.bic < min(score_nom, score_cur) - ACCEPT_MARGIN
+            and c.fit_y > max(fit_nom, fit_cur)
+            and min(c.t_nominal, c.t_causes) >= MIN_T
+        )
+
+    good = [c for c in cands if validates(c)]
+    best = min(good or cands, key=lambda c: c.bic, default=None)
+    t_nom, t_cur = (math.nan, math.nan) if best is None else (best.t_nominal, best.t_causes)
     return Correction(
-        bands, best, tuple(cands), accepted, score_nom, score_cur, fit_nom, fit_cur, t_nom, t_cur
+        bands, best, tuple(cands), bool(good), score_nom, score_cur, fit_nom, fit_cur, t_nom, t_cur
     )
 
 
