@@ -174,3 +174,24 @@ def test_a_dead_zones_distortion_gets_no_correction():
     d = diagnose(b.nominal, b.data, b.validation, max_causes=1)
     assert d.correction is None or not d.correction.accepted, d.correction.text()
     assert not d.extended.plant_corrections
+
+
+def test_the_drop_statistic_is_blind_to_the_noise_scale_and_quiet_without_a_gain():
+    from mr_ident.diagnosis.selection.correction import drop_t
+
+    rng = np.random.default_rng(4)
+    noise = rng.exponential(size=(2, 4000))  # |E|²/S of unit-variance complex bins
+    error = np.zeros(4000)
+    error[:40] = 20.0  # the part a correction removes: 1 % of the bins
+    t = drop_t(noise[0] + error, noise[1])
+    assert t > 3.0 and drop_t(1e4 * (noise[0] + error), 1e4 * noise[1]) == pytest.approx(t)
+    ts = [drop_t(*rng.exponential(size=(2, 4000))) for _ in range(200)]
+    assert np.mean(np.array(ts) >= 3.0) < 0.02  # about 1e-3 without a gain
+
+
+def test_a_correction_that_could_not_be_fitted_says_so():
+    from mr_ident.diagnosis.selection.correction import Correction
+
+    c = Correction([(1.0, 2.0)], None, (), False, *(np.nan,) * 4)
+    assert c.model is None and c.text().endswith("no stable correction could be fitted")
+    assert c.summary()["kind"] is None and c.summary()["fit_nominal"] is None

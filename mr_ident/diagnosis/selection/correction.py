@@ -297,6 +297,8 @@ def correction(
             C = _fit(target, nominal.fs_high, order, kind == "multiplicative")
             if C is not None:
                 fits.append((kind, order, C, _n_params(C, kind == "multiplicative")))
+    if not fits:
+        return Correction(bands, None, (), False, *(math.nan,) * 4)
     val_part = val.part(val_start, val.n_samples) if val_start else val
     start = val_start
     if not start and nominal.controller is not None and val.period is None:
