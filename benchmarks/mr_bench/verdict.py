@@ -236,3 +236,57 @@ def _verdict(
 def _fits(scenario: Scenario, fit_gap: float) -> bool:
     """The validation fit is the true model's within :data:`MAX_FIT_GAP` (or nothing hid)."""
     return not scenario.hidden or fit_gap < MAX_FIT_GAP
+
+
+#: Distortion above the noise (dB, the truth's worst band) from which a nonlinearity must
+#: be named (:func:`judge_beyond`).
+NAMED_DB = 6.0
+
+
+@dataclass(frozen=True)
+class BeyondVerdict:
+    """How a diagnosis did on a loop beyond the vocabulary (:func:`judge_beyond`).
+
+    ``named``: nonlinear distortion named (nonlinear cases; None otherwise); ``counts``:
+    a nonlinear case whose true distortion is at least :data:`NAMED_DB` above the noise
+    (where naming it is asked for); ``worse_applied``: an extension (a cause or a
+    correction) is in the extended model although its validation fit of y is below the
+    nominal's; ``offered``: a correction was fitted (something was left after the causes);
+    ``corrected``: one was applied and validates better than the nominal; ``explained``:
+    nothing significant was left after the causes and they validate better than the
+    nominal (the vocabulary described the effect; no correction needed).
+    """
+
+    named: bool | None
+    counts: bool
+    worse_applied: bool
+    offered: bool
+    corrected: bool
+    explained: bool
+
+
+def nonlinearity_named(diagnosis: Diagnosis) -> bool:
+    """Whether the diagnosis named nonlinear distortion (its ``nonlinear`` finding)."""
+    return bool(getattr(diagnosis, "nonlinear", False))
+
+
+def judge_beyond(nonlinear: bool, distortion_db: float, diagnosis: Diagnosis) -> BeyondVerdict:
+    """The verdict (:class:`BeyondVerdict`) on a case with or without a nonlinearity.
+
+    ``distortion_db``: the truth's distortion above the noise (nan for a linear effect).
+    """
+    d = diagnosis
+    extended = bool(d.applied) or bool(d.extended.plant_corrections)
+    c = d.correction
+    corrected = (
+        c is not None and c.model is not None and c.best is not None
+        and c.best.fit_y > c.fit_nominal
+    )  # fmt: skip
+    return BeyondVerdict(
+        named=nonlinearity_named(d) if nonlinear else None,
+        counts=nonlinear and math.isfinite(distortion_db) and distortion_db >= NAMED_DB,
+        worse_applied=extended and d.fit_after.y < d.fit_before.y,
+        offered=c is not None,
+        corrected=corrected,
+        explained=c is None and extended and d.fit_after.y > d.fit_before.y,
+    )

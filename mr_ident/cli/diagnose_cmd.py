@@ -41,7 +41,10 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     summary = report_dict(
         d, extended_model=str(args.out_model) if args.out_model else None, alpha=args.alpha
     )
-    applied = ", ".join(a.cause for a in d.applied)
+    applied = ", ".join(
+        [a.cause for a in d.applied]
+        + (["a plant correction"] if d.correction is not None and d.correction.accepted else [])
+    )
     # Everything is computed; now write (each file atomically).
     if args.out_model:
         text = yaml.safe_dump(model_to_dict(d.extended), sort_keys=False)
@@ -53,7 +56,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     atomic_write(args.json, lambda fh: json.dump(summary, fh, indent=2), binary=False)
     if args.report:
         ext = None
-        if d.applied:
+        if d.applied or (d.correction is not None and d.correction.accepted):
             ext = d.extended.plant_discrete().freqresp(d.evidence_before.frequency)
         page = report_html(
             d, summary, ext, f"mr-ident diagnose: {args.model.name} on {args.data.name}"
@@ -77,6 +80,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         print(f"  found: {a.description}" + (f" (std: {spread})" if spread else ""))
         for q in a.equivalents:
             print(f"    or, as well (BIC {q.delta_bic:+.1f}): {q.description}")
+    if d.correction is not None:
+        print(f"  found: {d.correction.text()}")
     if d.nonlinear:
         print(f"  found: {d.distortion_text()}")
     if d.relation is not None:

@@ -51,6 +51,7 @@ from .criterion.evidence import Evidence, frf_evidence, identify_record
 from .criterion.noise import noise_spectrum
 from .criterion.objective import Objective, settle_samples
 from .criterion.prediction import TimeFit, centred, predict, time_fit
+from .selection.correction import Correction, correction
 from .selection.equivalence import with_equivalents
 from .selection.forward import SCREEN_SAMPLES, select
 
@@ -163,6 +164,11 @@ class Diagnosis:
         from the logged y through the model's controller?) and the controller-side causes
         it determined (:mod:`~mr_ident.diagnosis.controller.relation`); None in open loop
         or with y at the low rate.
+    correction : Correction or None
+        Where the extended model is still wrong on the estimation data: a low-order
+        correction of P_h, fitted there and judged on the validation data
+        (:mod:`~mr_ident.diagnosis.selection.correction`); in ``extended`` only when it
+        validated. None when nothing was left.
     """
 
     cause: str
@@ -182,6 +188,7 @@ class Diagnosis:
     controller: ControllerCheck | None = None
     criterion: Objective | None = field(default=None, repr=False, compare=False)
     relation: ControllerRelation | None = None
+    correction: Correction | None = None
 
     @property
     def nonlinear(self) -> bool:
@@ -362,6 +369,9 @@ def diagnose(
     applied = _settled(full, model, relation) + with_equivalents(
         full, screen, base, plant, sel.chosen, sel.ranking
     )
+    # where the listed causes end: a correction, applied only when it validates
+    corr = correction(model, current, est, ident, val, val_start, n=n, degree=degree, alpha=alpha)
+    current = corr.model if corr is not None and corr.model is not None else current
     val_part = val.part(val_start, val.n_samples) if val_start else val
     pred_b, pred_a = predict(model, val), predict(current, val)
     if not val_start and model.controller is not None and val.period is None:
@@ -398,6 +408,7 @@ def diagnose(
         None if ident is None else check_controller(ident, n),
         full,
         relation,
+        corr,
     )
 
 

@@ -64,7 +64,8 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
             else []
         )
         + ([d.controller.text()] if d.controller is not None and d.controller.differs else [])
-        + [c.description for c in d.applied],
+        + [c.description for c in d.applied]
+        + ([d.correction.text()] if d.correction is not None else []),
         "nonlinear_distortion": {
             "detected": d.nonlinear,
             "threshold_db": NL_THRESHOLD_DB,
@@ -135,6 +136,7 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
         "extended_model": extended_model,
         "estimation": d.estimation,
         "validation": d.validation,
+        "correction": None if d.correction is None else d.correction.summary(),
         "unexplained": {
             "significant_bands": [list(b) for b in d.evidence_after.bands()],
             "fit_gap_percent": _finite(100.0 - d.fit_after.y),

@@ -18,7 +18,7 @@ import yaml
 from ..errors import ModelError, yaml_problem
 from ..numerics.systems.lti import TransferMatrix
 from ..numerics.systems.modal import ModalPlant
-from ..numerics.systems.model import Model
+from ..numerics.systems.model import CORRECTION_KINDS, Model
 from ..numerics.systems.simulate import loop_poles
 from .modal_yaml import modal_from_dict, modal_to_dict
 
@@ -38,6 +38,7 @@ _KEYS = {
     "series_dynamics",
     "controller_notches",
     "disturbances",
+    "plant_corrections",
 }
 _SYS_KEYS = {"num", "den", "domain"}
 
@@ -328,6 +329,7 @@ def _extensions(
                 f"sample times (1/fs_high = {1 / fs:g} s), got {delay!r}"
             )
     return dict(
+        plant_corrections=_corrections(d, source, fs, plant.shape),
         plant_gain=gain,
         input_delay=delay,
         additive_modes=tuple(adds),
@@ -336,6 +338,48 @@ def _extensions(
         controller_notches=tuple(notches),
         disturbances=tuple(dist),
     )
+
+
+def _corrections(
+    d: dict[str, Any], source: str, fs: float, shape: tuple[int, int]
+) -> tuple[tuple[str, ModalPlant], ...]:
+    """``plant_corrections``: each a kind and a discrete modal system (the module docstring)."""
+    items = d.get("plant_corrections") or []
+    if not isinstance(items, list):
+        raise ModelError(
+            f"{source}: plant_corrections must be a list of mappings, got {type(items).__name__}"
+        )
+    out = []
+    for j, e in enumerate(items):
+        where = f"plant_corrections[{j}]"
+        if not isinstance(e, dict):
+            raise ModelError(f"{source}: {where} must be a mapping, got {e!r}")
+        kind = e.get("kind")
+        if kind not in CORRECTION_KINDS:
+            raise ModelError(
+                f"{source}: {where}.kind must be one of {', '.join(CORRECTION_KINDS)}, "
+                f"got {kind!r}"
+            )
+        if e.get("domain") != "discrete":
+            raise ModelError(
+                f"{source}: {where}.domain must be discrete (at 1/fs_high), got "
+                f"{e.get('domain')!r}"
+            )
+        body = {k: v for k, v in e.items() if k != "kind"}
+        try:
+            C = modal_from_dict(body, where, 1.0 / fs)
+        except ModelError as err:
+            raise ModelError(f"{source}: {err}") from None
+        want = shape if kind == "additive" else (shape[1], shape[1])
+        if C.shape != want:
+            raise ModelError(
+                f"{source}: {where} is {C.shape[0]}x{C.shape[1]}; a {kind} correction "
+                f"must be {want[0]}x{want[1]}"
+            )
+        if np.any(np.abs(C.poles) >= 1.0):
+            raise ModelError(f"{source}: {where} has a pole on or outside the unit circle")
+        out.append((str(kind), C))
+    return tuple(out)
 
 
 def _index(v: Any, where: str, n: int) -> int:
@@ -414,4 +458,8 @@ def model_to_dict(model: Model) -> dict[str, Any]:
         items = getattr(model, key)  # the Model attribute has the key's name
         if items:
             d[key] = [{n: _plain(v) for n, v in zip(names, t, strict=True)} for t in items]
+    if model.plant_corrections:
+        d["plant_corrections"] = [
+            {"kind": kind, **modal_to_dict(C)} for kind, C in model.plant_corrections
+        ]
     return d

@@ -33,9 +33,15 @@ their physical meaning is in the README's cause table)::
       - {frequency_hz: 20.0, damping: 0.3, depth: 0.1}  # (Tustin at fs_low, prewarped)
     disturbances:             #   sinusoids added to output y (seen by the controller)
       - {frequency_hz: 13.0, amplitude: 0.01, phase_rad: 0.0, output: 0}
+    plant_corrections:        #   fitted where no listed cause explains the data: each a
+      - kind: additive        #   discrete modal system at 1/fs_high (the modal form below),
+        domain: discrete      #   added to P_h (additive: n_y x n_u) or multiplying it at
+        direct: 0.0           #   its input (multiplicative: P_h (I + C), C n_u x n_u)
+        modes: [{frequency_hz: 83.0, damping: 0.04, c1: 0.01, c0: -0.0099}]
 
 ``additive_modes``, ``mode_changes``, ``series_dynamics`` and a fractional
-``input_delay_s`` need a continuous-time plant. Every model is simulated and evaluated in
+``input_delay_s`` need a continuous-time plant. ``plant_corrections`` act on P_h, after the
+hold and the delay, whatever the plant's domain. Every model is simulated and evaluated in
 state space (:mod:`~mr_ident.numerics.systems.realize`): the polynomials of the file are turned
 into sections once, and nothing past second order goes back to polynomial form.
 
@@ -116,6 +122,11 @@ class Model:
         its frequency.
     disturbances : tuple of (frequency_hz, amplitude, phase_rad, output)
         Sinusoids added to output ``output`` of y (also seen by the controller).
+    plant_corrections : tuple of (kind, ModalPlant)
+        Low-order corrections of P_h, each discrete at ``1/fs_high``: ``"additive"``
+        (``P_h + C``, C n_y x n_u) or ``"multiplicative"`` (``P_h (I + C)``, C n_u x n_u),
+        applied in turn after the hold and the input delay (written by ``mr-ident
+        diagnose`` where no listed cause explains the data).
     """
 
     fs_high: float
@@ -133,6 +144,7 @@ class Model:
     series_dynamics: tuple[tuple[float, float, str, int], ...] = ()
     controller_notches: tuple[tuple[float, float, float], ...] = ()
     disturbances: tuple[tuple[float, float, float, int], ...] = ()
+    plant_corrections: tuple[tuple[str, ModalPlant], ...] = ()
 
     @property
     def n_y(self) -> int:
@@ -165,9 +177,10 @@ class Model:
         P = self.plant_ss()
         h = 1.0 / self.fs_high
         if P.dt is None:
-            return zoh(P, h, delay=self.input_delay)
-        d = int(round(self.input_delay * self.fs_high))
-        return series(shift(self.n_u, d, h), P) if d else P
+            P = zoh(P, h, delay=self.input_delay)
+        elif d := int(round(self.input_delay * self.fs_high)):
+            P = series(shift(self.n_u, d, h), P)
+        return corrected(P, self.plant_corrections)
 
     def controller_ss(self) -> StateSpace:
         """K_l in state space at the low rate, with any controller notches after it.
@@ -227,6 +240,38 @@ class Model:
             else None
         )
         return {"controller_low": K, "phase": self.sample_phase, "delay": self.control_delay}
+
+
+#: The kinds of a plant correction (:attr:`Model.plant_corrections`).
+CORRECTION_KINDS = ("additive", "multiplicative")
+
+
+def corrected(P: StateSpace, corrections: tuple[tuple[str, ModalPlant], ...]) -> StateSpace:
+    """P_h (discrete) with each correction applied in turn (:attr:`Model.plant_corrections`).
+
+    Raises
+    ------
+    ModelError
+        An unknown kind, a correction that is not discrete at P_h's sample time, or one of
+        the wrong shape.
+    """
+    for kind, C in corrections:
+        if C.dt is None or P.dt is None or not np.isclose(C.dt, P.dt, rtol=1e-9):
+            raise ModelError(
+                f"a plant correction must be discrete at 1/fs_high = {P.dt!r} s, got dt={C.dt!r}"
+            )
+        no, ni = P.shape
+        if kind == "additive" and C.shape == (no, ni):
+            P = parallel(P, C.state_space())
+        elif kind == "multiplicative" and C.shape == (ni, ni):
+            S = C.state_space()
+            P = series(StateSpace(S.A, S.B, S.C, S.D + np.eye(ni), S.dt), P)
+        else:
+            raise ModelError(
+                f"a plant correction must be additive ({no}x{ni}) or multiplicative "
+                f"({ni}x{ni}); got {kind!r} of shape {C.shape}"
+            )
+    return P
 
 
 def _mode_pole(frequency_hz: float, damping: float) -> complex:

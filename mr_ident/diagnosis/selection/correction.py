@@ -1,0 +1,376 @@
+# SPDX-License-Identifier: Apache-2.0
+"""Where the vocabulary ends: a low-order correction of P_h, offered only when it validates.
+
+After the best causes, the extended model is held against the estimation data's FRF again
+(:func:`~mr_ident.diagnosis.criterion.evidence.frf_evidence`); where bins are still
+significant, no listed cause explains them. There a stable low-order correction ``C`` of the
+plant at the high rate is fitted to what is left, weighted by the FRF's std
+(:func:`~mr_ident.numerics.fit.frf_fit.fit_frf`, discrete at ``1/fs_high``, so that no hold
+or delay is assumed):
+
+- **additive**: ``P_h + C``, fitted to ``P̂ - P_ext`` with σ̂;
+- **multiplicative** (one input and one output): ``P_h (1 + C)``, fitted to
+  ``P̂ / P_ext - 1`` with ``σ̂ / |P_ext|`` (C has a direct term: a pole-zero pair's
+  ratio does not vanish at high frequency).
+
+Every kind and order 1..:data:`MAX_ORDER` (states; a pair counts two) is a candidate. Each
+is judged on data it was not fitted on (the validation record, or the held-out part):
+the criterion of the causes (:class:`~mr_ident.diagnosis.criterion.objective.Objective`,
+whitened by the validation data's own noise level) as ``BIC = 2 J + p ln n``, p the
+correction's real parameters. A candidate validates when its BIC is lower than both the
+nominal's and the extended model's ``2 J`` by more than the selection's
+:data:`~mr_ident.diagnosis.selection.forward.ACCEPT_MARGIN`, its validation fit of y is
+higher than both, and its gain holds over the bins: per bin the drop of the whitened
+squared residual ``d_k``, its mean over the bins at least :data:`MIN_T` of its standard
+error above 0 against both (a t statistic, blind to the noise level's scale: where
+unmodelled nonlinear distortion outweighs the noise estimate, the BIC's differences are
+inflated alike for any change, the t statistic is not). Of those that validate, the one
+of lowest BIC is applied (the order thus chosen on the validation data); when none does,
+the lowest of all is reported as a candidate that did not validate.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ...errors import MrIdentError
+from ...numerics.arrays import ComplexArray, FloatArray
+from ...numerics.fit.frf_fit import fit_frf
+from ...numerics.results import FRF, Identification
+from ...numerics.signals import LoopData
+from ...numerics.systems.modal import ModalPlant
+from ...numerics.systems.model import Model
+from ...numerics.systems.simulate import loop_poles
+from ..criterion.evidence import Evidence, frf_evidence, identify_record
+from ..criterion.noise import noise_spectrum
+from ..criterion.objective import Objective, settle_samples
+from ..criterion.prediction import time_fit
+from .forward import ACCEPT_MARGIN
+
+#: Highest order (states) of a correction tried.
+MAX_ORDER = 4
+#: Least t statistic of the per-bin drop of the validation residual (about 1e-3 one-sided).
+MIN_T = 3.0
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One correction fitted on the estimation data and scored on the validation data.
+
+    ``kind`` "additive" or "multiplicative"; ``order`` its states; ``correction`` C
+    (discrete at 1/fs_high); ``model`` the extended model with it; ``n_params`` its real
+    parameters; ``bic`` ``2 J + p ln n`` on the validation criterion; ``fit_y`` the
+    validation fit of y in %; ``t_nominal``, ``t_causes`` the t statistics of its per-bin
+    drop against the nominal and the extended model (module docstring).
+    """
+
+    kind: str
+    order: int
+    correction: ModalPlant
+    model: Model
+    n_params: int
+    bic: float
+    fit_y: float
+    t_nominal: float = math.nan
+    t_causes: float = math.nan
+
+
+@dataclass(frozen=True)
+class Correction:
+    """What :func:`correction` found where the listed causes end.
+
+    Attributes
+    ----------
+    bands : list of (float, float)
+        Hz: where the extended model was still significantly wrong on the estimation data.
+    best : Candidate or None
+        Of the candidates that validate, the one of lowest validation BIC; when none does,
+        the lowest of all (None: no candidate could be fitted).
+    candidates : tuple of Candidate
+        Every kind and order tried.
+    accepted : bool
+        ``best`` validates better than the nominal and than the causes (module docstring).
+    score_nominal, score_causes : float
+        ``2 J`` of the nominal and of the extended model on the validation criterion.
+    t_nominal, t_causes : float
+        The best candidate's t statistic of the per-bin drop against each (module docstring).
+    fit_nominal, fit_causes : float
+        Their validation fits of y (%).
+    """
+
+    bands: list[tuple[float, float]]
+    best: Candidate | None
+    candidates: tuple[Candidate, ...]
+    accepted: bool
+    score_nominal: float
+    score_causes: float
+    fit_nominal: float
+    fit_causes: float
+    t_nominal: float = math.nan
+    t_causes: float = math.nan
+
+    @property
+    def model(self) -> Model | None:
+        """The extended model with the correction when accepted, else None."""
+        return self.best.model if self.accepted and self.best is not None else None
+
+    @property
+    def gain(self) -> float:
+        """Validation BIC of the best candidate below the better of nominal and causes."""
+        if self.best is None:
+            return -math.inf
+        return min(self.score_nominal, self.score_causes) - self.best.bic
+
+    def text(self) -> str:
+        """The finding in words (what the correction is, and what it gained or did not)."""
+        where = (
+            ", ".join(f"{lo:.3g}-{hi:.3g} Hz" for lo, hi in self.bands)
+            if len(self.bands) <= 3
+            else f"{len(self.bands)} bands between {self.bands[0][0]:.3g} and "
+            f"{self.bands[-1][1]:.3g} Hz"
+        )
+        if self.best is None:
+            return f"not a listed cause at {where}, and no stable correction could be fitted"
+        b = self.best
+        fits = (
+            f"validation fit of y {self.fit_nominal:.1f} % (nominal), {self.fit_causes:.1f} % "
+            f"(causes), {b.fit_y:.1f} % (with it); validation BIC {-self.gain:+.1f}, t "
+            f"{min(self.t_nominal, self.t_causes):.1f}"
+        )
+        what = f"not a listed cause at {where}: {describe(b.kind, b.correction)}"
+        if self.accepted:
+            return f"{what} ({fits})"
+        return f"{what}, not applied: it did not validate ({fits})"
+
+    def summary(self) -> dict[str, object]:
+        """The JSON-ready account (the report's ``correction``)."""
+        b = self.best
+        return {
+            "accepted": self.accepted,
+            "description": self.text(),
+            "bands_hz": [list(x) for x in self.bands],
+            "kind": None if b is None else b.kind,
+            "order": None if b is None else b.order,
+            "poles": [] if b is None else poles_text(b.correction),
+            "validation_score_nominal": _finite(self.score_nominal),
+            "validation_score_causes": _finite(self.score_causes),
+            "validation_bic": None if b is None else _finite(b.bic),
+            "fit_nominal": _finite(self.fit_nominal),
+            "fit_causes": _finite(self.fit_causes),
+            "fit_corrected": None if b is None else _finite(b.fit_y),
+            "t_nominal": _finite(self.t_nominal),
+            "t_causes": _finite(self.t_causes),
+            "candidates": [
+                {
+                    "kind": c.kind,
+                    "order": c.order,
+                    "validation_bic": _finite(c.bic),
+                    "fit_y": _finite(c.fit_y),
+                }
+                for c in self.candidates
+            ],
+            "criterion": "2 J + p ln n on the validation data's whitened residual (J of the "
+            f"causes' criterion); accepted when below the nominal's and the causes' 2 J by "
+            f"more than {ACCEPT_MARGIN:g}, the validation fit of y higher than both, and the "
+            f"per-bin drop of the whitened squared residual at least {MIN_T:g} standard errors "
+            "above 0 against both (t)",
+        }
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def _hz_damping(z: complex, fs: float) -> tuple[float, float]:
+    s = complex(np.log(complex(z))) * fs
+    w = abs(s)
+    return w / (2.0 * math.pi), (-s.real / w if w > 0 else 1.0)
+
+
+def poles_text(C: ModalPlant) -> list[str]:
+    """Each pole (pair) of a discrete correction in words: frequency and damping of ln(z) fs."""
+    assert C.dt is not None
+    fs = 1.0 / C.dt
+    out = []
+    for p in C.poles:
+        f, z = _hz_damping(complex(p), fs)
+        out.append(
+            f"a pole pair at {f:.3g} Hz, damping {z:.2g}"
+            if p.imag > 0
+            else f"a real pole at {f:.3g} Hz"
+        )
+    return out
+
+
+def _zeros(C: ModalPlant) -> ComplexArray:
+    """Zeros of the SISO ``1 + C`` (multiplicative), upper half plane and real ones."""
+    S = C.state_space()
+    d = float(S.D[0, 0]) + 1.0
+    if not S.A.size or abs(d) < 1e-12:
+        return np.zeros(0, complex)
+    z = np.linalg.eigvals(S.A - S.B @ S.C / d)
+    return np.asarray(z[z.imag >= 0], complex)
+
+
+def describe(kind: str, C: ModalPlant) -> str:
+    """The correction in words: "an additive correction ... with a pole pair at 83 Hz, ..."."""
+    parts = poles_text(C)
+    if kind == "multiplicative" and C.shape == (1, 1) and C.dt is not None:
+        for z in _zeros(C):
+            f, zeta = _hz_damping(complex(z), 1.0 / C.dt)
+            kind_z = "a zero pair" if z.imag > 0 else "a real zero"
+            parts.append(f"{kind_z} at {f:.3g} Hz, damping {zeta:.2g}" if z.imag > 0 else
+                         f"{kind_z} at {f:.3g} Hz")  # fmt: skip
+    body = ", ".join(parts[:-1]) + (" and " if len(parts) > 1 else "") + parts[-1]
+    article = "an" if kind == "additive" else "a"
+    return f"{article} {kind} correction of the plant with {body}"
+
+
+def _targets(ev: Evidence, multiplicative: bool) -> FRF | None:
+    """What the correction must fit on the evidence's bins: P̂ - P or P̂ / P - 1, with σ."""
+    f, P_hat, std, P = ev.frequency, ev.P_hat, ev.P_std, ev.P_model
+    if not multiplicative:
+        H, S = P_hat - P, std
+    else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            H, S = P_hat / P - 1.0, std / np.abs(P)
+    ok = (f > 0) & np.all(np.isfinite(H) & np.isfinite(S) & (S > 0), axis=(1, 2))
+    if ok.sum() < 8:
+        return None
+    return FRF(f[ok], H[ok], S[ok], "correction")
+
+
+def _stable(model: Model) -> bool:
+    try:
+        return bool(np.max(np.abs(loop_poles(model)), initial=0.0) < 1.0)
+    except (MrIdentError, ArithmeticError, ValueError, np.linalg.LinAlgError):
+        return False
+
+
+def correction(
+    nominal: Model,
+    current: Model,
+    est: LoopData,
+    ident: Identification | None,
+    val: LoopData,
+    val_start: int,
+    *,
+    n: int,
+    degree: int,
+    alpha: float,
+) -> Correction | None:
+    """A correction of ``current`` where it is still wrong on ``est`` (module docstring).
+
+    Parameters
+    ----------
+    nominal, current : Model
+        The nominal model and the model with the best causes (the one corrected).
+    est : LoopData
+        The estimation data; ``ident`` its identification
+        (:func:`~mr_ident.diagnosis.criterion.evidence.identify_record`).
+    val : LoopData
+        The validation data from sample ``val_start`` on (held out when > 0, the record
+        simulated from its start so that the state carries over).
+    n, degree, alpha
+        As :func:`~mr_ident.diagnosis.diagnose.diagnose`.
+
+    Returns
+    -------
+    Correction or None
+        None when nothing is significant any more on the estimation data.
+    """
+    ev = frf_evidence(current, est, n=n, degree=degree, alpha=alpha, ident=ident)
+    if not ev.significant.any():
+        return None
+    bands = ev.bands()
+    siso = nominal.n_u == 1 and nominal.n_y == 1
+    fits: list[tuple[str, int, ModalPlant, int]] = []
+    for kind in ("additive", "multiplicative") if siso else ("additive",):
+        target = _targets(ev, kind == "multiplicative")
+        if target is None:
+            continue
+        for order in range(1, MAX_ORDER + 1):
+            C = _fit(target, nominal.fs_high, order, kind == "multiplicative")
+            if C is not None:
+                fits.append((kind, order, C, _n_params(C, kind == "multiplicative")))
+    if not fits:
+        return Correction(bands, None, (), False, *(math.nan,) * 4)
+    val_part = val.part(val_start, val.n_samples) if val_start else val
+    start = val_start
+    if not start and nominal.controller is not None and val.period is None:
+        start = settle_samples(nominal, val.n_samples)  # separate data: skip the transient
+    ident_val = identify_record(val_part, nominal, n=n, degree=degree)
+    noise = noise_spectrum(val_part, nominal, n=n, degree=degree, ident=ident_val)
+    crit = Objective(val_part, nominal, noise)
+    fit_nom = time_fit(nominal, val, start).y
+    fit_cur = fit_nom if current is nominal else time_fit(current, val, start).y
+    power_nom = _bin_power(crit, nominal)
+    power_cur = power_nom if current is nominal else _bin_power(crit, current)
+    score_nom, score_cur = 2.0 * float(power_nom.sum()), 2.0 * float(power_cur.sum())
+    cands = []
+    for kind, order, C, p in fits:
+        model = replace(current, plant_corrections=(*current.plant_corrections, (kind, C)))
+        if not _stable(model):
+            continue
+        power = _bin_power(crit, model)
+        bic = 2.0 * float(power.sum()) + p * math.log(crit.n_bins)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            fy = time_fit(model, val, start).y
+        t = (drop_t(power_nom, power), drop_t(power_cur, power))
+        cands.append(
+            Candidate(kind, order, C, model, p, bic, fy if math.isfinite(fy) else -1e9, *t)
+        )
+
+    def validates(c: Candidate) -> bool:
+        return (
+            c.bic < min(score_nom, score_cur) - ACCEPT_MARGIN
+            and c.fit_y > max(fit_nom, fit_cur)
+            and min(c.t_nominal, c.t_causes) >= MIN_T
+        )
+
+    good = [c for c in cands if validates(c)]
+    best = min(good or cands, key=lambda c: c.bic, default=None)
+    t_nom, t_cur = (math.nan, math.nan) if best is None else (best.t_nominal, best.t_causes)
+    return Correction(
+        bands, best, tuple(cands), bool(good), score_nom, score_cur, fit_nom, fit_cur, t_nom, t_cur
+    )
+
+
+def _bin_power(crit: Objective, model: Model) -> FloatArray:
+    """Per bin (and output) the whitened squared residual ``|E_k|² / S_k`` of ``model``."""
+    r = crit.residuals(model)
+    half = r.size // 2
+    return np.asarray(r[:half] ** 2 + r[half:] ** 2, float)
+
+
+def drop_t(before: FloatArray, after: FloatArray) -> float:
+    """The t statistic of the mean per-bin drop ``before - after`` (bins with weight only)."""
+    d = (before - after)[(before > 0) | (after > 0)]
+    if d.size < 2:
+        return math.nan
+    se = float(np.std(d, ddof=1)) / math.sqrt(d.size)
+    return float(np.mean(d)) / se if se > 0 else math.inf * float(np.sign(np.mean(d)))
+
+
+def _n_params(C: ModalPlant, direct: bool) -> int:
+    no, ni = C.shape
+    return C.order * (1 + no * ni) + (no * ni if direct else 0)
+
+
+def _fit(target: FRF, fs: float, order: int, direct: bool) -> ModalPlant | None:
+    """A stable discrete C of ``order`` states fitted to ``target``; None when none is."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            res = fit_frf(target, fs=fs, order=order, domain="discrete", direct=direct)
+    except (MrIdentError, ArithmeticError, ValueError, np.linalg.LinAlgError):
+        return None
+    C = res.plant
+    if res.delay or not np.all(np.abs(C.poles) < 1.0) or not np.all(np.isfinite(C.residues)):
+        return None
+    return C

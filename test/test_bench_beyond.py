@@ -1,0 +1,82 @@
+# SPDX-License-Identifier: Apache-2.0
+"""The benchmark's loops beyond the vocabulary: the actuated loop, the effects, the verdict."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from mr_bench.beyond import NONLINEAR, UNLISTED, draw_beyond, simulate_actuated
+from mr_bench.scenarios import draw_loop
+from mr_bench.verdict import NAMED_DB, judge_beyond
+from mr_ident.errors import ConfigError
+from mr_ident.numerics.systems.simulate import simulate
+
+
+@pytest.mark.parametrize("seed", [0, 4])
+def test_the_actuated_loop_with_the_identity_is_the_projects_simulation(seed):
+    """Every phase and control delay (beyond one period too), to rounding."""
+    loop = draw_loop(np.random.default_rng(seed), duration=2.0)
+    m = loop.nominal
+    r = loop.reference
+    v = 0.01 * np.random.default_rng(1).standard_normal(r.shape)
+    for phase, delay in ((0, 0), (m.ratio - 1, 1), (0, m.ratio + 1)):
+        mm = dataclasses.replace(m, sample_phase=phase, control_delay=delay)
+        a = simulate_actuated(mm, r, v, lambda u, dy: u)
+        b = simulate(mm, reference=r, noise=v)
+        assert np.max(np.abs(a.y - b.y)) < 1e-9 * np.std(b.y), (phase, delay)
+        assert np.max(np.abs(a.u - b.u)) < 1e-9 * np.std(b.u), (phase, delay)
+
+
+def test_a_strong_dead_zone_distorts_well_above_the_noise_and_a_weak_one_less():
+    strong = draw_beyond("dead_zone", np.random.default_rng(7), level=1.0, realizations=2)
+    weak = draw_beyond("dead_zone", np.random.default_rng(7), level=0.1, realizations=2)
+    assert strong.nonlinear and strong.data.period and strong.validation.period
+    assert strong.distortion_db > NAMED_DB and weak.distortion_db < strong.distortion_db
+    assert not np.allclose(strong.data.r, strong.validation.r)  # two realizations
+
+
+@pytest.mark.parametrize("effect", UNLISTED)
+def test_each_unlisted_effect_changes_the_loop(effect):
+    b = draw_beyond(effect, np.random.default_rng(3), duration=4.0)
+    assert not b.nonlinear and math.isnan(b.distortion_db) and b.data.period is None
+    lin = simulate(b.nominal, reference=b.data.r, noise=np.zeros_like(b.data.y))
+    change = np.linalg.norm(b.data.y - lin.y) / np.linalg.norm(lin.y)
+    assert change > 0.02, (effect, b.parameters, change)
+
+
+def test_an_unknown_effect_is_refused():
+    with pytest.raises(ConfigError, match="effect must be one of"):
+        draw_beyond("hysteresis", np.random.default_rng(0))
+    assert set(NONLINEAR) == {"dead_zone", "saturation", "coulomb_friction", "backlash"}
+
+
+def _diagnosis(applied, fit, correction=None, nonlinear=False, corrections=()):
+    return SimpleNamespace(
+        applied=applied,
+        extended=SimpleNamespace(plant_corrections=corrections),
+        fit_before=SimpleNamespace(y=fit[0]),
+        fit_after=SimpleNamespace(y=fit[1]),
+        correction=correction,
+        nonlinear=nonlinear,
+    )
+
+
+def test_the_verdict_counts_what_the_issue_asks():
+    worse = judge_beyond(True, 12.0, _diagnosis(["additive_mode"], (62.5, 58.7)))
+    assert worse.worse_applied and worse.counts and worse.named is False
+    quiet = judge_beyond(True, 3.0, _diagnosis([], (62.5, 62.5), nonlinear=True))
+    assert not quiet.counts and quiet.named and not quiet.worse_applied
+    best = SimpleNamespace(fit_y=95.0)
+    corr = SimpleNamespace(model=object(), best=best, fit_nominal=80.0)
+    fixed = judge_beyond(False, math.nan, _diagnosis([], (80.0, 95.0), corr, corrections=(1,)))
+    assert fixed.corrected and fixed.offered and fixed.named is None and not fixed.explained
+    refused = SimpleNamespace(model=None, best=best, fit_nominal=80.0)
+    no = judge_beyond(False, math.nan, _diagnosis(["gain_error"], (80.0, 90.0), refused))
+    assert no.offered and not no.corrected and not no.explained
+    described = judge_beyond(False, math.nan, _diagnosis(["gain_error"], (80.0, 90.0)))
+    assert described.explained and not described.offered
