@@ -76,7 +76,9 @@ def _read(
     """One recording of the request, its rates settled as ``req.rates`` says."""
     if req.rates == "file":
         return read_for_diagnosis(reading, model, req.period, specs, notify)
-    data, fs, F = read_settled(reading, specs, req.fs_high, req.ratio, model, notify)
+    data, fs, F = read_settled(
+        reading, specs, req.fs_high, req.ratio, model, notify, complete=True
+    )
     return replace(data, fs_high=fs, ratio=F, period=req.period)
 
 
