@@ -26,7 +26,8 @@ SPECS = {"r": [R], "u": [U], "y": [Y]}
 
 
 def _aligner(gap=20, share=0.05, capacity=3000, min_samples=600, **kw):
-    return Aligner(capacity, 3, bridge=lambda n_in, n_out: Bridging(gap, share, min_samples), **kw)
+    b = Bridging(gap, share, min_samples, capacity)
+    return Aligner(capacity, 3, bridge=lambda n_in, n_out: b, **kw)
 
 
 def _feed(al, x, skip=(), size=10):

@@ -17,7 +17,7 @@ rclpy = pytest.importorskip("rclpy")
 sensor_msgs = pytest.importorskip("sensor_msgs.msg")
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
-from rosgraph import CONTROLLER, PAPER, await_estimate_ending_at, wait_for  # noqa: E402
+from rosgraph import CONTROLLER, PAPER, Listener, await_estimate_ending_at, wait_for  # noqa: E402
 from rosgraph import graph as graph  # noqa: E402  (the fixture)
 from std_msgs.msg import Float64  # noqa: E402
 
@@ -236,6 +236,7 @@ def test_dropped_joint_states_keep_one_window_and_replay_equals_live(graph, tmp_
     model = replace(load_model(PAPER), noise_std=7e-7)  # the bench's output noise
     rec = tmp_path / "lossy.mcap"
     node = graph.ident(source_params(10.0, record_path=str(rec)))
+    lis = Listener(graph)
     pub_node = graph.node("robot")
     js = pub_node.create_publisher(sensor_msgs.JointState, "/joint_states", QOS)
     ref = pub_node.create_publisher(sensor_msgs.JointState, "/ident/reference", QOS)
@@ -269,6 +270,13 @@ def test_dropped_joint_states_keep_one_window_and_replay_equals_live(graph, tmp_
     assert al.stats["output"].bridged_samples == len(dropped)
     lo, hi = live.first, live.first + live.n_samples
     assert al.missing(lo, hi) == sum(lo <= k < hi for k in dropped) > 0
+    wait_for(
+        lambda: lis.diag and int(lis.last_diag()[2].get("window_missing", "0")) > 0,
+        5,
+        "the missing samples of the window on /diagnostics",
+    )
+    values = lis.last_diag()[2]
+    assert "restarts" not in values["recent_anomalies"] and values["window_restarts"] == "0"
     P = live.identification.plant
     Ptrue = model.plant_discrete().freqresp(P.frequency)
     err = np.median(np.abs(P.response - Ptrue) / np.abs(Ptrue))

@@ -357,7 +357,6 @@ class Aligner:
         """
         s = self._s[stream]
         b = self.bridging() if stream in BRIDGED else None
-        base = max(s.origin, hi - self.capacity)
         why = ""
         if b is None:
             why = (
@@ -370,6 +369,7 @@ class Aligner:
         elif hi - s.holes.run_from(lo) > b.gap:
             why = f"longer than {b.gap} samples"
         else:
+            base = max(s.origin, hi - b.window)
             missing = s.holes.count(base, lo) + hi - lo
             length = max(hi - base, b.min_samples)
             if missing > b.share * length:

@@ -96,10 +96,10 @@ def read_bag(
     given, and checked where given. ``msg_path``: directories of ``.msg`` files for types
     the bag does not define. ``labels``: the topic of an excitation's labels, a fourth
     aligned stream ("": none). ``bridge``: the holes of u and y kept as missing samples
-    (default: the limits of ``options``' fit, else ``identify``'s default options, over
-    ``capacity`` samples, else over the whole bag). ``node``: the same samples also into
-    the node's window aligner of that configuration (:attr:`BagRead.node`; the bag read
-    once).
+    (default: the node's limits over its window with the configuration ``options``, else
+    ``identify``'s default options' over ``capacity`` samples or the whole bag).
+    ``node``: the same samples also into the node's window aligner of that configuration
+    (:attr:`BagRead.node`; the bag read once).
     """
     bag = Bag.open(path, msg_path=msg_path)
     sources = resolve_sources(bag_types(bag), specs, labels)
@@ -121,7 +121,7 @@ def read_bag(
         labels=bool(labels),
         bridge=bridge
         or (
-            config_bridging(options.replace(ratio=F), n, n)
+            config_bridging(options.replace(ratio=F))
             if options is not None
             else bridging(n, n, ratio=F)
         ),

@@ -34,15 +34,20 @@ class Bridging:
         The longest hole (consecutive missing samples) bridged.
     share : float
         The largest share of a window's samples missing; the window a hole falls in is
-        the last ``capacity`` samples of the stream ending with it, and at least
-        ``min_samples`` long (the shortest window identified).
+        the last ``window`` samples of the stream ending with it, and at least
+        ``min_samples`` long (the shortest window identified). Checked at every hole, this
+        holds for every window of ``window`` samples or fewer (down to ``min_samples``)
+        that starts after the stream's last restart.
     min_samples : int
         The shortest window identified.
+    window : int
+        The longest window identified (a whole recording: its length).
     """
 
     gap: int
     share: float
     min_samples: int
+    window: int
 
     def describe(self) -> str:
         """The limits in words, for a message."""
@@ -76,7 +81,7 @@ def bridging(
         lim = missing_limits(method, nj, degree, ratio, n_in, n_out, local, n_samples, auto=n == 0)
         if lim.gap < 1 or lim.share <= 0.0:
             return None
-        return Bridging(lim.gap, lim.share, int(min_samples))
+        return Bridging(lim.gap, lim.share, int(min_samples), int(n_samples))
 
     return rule
 

@@ -27,7 +27,7 @@ from ..numerics.signals import LoopData
 from .align import Aligner, StreamStats
 from .bagread import read_bag
 from .estimate import Estimate, estimate
-from .gaps import BridgeRule, bridging, config_bridging
+from .gaps import NO_BRIDGING, BridgeRule, bridging, config_bridging
 from .ingest import Ingest
 from .spans import DEFAULT_SPAN, check_span, choose
 from .spans import describe as describe_spans
@@ -97,16 +97,15 @@ def replay(
         labels=bool(labels),
         bridge=config_bridging(config),
     )
-    n = _length(items)
 
-    def whole_aligner() -> Aligner:
+    def whole_aligner() -> Aligner:  # every span, the holes judged as the node judges them
         return Aligner(
             1 << 62,
             config.ratio,
             config.reorder_blocks,
             history=True,
             labels=bool(labels),
-            bridge=config_bridging(config, n, n),
+            bridge=config_bridging(config),
         )
 
     every = None
@@ -370,11 +369,20 @@ def bag_windows(
     labels = config.excitation_index_topic
     if specs is None:
         F = ratio or config.ratio
-        data, _ = recorded_signals(path, F, topics=topics, span=span, labels=labels)
+        # the holes judged as the node judged them
+        node = config_bridging(config.replace(ratio=F)) or NO_BRIDGING
+        data, _ = recorded_signals(path, F, topics=topics, span=span, labels=labels, bridge=node)
         cfg = config.replace(fs_high=fs_high or config.fs_high, ratio=F)
     else:
         data, _ = bag_signals(
-            path, specs, fs_high=fs_high, ratio=ratio, span=span, msg_path=msg_path, labels=labels
+            path,
+            specs,
+            fs_high=fs_high,
+            ratio=ratio,
+            span=span,
+            msg_path=msg_path,
+            labels=labels,
+            bridge=config_bridging(config.replace(ratio=ratio or config.ratio)) or NO_BRIDGING,
         )
         cfg = config.replace(fs_high=data.fs_high, ratio=data.ratio)
     yield from loop_windows(data, cfg, str(path))
