@@ -200,10 +200,12 @@ class _Criterion:
         Pi = np.zeros((n_cols, L, L), dtype=np.complex128)
         for i, a in enumerate(range(0, self.n_win, CHUNK_WINDOWS)):
             Q = self._bases(i, a)[0]
-            for c in range(n_cols):
+            for c in range(n_cols if self.weights is not None else 1):
                 Qw = (Q * np.sqrt(w[a : a + Q.shape[0], c])[:, None, None]).transpose(1, 0, 2)
                 Qw = Qw.reshape(L, -1)
                 Pi[c] += Qw @ np.conj(Qw.T)
+        if self.weights is None:  # the same for every column
+            Pi[1:] = Pi[0]
         a_m = np.exp(-2j * np.pi * np.outer(holes, np.arange(-self.n, self.n + 1)) / self.N)
         quad = np.empty(holes.size)
         for c in range(n_cols):
@@ -324,7 +326,12 @@ def _estimate(
     x0 = np.where(mask, 0.0, yu)
     first = max(rtol, FIRST_RTOL) if reweight else rtol
     prior = _interpolated(x0, mask)
-    theta, it = _solve(crit, x0, mask, prior.copy(), first, ridge, prior, ftol)
+    # the unweighted diagonal preconditions both solves (weights of mean 1, about equal with
+    # noise: the weighted one took as many steps), the record's window power serves both
+    rows, cols = np.nonzero(mask)
+    diag = crit.diagonal(rows, cols, mask.shape[1])
+    power0 = crit.window_power(crit.forward(x0))
+    theta, it = _solve(crit, x0, mask, prior.copy(), first, ridge, prior, ftol, diag, power0)
     if reweight:
         filled = x0.copy()
         filled[mask] = theta
@@ -338,7 +345,7 @@ def _estimate(
         floor = WEIGHT_FLOOR * np.median(smooth, axis=0, keepdims=True) + np.finfo(float).tiny
         crit.weights = 1.0 / (smooth + floor)
         crit.weights /= crit.weights.mean(axis=0, keepdims=True)
-        theta, it2 = _solve(crit, x0, mask, theta, rtol, ridge, prior, ftol)
+        theta, it2 = _solve(crit, x0, mask, theta, rtol, ridge, prior, ftol, diag, power0)
         it += it2
     filled = x0.copy()
     filled[mask] = theta
@@ -366,7 +373,9 @@ def _solve(
     rtol: float,
     ridge: float,
     prior: FloatArray,
-    ftol: float = 0.0,
+    ftol: float,
+    d: FloatArray,
+    power: FloatArray,
 ) -> tuple[FloatArray, int]:
     """Preconditioned conjugate gradients from θ0; θ and the steps.
 
@@ -375,9 +384,9 @@ def _solve(
     ramp is smooth across every window: the transient takes it); the preconditioner
     keeps its exact diagonal (bounded below by 1e-14 of the median against rounding), so
     the steps stay few, and its value is loose (the fit's transient takes it too).
+    ``d``: the diagonal of the unweighted Aᵀ A (the preconditioner; a weighted solve's
+    weights have mean 1); ``power``: ``‖P_w Y0_w‖²`` of the record (n_win, C), unweighted.
     """
-    rows, cols = np.nonzero(mask)
-    d = crit.diagonal(rows, cols, mask.shape[1])
     lam = ridge * float(np.median(d))
     inv_diag = 1.0 / (np.maximum(d, 1e-14 * float(np.median(d))) + lam)
 
@@ -393,7 +402,6 @@ def _solve(
     res = b - apply(theta)
     # the criterion f(θ) = ‖a0 + A θ‖² (+ λ‖θ - prior‖²) = c - bᵀθ - θᵀres, and each step
     # lowers it by α rᵀz: stop too when that is below FTOL of f (the noise's residual)
-    power = crit.window_power(crit.forward(x0))
     c = float((power if crit.weights is None else power * crit.weights).sum())
     c += lam * float(prior @ prior)
     f = c - float(b @ theta) - float(theta @ res)
