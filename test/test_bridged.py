@@ -152,3 +152,25 @@ def test_the_periodic_average_with_missing_samples_is_an_error_naming_them():
     y[1, 70] = np.nan
     with pytest.raises(DataError, match="first at sample 70 of realization 1; the periodic"):
         periodic_bla(Periods(r, u, y, 60, "count"))
+
+
+def test_the_lifting_phase_is_detected_over_missing_samples():
+    from mr_ident.live.estimate import held_phase
+
+    rng = np.random.default_rng(2)
+    x = np.repeat(rng.standard_normal(400), 3)[2:-1]  # held over 3, changing at index 1 mod 3
+    x[[10, 11, 500, 777]] = np.nan
+    phase, contrast = held_phase(0, x, 3)
+    assert phase == 1 and contrast < 1e-12
+    assert held_phase(0, np.column_stack([x, x]), 3)[0] == 1
+
+
+def test_the_nodes_diagnosis_of_a_window_with_holes_takes_its_longest_complete_stretch():
+    from mr_ident.app.diagnose import complete_stretch
+    from mr_ident.numerics.signals import LoopData
+
+    x = np.ones((300, 1))
+    u = x.copy()
+    u[[50, 200]] = np.nan
+    w = complete_stretch(LoopData(x, u, x, ratio=3, first=1001))
+    assert (w.first, w.end) == (1053, 1200) and not np.isnan(w.u).any()
