@@ -165,8 +165,8 @@ def test_the_lifting_phase_is_detected_over_missing_samples():
     assert held_phase(0, np.column_stack([x, x]), 3)[0] == 1
 
 
-def test_the_nodes_diagnosis_of_a_window_with_holes_takes_its_longest_complete_stretch():
-    from mr_ident.app.diagnose import complete_stretch
+def test_the_nodes_diagnoses_of_a_window_with_holes_take_its_longest_complete_stretch():
+    from mr_ident.diagnosis.monitoring.monitor import complete_stretch
     from mr_ident.numerics.signals import LoopData
 
     x = np.ones((300, 1))

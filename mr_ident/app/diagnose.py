@@ -91,25 +91,9 @@ def window_report(model: Model, window: LoopData, alpha: float = 0.01) -> dict[s
     in u or y, holes the node bridged) is diagnosed on its longest stretch without one
     (whole periods).
     """
-    from ..diagnosis.monitoring.monitor import diagnose_window
+    from ..diagnosis.monitoring.monitor import complete_stretch, diagnose_window
     from ..diagnosis.report import report_dict
 
     window = complete_stretch(window)
     report = report_dict(diagnose_window(model, window), extended_model=None, alpha=alpha)
     return report | {"window_first": int(window.first), "window_samples": int(window.n_samples)}
-
-
-def complete_stretch(window: LoopData) -> LoopData:
-    """The longest part of ``window`` without a missing sample, on the F grid (itself if none)."""
-    import numpy as np
-
-    lost = np.isnan(window.u).any(axis=1) | np.isnan(window.y).any(axis=1)
-    if not lost.any() or window.ratio is None:
-        return window
-    F = window.ratio
-    edges = np.concatenate([[-1], np.flatnonzero(lost), [lost.size]])
-    k = int(np.argmax(np.diff(edges)))
-    lo, hi = int(edges[k]) + 1, int(edges[k + 1])
-    lo += -(window.first + lo) % F  # whole periods at both ends, absolute grid
-    hi -= (window.first + hi) % F
-    return window.part(lo, max(lo, hi))
