@@ -21,7 +21,7 @@ import numpy as np
 from ..io.blocks import LABELS_STREAM, STREAMS, Block
 from ..numerics.arrays import FloatArray
 from ..numerics.signals import LoopData
-from .gaps import BRIDGED, BridgeRule, Bridging, Holes, union_count
+from .gaps import BRIDGED, NOT_BRIDGED, BridgeRule, Bridging, Holes, union_count
 
 
 @dataclass
@@ -359,24 +359,9 @@ class Aligner:
         b = self.bridging() if stream in BRIDGED else None
         why = ""
         if b is None:
-            why = (
-                "r, the excitation, is never estimated"
-                if stream == 0 and self._rule is not None
-                else "the labels are never estimated"
-                if stream == 3
-                else ""
-            )
-        elif hi - s.holes.run_from(lo) > b.gap:
-            why = f"longer than {b.gap} samples"
+            why = NOT_BRIDGED.get(stream, "") if self._rule is not None or stream == 3 else ""
         else:
-            base = max(s.origin, hi - b.window)
-            missing = s.holes.count(base, lo) + hi - lo
-            length = max(hi - base, b.min_samples)
-            if missing > b.share * length:
-                why = (
-                    f"{missing} of the window's {length} samples would be missing, more "
-                    f"than {100 * b.share:.1f} %"
-                )
+            why = b.refuses(s.holes, lo, hi, s.origin)
         if b is not None and not why:
             s.chunks.append((lo, np.full((hi - lo, s.channels), np.nan)))
             s.end = s.stats.end = hi

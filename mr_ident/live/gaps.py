@@ -22,6 +22,8 @@ from ..numerics.lifted.options import default_n, missing_limits
 
 #: The streams whose holes may be bridged: u (1) and y (2).
 BRIDGED = (1, 2)
+#: Why the others' never are (r, the excitation's labels).
+NOT_BRIDGED = {0: "r, the excitation, is never estimated", 3: "the labels are never estimated"}
 
 
 @dataclass(frozen=True)
@@ -48,6 +50,23 @@ class Bridging:
     share: float
     min_samples: int
     window: int
+
+    def refuses(self, holes: Holes, lo: int, hi: int, origin: int) -> str:
+        """Why the hole [lo, hi) cannot be bridged, or "" (it can).
+
+        ``holes``: the stream's bridged holes; ``origin``: where it (re)started.
+        """
+        if hi - holes.run_from(lo) > self.gap:
+            return f"longer than {self.gap} samples"
+        base = max(origin, hi - self.window)
+        missing = holes.count(base, lo) + hi - lo
+        length = max(hi - base, self.min_samples)
+        if missing > self.share * length:
+            return (
+                f"{missing} of the window's {length} samples would be missing, more than "
+                f"{100 * self.share:.1f} %"
+            )
+        return ""
 
     def describe(self) -> str:
         """The limits in words, for a message."""
