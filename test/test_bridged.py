@@ -174,3 +174,11 @@ def test_the_nodes_diagnoses_of_a_window_with_holes_take_its_longest_complete_st
     u[[50, 200]] = np.nan
     w = complete_stretch(LoopData(x, u, x, ratio=3, first=1001))
     assert (w.first, w.end) == (1053, 1200) and not np.isnan(w.u).any()
+
+
+def test_options_the_channels_cannot_have_bridge_nothing_instead_of_failing_the_stream():
+    from mr_ident.live.gaps import bridging
+
+    rule = bridging(2400, 2400, ratio=3, n=4)  # n = 4 is too narrow for the lifted fit
+    assert rule(1, 1) is None
+    assert bridging(2400, 2400, ratio=3)(1, 1) is not None

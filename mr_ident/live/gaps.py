@@ -17,6 +17,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from ..errors import MrIdentError
 from ..io.config import IdentConfig
 from ..numerics.lifted.options import default_n, missing_limits
 
@@ -96,8 +97,13 @@ def bridging(
     """
 
     def rule(n_in: int, n_out: int) -> Bridging | None:
-        nj = n or default_n(method, degree, ratio, n_in, n_out, local)
-        lim = missing_limits(method, nj, degree, ratio, n_in, n_out, local, n_samples, auto=n == 0)
+        try:
+            nj = n or default_n(method, degree, ratio, n_in, n_out, local)
+            lim = missing_limits(
+                method, nj, degree, ratio, n_in, n_out, local, n_samples, auto=n == 0
+            )
+        except MrIdentError:  # options these channels cannot have: identify will say so
+            return None
         if lim.gap < 1 or lim.share <= 0.0:
             return None
         return Bridging(lim.gap, lim.share, int(min_samples), int(n_samples))
