@@ -182,3 +182,20 @@ def test_options_the_channels_cannot_have_bridge_nothing_instead_of_failing_the_
     rule = bridging(2400, 2400, ratio=3, n=4)  # n = 4 is too narrow for the lifted fit
     assert rule(1, 1) is None
     assert bridging(2400, 2400, ratio=3)(1, 1) is not None
+
+
+def test_replay_of_every_span_bridges_the_holes_as_the_node_did(dropped):
+    """The last window as the node saw it, and the same window cut from the whole span (its
+    holes pushed as holes): one estimate."""
+    from mr_ident.io.config import IdentConfig
+    from mr_ident.live.replay import replay_bag
+
+    _, _, path, _ = dropped
+    cfg = IdentConfig(window_s=20.0, min_window_s=20.0)
+    a = replay_bag(path, cfg, SPECS, fs_high=240.0, ratio=3)
+    b = replay_bag(path, cfg, SPECS, fs_high=240.0, ratio=3, span="longest")
+    assert (a.estimate.first, a.estimate.n_samples) == (b.estimate.first, b.estimate.n_samples)
+    assert a.stats["output"].restarts == 0 and a.stats["output"].bridged > 100
+    np.testing.assert_array_equal(
+        a.estimate.identification.plant.response, b.estimate.identification.plant.response
+    )
