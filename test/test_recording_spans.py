@@ -11,6 +11,8 @@ error < 1e-4 against the exact model; 46 s of data).
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from bagmaker import BagWriter, joint_state_bag, stamps
@@ -49,6 +51,9 @@ def test_the_longest_span_is_used_by_default_and_the_note_says_where_the_gaps_ar
     (note,) = loaded.notes
     assert "using the longest span [1002, 12000) of 10998 samples" in note
     assert "3 span(s)" in note and "gaps at [999, 1002), [12000, 12003)" in note
+    # why: the messages that held r were dropped too (u, y alone would be bridged)
+    assert "split at: reference: gap of 1 samples at [1000, 1001) (r, the excitation" in note
+    assert re.search(r"\(bridged: holes of u, y at most \d+ samples a hole, 5.9 % of a", note)
 
 
 def test_span_latest_takes_the_last_and_all_is_an_error_naming_the_gaps(gappy):
