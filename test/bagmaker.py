@@ -145,22 +145,24 @@ class BagWriter:
         return V(header=self.header(t), values=np.asarray(values, float), names_version=version)
 
 
-def joint_state_messages(bw, sim, t, *, skip=(), names=("j0", "j1")):
+def joint_state_messages(bw, sim, t, *, skip=(), names=("j0", "j1"), drop=()):
     """``(topic, type, message, log_ns)`` of a simulated SISO loop as ros2_control publishes
     it: y and u in /joint_states (joint j1, beside a constant j0), r in /ident/reference;
-    stamps ``t`` (ns), samples in ``skip`` dropped, received 0.3 ms after their stamp."""
+    stamps ``t`` (ns), samples in ``skip`` dropped, received 0.3 ms after their stamp;
+    samples in ``drop``: their /joint_states message only dropped (r kept)."""
     js = "sensor_msgs/msg/JointState"
     for k in range(t.size):
         if k in skip:
             continue
         tk = int(t[k])
         pos, eff = [0.5, sim.y[k, 0]], [0.0, sim.u[k, 0]]
-        yield (
-            "/joint_states",
-            js,
-            bw.joint_state(tk, names, position=pos, effort=eff),
-            tk + 300_000,
-        )
+        if k not in drop:
+            yield (
+                "/joint_states",
+                js,
+                bw.joint_state(tk, names, position=pos, effort=eff),
+                tk + 300_000,
+            )
         yield (
             "/ident/reference",
             js,
@@ -169,11 +171,12 @@ def joint_state_messages(bw, sim, t, *, skip=(), names=("j0", "j1")):
         )
 
 
-def joint_state_bag(path, sim, t, *, skip=(), names=("j0", "j1"), **writer):
+def joint_state_bag(path, sim, t, *, skip=(), names=("j0", "j1"), drop=(), **writer):
     """:func:`joint_state_messages` as a rosbag2 bag (``writer``: :class:`BagWriter`'s
     storage and version)."""
     with BagWriter(path, **writer) as bw:
-        for topic, type_, msg, log in joint_state_messages(bw, sim, t, skip=skip, names=names):
+        msgs = joint_state_messages(bw, sim, t, skip=skip, names=names, drop=drop)
+        for topic, type_, msg, log in msgs:
             bw.write(topic, type_, msg, log)
     return path
 

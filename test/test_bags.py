@@ -410,7 +410,7 @@ def test_replay_with_monitoring_reads_the_bag_once_and_names_the_change(
     of a 20 s record (were 20 s of 40 s: the same statuses, OK then WARN with the cause,
     at half the times; 4.8 s instead of 7.3 s alone).
     """
-    import mr_ident.live.replay as replay_mod
+    import mr_ident.live.bagread as replay_mod
 
     model, _ = paper_loop()
     sim = simulate(replace(model, plant_gain=1.3), duration=20.0, rng=np.random.default_rng(3))

@@ -231,5 +231,7 @@ def test_diagnose_asks_for_a_complete_record(paper_model):
     sim = simulate(paper_model, duration=30.0, rng=np.random.default_rng(14))
     u, y = with_holes(sim, drop(sim.n_samples, 0.01, np.random.default_rng(15)))
     rec = LoopData(sim.r, u, y, 240.0, 3)
-    with pytest.raises(DataError, match=r"u and y miss \d+ samples \(NaN\); diagnose"):
+    with pytest.raises(
+        DataError, match=r"u or y miss \d+ samples \(NaN at samples \d+, .*\); diagnose"
+    ):
         check_record(paper_model, rec, what="d.npz")

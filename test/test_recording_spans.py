@@ -11,6 +11,8 @@ error < 1e-4 against the exact model; 46 s of data).
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from bagmaker import BagWriter, joint_state_bag, stamps
@@ -47,15 +49,20 @@ def test_the_longest_span_is_used_by_default_and_the_note_says_where_the_gaps_ar
     P = model.plant_discrete().freqresp(res.plant.frequency)
     assert float(np.median(np.abs(res.plant.response - P) / np.abs(P))) < 1e-4
     (note,) = loaded.notes
-    assert "using the longest gap-free span [1002, 12000) of 10998 samples" in note
-    assert "3 gap-free span(s)" in note and "gaps at [999, 1002), [12000, 12003)" in note
+    assert "using the longest span [1002, 12000) of 10998 samples" in note
+    assert "3 span(s)" in note and "gaps at [999, 1002), [12000, 12003)" in note
+    # why: the messages that held r were dropped too (u, y alone would be bridged)
+    assert "split at: reference: gap of 1 samples at [1000, 1001) (r, the excitation" in note
+    assert re.search(r"\(bridged: holes of u, y at most \d+ samples a hole, 5.9 % of a", note)
 
 
 def test_span_latest_takes_the_last_and_all_is_an_error_naming_the_gaps(gappy):
     _, sim, path = gappy
     data, info = bag_signals(path, SPECS, ratio=3, span="latest")
     assert (data.first, data.end) == (12003, sim.n_samples) and "latest" in info.broken
-    with pytest.raises(DataError, match=r"--span all needs a gap-free recording.*gaps at"):
+    with pytest.raises(
+        DataError, match=r"--span all needs a recording without gaps too long.*gaps at"
+    ):
         bag_signals(path, SPECS, ratio=3, span="all")
     with pytest.raises(ConfigError, match="span must be one of longest, latest, all, got 'first'"):
         load_recording(path, specs=SPECS, ratio=3, span="first")
@@ -66,7 +73,7 @@ def test_the_cli_flag_chooses_the_span_and_warns(gappy, tmp_path, capsys):
     base = ["identify", str(path), "--r", R, "--u", U, "--y", Y, "--ratio", "3"]
     code = main([*base, "--out", str(tmp_path / "a.npz")])
     err = capsys.readouterr().err
-    assert code == 0 and "warning:" in err and "longest gap-free span [1002, 12000)" in err, err
+    assert code == 0 and "warning:" in err and "longest span [1002, 12000)" in err, err
     code = main([*base, "--span", "all", "--out", str(tmp_path / "b.npz")])
     err = capsys.readouterr().err
     assert code == 2 and err.startswith("error: ") and "gaps at" in err, err
@@ -128,7 +135,7 @@ def test_batch_passes_the_span_and_its_rows_say_which_was_used(gappy, tmp_path, 
     assert code == 0, capsys.readouterr().err
     (row,) = list(csv.DictReader(open(out / "summary.csv")))
     assert row["status"] == "ok" and row["first"] == "12003", row
-    assert "using the latest gap-free span [12003, 14400)" in row["notes"]
+    assert "using the latest span [12003, 14400)" in row["notes"]
 
 
 def test_replay_is_the_nodes_latest_window_unless_span_says_otherwise(gappy, tmp_path, capsys):
@@ -143,4 +150,4 @@ def test_replay_is_the_nodes_latest_window_unless_span_says_otherwise(gappy, tmp
     code = main([*base, "--span", "longest", "--out", str(tmp_path / "b.npz")])
     out, err = capsys.readouterr()
     assert code == 0, err
-    assert "window [1002, 12000)" in out and "note: using the longest gap-free span" in err
+    assert "window [1002, 12000)" in out and "note: using the longest span" in err

@@ -109,8 +109,9 @@ def test_sim_to_node_estimate_matches_the_exact_plant(graph):
 
 
 def test_dropped_block_is_reported_and_excluded(graph):
-    """One output block never arrives: /diagnostics says gap (WARN), the window restarts after it
-    and the next estimate, from clean data only, is as accurate as without the drop."""
+    """One output block (240 samples, longer than a 10 s window bridges) never arrives:
+    /diagnostics says gap (WARN), the window restarts after it and the next estimate, from
+    clean data only, is as accurate as without the drop."""
     model = load_model(PAPER)
     node = graph.ident(fast_params(window_s=10.0))
     lis = Listener(graph)
@@ -126,7 +127,9 @@ def test_dropped_block_is_reported_and_excluded(graph):
         "an estimate of the final window",
     )
     st = node.inputs.aligner.stats["output"]
-    assert (st.gaps, st.gap_samples) == (1, 240)
+    assert (st.gaps, st.gap_samples, st.bridged) == (1, 240, 0)
+    # past the limit (a 10 s window bridges holes of up to 141 samples): the WARN says so
+    assert "(longer than 141 samples); window restarts" in node.inputs.aligner.breaks[0]
     wait_for(
         lambda: lis.diag and lis.last_diag()[2].get("output.gaps") == "1",
         5,

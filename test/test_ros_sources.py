@@ -17,12 +17,13 @@ rclpy = pytest.importorskip("rclpy")
 sensor_msgs = pytest.importorskip("sensor_msgs.msg")
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
-from rosgraph import CONTROLLER, PAPER, await_estimate_ending_at, wait_for  # noqa: E402
+from rosgraph import CONTROLLER, PAPER, Listener, await_estimate_ending_at, wait_for  # noqa: E402
 from rosgraph import graph as graph  # noqa: E402  (the fixture)
 from std_msgs.msg import Float64  # noqa: E402
 
 from mr_ident.io.modelfile import load_model  # noqa: E402
 from mr_ident.numerics.excitation.sources import SimSource  # noqa: E402
+from mr_ident.numerics.identify import identify  # noqa: E402
 
 QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -219,3 +220,86 @@ def test_replay_of_the_nodes_recording_equals_its_estimate(graph, tmp_path):
     a, b = res.estimate.identification, live.identification
     np.testing.assert_allclose(a.plant.response, b.plant.response, rtol=1e-12, atol=0)
     np.testing.assert_allclose(a.pfg.gain, b.pfg.gain, rtol=1e-12, atol=0)
+
+
+def test_dropped_joint_states_keep_one_window_and_replay_equals_live(graph, tmp_path):
+    """1 % of the /joint_states messages (u and y) dropped at random, r complete: the node
+    keeps one window throughout (no restart: the holes are missing samples), says how many
+    are missing in it, estimates the exact plant within 1.5x the error of the same window
+    with nothing dropped (the bound of make bench-missing, output noise as there), and
+    replay of its recording gives the same estimate."""
+    from dataclasses import replace
+
+    from mr_ident.io.config import IdentConfig
+    from mr_ident.live.replay import replay_bag
+
+    model = replace(load_model(PAPER), noise_std=7e-7)  # the bench's output noise
+    rec = tmp_path / "lossy.mcap"
+    node = graph.ident(source_params(10.0, record_path=str(rec)))
+    lis = Listener(graph)
+    pub_node = graph.node("robot")
+    js = pub_node.create_publisher(sensor_msgs.JointState, "/joint_states", QOS)
+    ref = pub_node.create_publisher(sensor_msgs.JointState, "/ident/reference", QOS)
+    wait_for(lambda: node.inputs.sources.sources is not None, 15, "the node to subscribe")
+    wait_for(
+        lambda: js.get_subscription_count() > 0 and ref.get_subscription_count() > 0,
+        10,
+        "matching",
+    )
+    time.sleep(0.5)
+    src = SimSource(model, block=240, seed=9)
+    rng = np.random.default_rng(3)
+    t0, n, dropped, sent = 1_700_000_000_000_000_000, 0, [], []
+    blocks = 14
+    for b in range(blocks):
+        first, r, u, y = src.next()
+        sent.append((r, u, y))
+        for k in range(r.shape[0]):
+            t = t0 + round((first + k) * 1e9 / 240.0)
+            if n > 10 and b < blocks - 1 and rng.random() < 0.01:
+                dropped.append(n)
+            else:
+                js.publish(joint_state(t, ["j1"], position=[y[k, 0]], effort=[u[k, 0]]))
+            ref.publish(joint_state(t, ["j1"], position=[r[k, 0]]))
+            n += 1
+        time.sleep(0.05)
+    await_estimate_ending_at(node, n)
+    live = node.last_estimate
+    al = node.inputs.aligner
+    assert len(dropped) >= 10 and al.restarts == 0, (len(dropped), list(al.breaks))
+    assert al.stats["output"].bridged_samples == len(dropped)
+    lo, hi = live.first, live.first + live.n_samples
+    assert al.missing(lo, hi) == sum(lo <= k < hi for k in dropped) > 0
+    wait_for(
+        lambda: lis.diag and int(lis.last_diag()[2].get("window_missing", "0")) > 0,
+        5,
+        "the missing samples of the window on /diagnostics",
+    )
+    values = lis.last_diag()[2]
+    assert "restarts" not in values["recent_anomalies"] and values["window_restarts"] == "0"
+    P = live.identification.plant
+    Ptrue = model.plant_discrete().freqresp(P.frequency)
+    err = np.median(np.abs(P.response - Ptrue) / np.abs(Ptrue))
+    r, u, y = (np.concatenate(x)[lo:hi] for x in zip(*sent, strict=True))
+    whole = identify(r, u, y, fs_high=240.0, ratio=3).plant.response  # nothing dropped
+    assert err <= 1.5 * np.median(np.abs(whole - Ptrue) / np.abs(Ptrue)), err
+    cfg = node.config
+    node.shutdown()  # finalises the recording
+    specs = {"r": list(cfg.r_source), "u": list(cfg.u_source), "y": list(cfg.y_source)}
+    res = replay_bag(
+        rec,
+        IdentConfig(
+            **{
+                k: v
+                for k, v in cfg.as_dict().items()
+                if not k.endswith("_source") and k != "record_path"
+            }
+        ),
+        specs,
+        fs_high=cfg.fs_high,
+        ratio=cfg.ratio,
+        stop=hi,
+    )
+    assert (res.estimate.first, res.estimate.n_samples) == (live.first, live.n_samples)
+    a, b = res.estimate.identification, live.identification
+    np.testing.assert_allclose(a.plant.response, b.plant.response, rtol=1e-12, atol=0)

@@ -76,7 +76,9 @@ def _read(
     """One recording of the request, its rates settled as ``req.rates`` says."""
     if req.rates == "file":
         return read_for_diagnosis(reading, model, req.period, specs, notify)
-    data, fs, F = read_settled(reading, specs, req.fs_high, req.ratio, model, notify)
+    data, fs, F = read_settled(
+        reading, specs, req.fs_high, req.ratio, model, notify, complete=True
+    )
     return replace(data, fs_high=fs, ratio=F, period=req.period)
 
 
@@ -85,10 +87,13 @@ def window_report(model: Model, window: LoopData, alpha: float = 0.01) -> dict[s
 
     ``window.first`` is the window's absolute sample index (the model's sampling phase is
     taken relative to it); the window's absolute span is added (``window_first``,
-    ``window_samples``).
+    ``window_samples``). Diagnose needs every sample: a window with missing samples (NaN
+    in u or y, holes the node bridged) is diagnosed on its longest stretch without one
+    (whole periods).
     """
-    from ..diagnosis.monitoring.monitor import diagnose_window
+    from ..diagnosis.monitoring.monitor import complete_stretch, diagnose_window
     from ..diagnosis.report import report_dict
 
+    window = complete_stretch(window)
     report = report_dict(diagnose_window(model, window), extended_model=None, alpha=alpha)
     return report | {"window_first": int(window.first), "window_samples": int(window.n_samples)}

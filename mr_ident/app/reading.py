@@ -28,12 +28,14 @@ def read_loop(
     *,
     labels: str = "",
     path: Path | None = None,
+    complete: bool = False,
 ) -> LoopData:
     """r, u, y of ``reading`` (``path`` instead of its own: a second recording read alike).
 
     ``specs``: the checked sources (None: a data file, or a bag's block contract);
     ``fs_high``/``ratio``: the rates a bag needs; ``labels``: an excitation's labels' topic.
-    What the reading noticed goes to ``notify`` as warnings.
+    What the reading noticed goes to ``notify`` as warnings. ``complete``: a bag's holes
+    split it (none bridged as missing samples: diagnose).
     """
     from ..live.recordings import load_recording
     from ..live.spans import DEFAULT_SPAN
@@ -47,6 +49,7 @@ def read_loop(
         span=reading.span or DEFAULT_SPAN,
         msg_path=reading.msg_path,
         labels=labels,
+        complete=complete,
     )
     for note in loaded.notes:
         notify(Notice("warning", note))
@@ -66,7 +69,7 @@ def read_for_diagnosis(
     from ..live.recordings import is_bag
 
     where = path or reading.path
-    data = read_loop(reading, specs, model.fs_high, model.ratio, notify, path=where)
+    data = read_loop(reading, specs, model.fs_high, model.ratio, notify, path=where, complete=True)
     if is_bag(where):  # a bag's rates are the model's
         fs, F = model.fs_high, model.ratio
     else:
@@ -84,6 +87,7 @@ def read_settled(
     ratio: int | None,
     model: Model | None,
     notify: Notify,
+    complete: bool = False,
 ) -> tuple[LoopData, float, int]:
     """r, u, y and (fs_high, F) that the flags, the file, the model and the stamps agree on.
 
@@ -98,6 +102,7 @@ def read_settled(
         fs_high or (model.fs_high if model else None),
         ratio or (model.ratio if model else None),
         notify,
+        complete=complete,
     )
     fs, F = settle_rates(data, fs_high=fs_high, ratio=ratio, model=model)
     return data, fs, F

@@ -88,7 +88,7 @@ class Reading:
     topics : sequence of str or None
         The block-contract topics of a bag (None: matched by name).
     span : str or None
-        Which gap-free span of a bag with gaps (None: the reader's default).
+        Which span of a bag split by gaps too long to bridge (None: the reader's default).
     msg_path : tuple of Path
         Directories of ``.msg`` files for types a bag does not define.
     """

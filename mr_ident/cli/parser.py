@@ -52,7 +52,8 @@ def _reading(p: argparse.ArgumentParser, default_span: str = DEFAULT_SPAN) -> No
         "--span",
         choices=SPANS,
         default=default_span,
-        help=f"which gap-free span of a recording with gaps: {', '.join(SPANS)} (default "
+        help="which span of a recording split by gaps too long to bridge: "
+        f"{', '.join(SPANS)} (default "
         f"{default_span}; all: an error where there are gaps)",
     )
     p.add_argument(

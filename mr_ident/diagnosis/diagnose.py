@@ -88,12 +88,14 @@ def check_record(model: Model, rec: LoopData, *, n: int = 8, what: str = "data")
             f"{what}: y has {rec.y.shape[0]} samples, the low rate; diagnose simulates y at the "
             f"high rate and needs all N = {rec.n_samples} (identify takes a low-rate y)"
         )
-    missing = int(np.isnan(rec.u).sum() + np.isnan(rec.y).sum())
-    if missing:
+    lost = np.flatnonzero(np.isnan(rec.u).any(axis=1) | np.isnan(rec.y).any(axis=1))
+    if lost.size:
+        shown = ", ".join(str(int(k)) for k in lost[:5]) + (", ..." if lost.size > 5 else "")
         raise DataError(
-            f"{what}: u and y miss {missing} samples (NaN); diagnose simulates the loop sample "
-            "by sample and needs a complete record for now (identify estimates missing "
-            "samples: the method page, 'Missing samples')"
+            f"{what}: u or y miss {lost.size} samples (NaN at samples {shown}); diagnose "
+            "simulates the loop sample by sample and needs a complete record for now (cut "
+            "it at the holes; identify estimates missing samples: the method page, 'Missing "
+            "samples')"
         )
     if rec.u.shape[1] != model.n_u or rec.y.shape[1] != model.n_y:
         raise DataError(

@@ -2,11 +2,12 @@
 """Alignment of three sample streams (r, u, y) by sample index: :class:`Aligner`.
 
 Blocks (:class:`~mr_ident.io.blocks.Block`) are put together by sample index, never by
-arrival. Each stream is kept contiguous: a sample that never arrives (a gap, a block
-with NaN/inf) **restarts** that stream after the hole, so the aligned window - the
-indices all three streams hold - restarts too and never spans a gap. Pure
-Python/numpy; the node and the offline replay share it through
-:class:`~mr_ident.live.ingest.Ingest`.
+arrival. Each stream is kept contiguous: a sample of u or y that never arrives (a gap, a
+block with NaN/inf) is a **missing sample**, NaN in the window, up to the limits of
+:mod:`mr_ident.live.gaps`; a longer hole, or any hole of r (or of the labels),
+**restarts** that stream after it, so the aligned window - the indices all streams hold -
+restarts too and never spans it. Pure Python/numpy; the node and the offline replay share
+it through :class:`~mr_ident.live.ingest.Ingest`.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import numpy as np
 from ..io.blocks import LABELS_STREAM, STREAMS, Block
 from ..numerics.arrays import FloatArray
 from ..numerics.signals import LoopData
+from .gaps import BRIDGED, NOT_BRIDGED, BridgeRule, Bridging, Holes, union_count
 
 
 @dataclass
@@ -30,6 +32,8 @@ class StreamStats:
     samples: int = 0  # accepted samples
     gaps: int = 0  # holes declared (samples never arrived)
     gap_samples: int = 0  # samples in those holes
+    bridged: int = 0  # holes kept in the window as missing samples (u, y)
+    bridged_samples: int = 0  # samples in those holes
     duplicates: int = 0  # blocks wholly received before
     overlaps: int = 0  # blocks partly received before (the new tail is kept)
     late: int = 0  # blocks from before the retained start, not contiguous with it (dropped)
@@ -60,11 +64,13 @@ class _Stream:
         default_factory=dict
     )  # first -> array, arrived before origin (start-up reordering)
     past: list | None = None  # with history: the chunks of every earlier contiguous run
+    holes: Holes = field(default_factory=Holes)  # the bridged holes (NaN chunks) held
 
     def reset(self, at: int) -> None:
         if self.past is not None and self.chunks:
             self.past.append(list(self.chunks))
         self.chunks = deque()
+        self.holes = Holes()
         self.start = self.end = self.origin = at
         self.before = {}
         self.pending = {k: v for k, v in self.pending.items() if k >= at}
@@ -94,13 +100,18 @@ class Aligner:
         Expected channel counts of r, u, y; otherwise fixed by each stream's first block.
     history : bool
         Keep every contiguous run of each stream, not only the latest (for a recording,
-        whose gap-free spans are all wanted: :meth:`spans`, :meth:`extract`).
+        whose spans are all wanted: :meth:`spans`, :meth:`extract`).
     labels : bool
         A fourth stream, 3 (``LABELS_STREAM``): an excitation's labels (realization,
         period, sample) at the same indices, aligned as the others; windows then carry them
         (:attr:`~mr_ident.numerics.signals.LoopData.labels`).
+    bridge : callable, optional
+        ``(n_in, n_out) -> Bridging | None`` (:func:`~mr_ident.live.gaps.bridging`): the
+        holes of u and y kept as missing samples (NaN) in the window; None: every hole
+        restarts.
 
-    Policy: a hole restarts the stream after it (so the window restarts). A block
+    Policy: a hole of u or y within the bridging limits is kept as missing samples; any
+    other hole restarts the stream after it (so the window restarts). A block
     that starts before the stream's end must repeat the samples held for the
     indices they share: then it is a duplicate (wholly behind the end; ignored)
     or an overlap (its new tail is kept). A block that ends where the held
@@ -120,8 +131,13 @@ class Aligner:
         channels: Sequence[int] | None = None,
         history: bool = False,
         labels: bool = False,
+        bridge: BridgeRule | None = None,
     ):
         self.capacity = int(capacity)
+        self._rule = bridge
+        self._bridging: dict[tuple[int, int], Bridging | None] = {}
+        #: Why the streams restarted at holes they could not bridge (the latest 64).
+        self.breaks: deque[str] = deque(maxlen=64)
         self.ratio = int(ratio)
         self.reorder_blocks = int(reorder_blocks)
         #: The streams' names: r, u, y (and the labels).
@@ -177,7 +193,7 @@ class Aligner:
                 s.pending_since = now
             s.pending[first] = x
             s.stats.reordered += 1
-            note = self._declare_gap(stream) if len(s.pending) > self.reorder_blocks else None
+            note = self._declare_gap(stream, now) if len(s.pending) > self.reorder_blocks else None
         elif first + n > s.end and self._agrees(s, first, x):
             s.stats.overlaps += 1
             s.append(s.end, x[s.end - first :])
@@ -219,7 +235,9 @@ class Aligner:
             return True
         if first < s.start:
             return False
-        return bool(np.array_equal(self._extract(s, first, hi), x[: hi - first]))
+        held = self._extract(s, first, hi)
+        known = ~np.isnan(held)  # a bridged hole takes what comes late (it stays missing)
+        return bool(np.array_equal(held[known], x[: hi - first][known]))
 
     def _restart(self, stream: int, first: int, x: FloatArray) -> str:
         """Index went back to samples that differ from those held: restart after the block.
@@ -248,7 +266,10 @@ class Aligner:
             if k > s.end:
                 break
             x = s.pending.pop(k)
-            if not self._agrees(s, k, x):
+            if x.size and np.isnan(x).all():  # a hole (a block of NaN) that waited
+                if k + x.shape[0] > s.end:
+                    note = self._bridge(stream, s.end, k + x.shape[0], "lost") or note
+            elif not self._agrees(s, k, x):
                 note = self._restart(stream, k, x)
             elif k + x.shape[0] <= s.end:
                 s.stats.duplicates += 1
@@ -257,20 +278,19 @@ class Aligner:
                 s.append(s.end, x[s.end - k :])
         return note
 
-    def _declare_gap(self, stream: int) -> str:
-        """The samples before the first pending block will not come: restart after them."""
+    def _declare_gap(self, stream: int, now: float | None = None) -> str | None:
+        """The samples before the first pending block will not come: bridge or restart.
+
+        None when bridged, else the note of the restart. The blocks still waiting wait
+        afresh from ``now``.
+        """
         s = self._s[stream]
         k = min(s.pending)
         s.stats.gaps += 1
         s.stats.gap_samples += k - s.end
-        note = (
-            f"{self.names[stream]}: gap of {k - s.end} samples at [{s.end}, {k}); "
-            f"window restarts at {k}"
-        )
-        s.reset(k)
-        self.restarts += 1
-        self._drain(stream)
-        s.pending_since = None
+        note = self._bridge(stream, s.end, k, "gap")
+        note = self._drain(stream) or note
+        s.pending_since = now if s.pending else None
         self._trim(s)
         return note
 
@@ -284,24 +304,86 @@ class Aligner:
         notes = []
         for i, s in enumerate(self._s):
             while s.pending and s.pending_since is not None and now - s.pending_since > max_wait:
-                notes.append(self._declare_gap(i))
+                note = self._declare_gap(i)
+                if note:
+                    notes.append(note)
                 if s.pending:  # the blocks after the next hole wait afresh; at the end, not at all
                     s.pending_since = now if now != float("inf") else float("-inf")
         return notes
 
-    def hole(self, stream: int, first: int, n: int) -> str:
-        """Samples [first, first+n) of ``stream`` are lost (e.g. a NaN block)."""
+    def hole(self, stream: int, first: int, n: int, now: float = 0.0) -> str | None:
+        """Samples [first, first+n) of ``stream`` are lost (e.g. a NaN block).
+
+        Returns None (bridged, or before the stream's end), or why the stream restarts.
+        """
         s = self._s[stream]
-        if s.end < 0 or first + n > s.end:
-            s.stats.gaps += 1
-            s.stats.gap_samples += n
-            s.reset(first + n)
-            s.stats.end = s.end
-            self.restarts += 1
+        if s.end >= 0 and first + n <= s.end:
+            return None
+        s.stats.gaps += 1
+        s.stats.gap_samples += n
+        if s.end >= 0 and s.channels and first > s.end:  # waits, as a block, for the gap
+            if not s.pending:
+                s.pending_since = now
+            s.pending[first] = np.full((n, s.channels), np.nan)
+            return self._declare_gap(stream, now) if len(s.pending) > self.reorder_blocks else None
+        if s.end >= 0 and s.channels:
+            note = self._bridge(stream, s.end, first + n, "lost")
+            note = self._drain(stream) or note
+            self._trim(s)
+            return note
+        s.reset(first + n)
+        s.stats.end = s.end
+        self.restarts += 1
         return (
             f"{self.names[stream]}: samples [{first}, {first + n}) lost; "
             f"window restarts at {first + n}"
         )
+
+    def bridging(self) -> Bridging | None:
+        """The bridging limits for the channels seen so far (None: every hole restarts)."""
+        if self._rule is None:
+            return None
+        ch = [max(s.channels, 1) for s in self._s[:3]]
+        key = (ch[0], max(ch[1], ch[2]))
+        if key not in self._bridging:
+            self._bridging[key] = self._rule(*key)
+        return self._bridging[key]
+
+    def _bridge(self, stream: int, lo: int, hi: int, how: str) -> str | None:
+        """Samples [lo, hi) of ``stream`` (from its end) missing: NaN, or a restart at hi.
+
+        None when bridged, else the note: the hole, the limit it broke, where the stream
+        restarts (also kept in :attr:`breaks`).
+        """
+        s = self._s[stream]
+        b = self.bridging() if stream in BRIDGED else None
+        why = ""
+        if b is None:
+            why = NOT_BRIDGED.get(stream, "") if self._rule is not None or stream == 3 else ""
+        else:
+            why = b.refuses(s.holes, lo, hi, s.origin)
+        if b is not None and not why:
+            s.chunks.append((lo, np.full((hi - lo, s.channels), np.nan)))
+            s.end = s.stats.end = hi
+            s.holes.add(lo, hi)
+            s.stats.bridged += 1
+            s.stats.bridged_samples += hi - lo
+            return None
+        head = (
+            f"gap of {hi - lo} samples at [{lo}, {hi})"
+            if how == "gap"
+            else f"samples [{lo}, {hi}) lost"
+        )
+        note = (
+            f"{self.names[stream]}: {head}"
+            + (f" ({why})" if why else "")
+            + f"; window restarts at {hi}"
+        )
+        s.reset(hi)
+        s.stats.end = hi
+        self.restarts += 1
+        self.breaks.append(note)
+        return note
 
     def _trim(self, s: _Stream) -> None:
         # Keep what the aligned window (ending at the slowest stream's end) can still use,
@@ -311,6 +393,7 @@ class Aligner:
         keep_from = max(hi, s.end - self.capacity) - self.capacity - self.ratio
         while s.chunks and s.chunks[0][0] + s.chunks[0][1].shape[0] <= keep_from:
             s.chunks.popleft()
+        s.holes.trim(keep_from)
         s.start = s.chunks[0][0] if s.chunks else s.end
 
     def span(self, stop: int | None = None) -> tuple[int, int]:
@@ -323,7 +406,21 @@ class Aligner:
             hi = min(hi, stop)
         hi = hi // F * F  # whole periods, on the F grid at both ends
         lo = max(-(-max(s.start for s in self._s) // F) * F, hi - self.capacity)
+        b = self.bridging()
+        # a window later than the stream's own checks (another stream behind) stays
+        # within the share: it starts after the holes that would break it
+        for s in self._s[1:3]:
+            while (
+                b is not None
+                and hi > lo
+                and s.holes.count(lo, hi) > b.share * max(hi - lo, b.min_samples)
+            ):
+                lo = -(-(s.holes.first_end(lo, hi) or hi) // F) * F
         return lo, max(lo, hi)
+
+    def missing(self, lo: int, hi: int) -> int:
+        """Indices in [lo, hi) where u or y is missing (bridged holes of the held samples)."""
+        return union_count([s.holes for s in self._s[1:3]], lo, hi)
 
     def window(self, min_samples: int = 1, stop: int | None = None) -> LoopData | None:
         """The latest aligned window, or None when it holds fewer than ``min_samples``.
@@ -360,7 +457,7 @@ class Aligner:
         return out
 
     def spans(self) -> list[tuple[int, int]]:
-        """Every aligned gap-free span ``[first, end)`` (whole periods), in index order.
+        """Every aligned span ``[first, end)`` (whole periods; split at holes not bridged).
 
         Needs ``history`` for more than the latest.
         """

@@ -76,11 +76,14 @@ def held_phase(first: int, x: NDArray, ratio: int) -> tuple[int, float]:
     the variation between consecutive samples *inside* the hold intervals starting at
     indices = h (mod F) is summed; the true h gives (nearly) 0. The contrast is that sum
     relative to the next best candidate's (below 0.1: clear; near 1: not held, or F = 1).
+    Missing samples (NaN) are left out.
     """
     F = int(ratio)
     if F == 1:
         return 0, 1.0
-    step = np.abs(np.diff(x, axis=0)).sum(axis=1) if x.ndim == 2 else np.abs(np.diff(x))
+    # a missing sample (NaN) leaves out the two steps it is in
+    step = np.abs(np.diff(x, axis=0))
+    step = np.nansum(step, axis=1) if x.ndim == 2 else np.nan_to_num(step, nan=0.0)
     idx = (first + 1 + np.arange(step.shape[0])) % F  # index of the later sample
     per_class = np.bincount(idx, weights=step, minlength=F)  # variation entering index = c (mod F)
     inside = per_class.sum() - per_class  # hold at h: changes only allowed at h

@@ -4,8 +4,9 @@
 "Replay equals live" holds because both hand every decoded item - a good block or a
 :class:`~mr_ident.io.blocks.BlockError` - to :meth:`Ingest.offer`, which alone decides
 what it does to the window: a good block is pushed; a block of NaN/inf samples, whose
-indices are known, is a hole at once (the stream restarts after it); any other bad block
-is counted and dropped. The node adds only wall-clock timing (``now`` and
+indices are known, is a hole (missing samples of u or y within the aligner's bridging
+limits, else the stream restarts after it); any other bad block is counted and dropped.
+The node adds only wall-clock timing (``now`` and
 :meth:`Ingest.expire`); replay expires what never came at the end of the file.
 """
 
@@ -33,7 +34,8 @@ class Ingest:
             return al.push(stream, item, now)
         al.count(stream, item.kind)
         if item.kind == "nonfinite" and item.span is not None:
-            return al.hole(stream, *item.span) + f" ({item})"
+            note = al.hole(stream, *item.span, now=now)
+            return f"{note} ({item})" if note else None
         return f"{al.names[stream]}: malformed block dropped: {item}"
 
     def expire(self, now: float, max_wait: float) -> list[str]:

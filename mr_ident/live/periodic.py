@@ -165,7 +165,20 @@ def record_by_count(data: LoopData, period: int, transient: int) -> Periods:
 
 
 def periodic_bla(cut: Periods, ratio: int = 1) -> BLA:
-    """The BLA of what was cut (``ratio`` F: the odd/even levels of a multirate loop)."""
+    """The BLA of what was cut (``ratio`` F: the odd/even levels of a multirate loop).
+
+    DataError when u or y miss samples (NaN) in the kept periods: the periods' average
+    needs every sample (missing samples are estimated by the LPM methods).
+    """
+    lost = np.isnan(cut.u) | np.isnan(cut.y)
+    if lost.any():
+        m, k = np.argwhere(lost)[0]
+        raise DataError(
+            f"u or y miss {int(lost.sum())} samples (NaN) in the periods kept, the first at "
+            f"sample {int(k)} of realization {int(m)}; the periodic average (--period, the "
+            "excitation's labels) needs every sample: identify without --period estimates "
+            "missing samples"
+        )
     return best_linear_approximation(cut.r, cut.u, cut.y, cut.period, ratio=ratio)
 
 

@@ -96,6 +96,7 @@ def load_recording(
     span: str = DEFAULT_SPAN,
     msg_path: Sequence[str | Path] = (),
     labels: str = "",
+    complete: bool = False,
 ) -> Loaded:
     """r, u, y of a recording.
 
@@ -111,6 +112,8 @@ def load_recording(
     msg_path : directories of ``.msg`` files for types a bag does not define
     labels : the topic of an excitation's labels in a bag, read in the signals' form and
         aligned with them (the data's ``labels``; "": none)
+    complete : a bag's holes of u and y are not bridged (every hole splits it into spans,
+        ``span`` chooses): for a reader that needs every sample (diagnose)
     """
     check_span(span)
     p = Path(path)
@@ -129,6 +132,8 @@ def load_recording(
 
         return Loaded(read_data(p))
     notes: list[str] = []
+    from .gaps import NO_BRIDGING as no
+
     if specs is None:
         from .replay import recorded_signals
 
@@ -136,13 +141,22 @@ def load_recording(
             raise ConfigError("ratio F unknown: pass --ratio or --model")
         if fs_high is None:
             raise ConfigError("fs_high unknown: pass --fs-high or --model")
-        data, info = recorded_signals(p, ratio, topics=topics, span=span, labels=labels)
+        data, info = recorded_signals(
+            p, ratio, topics=topics, span=span, labels=labels, bridge=no if complete else None
+        )
         data = replace(data, fs_high=fs_high, ratio=ratio)
     else:
         from .replay import bag_signals
 
         data, info = bag_signals(
-            p, specs, fs_high=fs_high, ratio=ratio, span=span, msg_path=msg_path, labels=labels
+            p,
+            specs,
+            fs_high=fs_high,
+            ratio=ratio,
+            span=span,
+            msg_path=msg_path,
+            labels=labels,
+            bridge=no if complete else None,
         )
     if info.truncated:
         notes.append(f"{p} is truncated ({info.reason}); using the {data.n_samples} samples read")

@@ -6,7 +6,7 @@
 offers them to the node's :class:`~mr_ident.live.ingest.Ingest` and
 :class:`~mr_ident.live.align.Aligner`, and runs :func:`~mr_ident.live.estimate.estimate` on
 the window the node would have identified. :func:`recorded_signals` gives the latest
-gap-free span as data (for ``identify`` and ``diagnose``; :mod:`mr_ident.live.spans`).
+span as data (for ``identify`` and ``diagnose``; :mod:`mr_ident.live.spans`).
 """
 
 from __future__ import annotations
@@ -16,20 +16,19 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+import numpy.typing as npt
+
 from ..errors import DataError
-from ..io.bags import Bag
 from ..io.blocks import Block, BlockError
 from ..io.config import IdentConfig
-from ..io.labels import label_sources
-from ..io.paths import parse_sources
 from ..io.recording import RecordingInfo, read_blocks
-from ..io.sources import Resolved, Samples, bag_types, describe, extract, resolve
 from ..numerics.signals import LoopData
 from .align import Aligner, StreamStats
+from .bagread import read_bag
 from .estimate import Estimate, estimate
-from .feed import SignalSources, SourceFeed, check_rate, enough_messages
+from .gaps import NO_BRIDGING, BridgeRule, bridging, config_bridging
 from .ingest import Ingest
-from .sampling import Sampler
 from .spans import DEFAULT_SPAN, check_span, choose
 from .spans import describe as describe_spans
 
@@ -59,7 +58,7 @@ def _feed(
 class ReplayResult:
     """Outcome of :func:`replay`.
 
-    ``signals``: asked for with ``keep_signals``, the whole gap-free span replayed (the
+    ``signals``: asked for with ``keep_signals``, the whole span replayed (the
     ``span`` chosen), with the rates: what :func:`loop_windows` cuts the node's windows from
     (monitoring), from the same read.
     """
@@ -85,37 +84,48 @@ def replay(
     The estimate is computed from the last aligned window (``config.window_s``)
     ending at or before sample index ``stop`` (default: the end of the data) -
     the window the live node identified last when it saw the same blocks. ``span``
-    other than "latest": the last window of that gap-free span (:mod:`mr_ident.live.spans`)
+    other than "latest": the last window of that span (:mod:`mr_ident.live.spans`)
     instead. ``keep_signals``: also the whole span (:attr:`ReplayResult.signals`).
     """
     check_span(span)
     labels = config.excitation_index_topic
     items, info, _ = read_blocks(path, topics, labels)
-    al = Aligner(config.window_samples, config.ratio, config.reorder_blocks, labels=bool(labels))
+    al = Aligner(
+        config.window_samples,
+        config.ratio,
+        config.reorder_blocks,
+        labels=bool(labels),
+        bridge=config_bridging(config),
+    )
+
+    def whole_aligner() -> Aligner:  # every span, the holes judged as the node judges them
+        return Aligner(
+            1 << 62,
+            config.ratio,
+            config.reorder_blocks,
+            history=True,
+            labels=bool(labels),
+            bridge=config_bridging(config),
+        )
+
     every = None
     if span == "latest":
         notes = _feed(al, items, stop)
     else:
-        every = Aligner(
-            1 << 62, config.ratio, config.reorder_blocks, history=True, labels=bool(labels)
-        )
+        every = whole_aligner()
         notes = _feed(every, items, stop)
         notes = _span_into(al, every, span, notes, info, str(path))
     signals = None
     if keep_signals:
         if every is None:
-            every = Aligner(
-                1 << 62, config.ratio, config.reorder_blocks, history=True, labels=bool(labels)
-            )
+            every = whole_aligner()
             _feed(every, items, stop)
         whole = _chosen(every, span, notes, replace(info), str(path))
         signals = replace(whole, fs_high=config.fs_high, ratio=config.ratio)
     w = al.window(config.min_samples, stop=stop)
     if w is None:
         lo, hi = al.span(stop)
-        every = Aligner(
-            1 << 62, config.ratio, config.reorder_blocks, history=True, labels=bool(labels)
-        )
+        every = whole_aligner()
         _feed(every, items, stop)  # every span, for the message
         raise DataError(
             f"{path}: the recording holds no gap-free aligned window of at least "
@@ -129,20 +139,39 @@ def replay(
 def _span_into(
     al: Aligner, every: Aligner, span: str, notes: list[str], info: RecordingInfo, what: str
 ) -> list[str]:
-    """Push the gap-free span ``span`` of ``every`` (with history) into ``al``; the notes."""
+    """Push the span ``span`` of ``every`` (with history) into ``al``; the notes."""
     _push(al, _chosen(every, span, notes, info, what))
     return [info.broken, *notes] if info.broken else notes
 
 
+def _length(items: Sequence[tuple[int, int, Block | BlockError]]) -> int:
+    """The indices the items of a recording cover, first to last (0: none)."""
+    firsts = [it.first for _, _, it in items if isinstance(it, Block)]
+    ends = [it.end for _, _, it in items if isinstance(it, Block)]
+    return max(ends) - min(firsts) if firsts else 0
+
+
 def _push(al: Aligner, w: LoopData) -> None:
-    """The span ``w`` into ``al``: r, u, y and, where ``al`` aligns them, the labels."""
+    """The span ``w`` into ``al``: r, u, y and, where ``al`` aligns them, the labels.
+
+    Its missing samples (NaN rows) as holes, so ``al`` keeps them as its own would.
+    """
     streams = [w.r, w.u, w.y]
     if al.labels:
         if w.labels is None:
             raise DataError("the window has no labels for an aligner that aligns them")
         streams.append(w.labels.astype(float))
     for s, x in enumerate(streams):
-        al.push(s, Block(w.first, x))
+        lost: npt.NDArray[np.bool_] = np.asarray(np.isnan(x).any(axis=1))
+        if not lost.any():
+            al.push(s, Block(w.first, x))
+            continue
+        bounds = np.flatnonzero(np.diff(np.concatenate([[-1], lost.astype(int), [-1]])))
+        for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+            if bool(lost[int(a)]):
+                al.hole(s, w.first + int(a), int(b - a))
+            else:
+                al.push(s, Block(w.first + int(a), x[a:b]))
 
 
 def _what_broke(al: Aligner, notes: Sequence[str], info: RecordingInfo | None = None) -> str:
@@ -173,8 +202,13 @@ def recorded_signals(
     topics: Sequence[str] | None = None,
     span: str = DEFAULT_SPAN,
     labels: str = "",
+    bridge: BridgeRule | None = None,
 ) -> tuple[LoopData, RecordingInfo]:
-    """r, u, y of a gap-free aligned span of a recording (all of it when clean).
+    """r, u, y of an aligned span of a recording (all of it when no hole splits it).
+
+    Holes of u and y within ``bridge``'s limits are missing samples (NaN; default: the
+    limits of ``identify``'s default options over the whole recording,
+    :func:`~mr_ident.live.gaps.bridging`).
 
     ``span``: which one where there are gaps (:mod:`mr_ident.live.spans`; default the
     longest); ``first`` is the span's first sample index, ``info.broken`` says which span
@@ -189,7 +223,15 @@ def recorded_signals(
     check_span(span)
     items, info, _ = read_blocks(path, topics, labels)
     total = sum(item.samples.shape[0] for _, _, item in items if isinstance(item, Block))
-    al = Aligner(max(total, ratio), ratio, reorder_blocks=8, history=True, labels=bool(labels))
+    n = _length(items)
+    al = Aligner(
+        max(total, ratio),
+        ratio,
+        reorder_blocks=8,
+        history=True,
+        labels=bool(labels),
+        bridge=bridge or bridging(n, n, ratio=ratio),
+    )
     notes = _feed(al, items)
     return _chosen(al, span, notes, info, str(path)), info
 
@@ -208,106 +250,6 @@ def _chosen(
     return w
 
 
-# -- bags with per-sample sources ---------------------------------------------------------
-def resolve_sources(
-    types: Mapping[str, tuple[str, str]], specs: Mapping[str, Sequence[str]], labels: str = ""
-) -> SignalSources:
-    """Parse and resolve the ``r``, ``u``, ``y`` source specs against ``types``.
-
-    ``types``: topic -> (type, schema). ``labels``: the topic of an excitation's labels
-    (read in its form, :func:`mr_ident.io.labels.label_sources`; "": none).
-
-    Raises
-    ------
-    DataError
-        As :func:`~mr_ident.io.sources.resolve`; the labels' topic missing or of a type
-        they do not come in.
-    """
-    groups = []
-    for signal in ("r", "u", "y"):
-        parsed = parse_sources(list(specs.get(signal, ())), signal)
-        groups.append(tuple(resolve(p, types) for p in parsed))
-    found: tuple[Resolved, ...] = ()
-    if labels:
-        topic = "/" + labels.strip("/")
-        if topic not in types:
-            raise DataError(
-                f"excitation labels: topic {topic} not found (excitation_index_topic); "
-                f"there are: {', '.join(sorted(types)) or 'none'}"
-            )
-        specs_l = parse_sources(list(label_sources(topic, types[topic][0])), "labels")
-        found = tuple(resolve(p, types) for p in specs_l)
-    out = SignalSources(groups[0], groups[1], groups[2], found)
-    out.check()
-    return out
-
-
-@dataclass(frozen=True)
-class BagRead:
-    """A bag's sources read and aligned: the aligner, notes and what was read."""
-
-    aligner: Aligner
-    notes: tuple[str, ...]
-    info: RecordingInfo
-    fs_high: float
-    ratio: int
-    sources: str = ""
-
-
-def read_bag(
-    path: str | Path,
-    specs: Mapping[str, Sequence[str]],
-    *,
-    fs_high: float | None,
-    ratio: int | None,
-    capacity: int | None = None,
-    reorder_blocks: int = 8,
-    stop: int | None = None,
-    history: bool = False,
-    msg_path: Sequence[str | Path] = (),
-    labels: str = "",
-) -> BagRead:
-    """Every sample of the sources through the node's own steps into an aligner.
-
-    Through :class:`SourceFeed`, into an aligner of ``capacity`` samples (default: all of
-    them; ``history``: keeping every gap-free span); rates read off the stamps where not
-    given, and checked where given. ``msg_path``: directories of ``.msg`` files for types
-    the bag does not define. ``labels``: the topic of an excitation's labels, a fourth
-    aligned stream ("": none).
-    """
-    bag = Bag.open(path, msg_path=msg_path)
-    sources = resolve_sources(bag_types(bag), specs, labels)
-    if sources.r[0].kind == "blocks":
-        raise DataError(
-            f"{path}: bare topics follow the block contract; give them as --topics, not "
-            "--r/--u/--y"
-        )
-    samples = extract(bag, [src for _, _, src in sources.all])
-    enough_messages(bag, sources, samples, what=str(path))
-    fs, F = check_rate(samples, sources, fs_high, ratio, what=str(path))
-    total = max((s.stamps.size for s in samples), default=0) * F
-    al = Aligner(
-        capacity or max(total, F), F, reorder_blocks, history=history, labels=bool(labels)
-    )
-    feed = SourceFeed(sources, Ingest(al), fs_high=fs, ratio=F)
-    if stop is not None:
-        feed.sampler.t0 = min(
-            int(s.stamps[s.stamps >= 0].min()) for s in samples if (s.stamps >= 0).any()
-        )
-        samples = [_before(s, feed.sampler, stop) for s in samples]
-    notes = feed.push(samples) + Ingest(al).expire(float("inf"), 0.0)
-    notes = feed.anomalies() + notes + bag.notes
-    counts = {t: n for t, n in bag.read.items() if t in sources.topics}
-    info = RecordingInfo(messages=counts, truncated=bool(bag.cut), reason="; ".join(bag.cut))
-    return BagRead(al, tuple(notes), info, fs, F, describe([s for _, _, s in sources.all]))
-
-
-def _before(s: Samples, sampler: Sampler, stop: int) -> Samples:
-    idx, _ = sampler.indices(s.stamps)
-    keep = idx < stop
-    return Samples(s.stamps[keep], s.values[keep], s.valid[keep], s.log_time)
-
-
 def replay_bag(
     path: str | Path,
     config: IdentConfig,
@@ -323,7 +265,7 @@ def replay_bag(
     """:func:`replay` for per-sample sources.
 
     The window the node would have identified last (``config.window_s``, ending at or before
-    ``stop``; ``span`` other than "latest": the last window of that gap-free span);
+    ``stop``; ``span`` other than "latest": the last window of that span);
     ``fs_high``/``ratio`` None: read off the stamps (and the configuration's replaced by
     them). ``keep_signals``: also the whole span (:attr:`ReplayResult.signals`).
     """
@@ -338,15 +280,21 @@ def replay_bag(
         history=True,
         msg_path=msg_path,
         labels=labels,
+        options=config,
+        node=config if span == "latest" else None,
     )
     cfg = config.replace(fs_high=read.fs_high, ratio=read.ratio)
-    al = Aligner(cfg.window_samples, cfg.ratio, cfg.reorder_blocks, labels=bool(labels))
+    al = Aligner(
+        cfg.window_samples,
+        cfg.ratio,
+        cfg.reorder_blocks,
+        labels=bool(labels),
+        bridge=config_bridging(cfg),
+    )
     lo, hi = read.aligner.span(stop)
     notes = list(read.notes)
-    if span == "latest":
-        w = read.aligner.window(1, stop=stop)
-        if w is not None:
-            _push(al, w)
+    if span == "latest" and read.node is not None:  # the holes decided as the node did
+        al = read.node
     else:
         notes = _span_into(al, read.aligner, span, notes, read.info, str(path))
     win = al.window(cfg.min_samples, stop=stop)
@@ -376,15 +324,23 @@ def bag_signals(
     span: str = DEFAULT_SPAN,
     msg_path: Sequence[str | Path] = (),
     labels: str = "",
+    bridge: BridgeRule | None = None,
 ) -> tuple[LoopData, RecordingInfo]:
-    """r, u, y of a gap-free aligned span of a bag's sources (``span``: which one).
+    """r, u, y of an aligned span of a bag's sources (``span``: which one).
 
     With the rates (``identify`` and ``diagnose`` on a bag); as :func:`recorded_signals`
     (``labels`` too).
     """
     check_span(span)
     read = read_bag(
-        path, specs, fs_high=fs_high, ratio=ratio, history=True, msg_path=msg_path, labels=labels
+        path,
+        specs,
+        fs_high=fs_high,
+        ratio=ratio,
+        history=True,
+        msg_path=msg_path,
+        labels=labels,
+        bridge=bridge,
     )
     w = _chosen(read.aligner, span, read.notes, read.info, f"{path}: sources {read.sources}")
     return replace(w, fs_high=read.fs_high, ratio=read.ratio), read.info
@@ -407,17 +363,26 @@ def bag_windows(
     bag's rates) every ``update_period_s`` of loop time, once ``min_window_s`` is aligned;
     each window is the latest ``window_s`` ending there. ``specs`` None: the block contract
     (``topics``), rates from the arguments or ``config``; with sources, rates as
-    :func:`bag_signals`. The gap-free span ``span`` of the bag is replayed (default the
+    :func:`bag_signals`. The span ``span`` of the bag is replayed (default the
     longest).
     """
     labels = config.excitation_index_topic
     if specs is None:
         F = ratio or config.ratio
-        data, _ = recorded_signals(path, F, topics=topics, span=span, labels=labels)
+        # the holes judged as the node judged them
+        node = config_bridging(config.replace(ratio=F)) or NO_BRIDGING
+        data, _ = recorded_signals(path, F, topics=topics, span=span, labels=labels, bridge=node)
         cfg = config.replace(fs_high=fs_high or config.fs_high, ratio=F)
     else:
         data, _ = bag_signals(
-            path, specs, fs_high=fs_high, ratio=ratio, span=span, msg_path=msg_path, labels=labels
+            path,
+            specs,
+            fs_high=fs_high,
+            ratio=ratio,
+            span=span,
+            msg_path=msg_path,
+            labels=labels,
+            bridge=config_bridging(config.replace(ratio=ratio or config.ratio)) or NO_BRIDGING,
         )
         cfg = config.replace(fs_high=data.fs_high, ratio=data.ratio)
     yield from loop_windows(data, cfg, str(path))
@@ -426,7 +391,7 @@ def bag_windows(
 def loop_windows(
     data: LoopData, cfg: IdentConfig, what: str = "the data"
 ) -> Iterator[tuple[float, LoopData, IdentConfig]]:
-    """The windows the node would have identified over ``data`` (one gap-free span).
+    """The windows the node would have identified over ``data`` (one span).
 
     Yields (loop time in s since the span's first sample, window, ``cfg``) every
     ``update_period_s`` of loop time, once ``min_window_s`` is aligned; each window the

@@ -1,17 +1,20 @@
 # SPDX-License-Identifier: Apache-2.0
-"""Which gap-free span of a recording is used: ``--span latest|longest|all``.
+"""Which span of a recording is used: ``--span latest|longest|all``.
 
-A recording with gaps (dropped cycles, a restarted publisher, samples off the grid) holds
-several aligned gap-free spans; an estimate never spans a gap. The rule, in one place:
+A hole of u or y (a dropped message, a NaN block) within the bridging limits
+(:mod:`mr_ident.live.gaps`) is kept as missing samples: the span goes on over it. A
+longer hole, a hole of r, a restarted publisher split the recording into several aligned
+spans; an estimate never spans such a gap. The rule, in one place:
 
 ``longest`` (the default)
     the span with the most samples (the latest of equally long ones);
 ``latest``
     the last span (what the live node identifies from at the end of the recording);
 ``all``
-    every sample: the recording must be gap-free, else an error says where the gaps are.
+    every sample: the recording must be one span, else an error says where the gaps are.
 
-The reading says which span was used and where the gaps are (:func:`describe`).
+The reading says which span was used, where the gaps are (:func:`describe`) and why they
+could not be bridged (the hole and the limit it broke).
 """
 
 from __future__ import annotations
@@ -49,12 +52,12 @@ def describe(spans: Sequence[tuple[int, int]], most: int = 4) -> str:
         return shown + (f" and {len(xs) - most} more" if len(xs) > most else "")
 
     if not spans:
-        return "no aligned gap-free span"
+        return "no aligned span"
     longest = max(spans, key=lambda s: (s[1] - s[0], s[0]))
     g = gaps(spans)
     text = (
-        f"{len(spans)} gap-free span(s), the longest [{longest[0]}, {longest[1]}) of "
-        f"{longest[1] - longest[0]} samples"
+        f"{len(spans)} span(s) between gaps too long to bridge, the longest "
+        f"[{longest[0]}, {longest[1]}) of {longest[1] - longest[0]} samples"
     )
     if g:
         text += f"; gaps at {ranges(g)}"
@@ -80,15 +83,28 @@ def choose(al: Aligner, span: str, *, what: str) -> tuple[LoopData, str]:
         return al.extract(*spans[0]), ""
     if span == "all":
         raise DataError(
-            f"{what}: --span all needs a gap-free recording; it holds {describe(spans)} "
-            "(--span longest or latest uses one span)"
+            f"{what}: --span all needs a recording without gaps too long to bridge; it "
+            f"holds {describe(spans)}{why(al)} (--span longest or latest uses one span)"
         )
     if span == "latest":
         lo, hi = spans[-1]
     else:
         lo, hi = max(spans, key=lambda s: (s[1] - s[0], s[0]))
     note = (
-        f"using the {span} gap-free span [{lo}, {hi}) of {hi - lo} samples; "
-        f"{describe(spans)} (--span latest|longest|all chooses)"
+        f"using the {span} span [{lo}, {hi}) of {hi - lo} samples; "
+        f"{describe(spans)}{why(al)} (--span latest|longest|all chooses)"
     )
     return al.extract(lo, hi), note
+
+
+def why(al: Aligner, most: int = 3) -> str:
+    """Why the streams split (the holes and the limits they broke), to append; "" if unknown."""
+    b = al.bridging()
+    breaks = list(al.breaks)
+    if not breaks:
+        return ""
+    shown = "; ".join(breaks[:most]) + (
+        f"; and {len(breaks) - most} more" if len(breaks) > most else ""
+    )
+    limit = f" (bridged: holes of u, y {b.describe()})" if b is not None else ""
+    return f"; split at: {shown}{limit}"

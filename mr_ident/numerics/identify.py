@@ -19,97 +19,31 @@ from numpy.typing import ArrayLike
 
 from ..errors import ConfigError, DataError, DimensionError
 from .arrays import FloatArray, IntArray
-from .lifted.methods import METHODS, FitRequest, Method, PlantFit
+from .lifted.methods import METHODS, FitRequest, PlantFit
 from .lifted.missing import check_share, estimate_missing
+from .lifted.options import check_options, default_n, method_of, min_samples, missing_rules
 from .lifted.pfg import pfg_from_plant
 from .lifted.pfg_data import fit_data_pfg
 from .lifted.spectra import Spectra
 from .lifting import check_ratio
 from .local.bandwidth import candidates, centre_bins, choose_widths, probe_runs
-from .local.fit import check_local, smallest_n
-from .local.fit import check_options as check_local_options
 from .local.segments import Run, runs_of
 from .results import FRF, PFG, Identification
 from .signals import y_at_low_rate
 from .threads import one_blas_thread, resolve_workers, thread_map
 
-__all__ = ["AUTO", "METHODS", "check_options", "default_n", "identify", "min_samples"]
+__all__ = [
+    "AUTO",
+    "METHODS",
+    "check_options",
+    "default_n",
+    "identify",
+    "method_of",
+    "min_samples",
+]
 
 #: The value of ``n`` that chooses the window per frequency from the data.
 AUTO = "auto"
-#: The paper's window half-width: the least the default takes.
-N_FLOOR = 8
-#: The default n leaves at least this many degrees of freedom beyond the minimum.
-DOF_MARGIN = 2
-
-
-def method_of(name: str) -> Method:
-    """The row of :data:`METHODS` named ``name``; ConfigError naming the choices otherwise."""
-    if name not in METHODS:
-        raise ConfigError(f"method must be one of {', '.join(METHODS)}; got {name!r}")
-    return METHODS[name]
-
-
-def check_options(
-    method: str,
-    n: int,
-    degree: int,
-    ratio: int,
-    n_in: int,
-    n_out: int,
-    local: str = "polynomial",
-) -> int:
-    """Validate the LPM options of ``method``; return the residual degrees of freedom q.
-
-    For ``n_in`` excitation and ``n_out`` = max(n_y, n_u) channels; q is 0 for the ETFE
-    (which has no local model: ``local`` must be "polynomial" there).
-
-    The rule: ``q = 2n+1 - (R+1)(lift n_in + 1) > lift n_out`` with lift = F for the
-    lifted methods, else 1 (:func:`~mr_ident.numerics.local.lpm.check_lpm_options`); with
-    ``local="rational"`` the denominator's unknowns count too
-    (:func:`~mr_ident.numerics.local.lrm.check_lrm_options`).
-    """
-    m = method_of(method)
-    if not m.uses_lpm:
-        if check_local(local) != "polynomial":
-            raise ConfigError(
-                f"local = {local!r} applies to the LPM methods; {method} fits no local model"
-            )
-        return 0
-    lift = m.lift(ratio)
-    return check_local_options(local, n, degree, n_in * lift, n_out * lift)
-
-
-def default_n(
-    method: str, degree: int, ratio: int, n_in: int, n_out: int, local: str = "polynomial"
-) -> int:
-    """The default window half-width: 8 (the paper's), or more where F or the channels need it.
-
-    The smallest n >= 8 whose residual degrees of freedom exceed the outputs of the fit by
-    :data:`DOF_MARGIN`: ``2n+1 - (R+1)(lift n_in + 1) >= lift n_out + 2``, lift = F for a
-    lifted method, else 1 (``local="rational"``: less the denominator's share,
-    :func:`~mr_ident.numerics.local.lrm.dof`).
-
-    >>> default_n("freq-lifted", 2, 3, 1, 1), default_n("freq-lifted", 2, 10, 1, 1)
-    (8, 22)
-    >>> default_n("freq-lifted", 2, 3, 1, 1, "rational")
-    9
-    """
-    m = method_of(method)
-    if not m.uses_lpm:
-        return N_FLOOR
-    lift = m.lift(ratio)
-    return max(
-        N_FLOOR, smallest_n(local, degree, n_in * lift, n_out * lift, margin=DOF_MARGIN - 1)
-    )
-
-
-def min_samples(method: str, n: int, ratio: int) -> int:
-    """The shortest record ``method`` accepts.
-
-    See :meth:`~mr_ident.numerics.lifted.methods.Method.min_samples`.
-    """
-    return method_of(method).min_samples(n, ratio)
 
 
 def _check_signals(
@@ -406,21 +340,14 @@ def _fill(
             "y at the low rate has NaN samples; missing samples are estimated for a "
             "high-rate y (N samples) only"
         )
-    m = method_of(method)
+    rules = missing_rules(method, n, degree, ratio, nr, n_out, local, N, auto)
+    n_theta = rules[0][1]
     lifted = METHODS["freq-lifted"]
-    n_theta = n if m.lifted else max(n, default_n("freq-lifted", degree, ratio, nr, n_out))
-    if auto:
-        n_theta = max(n_theta, min(2 * n_theta, (N // (2 * ratio) - 1) // 2))
     if N < lifted.min_samples(n_theta, ratio):
         raise DataError(
             f"missing samples are estimated by the lifted fit, which needs N >= "
             f"{lifted.min_samples(n_theta, ratio)} samples (n = {n_theta}); got N = {N}"
         )
-    q_theta = check_options("freq-lifted", n_theta, degree, ratio, nr, n_out)
-    rules = [("lifted r -> [y; u]", n_theta, q_theta, ratio * n_out)]
-    if m.uses_lpm:
-        q = check_options(method, n, degree, ratio, nr, n_out, local)
-        rules.append((method, n, q, m.lift(ratio) * n_out))
     names = [f"y channel {j}" for j in range(ny)] + [f"u channel {j}" for j in range(nu)]
     check_share(counts, N, names, rules)
     fill = estimate_missing(r, u, y, ratio, n_theta, degree)

@@ -53,6 +53,7 @@ class Health:
     warm_up: str
     clock: str = ""  # why the ROS clock stands still ("" when it runs)
     active: bool = True
+    missing: int = 0  # indices of the window where u or y is missing (bridged holes)
 
 
 def _level(h: Health) -> tuple[Any, str, list[str]]:
@@ -115,6 +116,7 @@ def identification_status(h: Health, name: str, hardware_id: str) -> DiagnosticS
         "last_update_age_s": f"{h.now - h.estimate_wall:.3f}" if est is not None else "never",
         "recording": h.recording,
         "window_restarts": h.restarts,
+        "window_missing": h.missing,
         "warm_up_s": h.warm_up or "running",
         "recent_anomalies": " | ".join(recent[-8:]),
         "lifecycle": "active" if h.active else "inactive",

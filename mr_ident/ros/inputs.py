@@ -27,6 +27,7 @@ from ..io.blocks import STREAMS, Block
 from ..io.config import IdentConfig
 from ..live.align import Aligner
 from ..live.feed import SignalSources, SourceFeed
+from ..live.gaps import config_bridging
 from ..live.ingest import Ingest
 from ..live.sampling import grid_stamps
 from ..numerics.signals import LoopData
@@ -68,7 +69,11 @@ class Inputs:
         """A fresh, empty window (estimates of the old one, still running, are void)."""
         self.config = c
         self.aligner = Aligner(
-            c.window_samples, c.ratio, c.reorder_blocks, labels=bool(c.excitation_index_topic)
+            c.window_samples,
+            c.ratio,
+            c.reorder_blocks,
+            labels=bool(c.excitation_index_topic),
+            bridge=config_bridging(c),
         )
         self.ingest = Ingest(self.aligner)
         self.arrivals = [0.0] * len(self.aligner.names)

@@ -393,6 +393,7 @@ class IdentNode(LifecycleNode):
             config=cfg,
             stats=inputs.aligner.stats,
             span=inputs.aligner.span(),
+            missing=inputs.aligner.missing(*inputs.aligner.span()),
             restarts=inputs.aligner.restarts,
             estimate=pub.estimate if pub is not None else None,
             estimates=n_est,

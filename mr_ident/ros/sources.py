@@ -30,8 +30,8 @@ from ..io.sources import (
     names_by_version,
     stamps_of,
 )
+from ..live.bagread import resolve_sources
 from ..live.feed import SIGNALS, SignalSources, SourceFeed
-from ..live.replay import resolve_sources
 from ..live.sampling import infer_rate
 
 #: Received messages are decoded in batches this often (s): latency for throughput.

@@ -129,6 +129,10 @@ class _Criterion:
         )
         self._cache = cache
         self.weights: FloatArray | None = None  # (n_win, C): ω of every window and column
+        self._scatters: dict[tuple[int, int], IntArray] = {}
+        self.value = 0.0  # the criterion of the last :meth:`project`
+        self._sign = np.where(self.upper, -1.0, 1.0)[:, :, None]  # conjugate above N/2
+        self._gathers: dict[int, IntArray] = {}
 
     def _rows(self, a: int) -> IntArray:
         """The lifted-bin rows (B, 2n+1) of the windows a..a+CHUNK_WINDOWS-1."""
@@ -168,10 +172,14 @@ class _Criterion:
         return out
 
     def project(self, Z: ComplexArray) -> ComplexArray:
-        """``Σ_w ω_w S_wᵀ P_w S_w Z`` on lifted bins Z (n_bins, F, C)."""
+        """``Σ_w ω_w S_wᵀ P_w S_w Z`` on lifted bins Z (n_bins, F, C).
+
+        Sets :attr:`value`, the criterion ``Σ_w ω_w ‖P_w S_w Z‖²`` of Z.
+        """
         L, C = 2 * self.n + 1, Z.shape[2]
         Zf = Z.reshape(Z.shape[0], -1)
         out = np.zeros_like(Zf)
+        value = 0.0
         for i, a in enumerate(range(0, self.n_win, CHUNK_WINDOWS)):
             Q, QH = self._bases(i, a)
             rows = self._rows(a)
@@ -179,13 +187,28 @@ class _Criterion:
             E = W - Q @ (QH @ W)
             if self.weights is not None:
                 w = self.weights[a : a + E.shape[0]]
-                E = (E.reshape(E.shape[0], L, self.F, C) * w[:, None, None, :]).reshape(E.shape)
-            k = rows.ravel()
-            Ef = E.reshape(k.size, -1)
-            for c in range(Ef.shape[1]):
-                out[: self.n_bins, c] += np.bincount(k, Ef[:, c].real, self.n_bins)
-                out[: self.n_bins, c] += 1j * np.bincount(k, Ef[:, c].imag, self.n_bins)
+                Ew = (E.reshape(E.shape[0], L, self.F, C) * w[:, None, None, :]).reshape(E.shape)
+                value += float(np.vdot(E, Ew).real)
+                E = Ew
+            else:
+                value += float(np.vdot(E, E).real)
+            k = self._scatter(i, a, Zf.shape[1])  # every column's bins at once
+            size = self.n_bins * Zf.shape[1]
+            Er = E.reshape(-1)
+            part = out[: self.n_bins].reshape(-1)
+            part += np.bincount(k, Er.real, size)
+            part += 1j * np.bincount(k, Er.imag, size)
+            out[: self.n_bins] = part.reshape(self.n_bins, -1)
+        self.value = value
         return out.reshape(Z.shape[0], self.F, C)
+
+    def _scatter(self, i: int, a: int, cols: int) -> IntArray:
+        """``bin · cols + column`` of every entry of chunk i's windows (B, L, cols), raveled."""
+        key = (i, cols)
+        if key not in self._scatters:
+            rows = self._rows(a)
+            self._scatters[key] = (rows[:, :, None] * cols + np.arange(cols)).ravel()
+        return self._scatters[key]
 
     def diagonal(self, holes: IntArray, cols: IntArray, n_cols: int) -> FloatArray:
         """``(Aᵀ A)[m, m]`` of the samples ``holes``, exactly and without the operator.
@@ -200,10 +223,12 @@ class _Criterion:
         Pi = np.zeros((n_cols, L, L), dtype=np.complex128)
         for i, a in enumerate(range(0, self.n_win, CHUNK_WINDOWS)):
             Q = self._bases(i, a)[0]
-            for c in range(n_cols):
+            for c in range(n_cols if self.weights is not None else 1):
                 Qw = (Q * np.sqrt(w[a : a + Q.shape[0], c])[:, None, None]).transpose(1, 0, 2)
                 Qw = Qw.reshape(L, -1)
                 Pi[c] += Qw @ np.conj(Qw.T)
+        if self.weights is None:  # the same for every column
+            Pi[1:] = Pi[0]
         a_m = np.exp(-2j * np.pi * np.outer(holes, np.arange(-self.n, self.n + 1)) / self.N)
         quad = np.empty(holes.size)
         for c in range(n_cols):
@@ -216,7 +241,7 @@ class _Criterion:
         """The lifted bins (n_bins, F, C) of the unitary DFT of the signals x (N, C)."""
         Xh = np.fft.rfft(x.T, axis=1).T / np.sqrt(self.N)
         X: ComplexArray = Xh[self.fold]
-        X[self.upper] = np.conj(X[self.upper])
+        X.imag *= self._sign
         return X
 
     def adjoint(self, Z: ComplexArray) -> FloatArray:
@@ -226,12 +251,13 @@ class _Criterion:
         enters as the conjugate at N - κ, so the sum is an inverse real FFT.
         """
         C = Z.shape[2]
-        Zc = np.where(self.upper[:, :, None], np.conj(Z), Z).reshape(-1, C)
-        k = self.fold.ravel()
+        if C not in self._gathers:  # ``rfft bin · C + column`` of every entry, raveled
+            self._gathers[C] = (self.fold[:, :, None] * C + np.arange(C)).ravel()
+        k = self._gathers[C]
+        size = (self.N // 2 + 1) * C
         H = np.empty((self.N // 2 + 1, C), dtype=np.complex128)
-        for c in range(C):
-            H[:, c].real = np.bincount(k, Zc[:, c].real, self.N // 2 + 1)
-            H[:, c].imag = np.bincount(k, Zc[:, c].imag, self.N // 2 + 1)
+        H.real = np.bincount(k, Z.real.ravel(), size).reshape(-1, C)
+        H.imag = np.bincount(k, (Z.imag * self._sign).ravel(), size).reshape(-1, C)
         H *= self.half_weight[:, None]
         x: FloatArray = np.fft.irfft(H.T, n=self.N, axis=1).T * (self.N / np.sqrt(self.N))
         return x
@@ -324,7 +350,11 @@ def _estimate(
     x0 = np.where(mask, 0.0, yu)
     first = max(rtol, FIRST_RTOL) if reweight else rtol
     prior = _interpolated(x0, mask)
-    theta, it = _solve(crit, x0, mask, prior.copy(), first, ridge, prior, ftol)
+    # the unweighted diagonal preconditions both solves (weights of mean 1, about equal with
+    # noise: the weighted one took as many steps), the record's window power serves both
+    rows, cols = np.nonzero(mask)
+    diag = crit.diagonal(rows, cols, mask.shape[1])
+    theta, it, bb = _solve(crit, x0, mask, prior.copy(), first, ridge, prior, ftol, diag)
     if reweight:
         filled = x0.copy()
         filled[mask] = theta
@@ -338,7 +368,7 @@ def _estimate(
         floor = WEIGHT_FLOOR * np.median(smooth, axis=0, keepdims=True) + np.finfo(float).tiny
         crit.weights = 1.0 / (smooth + floor)
         crit.weights /= crit.weights.mean(axis=0, keepdims=True)
-        theta, it2 = _solve(crit, x0, mask, theta, rtol, ridge, prior, ftol)
+        theta, it2, _ = _solve(crit, x0, mask, theta, rtol, ridge, prior, ftol, diag, bb)
         it += it2
     filled = x0.copy()
     filled[mask] = theta
@@ -366,18 +396,21 @@ def _solve(
     rtol: float,
     ridge: float,
     prior: FloatArray,
-    ftol: float = 0.0,
-) -> tuple[FloatArray, int]:
-    """Preconditioned conjugate gradients from θ0; θ and the steps.
+    ftol: float,
+    d: FloatArray,
+    bb: float | None = None,
+) -> tuple[FloatArray, int, float]:
+    """Preconditioned conjugate gradients from θ0; θ, the steps and ``‖b‖²``.
 
     On ``(Aᵀ A + λ I) θ = -Aᵀ a0 + λ θ_prior``, λ = ``ridge`` times the median of the
     diagonal of Aᵀ A. A hole at the record's very ends has a diagonal near 0 (its phase
     ramp is smooth across every window: the transient takes it); the preconditioner
     keeps its exact diagonal (bounded below by 1e-14 of the median against rounding), so
     the steps stay few, and its value is loose (the fit's transient takes it too).
+    ``d``: the diagonal of the unweighted Aᵀ A (the preconditioner; a weighted solve's
+    weights have mean 1); ``bb``: ``‖b‖²``, the scale of ``rtol``, where known (a weighted
+    solve takes the unweighted one's: weights of mean 1).
     """
-    rows, cols = np.nonzero(mask)
-    d = crit.diagonal(rows, cols, mask.shape[1])
     lam = ridge * float(np.median(d))
     inv_diag = 1.0 / (np.maximum(d, 1e-14 * float(np.median(d))) + lam)
 
@@ -387,16 +420,18 @@ def _solve(
         Hv: FloatArray = crit.normal(spread)[mask] + lam * v
         return Hv
 
-    b = -crit.normal(x0)[mask] + lam * prior  # -Aᵀ a0 at the holes (row-major order)
-    stop = rtol**2 * float(b @ b)
+    if bb is None:
+        b = -crit.normal(x0)[mask] + lam * prior  # -Aᵀ a0 at the holes (row-major order)
+        bb = float(b @ b)
+    stop = rtol**2 * bb
     theta = theta0.copy()
-    res = b - apply(theta)
-    # the criterion f(θ) = ‖a0 + A θ‖² (+ λ‖θ - prior‖²) = c - bᵀθ - θᵀres, and each step
-    # lowers it by α rᵀz: stop too when that is below FTOL of f (the noise's residual)
-    power = crit.window_power(crit.forward(x0))
-    c = float((power if crit.weights is None else power * crit.weights).sum())
-    c += lam * float(prior @ prior)
-    f = c - float(b @ theta) - float(theta @ res)
+    filled = x0.copy()
+    filled[mask] = theta
+    # b - (AᵀA + λ) θ = -Aᵀ(a0 + A θ) + λ (prior - θ): one application
+    res = -crit.normal(filled)[mask] + lam * (prior - theta)
+    # the criterion f(θ) = ‖a0 + A θ‖² (+ λ‖θ - prior‖²), and each step lowers it by
+    # α rᵀz: stop too when that is below FTOL of f (the noise's residual)
+    f = crit.value + lam * float((theta - prior) @ (theta - prior))
     z = inv_diag * res
     direction = z.copy()
     rz = float(res @ z)
@@ -412,17 +447,17 @@ def _solve(
         f -= alpha * rz
         it += 1
         if alpha * rz <= ftol * f:
-            return theta, it
+            return theta, it, bb
         rz = rz_new
     rr = float(res @ res)
     if rr > stop:
         warnings.warn(
             f"missing samples: conjugate gradients stopped after {MAX_ITER} steps at a "
-            f"relative residual {np.sqrt(rr / float(b @ b)):.1e} (asked {rtol:g})",
+            f"relative residual {np.sqrt(rr / bb):.1e} (asked {rtol:g})",
             RuntimeWarning,
             stacklevel=3,
         )
-    return theta, it
+    return theta, it, bb
 
 
 def max_share(n: int, dof: int, n_map: int) -> float:
