@@ -30,11 +30,13 @@ line (a disturbance) is judged as surely as one spread over the band, since ``d`
 known, not estimated.
 
 **The decision.** Backward from the candidates (the causes the estimation data chose,
-jointly fitted): each cause is tested by the set without it against the set with it; the
-least significant one, if below the level, is rejected and the rest re-tested, until every
-remaining cause brings a significant gain. The remaining set is then tested against the
-nominal model and must also not lower the fit % of y on the validation data; otherwise
-no extension is validated and the nominal model stands. The values are not re-fitted.
+jointly fitted): each cause is tested by the set without it against the set with it; a
+cause fails where its gain is not significant or the set with it fits y worse on the
+validation data (fit %) than the set without it; the failing one of least z is rejected
+and the rest re-tested, until no remaining cause fails. The remaining set is then tested
+against the nominal model the same way (significant, and not lowering the fit of y);
+otherwise no extension is validated and the nominal model stands. The values are not
+re-fitted.
 """
 
 from __future__ import annotations
@@ -245,9 +247,12 @@ def decide(
             without = tuple(i for i in kept if i != j)
             trials[j] = (gain(obj, seen(without), seen(kept)), without, kept)
         tested.update(trials)  # each cause's test in the last set it was part of
-        worst = min(kept, key=lambda j: trials[j][0].z)
-        if trials[worst][0].z > z_crit:
+        failing = [
+            j for j in kept if not trials[j][0].z > z_crit or fit(kept).y < fit(trials[j][1]).y
+        ]
+        if not failing:
             break
+        worst = min(failing, key=lambda j: trials[j][0].z)
         kept = tuple(i for i in kept if i != worst)
     every = tuple(range(len(candidates)))
     overall = gain(obj, seen(()), seen(kept or every))
