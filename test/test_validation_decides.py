@@ -239,3 +239,12 @@ def test_random_records_of_a_linear_loop_show_no_distortion():
     spread = compare([a, b], model)
     assert len(spread) == 4
     assert all(s.level_db < min(0.0, s.threshold_db) for s in spread), spread
+
+
+def test_a_held_out_part_too_short_to_validate_on_is_an_error():
+    """Six periods: the held-out 30 % is two, one after its transient: no noise to judge
+    a gain by, so no validation; an error that says what to do, not a silent verdict."""
+    from mr_ident.errors import DataError
+
+    with pytest.raises(DataError, match="held-out part of data is 2 periods"):
+        diagnose(_model(), _record(linear, 0))

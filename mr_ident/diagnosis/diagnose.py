@@ -337,6 +337,12 @@ def diagnose(
         est = data.part(0, cut)
         val, val_start = data, cut
         check_record(model, est, n=n, what=f"the estimation part of {names[0]}")
+        if data.period is not None and (data.n_samples - cut) // data.period < 3:
+            raise DataError(
+                f"the held-out part of {names[0]} is {(data.n_samples - cut) // data.period} "
+                "periods; validating on it drops the first as transient and needs two more for "
+                "the noise: record more periods (7 with 30 % held out), or give validation data"
+            )
         est_desc = f"samples 0..{cut - 1} of DATA (the first {100 * (1 - holdout):.0f} %)"
         val_desc = (
             f"samples {cut}..{data.n_samples - 1} of DATA (the last {100 * holdout:.0f} %, held "
