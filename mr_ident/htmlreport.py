@@ -140,6 +140,32 @@ def fig_ranking(d: Diagnosis) -> Figure:
     return fig
 
 
+def _decision_html(decision: dict[str, Any] | None) -> str:
+    """The validation's decision: each candidate, its status, its test and its fits."""
+    if decision is None or not decision["candidates"]:
+        return ""
+    e = html.escape
+
+    def num(x: float | None, fmt: str = ".2f") -> str:
+        return "–" if x is None else format(x, fmt)
+
+    rows = "".join(
+        f"<tr><td>{e(k['cause'])}</td><td>{e(k['status'])}</td><td>{num(k['z'])}</td>"
+        f"<td>{num(k['fit_without'], '.1f')} % → {num(k['fit_with'], '.1f')} %</td>"
+        f"<td>{e(k['description'])}</td></tr>"
+        for k in decision["candidates"]
+    )
+    return (
+        f"<h2>Validation decides</h2><p><b>{e(decision['text'])}</b><br>"
+        f"Test: {e(decision['statistic'])}; α = {decision['alpha']:g}. Every candidate "
+        f"together: fit of y {num(decision['fit_candidates'], '.1f')} % on the validation "
+        "data.</p><table border=1 cellpadding=4 style='border-collapse:collapse'><tr>"
+        "<th>candidate (estimation data)</th><th>validation</th><th>z</th>"
+        "<th>fit of y without → with it</th><th>description</th></tr>"
+        f"{rows}</table>"
+    )
+
+
 def report_html(
     d: Diagnosis, summary: dict[str, Any], extended_frf: NDArray | None, title: str
 ) -> str:
@@ -182,6 +208,9 @@ def report_html(
         return f"{a['cause']} ({with_std(a)})" + (f" — or, as well: {alts}" if alts else "")
 
     applied = ", ".join(with_equivalents(a) for a in summary["applied"]) or "none"
+    decision = summary.get("validation_decision")
+    if decision is not None and decision["candidates"] and not decision["extension_validated"]:
+        applied = "none: no extension validated"
     bands = ", ".join(f"{lo:.3g}–{hi:.3g} Hz" for lo, hi in summary["significant_bands"]) or "none"
     bands_after = (
         ", ".join(f"{lo:.3g}–{hi:.3g} Hz" for lo, hi in summary["significant_bands_after"])
@@ -215,6 +244,7 @@ def report_html(
         "<table border=1 cellpadding=4 style='border-collapse:collapse'>"
         "<tr><th>cause</th><th>fitted parameters</th><th>ΔBIC vs nominal</th><th></th></tr>"
         f"{rows}</table>",
+        _decision_html(decision),
     ]
     for caption, fig in figs:
         body.append(

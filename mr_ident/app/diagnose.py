@@ -57,6 +57,9 @@ def diagnose_recording(req: DiagnoseRequest, notify: Notify = ignore) -> Diagnos
     val = None
     if req.validate is not None:
         val = _read(req, replace(req.reading, path=req.validate), model, specs, heard)
+    if req.more and val is None:
+        raise ConfigError("further records (more) need a validation record (validate) first")
+    more = [_read(req, replace(req.reading, path=p), model, specs, heard) for p in req.more]
     d = diagnose(
         model,
         data,
@@ -66,6 +69,7 @@ def diagnose_recording(req: DiagnoseRequest, notify: Notify = ignore) -> Diagnos
         alpha=req.alpha,
         max_causes=req.max_causes,
         names=req.names or (str(req.reading.path), str(req.validate)),
+        more=more,
     )
     return Diagnosed(d, model, data, tuple(heard.notices))
 

@@ -134,8 +134,10 @@ class IdentifyRequest:
 class DiagnoseRequest:
     """Where and why ``model`` disagrees with a recording (``mr-ident diagnose``).
 
-    ``validate``: a second recording (read as the first) to validate on; ``names``: how the
-    report names the two (default: their paths). ``rates``: "file" takes a data file's own
+    ``validate``: a second recording (read as the first) to validate on; ``more``: further
+    recordings of other excitation realizations, compared with the two as realizations
+    (nonlinear distortion across records); ``names``: how the report names the first two
+    (default: their paths). ``rates``: "file" takes a data file's own
     rates where it gives them, else the model's (``diagnose``); "agree": ``fs_high``,
     ``ratio``, the file and the model must agree (``batch``).
     """
@@ -152,6 +154,7 @@ class DiagnoseRequest:
     ratio: int | None = None
     rates: Literal["file", "agree"] = "file"
     names: tuple[str, str] | None = None
+    more: tuple[Path, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -29,34 +29,40 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     req = DiagnoseRequest(
         recording(args, args.data, args.topics),
         args.model,
-        validate=args.validate,
+        validate=args.validate[0] if args.validate else None,
         period=args.period,
         n=args.n,
         degree=args.degree,
         alpha=args.alpha,
         max_causes=args.max_causes,
+        more=tuple(args.validate[1:]) if args.validate else (),
     )
     outcome = diagnose_recording(req, show)
     d = outcome.diagnosis
     summary = report_dict(
         d, extended_model=str(args.out_model) if args.out_model else None, alpha=args.alpha
     )
+    corrected = d.correction is not None and d.correction.accepted
     applied = ", ".join(
-        [a.cause for a in d.applied]
-        + (["a plant correction"] if d.correction is not None and d.correction.accepted else [])
+        [a.cause for a in d.applied] + (["a plant correction"] if corrected else [])
+    )
+    nothing = (
+        "nothing (no extension validated)"
+        if d.decision is not None and d.decision.candidates
+        else "nothing (the model explains the data)"
     )
     # Everything is computed; now write (each file atomically).
     if args.out_model:
         text = yaml.safe_dump(model_to_dict(d.extended), sort_keys=False)
         header = (
             f"# Extended by mr-ident diagnose from {args.model} on {args.data}.\n"
-            f"# Applied: {applied or 'nothing (the model explains the data)'}\n"
+            f"# Applied: {applied or nothing}\n"
         )
         atomic_write(args.out_model, lambda fh: fh.write(header + text), binary=False)
     atomic_write(args.json, lambda fh: json.dump(summary, fh, indent=2), binary=False)
     if args.report:
         ext = None
-        if d.applied or (d.correction is not None and d.correction.accepted):
+        if d.applied or corrected:
             ext = d.extended.plant_discrete().freqresp(d.evidence_before.frequency)
         page = report_html(
             d, summary, ext, f"mr-ident diagnose: {args.model.name} on {args.data.name}"
@@ -80,10 +86,26 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         print(f"  found: {a.description}" + (f" (std: {spread})" if spread else ""))
         for q in a.equivalents:
             print(f"    or, as well (BIC {q.delta_bic:+.1f}): {q.description}")
+    v = d.decision
+    if v is not None and v.candidates and not v.validated:
+        print(f"  {v.text(corrected=corrected)}")
+    if v is not None and v.candidates:
+        for k in v.checks:
+            status = "validated" if k.validated else "rejected on validation"
+            print(
+                f"  candidate {k.cause}: {status} (z = {k.gain.z:.2f}, fit y without "
+                f"{k.fit_without:.1f} % -> with {k.fit_with:.1f} %): {k.description}"
+            )
     if d.correction is not None:
         print(f"  found: {d.correction.text()}")
     if d.nonlinear:
         print(f"  found: {d.distortion_text()}")
+    elif d.spread:
+        worst = max(b.level_db for b in d.spread)
+        print(f"  {d.records} records compared as realizations: spread within the noise "
+              f"(at most {worst:.1f} dB above it): no nonlinear distortion seen")  # fmt: skip
+    if d.blind_text():
+        print(f"  note: {d.blind_text()}")
     if d.relation is not None:
         print(f"  controller: {d.relation.text()}")
     if d.controller is not None and d.controller.differs:

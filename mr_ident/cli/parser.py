@@ -248,7 +248,11 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument(
         "--validate",
         type=Path,
-        help="independent validation data (default: the last 30 %% of DATA)",
+        nargs="+",
+        metavar="DATA2",
+        help="independent validation data (default: the last 30 %% of DATA); the first "
+        "validates the extension; all records given, DATA too, are compared as realizations "
+        "of the excitation (nonlinear distortion across records)",
     )
     _sources(g)
     _reading(g)

@@ -23,7 +23,11 @@ rates) and a nominal :class:`~mr_ident.numerics.systems.model.Model`, :func:`dia
    ``none`` (p = 0). A cause is accepted only when its BIC is below that of the model it
    extends; accepted causes are applied greedily (up to ``max_causes``), each step
    re-ranking the rest against the extended model.
-4. **Gain** (:mod:`~mr_ident.diagnosis.criterion.prediction`): fit % of y and u, and the FRF error
+4. **Validation decides** (:mod:`~mr_ident.diagnosis.selection.validation`): the chosen
+   causes, their values fixed, are held against the validation data on the same criterion;
+   only those whose gain there is significant (level ``alpha``) are applied, and only when
+   together they also raise the fit of y there; else no extension is validated.
+5. **Gain** (:mod:`~mr_ident.diagnosis.criterion.prediction`): fit % of y and u, and the FRF error
    in σ units, of the nominal and the extended model on validation data.
 """
 
@@ -31,29 +35,34 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, ParamSpec
 
 import numpy as np
 
 from ..errors import ConfigError, DataError
-from ..numerics.excitation.bla import BandLevels, distortion_by_band
+from ..numerics.excitation.bla import BandLevels
 from ..numerics.identify import default_n, min_samples
 from ..numerics.lifted.pfg_check import ControllerCheck, check_controller
+from ..numerics.results import Identification
 from ..numerics.signals import LoopData
 from ..numerics.systems.model import Model
 from ..numerics.threads import one_blas_thread
 from .causes.cause import CauseFit, PlantData
 from .causes.registry import CAUSES, build
 from .controller.relation import ControllerRelation, relate
+from .criterion.distortion import NL_THRESHOLD_DB as NL_THRESHOLD_DB  # re-exported
+from .criterion.distortion import blind_text, distortion, lines_nonlinear, lines_text
 from .criterion.evidence import Evidence, frf_evidence, identify_record
 from .criterion.noise import noise_spectrum
 from .criterion.objective import Objective, settle_samples
 from .criterion.prediction import TimeFit, centred, predict, time_fit
+from .criterion.realizations import SpreadLevels, compare, spread_nonlinear, spread_text
 from .selection.correction import Correction, correction
 from .selection.equivalence import with_equivalents
 from .selection.forward import SCREEN_SAMPLES, select
+from .selection.validation import Validation, decide
 
 
 def min_record(n: int, ratio: int) -> int:
@@ -140,9 +149,10 @@ class Diagnosis:
     ranking : list of CauseFit
         All causes fitted against the nominal model, best first.
     applied : list of CauseFit
-        The causes applied in turn (greedy), each fitted on top of the previous ones.
+        The causes applied: those the estimation data chose (jointly fitted) that the
+        validation data confirm (:attr:`decision`); empty when no extension validated.
     extended : Model
-        The nominal model with every applied cause.
+        The nominal model with every applied cause (the nominal when none is).
     evidence_before : Evidence
         Nominal model against the estimation data.
     evidence_after : Evidence
@@ -166,6 +176,16 @@ class Diagnosis:
         from the logged y through the model's controller?) and the controller-side causes
         it determined (:mod:`~mr_ident.diagnosis.controller.relation`); None in open loop
         or with y at the low rate.
+    decision : Validation or None
+        The candidates the estimation data chose and what the validation data decided of
+        each (:mod:`~mr_ident.diagnosis.selection.validation`).
+    spread : list of SpreadLevels
+        The plant estimates of every record given (``data``, ``validation``, ``more``) as
+        realizations: their spread against their noise per band
+        (:mod:`~mr_ident.diagnosis.criterion.realizations`); [] with one record or the
+        same realization twice.
+    records : int
+        How many records :attr:`spread` compares (1: none).
     correction : Correction or None
         Where the extended model is still wrong on the estimation data: a low-order
         correction of P_h, fitted there and judged on the validation data
@@ -190,37 +210,30 @@ class Diagnosis:
     controller: ControllerCheck | None = None
     criterion: Objective | None = field(default=None, repr=False, compare=False)
     relation: ControllerRelation | None = None
+    decision: Validation | None = None
+    spread: list[SpreadLevels] = field(default_factory=list)
+    records: int = 1
     correction: Correction | None = None
 
     @property
     def nonlinear(self) -> bool:
-        """Nonlinear distortion stands out of the noise (periodic data: :func:`distortion`).
+        """Nonlinear distortion stands out of the noise.
 
-        A band's odd or even level counts above :data:`NL_THRESHOLD_DB` and above what noise
-        alone reaches on as few lines with probability 1e-3 (its ``*_threshold_db``).
+        On one periodic record's unexcited lines (:func:`distortion`): a band's odd or even
+        level counts above :data:`NL_THRESHOLD_DB` and above what noise alone reaches on as
+        few lines with probability 1e-3 (its ``*_threshold_db``); across records of other
+        realizations (:attr:`spread`), a band's spread the same way.
         """
-        return any(
-            level > max(NL_THRESHOLD_DB, threshold if np.isfinite(threshold) else -np.inf)
-            for b in self.distortion
-            for level, threshold in (
-                (b.odd_db, b.odd_threshold_db),
-                (b.even_db, b.even_threshold_db),
-            )
-            if np.isfinite(level)
-        )
+        return lines_nonlinear(self.distortion) or spread_nonlinear(self.spread)
 
     def distortion_text(self) -> str:
         """The finding in words, or "" when there is none."""
-        if not self.nonlinear:
-            return ""
-        worst = max(self.distortion, key=lambda b: np.nanmax([b.odd_db, b.even_db]))
-        odd = max((b.odd_db for b in self.distortion if np.isfinite(b.odd_db)), default=np.nan)
-        even = max((b.even_db for b in self.distortion if np.isfinite(b.even_db)), default=np.nan)
-        return (
-            f"nonlinear distortion up to {odd:.0f} dB (odd lines) and {even:.0f} dB (even lines) "
-            f"above the noise, most at {worst.band[0]:.3g}-{worst.band[1]:.3g} Hz (counted as "
-            "noise in the criterion; any linear cause describes the best linear approximation)"
-        )
+        parts = [lines_text(self.distortion), spread_text(self.spread, self.records)]
+        return "; ".join(p for p in parts if p)
+
+    def blind_text(self) -> str:
+        """Why this record cannot show odd distortion, and what would; "" when it can."""
+        return blind_text(self.distortion, self.records)
 
 
 _P = ParamSpec("_P")
@@ -261,6 +274,7 @@ def diagnose(
     max_causes: int = 3,
     holdout: float = 0.3,
     names: tuple[str, str] = ("data", "validation data"),
+    more: Sequence[LoopData] = (),
 ) -> Diagnosis:
     """Where and why ``model`` disagrees with ``data``, the extended model, and its gain.
 
@@ -285,6 +299,9 @@ def diagnose(
         Most causes applied in turn.
     names : (str, str)
         What to call ``data`` and ``validation`` in error messages (e.g. their files).
+    more : sequence of LoopData
+        Further records of other excitation realizations: with ``data`` and
+        ``validation`` they are compared as realizations (:attr:`Diagnosis.spread`).
 
     Raises
     ------
@@ -329,12 +346,20 @@ def diagnose(
         est = data.part(0, cut)
         val, val_start = data, cut
         check_record(model, est, n=n, what=f"the estimation part of {names[0]}")
+        if data.period is not None and (data.n_samples - cut) // data.period < 3:
+            raise DataError(
+                f"the held-out part of {names[0]} is {(data.n_samples - cut) // data.period} "
+                "periods; validating on it drops the first as transient and needs two more for "
+                "the noise: record more periods (7 with 30 % held out), or give validation data"
+            )
         est_desc = f"samples 0..{cut - 1} of DATA (the first {100 * (1 - holdout):.0f} %)"
         val_desc = (
             f"samples {cut}..{data.n_samples - 1} of DATA (the last {100 * holdout:.0f} %, held "
             "out; "
             f"simulated over the whole record so the state carries over)"
         )
+    for j, other in enumerate(more):
+        check_record(model, other, n=n, what=f"record {j + 3}")
     if val_start and val.period is None and val.n_samples - val_start < min_record(n, model.ratio):
         raise DataError(
             f"the held-out part of {names[0]} ({val.n_samples - val_start} samples) "
@@ -367,20 +392,36 @@ def diagnose(
     plant = PlantData(ev_before.frequency, ev_before.P_hat, ev_before.P_std)
     why = f"settled by the controller's own equation: {settled.text()}" if settled else None
     sel = select(full, screen, base, plant, max_causes=max_causes, ruled_out=why)
-    ranking, current = sel.ranking, sel.model
+    ranking = sel.ranking
     applied = _settled(full, model, relation) + with_equivalents(
         full, screen, base, plant, sel.chosen, sel.ranking
     )
-    # where the listed causes end: a correction, applied only when it validates
-    corr = correction(model, current, est, ident, val, val_start, n=n, degree=degree, alpha=alpha)
-    current = corr.model if corr is not None and corr.model is not None else current
     val_part = val.part(val_start, val.n_samples) if val_start else val
-    pred_b, pred_a = predict(model, val), predict(current, val)
+    cut_at = val_start
     if not val_start and model.controller is not None and val.period is None:
         val_start = settle_samples(model, val.n_samples)  # separate data: skip the transient
+    ident_val = identify_record(val_part, model, n=n, degree=degree)
+
+    def fit_of(m: Model) -> TimeFit:
+        return time_fit(m, val, val_start)
+
+    def val_objective() -> Objective:
+        noise_val = noise_spectrum(val_part, model, n=n, degree=degree, ident=ident_val)
+        return Objective(val_part, model, noise_val)
+
+    check = decide(val_objective, model, applied, fit_of, alpha=alpha, start=cut_at)
+    applied = [  # each with the validated ones before it in its model
+        replace(c, model=build(model, [a.choice for a in check.applied[: j + 1] if a.choice]))
+        for j, c in enumerate(check.applied)
+    ]
+    current = applied[-1].model if applied else model
+    # where the listed causes end: a correction on the validated model, applied only when it
+    # validates
+    corr = correction(model, current, est, ident, val, cut_at, n=n, degree=degree, alpha=alpha)
+    current = corr.model if corr is not None and corr.model is not None else current
+    pred_b, pred_a = predict(model, val), predict(current, val)
     fit_before = time_fit(model, val, val_start, pred_b)
     fit_after = time_fit(current, val, val_start, pred_a)
-    ident_val = identify_record(val_part, model, n=n, degree=degree)
     ev_val_before = frf_evidence(model, val_part, n=n, degree=degree, alpha=alpha, ident=ident_val)
     ev_after = frf_evidence(current, val_part, n=n, degree=degree, alpha=alpha, ident=ident_val)
     _, _, y_meas = centred(val, model)
@@ -410,8 +451,30 @@ def diagnose(
         None if ident is None else check_controller(ident, n),
         full,
         relation,
+        check,
+        *_spread(
+            [data, *([] if validation is None else [validation]), *more],
+            model,
+            n,
+            degree,
+            (ident,) if validation is None else (ident, ident_val),
+        ),
         corr,
     )
+
+
+def _spread(
+    records: list[LoopData],
+    model: Model,
+    n: int,
+    degree: int,
+    idents: tuple[Identification | None, ...],
+) -> tuple[list[SpreadLevels], int]:
+    """The records' spread as realizations and how many were compared."""
+    if len(records) < 2:
+        return [], 1
+    spread = compare(records, model, n=n, degree=degree, idents=idents)
+    return spread, len(records) if spread else 1
 
 
 def _settled(obj: Objective, nominal: Model, rel: ControllerRelation | None) -> list[CauseFit]:
@@ -432,21 +495,3 @@ def _settled(obj: Objective, nominal: Model, rel: ControllerRelation | None) -> 
         text = cause.describe(params) + " (the controller's own equation, u from y, fixes it)"
         out.append(CauseFit(c.cause, params, bic, rss, model, True, text, c, rel.std[j]))
     return out
-
-
-#: A band whose unexcited lines stand this many dB above the noise shows distortion.
-NL_THRESHOLD_DB = 6.0
-
-
-def distortion(rec: LoopData) -> list[BandLevels]:
-    """Distortion levels per band of periodic single-output data; [] for other data.
-
-    Four log-spaced bands over the excited range, the first (transient) period dropped.
-    """
-    if rec.period is None or rec.y.shape[1] != 1 or rec.n_samples // rec.period < 3:
-        return []
-    Pn, fs = rec.period, rec.rates()[0]
-    n = (rec.n_samples // Pn - 1) * Pn  # whole periods after the first
-    return distortion_by_band(
-        rec.r[Pn : Pn + n, 0], rec.y[Pn : Pn + n, 0], Pn, fs, ratio=rec.ratio or 1
-    )

@@ -12,12 +12,65 @@ from typing import Any
 
 from ..numerics.lifted.pfg_check import COVERAGE, MIN_FRACTION
 from .controller.relation import EXACT
-from .diagnose import NL_THRESHOLD_DB, Diagnosis
+from .criterion.distortion import NL_THRESHOLD_DB
+from .diagnose import Diagnosis
 from .selection.forward import ACCEPT_MARGIN
 
 
 def _finite(x: float | None) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
+
+
+def _corrected(d: Diagnosis) -> bool:
+    """Whether a correction beyond the listed causes validated and was applied."""
+    return d.correction is not None and d.correction.accepted
+
+
+def _validation_findings(d: Diagnosis) -> list[str]:
+    """No extension validated, or the causes the validation data rejected, in words."""
+    v = d.decision
+    if v is None or not v.candidates:
+        return []
+    if not v.validated:
+        return [v.text(corrected=_corrected(d))]
+    return [
+        f"accepted on the estimation data, rejected on validation (z = {k.gain.z:.2f} <= "
+        f"{v.z_critical:.2f}): {k.description}"
+        for k in v.rejected
+    ]
+
+
+def _decision(d: Diagnosis) -> dict[str, Any] | None:
+    """The ``validation_decision`` field (the README's "Model validation" section)."""
+    v = d.decision
+    if v is None:
+        return None
+    return {
+        "extension_validated": v.validated or _corrected(d),
+        "text": v.text(corrected=_corrected(d)) or "no cause found on the estimation data",
+        "statistic": v.statistic,
+        "alpha": v.alpha,
+        "z_critical": v.z_critical,
+        "z": _finite(v.gain.z),
+        "likelihood_gain": _finite(v.gain.likelihood),
+        "level": _finite(v.gain.level),
+        "fit_candidates": _finite(v.fit_candidates.y),
+        "fit_u_candidates": None if v.fit_candidates.u is None else _finite(v.fit_candidates.u),
+        "candidates": [
+            {
+                "cause": k.cause,
+                "parameters": k.parameters,
+                "description": k.description,
+                "status": "validated" if k.validated else "rejected on validation",
+                "z": _finite(k.gain.z),
+                "likelihood_gain": _finite(k.gain.likelihood),
+                "level": _finite(k.gain.level),
+                "fit_with": _finite(k.fit_with),
+                "fit_without": _finite(k.fit_without),
+            }
+            for k in v.checks
+        ],
+    }
 
 
 def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> dict[str, Any]:
@@ -58,6 +111,7 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
             for c in d.applied
         ],
         "findings": ([d.distortion_text()] if d.nonlinear else [])
+        + ([d.blind_text()] if d.blind_text() else [])
         + (
             [d.relation.text()]
             if d.relation is not None and d.relation.error_before > EXACT
@@ -65,7 +119,9 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
         )
         + ([d.controller.text()] if d.controller is not None and d.controller.differs else [])
         + [c.description for c in d.applied]
+        + _validation_findings(d)
         + ([d.correction.text()] if d.correction is not None else []),
+        "validation_decision": _decision(d),
         "nonlinear_distortion": {
             "detected": d.nonlinear,
             "threshold_db": NL_THRESHOLD_DB,
@@ -80,6 +136,19 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
                 }
                 for b in d.distortion
             ],
+            "records": d.records,
+            "across_records": [
+                {
+                    "band_hz": list(b.band),
+                    "level_db": _finite(b.level_db),
+                    "threshold_db": _finite(b.threshold_db),
+                    "nl_std_relative": _finite(b.nl_std),
+                    "noise_std_relative": _finite(b.noise_std),
+                    "lines": b.lines,
+                }
+                for b in d.spread
+            ],
+            "blind": d.blind_text() or None,
         },
         "controller_relation": None
         if d.relation is None
