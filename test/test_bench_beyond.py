@@ -55,7 +55,7 @@ def test_an_unknown_effect_is_refused():
     assert set(NONLINEAR) == {"dead_zone", "saturation", "coulomb_friction", "backlash"}
 
 
-def _diagnosis(applied, fit, correction=None, nonlinear=False, corrections=()):
+def _diagnosis(applied, fit, correction=None, nonlinear=False, corrections=(), varying=False):
     return SimpleNamespace(
         applied=applied,
         extended=SimpleNamespace(plant_corrections=corrections),
@@ -63,6 +63,7 @@ def _diagnosis(applied, fit, correction=None, nonlinear=False, corrections=()):
         fit_after=SimpleNamespace(y=fit[1]),
         correction=correction,
         nonlinear=nonlinear,
+        time_varying=varying,
     )
 
 
@@ -79,4 +80,6 @@ def test_the_verdict_counts_what_the_issue_asks():
     no = judge_beyond(False, math.nan, _diagnosis(["gain_error"], (80.0, 90.0), refused))
     assert no.offered and not no.corrected and not no.explained
     described = judge_beyond(False, math.nan, _diagnosis(["gain_error"], (80.0, 90.0)))
-    assert described.explained and not described.offered
+    assert described.explained and not described.offered and not described.varying
+    changing = judge_beyond(False, math.nan, _diagnosis([], (80.0, 80.0), varying=True))
+    assert changing.varying and not changing.corrected and not changing.worse_applied

@@ -254,7 +254,8 @@ class BeyondVerdict:
     nominal's; ``offered``: a correction was fitted (something was left after the causes);
     ``corrected``: one was applied and validates better than the nominal; ``explained``:
     nothing significant was left after the causes and they validate better than the
-    nominal (the vocabulary described the effect; no correction needed).
+    nominal (the vocabulary described the effect; no correction needed); ``varying``: the
+    diagnosis says the plant changes within the record (its ``time_varying`` finding).
     """
 
     named: bool | None
@@ -263,6 +264,7 @@ class BeyondVerdict:
     offered: bool
     corrected: bool
     explained: bool
+    varying: bool = False
 
 
 def nonlinearity_named(diagnosis: Diagnosis) -> bool:
@@ -289,4 +291,5 @@ def judge_beyond(nonlinear: bool, distortion_db: float, diagnosis: Diagnosis) ->
         offered=c is not None,
         corrected=corrected,
         explained=c is None and extended and d.fit_after.y > d.fit_before.y,
+        varying=bool(getattr(d, "time_varying", False)),
     )

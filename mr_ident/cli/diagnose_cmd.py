@@ -106,6 +106,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
               f"(at most {worst:.1f} dB above it): no nonlinear distortion seen")  # fmt: skip
     if d.blind_text():
         print(f"  note: {d.blind_text()}")
+    if d.segments is not None and d.time_varying:
+        print(f"  found: {d.segments.text()}")
     if d.relation is not None:
         print(f"  controller: {d.relation.text()}")
     if d.controller is not None and d.controller.differs:

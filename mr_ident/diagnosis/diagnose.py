@@ -45,7 +45,6 @@ from ..errors import ConfigError, DataError
 from ..numerics.excitation.bla import BandLevels
 from ..numerics.identify import default_n, min_samples
 from ..numerics.lifted.pfg_check import ControllerCheck, check_controller
-from ..numerics.results import Identification
 from ..numerics.signals import LoopData
 from ..numerics.systems.model import Model
 from ..numerics.threads import one_blas_thread
@@ -58,7 +57,8 @@ from .criterion.evidence import Evidence, frf_evidence, identify_record
 from .criterion.noise import noise_spectrum
 from .criterion.objective import Objective, settle_samples
 from .criterion.prediction import TimeFit, centred, predict, time_fit
-from .criterion.realizations import SpreadLevels, compare, spread_nonlinear, spread_text
+from .criterion.realizations import SpreadLevels, records_spread, spread_nonlinear, spread_text
+from .criterion.timevarying import Segments, within
 from .selection.correction import Correction, correction
 from .selection.equivalence import with_equivalents
 from .selection.forward import SCREEN_SAMPLES, select
@@ -191,6 +191,9 @@ class Diagnosis:
         correction of P_h, fitted there and judged on the validation data
         (:mod:`~mr_ident.diagnosis.selection.correction`); in ``extended`` only when it
         validated. None when nothing was left.
+    segments : Segments or None
+        The plant estimates of consecutive segments of ``data`` against their noise
+        (:mod:`~mr_ident.diagnosis.criterion.timevarying`); None when too short.
     """
 
     cause: str
@@ -214,6 +217,12 @@ class Diagnosis:
     spread: list[SpreadLevels] = field(default_factory=list)
     records: int = 1
     correction: Correction | None = None
+    segments: Segments | None = None
+
+    @property
+    def time_varying(self) -> bool:
+        """The plant changes within the record: its segments differ beyond their noise."""
+        return self.segments is not None and self.segments.varying
 
     @property
     def nonlinear(self) -> bool:
@@ -452,7 +461,7 @@ def diagnose(
         full,
         relation,
         check,
-        *_spread(
+        *records_spread(
             [data, *([] if validation is None else [validation]), *more],
             model,
             n,
@@ -460,21 +469,8 @@ def diagnose(
             (ident,) if validation is None else (ident, ident_val),
         ),
         corr,
+        within(data, model, n=n, degree=degree),
     )
-
-
-def _spread(
-    records: list[LoopData],
-    model: Model,
-    n: int,
-    degree: int,
-    idents: tuple[Identification | None, ...],
-) -> tuple[list[SpreadLevels], int]:
-    """The records' spread as realizations and how many were compared."""
-    if len(records) < 2:
-        return [], 1
-    spread = compare(records, model, n=n, degree=degree, idents=idents)
-    return spread, len(records) if spread else 1
 
 
 def _settled(obj: Objective, nominal: Model, rel: ControllerRelation | None) -> list[CauseFit]:

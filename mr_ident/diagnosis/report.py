@@ -13,6 +13,7 @@ from typing import Any
 from ..numerics.lifted.pfg_check import COVERAGE, MIN_FRACTION
 from .controller.relation import EXACT
 from .criterion.distortion import NL_THRESHOLD_DB
+from .criterion.timevarying import VARYING_DB
 from .diagnose import Diagnosis
 from .selection.forward import ACCEPT_MARGIN
 
@@ -111,6 +112,7 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
             for c in d.applied
         ],
         "findings": ([d.distortion_text()] if d.nonlinear else [])
+        + ([d.segments.text()] if d.segments is not None and d.time_varying else [])
         + ([d.blind_text()] if d.blind_text() else [])
         + (
             [d.relation.text()]
@@ -149,6 +151,18 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
                 for b in d.spread
             ],
             "blind": d.blind_text() or None,
+        },
+        "time_varying": None
+        if d.segments is None
+        else {
+            "detected": d.time_varying,
+            "segments": d.segments.parts,
+            "level_db": _finite(d.segments.level_db),
+            "threshold_db": VARYING_DB,
+            "bands": [
+                {"band_hz": list(b.band), "level_db": _finite(b.line_ratio_db), "lines": b.lines}
+                for b in d.segments.bands
+            ],
         },
         "controller_relation": None
         if d.relation is None

@@ -65,6 +65,10 @@ class SpreadLevels:
         plant estimate (``BLA.nl_std``, ``BLA.noise_std``), relative to its magnitude.
     lines : int
         Common lines in the band.
+    line_ratio_db : float
+        The mean over the band's lines (and entries) of each line's own ratio
+        ``s²(k) / σ²(k)``, dB: unlike :attr:`level_db` not dominated by the noisiest lines
+        (:mod:`.timevarying`).
     """
 
     band: tuple[float, float]
@@ -73,6 +77,7 @@ class SpreadLevels:
     nl_std: float
     noise_std: float
     lines: int
+    line_ratio_db: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -128,11 +133,14 @@ def compare(
     n: int = 8,
     degree: int = 2,
     idents: Sequence[Identification | None] = (),
+    realizations: bool = True,
 ) -> list[SpreadLevels]:
     """The records' FRF spread against their noise, per band (module docstring).
 
-    [] for fewer than 2 usable records or the same realization twice. ``idents``: the
-    first records' :func:`~.evidence.identify_record` where at hand (None: computed).
+    [] for fewer than 2 usable records or, with ``realizations``, the same realization
+    twice (False: segments of one record, :mod:`.timevarying`, where the same periodic
+    realization is what makes the comparison). ``idents``: the first records'
+    :func:`~.evidence.identify_record` where at hand (None: computed).
     """
     import scipy.stats  # not at the top: identify's start-up stays light
 
@@ -150,8 +158,10 @@ def compare(
         return []
     f = f[keep]
     periodic = [e for e in ests if e.R is not None]
-    if len(periodic) >= 2 and all(
-        e.frequency.size == periodic[0].frequency.size for e in periodic
+    if (
+        realizations
+        and len(periodic) >= 2
+        and all(e.frequency.size == periodic[0].frequency.size for e in periodic)
     ):
         first = periodic[0].R
         assert first is not None
@@ -178,10 +188,11 @@ def compare(
             rel = np.mean(mag2[inb])
             nl = math.sqrt(max(s2 - n2, 0.0) / M / rel) if rel > 0 else float("nan")
             nz = math.sqrt(n2 / M / rel) if rel > 0 else float("nan")
+            ratio = 10.0 * float(np.log10(np.mean(spread[inb] / noise[inb])))
         thr = 10.0 * math.log10(
             float(scipy.stats.f.isf(LEVEL_ALPHA, 2 * L * (M - 1), 2 * L * max(q, 1)))
         )
-        out.append(SpreadLevels((float(a), float(b)), level, thr, nl, nz, L))
+        out.append(SpreadLevels((float(a), float(b)), level, thr, nl, nz, L, ratio))
     return out
 
 
@@ -204,3 +215,17 @@ def spread_text(bands: list[SpreadLevels], records: int) -> str:
         "loop gives the same FRF from every realization; any linear cause describes the "
         "best linear approximation)"
     )
+
+
+def records_spread(
+    records: list[LoopData],
+    model: Model,
+    n: int,
+    degree: int,
+    idents: tuple[Identification | None, ...],
+) -> tuple[list[SpreadLevels], int]:
+    """The records' spread as realizations (:func:`compare`) and how many were compared."""
+    if len(records) < 2:
+        return [], 1
+    spread = compare(records, model, n=n, degree=degree, idents=idents)
+    return spread, len(records) if spread else 1

@@ -20,13 +20,14 @@ whitened by the validation data's own noise level) as ``BIC = 2 J + p ln n``, p 
 correction's real parameters. A candidate validates when its BIC is lower than both the
 nominal's and the extended model's ``2 J`` by more than the selection's
 :data:`~mr_ident.diagnosis.selection.forward.ACCEPT_MARGIN`, its validation fit of y is
-higher than both, and its gain holds over the bins: per bin the drop of the whitened
-squared residual ``d_k``, its mean over the bins at least :data:`MIN_T` of its standard
-error above 0 against both (a t statistic, blind to the noise level's scale: where
-unmodelled nonlinear distortion outweighs the noise estimate, the BIC's differences are
-inflated alike for any change, the t statistic is not). Of those that validate, the one
-of lowest BIC is applied (the order thus chosen on the validation data); when none does,
-the lowest of all is reported as a candidate that did not validate.
+higher than both, and its gain against both is significant on the test the listed causes
+must pass (:func:`~mr_ident.diagnosis.selection.validation.gain`: ``z > z_{1-alpha}``,
+the noise taken at the level of the corrected model's residual where the two differ, so
+that unmodelled nonlinear distortion, which inflates the BIC's differences alike for any
+change, counts as noise; a gain on a few bins, a resonance's, is judged as surely as one
+spread over the band). Of those that validate, the one of lowest BIC is applied (the
+order thus chosen on the validation data); when none does, the lowest of all is reported
+as a candidate that did not validate.
 """
 
 from __future__ import annotations
@@ -50,11 +51,10 @@ from ..criterion.noise import noise_spectrum
 from ..criterion.objective import Objective, settle_samples
 from ..criterion.prediction import time_fit
 from .forward import ACCEPT_MARGIN
+from .validation import critical, gain, later
 
 #: Highest order (states) of a correction tried.
 MAX_ORDER = 4
-#: Least t statistic of the per-bin drop of the validation residual (about 1e-3 one-sided).
-MIN_T = 3.0
 
 
 @dataclass(frozen=True)
@@ -64,8 +64,8 @@ class Candidate:
     ``kind`` "additive" or "multiplicative"; ``order`` its states; ``correction`` C
     (discrete at 1/fs_high); ``model`` the extended model with it; ``n_params`` its real
     parameters; ``bic`` ``2 J + p ln n`` on the validation criterion; ``fit_y`` the
-    validation fit of y in %; ``t_nominal``, ``t_causes`` the t statistics of its per-bin
-    drop against the nominal and the extended model (module docstring).
+    validation fit of y in %; ``z_nominal``, ``z_causes`` its gain's z statistics against
+    the nominal and the extended model (module docstring).
     """
 
     kind: str
@@ -75,8 +75,8 @@ class Candidate:
     n_params: int
     bic: float
     fit_y: float
-    t_nominal: float = math.nan
-    t_causes: float = math.nan
+    z_nominal: float = math.nan
+    z_causes: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -96,8 +96,10 @@ class Correction:
         ``best`` validates better than the nominal and than the causes (module docstring).
     score_nominal, score_causes : float
         ``2 J`` of the nominal and of the extended model on the validation criterion.
-    t_nominal, t_causes : float
-        The best candidate's t statistic of the per-bin drop against each (module docstring).
+    z_nominal, z_causes : float
+        The best candidate's gain's z statistic against each (module docstring).
+    z_critical : float
+        ``z_{1-alpha}``.
     fit_nominal, fit_causes : float
         Their validation fits of y (%).
     """
@@ -110,8 +112,9 @@ class Correction:
     score_causes: float
     fit_nominal: float
     fit_causes: float
-    t_nominal: float = math.nan
-    t_causes: float = math.nan
+    z_nominal: float = math.nan
+    z_causes: float = math.nan
+    z_critical: float = math.nan
 
     @property
     def model(self) -> Model | None:
@@ -138,8 +141,8 @@ class Correction:
         b = self.best
         fits = (
             f"validation fit of y {self.fit_nominal:.1f} % (nominal), {self.fit_causes:.1f} % "
-            f"(causes), {b.fit_y:.1f} % (with it); validation BIC {-self.gain:+.1f}, t "
-            f"{min(self.t_nominal, self.t_causes):.1f}"
+            f"(causes), {b.fit_y:.1f} % (with it); validation BIC {-self.gain:+.1f}, z "
+            f"{min(self.z_nominal, self.z_causes):.1f}"
         )
         what = f"not a listed cause at {where}: {describe(b.kind, b.correction)}"
         if self.accepted:
@@ -162,8 +165,9 @@ class Correction:
             "fit_nominal": _finite(self.fit_nominal),
             "fit_causes": _finite(self.fit_causes),
             "fit_corrected": None if b is None else _finite(b.fit_y),
-            "t_nominal": _finite(self.t_nominal),
-            "t_causes": _finite(self.t_causes),
+            "z_nominal": _finite(self.z_nominal),
+            "z_causes": _finite(self.z_causes),
+            "z_critical": _finite(self.z_critical),
             "candidates": [
                 {
                     "kind": c.kind,
@@ -176,8 +180,7 @@ class Correction:
             "criterion": "2 J + p ln n on the validation data's whitened residual (J of the "
             f"causes' criterion); accepted when below the nominal's and the causes' 2 J by "
             f"more than {ACCEPT_MARGIN:g}, the validation fit of y higher than both, and the "
-            f"per-bin drop of the whitened squared residual at least {MIN_T:g} standard errors "
-            "above 0 against both (t)",
+            "gain significant against both (z > z_critical, the test of the listed causes)",
         }
 
 
@@ -308,37 +311,38 @@ def correction(
     crit = Objective(val_part, nominal, noise)
     fit_nom = time_fit(nominal, val, start).y
     fit_cur = fit_nom if current is nominal else time_fit(current, val, start).y
+    seen = later(current, val_start)  # a fitted disturbance's phase on the held-out part
     power_nom = _bin_power(crit, nominal)
-    power_cur = power_nom if current is nominal else _bin_power(crit, current)
+    power_cur = power_nom if current is nominal else _bin_power(crit, seen)
     score_nom, score_cur = 2.0 * float(power_nom.sum()), 2.0 * float(power_cur.sum())
-    cands = []
+    cands, z_crit = [], critical(alpha)
     for kind, order, C, p in fits:
         model = replace(current, plant_corrections=(*current.plant_corrections, (kind, C)))
         if not _stable(model):
             continue
-        power = _bin_power(crit, model)
+        power = _bin_power(crit, later(model, val_start))
         bic = 2.0 * float(power.sum()) + p * math.log(crit.n_bins)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             fy = time_fit(model, val, start).y
-        t = (drop_t(power_nom, power), drop_t(power_cur, power))
+        z_nom = gain(crit, nominal, later(model, val_start)).z
+        z = (z_nom, z_nom if current is nominal else gain(crit, seen, later(model, val_start)).z)
         cands.append(
-            Candidate(kind, order, C, model, p, bic, fy if math.isfinite(fy) else -1e9, *t)
+            Candidate(kind, order, C, model, p, bic, fy if math.isfinite(fy) else -1e9, *z)
         )
 
     def validates(c: Candidate) -> bool:
         return (
             c.bic < min(score_nom, score_cur) - ACCEPT_MARGIN
             and c.fit_y > max(fit_nom, fit_cur)
-            and min(c.t_nominal, c.t_causes) >= MIN_T
+            and min(c.z_nominal, c.z_causes) > z_crit
         )
 
     good = [c for c in cands if validates(c)]
     best = min(good or cands, key=lambda c: c.bic, default=None)
-    t_nom, t_cur = (math.nan, math.nan) if best is None else (best.t_nominal, best.t_causes)
-    return Correction(
-        bands, best, tuple(cands), bool(good), score_nom, score_cur, fit_nom, fit_cur, t_nom, t_cur
-    )
+    z_nom, z_cur = (math.nan, math.nan) if best is None else (best.z_nominal, best.z_causes)
+    return Correction(bands, best, tuple(cands), bool(good), score_nom, score_cur, fit_nom,
+                      fit_cur, z_nom, z_cur, z_crit)  # fmt: skip
 
 
 def _bin_power(crit: Objective, model: Model) -> FloatArray:
@@ -346,15 +350,6 @@ def _bin_power(crit: Objective, model: Model) -> FloatArray:
     r = crit.residuals(model)
     half = r.size // 2
     return np.asarray(r[:half] ** 2 + r[half:] ** 2, float)
-
-
-def drop_t(before: FloatArray, after: FloatArray) -> float:
-    """The t statistic of the mean per-bin drop ``before - after`` (bins with weight only)."""
-    d = (before - after)[(before > 0) | (after > 0)]
-    if d.size < 2:
-        return math.nan
-    se = float(np.std(d, ddof=1)) / math.sqrt(d.size)
-    return float(np.mean(d)) / se if se > 0 else math.inf * float(np.sign(np.mean(d)))
 
 
 def _n_params(C: ModalPlant, direct: bool) -> int:
