@@ -25,7 +25,10 @@ residual is the projection onto the complement of both spans together (exact).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
+import scipy.linalg
 
 from ...numerics.arrays import BoolArray, FloatArray
 from ...numerics.signals import LoopData
@@ -34,6 +37,30 @@ from ...numerics.systems.model import Model
 #: Eigenvalues of a hole Gram matrix below this fraction of its largest are dropped (holes
 #: whose columns the weight makes nearly alike: their combination is unknown either way).
 GRAM_RCOND = 1e-12
+
+
+def _gram_solver(G: FloatArray) -> Callable[[FloatArray], FloatArray]:
+    """``b -> G⁺ b`` for a Gram matrix G: by Cholesky where it is well conditioned.
+
+    Else (holes whose columns the weight makes nearly alike) by its eigenvalues, those
+    below :data:`GRAM_RCOND` of the largest dropped. Cholesky is a third of the work
+    (3000 holes: 19 s by eigenvalues on a loaded machine).
+    """
+    if not G.size:
+        return lambda b: np.zeros_like(b)
+    try:
+        factor = scipy.linalg.cho_factor(G, lower=True, check_finite=False)
+        d = np.diag(factor[0]) ** 2
+        if float(d.min()) > GRAM_RCOND * 1e2 * float(np.max(np.diag(G))):
+            return lambda b: np.asarray(scipy.linalg.cho_solve(factor, b, check_finite=False))
+    except np.linalg.LinAlgError:
+        pass
+    w, Q = np.linalg.eigh(G)
+    keep = w > GRAM_RCOND * max(float(w[-1]), 0.0)
+    inv = np.zeros_like(w)
+    inv[keep] = 1.0 / w[keep]
+    pinv = (Q * inv) @ Q.T
+    return lambda b: np.asarray(np.tensordot(pinv, b, axes=(1, 0)))
 
 
 class Holes:
@@ -63,18 +90,10 @@ class Holes:
         if self.n % 2 == 0:
             half[-1] = 1.0
         self._half = half  # the rfft's interior bins stand for two of the full DFT
-        self._pinv: list[FloatArray] = []
+        self._solve: list[Callable[[FloatArray], FloatArray]] = []
         for j, pos in enumerate(self.positions):
-            if not pos.size:
-                self._pinv.append(np.zeros((0, 0)))
-                continue
             g = np.fft.irfft(weight[:, j] ** 2 * half, n=self.n)
-            G = g[(pos[:, None] - pos[None, :]) % self.n]
-            w, Q = np.linalg.eigh(G)
-            keep = w > GRAM_RCOND * max(float(w[-1]), 0.0)
-            inv = np.zeros_like(w)
-            inv[keep] = 1.0 / w[keep]
-            self._pinv.append((Q * inv) @ Q.T)
+            self._solve.append(_gram_solver(g[(pos[:, None] - pos[None, :]) % self.n]))
 
     def project(self, v: FloatArray) -> FloatArray:
         """``v`` less its least-squares fit by the holes' columns.
@@ -95,7 +114,7 @@ class Holes:
             wj = self.weight[:, j].reshape(nb, *(1,) * len(tail))
             hj = self._half.reshape(nb, *(1,) * len(tail))
             at = np.fft.irfft(wj * V[:, j] * hj, n=self.n, axis=0)[pos] * scale  # Aᵀ v
-            c = np.tensordot(self._pinv[j], at, axes=(1, 0))
+            c = self._solve[j](at)
             z = np.zeros((self.n, *tail))
             z[pos] = c
             out[:, j] -= wj * np.fft.rfft(z, axis=0, norm="ortho")  # A c
