@@ -7,6 +7,8 @@ whole, and diagnosed whole (``test_diagnose_holes``: how).
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from bagmaker import joint_state_bag, stamps
@@ -141,7 +143,13 @@ def test_replay_and_diagnose_on_the_bag_with_holes(dropped, tmp_path, capsys):
     holes = load_recording(path, specs=SPECS, ratio=3, fs_high=240.0).data
     holes = replace(holes, fs_high=240.0, ratio=3)
     check_record(model, holes)  # within the limits: no error
-    assert diagnosable(holes, model) == (holes, "")
+    used, note = diagnosable(holes, model)
+    assert used is holes and not note
+    code = main(["diagnose", str(PAPER), str(path), "--r", R, "--u", U, "--y", Y,
+                 "--json", str(tmp_path / "d.json")])  # fmt: skip
+    out, err = capsys.readouterr()
+    assert code == 0 and "span" not in err and "stretch" not in err, err
+    assert json.loads((tmp_path / "d.json").read_text())["cause"] == "none"
 
 
 def test_the_periodic_average_with_missing_samples_is_an_error_naming_them():

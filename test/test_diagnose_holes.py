@@ -145,6 +145,11 @@ def test_a_data_file_with_nan_is_diagnosed_whole(holed, tmp_path, capsys):
     out, err = capsys.readouterr()
     assert code == 0, err
     assert "longest stretch" not in err
+    n_y, n_u = int(np.isnan(rec.y).sum()), int(np.isnan(rec.u).sum())
+    assert (
+        f"{n_y} samples of y and {n_u} of u missing (NaN) of {rec.n_samples}: diagnosed whole"
+        in (out + err)
+    )
     assert json.loads((tmp_path / "r.json").read_text())["cause"] == "gain_error"
     assert "gain_error" in (tmp_path / "r.html").read_text()  # measured y drawn with its gaps
 
@@ -157,3 +162,19 @@ def test_the_nodes_diagnose_service_takes_a_window_with_holes_whole(holed):
     report = window_report(dataclasses.replace(true, noise_std=0.0), window)
     assert (report["window_first"], report["window_samples"]) == (1000, rec.n_samples)
     assert report["cause"] == "none" and "window_note" not in report
+
+
+def test_the_drift_diagnosis_takes_a_window_with_holes_whole(holed):
+    from mr_ident.diagnosis.monitoring.drift import Reference
+    from mr_ident.diagnosis.monitoring.monitor import PlantWatch
+    from mr_ident.io.config import IdentConfig
+    from mr_ident.live.estimate import estimate
+
+    true, rec = holed
+    window = dataclasses.replace(rec, first=4000, fs_high=None)
+    cfg = IdentConfig(fs_high=FS, ratio=F, window_s=20.0, monitor_model="m")
+    watch = PlantWatch(Reference.of_model(_model()), _model(), cfg)
+    found = watch.diagnose(window, estimate(window, cfg))
+    assert found is not None and found.cause == "gain_error"
+    assert abs(found.parameters["gain"] - 1.3) < 0.01
+    assert (found.window_first, found.window_samples) == (4000, rec.n_samples)

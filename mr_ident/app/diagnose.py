@@ -73,7 +73,13 @@ def diagnose_recording(req: DiagnoseRequest, notify: Notify = ignore) -> Diagnos
 def _read(
     req: DiagnoseRequest, reading: Reading, model: Model, specs: Specs | None, notify: Notify
 ) -> LoopData:
-    """One recording of the request, its rates settled as ``req.rates`` says."""
+    """One recording of the request, its rates settled as ``req.rates`` says.
+
+    Its missing samples (NaN in u or y) within the limits stay (a note counts them); past
+    them the longest stretch without one (a warning says which and why).
+    """
+    import numpy as np
+
     from ..diagnosis.criterion.holes import diagnosable
 
     if req.rates == "file":
@@ -86,6 +92,15 @@ def _read(
     data, note = diagnosable(data, model, req.n, req.degree)  # holes beyond the limits: cut
     if note:
         notify(Notice("warning", f"{reading.path}: {note}"))
+    n_y, n_u = int(np.isnan(data.y).sum()), int(np.isnan(data.u).sum())
+    if n_y or n_u:
+        notify(
+            Notice(
+                "note",
+                f"{reading.path}: {n_y} samples of y and {n_u} of u missing (NaN) of "
+                f"{data.n_samples}: diagnosed whole, each an unknown of the fits",
+            )
+        )
     return data
 
 
