@@ -16,12 +16,18 @@ Printed per shape: the median and 90th percentile of the pole errors in CRB unit
 share of fits with the cost in its band, the share of orders found (and chosen below the
 truth: a mode under the noise), stability, time.
 
+Then the size the issue sets (``--speed-bins``, default 1e5): one drawn 3x3 plant of 20
+modes (order 40), the order and delay given, wall and CPU time of ``fit_frf`` on every
+CPU (threads over the entries), the cost against its band, the load average beside it.
+
     .venv/bin/python benchmarks/bench_fit.py [--plants 10] [--bins 2000] [--seed 0]
+        [--speed-bins 100000] [--no-speed]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 
 import numpy as np
@@ -111,12 +117,35 @@ def one(rng, shape, bins, auto: bool) -> dict:
     return out
 
 
+def speed(rng, bins: int, order: int = 40) -> None:
+    """One 3x3 plant of ``order`` at ``bins`` bins: time and cost band."""
+    truth = draw(rng, order // 2, (3, 3))
+    f = np.arange(1, bins + 1) * FS / (2 * bins + 2)
+    P = hold_response(truth, 0.0, "continuous", FS, f)
+    sd = 0.05 * np.median(np.abs(P), axis=0)[None] * np.ones(P.shape)
+    noise = sd * (rng.standard_normal(P.shape) + 1j * rng.standard_normal(P.shape)) / np.sqrt(2)
+    data = FRF(f, P + noise, sd, "bench")
+    load0 = os.getloadavg()[0]
+    t0, c0 = time.perf_counter(), time.process_time()
+    fit = fit_frf(data, fs=FS, order=order, delay=0.0)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    band = (fit.cost - fit.expected) / fit.expected_sd
+    print(
+        f"speed: {bins} bins, 3x3, order {order}: {wall:.1f} s wall, {cpu:.1f} s CPU "
+        f"(load average {load0:.1f} before, {os.getloadavg()[0]:.1f} after); "
+        f"cost {fit.cost:.0f} = E{{V}} {band:+.1f} sd; stable "
+        f"{bool(np.all(fit.plant.poles.real < 0))}"
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--plants", type=int, default=10, help="plants per shape")
     ap.add_argument("--bins", type=int, default=2000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-auto", action="store_true", help="skip the automatic order")
+    ap.add_argument("--speed-bins", type=int, default=100_000)
+    ap.add_argument("--no-speed", action="store_true", help="skip the 1e5-bin fit")
     a = ap.parse_args()
     rng = np.random.default_rng(a.seed)
     print(
@@ -140,6 +169,8 @@ def main() -> None:
                 f"{np.median([r['t_fixed'] for r in rows]):7.2f}s {found * 100:10.0f}% "
                 f"{under * 100:5.0f}% {t_auto:6.1f}s"
             )
+    if not a.no_speed:
+        speed(np.random.default_rng(a.seed), a.speed_bins)
 
 
 if __name__ == "__main__":
