@@ -65,7 +65,8 @@ def solve(G: FloatArray, b: FloatArray, rcond: float = 1e-14) -> tuple[FloatArra
     dropped (the least-norm solution of a rank-deficient problem).
     """
     d = np.sqrt(np.maximum(np.diagonal(G, axis1=-2, axis2=-1), 0.0))
-    d = np.where(d > 0, d, 1.0)
+    big = np.max(d, axis=-1, keepdims=True) if d.size else d
+    d = np.where(d > 1e-100 * big, d, 1.0)  # a column of zeros (to rounding) is left as it is
     Gs = G / d[..., :, None] / d[..., None, :]
     lam, V = np.linalg.eigh(Gs)
     top = lam[..., -1:]

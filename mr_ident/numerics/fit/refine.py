@@ -237,6 +237,11 @@ def _levenberg_marquardt(
         if np.max(np.abs(g) / np.sqrt(d * max(pt.f, 1e-300))) < 1e-10:
             break
         step, _ = solve(H + mu * np.diag(d), -g)
+        if not np.all(np.isfinite(step)):
+            mu, nu = mu * nu, nu * 2.0
+            if mu > 1e16:
+                break
+            continue
         x = np.clip(pt.x + step, lo, hi)
         s = x - pt.x
         pred = -(2.0 * g @ s + s @ H @ s)
