@@ -66,7 +66,10 @@ def solve(G: FloatArray, b: FloatArray, rcond: float = 1e-14) -> tuple[FloatArra
     """
     d = np.sqrt(np.maximum(np.diagonal(G, axis1=-2, axis2=-1), 0.0))
     big = np.max(d, axis=-1, keepdims=True) if d.size else d
-    d = np.where(d > 1e-100 * big, d, 1.0)  # a column of zeros (to rounding) is left as it is
+    big = np.where(big > 0, big, 1.0)
+    # a column of zeros to rounding is scaled like the largest: it stays negligible (its
+    # eigenvalue falls under rcond) instead of being blown up to unit norm
+    d = np.where(d > 1e-12 * big, d, big)
     Gs = G / d[..., :, None] / d[..., None, :]
     lam, V = np.linalg.eigh(Gs)
     top = lam[..., -1:]
