@@ -37,14 +37,14 @@ setup(
         "lz4",
         "plotly",
     ],
-    extras_require={"cluster": ["dask[distributed]>=2024.1"]},
+    extras_require={"cluster": ["dask[distributed]>=2024.1"], "control": ["control>=0.10"]},
     zip_safe=True,
     maintainer="mr_ident developers",
     maintainer_email="mr-ident@example.org",
     description="Frequency-domain identification of multirate control loops (lifted LPM).",
     license="Apache-2.0",
     python_requires=">=3.10",
-    tests_require=["pytest", "hypothesis", "rosbags"],
+    tests_require=["pytest", "hypothesis", "rosbags", "control", "scikit-rf"],
     entry_points={
         "console_scripts": [
             "mr-ident = mr_ident.cli:main",

@@ -2,10 +2,12 @@
 """Holes of u and y bridged as missing samples: the aligner keeps its window over them (up
 to the limits derived from the fit's degrees of freedom, ``mr_ident.live.gaps``), a hole of
 r or a longer one splits; offline, a bag with dropped /joint_states messages is identified
-whole, and diagnose says it needs a complete record.
+whole, and diagnosed whole (``test_diagnose_holes``: how).
 """
 
 from __future__ import annotations
+
+import json
 
 import numpy as np
 import pytest
@@ -123,12 +125,12 @@ def test_a_bag_with_dropped_messages_is_identified_whole(dropped):
 
 
 def test_replay_and_diagnose_on_the_bag_with_holes(dropped, tmp_path, capsys):
-    """replay: the node's last window over the holes; diagnose needs every sample: it reads
-    the longest complete span (and says so), and a record with NaN is an error naming them."""
+    """replay: the node's last window over the holes; a bag read without bridging is its
+    longest complete span (and says so); diagnose takes the record with its holes whole."""
     from dataclasses import replace
 
+    from mr_ident.diagnosis.criterion.holes import diagnosable
     from mr_ident.diagnosis.diagnose import check_record
-    from mr_ident.errors import DataError
 
     model, sim, path, drop = dropped
     base = ["--r", R, "--u", U, "--y", Y, "--ratio", "3"]
@@ -139,8 +141,15 @@ def test_replay_and_diagnose_on_the_bag_with_holes(dropped, tmp_path, capsys):
     loaded = load_recording(path, specs=SPECS, ratio=3, fs_high=240.0, complete=True)
     assert not np.isnan(loaded.data.y).any() and "using the longest span" in loaded.notes[0]
     holes = load_recording(path, specs=SPECS, ratio=3, fs_high=240.0).data
-    with pytest.raises(DataError, match=rf"miss {drop.size} samples \(NaN at samples {drop[0]}, "):
-        check_record(model, replace(holes, fs_high=240.0, ratio=3))
+    holes = replace(holes, fs_high=240.0, ratio=3)
+    check_record(model, holes)  # within the limits: no error
+    used, note = diagnosable(holes, model)
+    assert used is holes and not note
+    code = main(["diagnose", str(PAPER), str(path), "--r", R, "--u", U, "--y", Y,
+                 "--json", str(tmp_path / "d.json")])  # fmt: skip
+    out, err = capsys.readouterr()
+    assert code == 0 and "span" not in err and "stretch" not in err, err
+    assert json.loads((tmp_path / "d.json").read_text())["cause"] == "none"
 
 
 def test_the_periodic_average_with_missing_samples_is_an_error_naming_them():
@@ -165,8 +174,8 @@ def test_the_lifting_phase_is_detected_over_missing_samples():
     assert held_phase(0, np.column_stack([x, x]), 3)[0] == 1
 
 
-def test_the_nodes_diagnoses_of_a_window_with_holes_take_its_longest_complete_stretch():
-    from mr_ident.diagnosis.monitoring.monitor import complete_stretch
+def test_a_window_with_holes_beyond_the_limits_is_cut_to_its_longest_complete_stretch():
+    from mr_ident.diagnosis.criterion.holes import complete_stretch
     from mr_ident.numerics.signals import LoopData
 
     x = np.ones((300, 1))

@@ -7,8 +7,10 @@ each partial fraction) with circular Gaussian noise of known std.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import re
+import runpy
 import subprocess
 from dataclasses import replace
 from pathlib import Path
@@ -19,6 +21,7 @@ import yaml
 from conftest import console_script
 
 from mr_ident.errors import ConfigError, DataError, ModelError
+from mr_ident.io.control_export import control_path, export_control, require_control
 from mr_ident.io.fitfile import fitted_model, side_path, write_fit
 from mr_ident.io.modelfile import load_model, model_from_dict, model_to_dict
 from mr_ident.numerics.fit.frf_fit import (
@@ -144,6 +147,32 @@ def test_the_model_file_reproduces_the_fit_exactly(tmp_path):
     assert side == side_path(out)
 
 
+@pytest.mark.parametrize("domain", ["continuous", "discrete"])
+def test_the_python_control_export_reproduces_the_fit(tmp_path, domain):
+    control = pytest.importorskip("control")
+    tau = (1.4 if domain == "continuous" else 2.0) / FS
+    fit = fit_frf(_data(_mimo(), tau, 5), fs=FS, order=4, domain=domain, delay=tau)
+    path = export_control(control_path(tmp_path / "m.yaml"), fitted_model(fit, ratio=4))
+    assert path.name == "m_control.py"
+    ns = runpy.run_path(str(path))
+    f = np.array([0.5, 20.0, 149.0, 400.0])
+    P = control.frequency_response(ns["P_h"], 2 * np.pi * f, squeeze=False).complex
+    np.testing.assert_allclose(P.transpose(2, 0, 1), fit.response(f), rtol=1e-9)
+    G = control.frequency_response(ns["G"], 2 * np.pi * f, squeeze=False).complex
+    np.testing.assert_allclose(G.transpose(2, 0, 1), fit.plant.freqresp(f), rtol=1e-9)
+    assert ns["P_h"].dt == 1 / FS and ns["input_delay_s"] == pytest.approx(tau)
+    assert (ns["G"].dt == 0) if domain == "continuous" else ns["G"].dt == 1 / FS
+
+
+def test_the_export_without_python_control_names_its_pip_install(monkeypatch):
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "control" else real(name)
+    )
+    with pytest.raises(ConfigError, match=r"needs python-control: pip install control"):
+        require_control()
+
+
 def test_the_modal_form_round_trips_and_moves_a_mode_under_mode_changes():
     P = _mimo()
     np.testing.assert_allclose(
@@ -213,10 +242,13 @@ def test_identify_fit_diagnose_on_the_paper_loop(tmp_path):
         assert _run(*args, cwd=tmp_path).returncode == 0
     r = _run(
         "fit", "res.npz", "--controller", model, "--out", "fit.yaml", "--plot", "fit.png",
+        *(["--export", "python-control"] if importlib.util.find_spec("control") else []),
         cwd=tmp_path,
     )  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert "wrote fit.yaml" in r.stdout and (tmp_path / "fit_residual.png").is_file()
+    if importlib.util.find_spec("control"):
+        assert "wrote fit_control.py" in r.stdout
     side = yaml.safe_load((tmp_path / "fit.fit.yaml").read_text())
     assert side["order"] == 4  # the two modes of the paper's plant
     assert abs(side["cost"] - side["expected_cost"]) < 2 * side["expected_cost_sd"]

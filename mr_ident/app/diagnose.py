@@ -77,13 +77,35 @@ def diagnose_recording(req: DiagnoseRequest, notify: Notify = ignore) -> Diagnos
 def _read(
     req: DiagnoseRequest, reading: Reading, model: Model, specs: Specs | None, notify: Notify
 ) -> LoopData:
-    """One recording of the request, its rates settled as ``req.rates`` says."""
+    """One recording of the request, its rates settled as ``req.rates`` says.
+
+    Its missing samples (NaN in u or y) within the limits stay (a note counts them); past
+    them the longest stretch without one (a warning says which and why).
+    """
+    import numpy as np
+
+    from ..diagnosis.criterion.holes import diagnosable
+
     if req.rates == "file":
-        return read_for_diagnosis(reading, model, req.period, specs, notify)
-    data, fs, F = read_settled(
-        reading, specs, req.fs_high, req.ratio, model, notify, complete=True
-    )
-    return replace(data, fs_high=fs, ratio=F, period=req.period)
+        data = read_for_diagnosis(reading, model, req.period, specs, notify)
+    else:
+        raw, fs, F = read_settled(
+            reading, specs, req.fs_high, req.ratio, model, notify, complete=req.period is not None
+        )
+        data = replace(raw, fs_high=fs, ratio=F, period=req.period)
+    data, note = diagnosable(data, model, req.n, req.degree)  # holes beyond the limits: cut
+    if note:
+        notify(Notice("warning", f"{reading.path}: {note}"))
+    n_y, n_u = int(np.isnan(data.y).sum()), int(np.isnan(data.u).sum())
+    if n_y or n_u:
+        notify(
+            Notice(
+                "note",
+                f"{reading.path}: {n_y} samples of y and {n_u} of u missing (NaN) of "
+                f"{data.n_samples}: diagnosed whole, each an unknown of the fits",
+            )
+        )
+    return data
 
 
 def window_report(model: Model, window: LoopData, alpha: float = 0.01) -> dict[str, object]:
@@ -91,13 +113,16 @@ def window_report(model: Model, window: LoopData, alpha: float = 0.01) -> dict[s
 
     ``window.first`` is the window's absolute sample index (the model's sampling phase is
     taken relative to it); the window's absolute span is added (``window_first``,
-    ``window_samples``). Diagnose needs every sample: a window with missing samples (NaN
-    in u or y, holes the node bridged) is diagnosed on its longest stretch without one
-    (whole periods).
+    ``window_samples``). A window with missing samples (NaN in u or y, holes the node
+    bridged) is diagnosed whole, its holes unknowns of every fit, within the limits
+    identification derives (beyond them: its longest stretch without one, whole periods,
+    and ``window_note`` says so; :func:`~mr_ident.diagnosis.criterion.holes.diagnosable`).
     """
-    from ..diagnosis.monitoring.monitor import complete_stretch, diagnose_window
+    from ..diagnosis.criterion.holes import diagnosable
+    from ..diagnosis.monitoring.monitor import diagnose_window
     from ..diagnosis.report import report_dict
 
-    window = complete_stretch(window)
+    window, note = diagnosable(window, model)
     report = report_dict(diagnose_window(model, window), extended_model=None, alpha=alpha)
-    return report | {"window_first": int(window.first), "window_samples": int(window.n_samples)}
+    span = {"window_first": int(window.first), "window_samples": int(window.n_samples)}
+    return report | span | ({"window_note": note} if note else {})

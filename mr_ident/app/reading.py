@@ -69,7 +69,9 @@ def read_for_diagnosis(
     from ..live.recordings import is_bag
 
     where = path or reading.path
-    data = read_loop(reading, specs, model.fs_high, model.ratio, notify, path=where, complete=True)
+    data = read_loop(
+        reading, specs, model.fs_high, model.ratio, notify, path=where, complete=period is not None
+    )  # holes bridged as missing samples (periodic data: split at them)
     if is_bag(where):  # a bag's rates are the model's
         fs, F = model.fs_high, model.ratio
     else:

@@ -53,6 +53,12 @@ def add_fit_parser(sub: Any) -> None:
     )
     p.add_argument("--out", type=Path, required=True, help="model YAML to write")
     p.add_argument(
+        "--export",
+        choices=("python-control",),
+        help="also write <stem>_control.py: the plant as python-control systems G and P_h "
+        "(needs python-control: pip install control)",
+    )
+    p.add_argument(
         "--plot",
         type=Path,
         help="Bode plot of data and model (.png); <stem>_residual.png: the residual in σ units",
@@ -72,6 +78,10 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
     if args.max_order == "auto":
         raise ConfigError('--max-order must be an integer >= 1, got "auto"')
+    if args.export == "python-control":  # before the fit, not after it
+        from ..io.control_export import require_control
+
+        require_control()
     controller = load_model(args.controller) if args.controller else None
     ident = read_identification(args.result)
     fs, ratio = ident.fs_high, ident.ratio
@@ -128,6 +138,11 @@ def cmd_fit(args: argparse.Namespace) -> int:
     model = fitted_model(fit, ratio=ratio, controller=controller)
     for path in write_fit(args.out, model, fit):
         print(f"wrote {path}")
+    if args.export == "python-control":
+        from ..io.control_export import control_path, export_control
+
+        title = f"{args.out.name}, fitted by mr-ident fit from {args.result.name}"
+        print(f"wrote {export_control(control_path(args.out), model, title=title)}")
     if args.plot:
         _plots(args.plot, ident.plant, fit, fs / ratio / 2 if ratio > 1 else None)
     return 0

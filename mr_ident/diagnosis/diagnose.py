@@ -54,6 +54,7 @@ from .controller.relation import ControllerRelation, relate
 from .criterion.distortion import NL_THRESHOLD_DB as NL_THRESHOLD_DB  # re-exported
 from .criterion.distortion import blind_text, distortion, lines_nonlinear, lines_text
 from .criterion.evidence import Evidence, frf_evidence, identify_record
+from .criterion.holes import check_missing
 from .criterion.noise import noise_spectrum
 from .criterion.objective import Objective, settle_samples
 from .criterion.prediction import TimeFit, centred, predict, time_fit
@@ -97,15 +98,7 @@ def check_record(model: Model, rec: LoopData, *, n: int = 8, what: str = "data")
             f"{what}: y has {rec.y.shape[0]} samples, the low rate; diagnose simulates y at the "
             f"high rate and needs all N = {rec.n_samples} (identify takes a low-rate y)"
         )
-    lost = np.flatnonzero(np.isnan(rec.u).any(axis=1) | np.isnan(rec.y).any(axis=1))
-    if lost.size:
-        shown = ", ".join(str(int(k)) for k in lost[:5]) + (", ..." if lost.size > 5 else "")
-        raise DataError(
-            f"{what}: u or y miss {lost.size} samples (NaN at samples {shown}); diagnose "
-            "simulates the loop sample by sample and needs a complete record for now (cut "
-            "it at the holes; identify estimates missing samples: the method page, 'Missing "
-            "samples')"
-        )
+    check_missing(rec, n, what)  # holes of u and y: within the limits (criterion.holes)
     if rec.u.shape[1] != model.n_u or rec.y.shape[1] != model.n_y:
         raise DataError(
             f"{what} has {rec.u.shape[1]} input and {rec.y.shape[1]} output channels; "

@@ -113,7 +113,7 @@ def load_recording(
     labels : the topic of an excitation's labels in a bag, read in the signals' form and
         aligned with them (the data's ``labels``; "": none)
     complete : a bag's holes of u and y are not bridged (every hole splits it into spans,
-        ``span`` chooses): for a reader that needs every sample (diagnose)
+        ``span`` chooses): for a reader that needs every sample (the periodic average)
     """
     check_span(span)
     p = Path(path)

@@ -179,7 +179,7 @@ def residual_peaks(ctx: Context, k: int = 2) -> list[tuple[float, int, float]]:
     obj, base = ctx.objective, ctx.current
     pred = predict(base, obj.rec)
     s = obj.settle
-    e = obj.y[s:] - pred.y[s:]
+    e = np.where(obj.missing_y[s:], 0.0, obj.y[s:] - pred.y[s:])  # a hole: no residual
     n = e.shape[0]
     E = np.fft.rfft(e, axis=0, norm="ortho")
     P = np.abs(E) ** 2

@@ -32,6 +32,12 @@ The controller's state when the record began is unknown: its free responses (an
 integrator's constant among them) are projected out, as the loop's are in the criterion,
 and so is a constant per channel of u (a trim, an offset of y through K_l); the first
 periods, whose held outputs were computed before the record, are left out.
+
+Missing samples (NaN in u or y) are unknowns, as that state is: a missing u leaves its
+own equation out (u appears in no other); a missing y the controller sampled enters every
+later output through the controller's dynamics, linearly, so its value is eliminated
+like the initial state, by projecting out the controller's response to a unit sample
+there (:meth:`Equation.holes`). Nothing is interpolated; the equation stays exact.
 """
 
 from __future__ import annotations
@@ -44,7 +50,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.optimize
 
-from ...numerics.arrays import FloatArray
+from ...numerics.arrays import BoolArray, FloatArray
 from ...numerics.signals import LoopData
 from ...numerics.systems.lti import StateSpace
 from ...numerics.systems.model import Model
@@ -160,21 +166,51 @@ class Equation:
     """
 
     def __init__(self, rec: LoopData, nominal: Model):
-        self.r, self.u, self.y = rec.r, rec.u, rec.y
+        self.u_missing, self.y_missing = np.isnan(rec.u), np.isnan(rec.y)
+        self.r = rec.r
+        self.u = np.where(self.u_missing, 0.0, rec.u)
+        self.y = np.where(self.y_missing, 0.0, rec.y)
         self.F = nominal.ratio
         self.M = rec.n_samples // self.F
         hold = nominal.sample_phase + nominal.control_delay
         self.start = self.F * (hold // self.F + 6)
         idx = np.arange(self.start, self.F * self.M)
-        out = (self.r[idx] - self.u[idx]).ravel()
+        self.keep = ~self.u_missing[idx].ravel()  # the equations of a missing u: left out
+        out = (self.r[idx] - self.u[idx]).ravel()[self.keep]
         ones: FloatArray = np.tile(np.eye(self.u.shape[1]), (idx.size, 1))
         self._const = ones  # (n * n_u, n_u): a constant per channel
-        self.scale = float(np.sqrt(np.mean(project_out(ones, out) ** 2))) or 1.0
+        self.scale = float(np.sqrt(np.mean(project_out(ones[self.keep], out) ** 2))) or 1.0
 
     @property
     def samples(self) -> int:
-        """High-rate samples the residual covers."""
-        return self.F * self.M - self.start
+        """High-rate samples the residual covers (a missing u's left out)."""
+        lost = self.u_missing[self.start : self.F * self.M].any(axis=1)
+        return int(self.F * self.M - self.start - lost.sum())
+
+    def holes(self, model: Model) -> FloatArray:
+        """The controller's response to a unit sample at each missing y it samples.
+
+        Shape (M, n_u, n_h), one column per missing sampled y (the period's sample at
+        ``model``'s phase, per channel), like the free responses.
+        """
+        lost = self.y_missing[model.sample_phase :: self.F][: self.M]
+        where = np.argwhere(lost)
+        n_u = self.u.shape[1]
+        if not where.size:
+            return np.zeros((self.M, n_u, 0))
+        K = model.controller_ss()
+        pulse = np.zeros((self.M, lost.shape[1]))
+        resp = []
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            for ch in range(lost.shape[1]):
+                pulse[:] = 0.0
+                pulse[0, ch] = 1.0
+                resp.append(StateRecursion(K).run(pulse))  # (M, n_u)
+        out = np.zeros((self.M, n_u, where.shape[0]))
+        for col, (m, ch) in enumerate(where):
+            out[m:, :, col] = resp[ch][: self.M - m]
+        return out
 
     def outputs(self, model: Model) -> tuple[FloatArray, FloatArray]:
         """``model``'s controller on the y it samples: outputs from rest and free responses.
@@ -199,10 +235,11 @@ class Equation:
         if src.size and src[0] < 0:  # a hold longer than the candidates' (never in relate)
             return np.full(idx.size * self.u.shape[1], math.inf)
         e = self.u[idx] - self.r[idx] + uc[src]
-        res = e.ravel() / self.scale
-        nk = free.shape[-1]
-        A = np.concatenate([-free[src].reshape(idx.size * free.shape[1], nk), self._const], 1)
-        return project_out(A, res)
+        res = e.ravel()[self.keep] / self.scale
+        unknown = np.concatenate([free, self.holes(model)], axis=2)  # state, missing y
+        nk = unknown.shape[-1]
+        A = np.concatenate([-unknown[src].reshape(idx.size * free.shape[1], nk), self._const], 1)
+        return project_out(A[self.keep], res)
 
     def error(self, model: Model) -> float:
         """The rms of :meth:`residual`: how far ``model``'s controller departs, relatively."""
@@ -295,8 +332,11 @@ def notch_start(eq: Equation, base: Model) -> Choice | None:
     F, M = eq.F, eq.M
     hold = base.sample_phase + base.control_delay
     z, free = eq.outputs(base)
+    free = np.concatenate([free, eq.holes(base)], axis=2)  # missing y: unknowns as the state
     jl = -((F - 1 - hold) // F)  # the last sample of period m holds u_c[m - jl]
     k = np.arange(max(eq.start // F, 2), M - jl)
+    last: BoolArray = np.any(eq.u_missing[F - 1 :: F], axis=1)  # u_c off a missing u: unknown
+    k = k[~(last[k + jl] | last[k + jl - 1] | last[k + jl - 2])]
 
     def uc(lag: int) -> FloatArray:
         n = (k - lag + jl) * F + F - 1

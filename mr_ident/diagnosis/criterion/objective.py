@@ -17,6 +17,7 @@ from ...numerics.signals import LoopData
 from ...numerics.systems.model import Model
 from ...numerics.systems.simulate import loop_poles
 from ...numerics.systems.window_response import LoopSpectrum, lifted_dft
+from .holes import Holes
 from .noise import loop_noise_gain
 from .prediction import centred, predict
 
@@ -140,7 +141,12 @@ class Objective:
         self.base = base
         self.plant = plant  # (frequency, P̂) of the record, for starting guesses
         r, u, y = centred(rec, base)
-        self.u, self.y = u, y
+        # missing samples (NaN): zeros here, their values eliminated as unknowns (y:
+        # criterion.holes) or left out of the sums (u: in closed loop only the sums of
+        # squares read it; in open loop predict drives the plant with u's estimates)
+        self.missing_y, self.missing_u = np.isnan(y), np.isnan(u)
+        level = np.nanstd(y, axis=0) if self.missing_y.any() else None
+        self.u, self.y = np.where(self.missing_u, 0.0, u), np.where(self.missing_y, 0.0, y)
         self.closed = base.controller is not None
         # nothing skipped but what makes the FFTs fast (a multiple of F, 5-smooth) or, in
         # a periodic record, its first period; the time-domain residual that the search
@@ -157,7 +163,7 @@ class Objective:
         # are projected out)
         self._spectral = self.closed and self.skip % base.ratio == 0
         if self._spectral:
-            self._Y = np.fft.rfft(y[self.skip :], axis=0, norm="ortho")
+            self._Y = np.fft.rfft(self.y[self.skip :], axis=0, norm="ortho")
             self._R = lifted_dft(r[self.skip :], base.ratio)
             self._L = (rec.n_samples - self.skip) // base.ratio
         base_spectra = self._spectra(base)
@@ -172,11 +178,13 @@ class Objective:
         if self.closed and not rec.period:
             g = loop_noise_gain(base, n_eff)
             S = self._leakage_removed(S, g, base_spectra) * g
-        floor = (RESOLUTION * np.std(y[self.skip :], axis=0)) ** 2
+        spread = np.std(y[self.skip :], axis=0) if level is None else level
+        floor = (RESOLUTION * spread) ** 2
         self.weight = 1.0 / np.sqrt(np.maximum(S, floor))
         if rec.period:  # a periodic r has no DC: y's is an offset, not the model's to explain
             self.weight[0] = 0.0
         self.n_bins = int(self.weight.size)
+        self.holes = Holes(self.missing_y[self.skip :], self.weight)
 
     def _leakage_removed(
         self,
@@ -216,7 +224,8 @@ class Objective:
             except (ArithmeticError, ValueError, Warning, np.linalg.LinAlgError):
                 return None  # any warning, a library's own (scipy's BadCoefficients) included
         s = self.skip
-        ey, eu = self.y[s:] - pred.y[s:], self.u[s:] - pred.u[s:]
+        ey = np.where(self.missing_y[s:], 0.0, self.y[s:] - pred.y[s:])
+        eu = np.where(self.missing_u[s:], 0.0, self.u[s:] - pred.u[s:])
         if not (np.all(np.isfinite(ey)) and np.all(np.isfinite(eu))):
             return None
         free = pred.free if pred.free is not None and pred.free.shape[-1] else None
@@ -262,20 +271,28 @@ class Objective:
     ) -> FloatArray:
         """The residual times ``weight`` (default: the criterion's), free responses out.
 
-        The free responses are weighted alike and projected out; 1e3 everywhere where
+        The free responses are weighted alike and projected out, and so are the missing
+        samples of y (:mod:`~mr_ident.diagnosis.criterion.holes`); 1e3 everywhere where
         ``spectra`` is None or the result overflows.
         """
+        holes = self.holes if weight is None else None
         weight = self.weight if weight is None else weight
         if spectra is None:
             return np.full(2 * weight.size, 1e3)
+        if holes is None and self.missing_y.any():
+            holes = Holes(self.missing_y[self.skip :], weight)
         with np.errstate(all="ignore"):
             E = spectra[0] * weight
             res = np.concatenate([E.real.ravel(), E.imag.ravel()])
+            if holes is not None and np.all(np.isfinite(res)):
+                res = holes.project(res)  # the holes' unknown residuals, eliminated
             if spectra[1] is not None:  # the unknown state at the start, eliminated by lstsq
                 T = spectra[1] * weight[:, :, None]  # the free responses' spectrum
                 T = T.reshape(-1, T.shape[-1])
                 A = np.concatenate([T.real, T.imag])
                 if np.all(np.isfinite(A)):
+                    if holes is not None:
+                        A = holes.project(A)
                     res = project_out(A, res)
         ok = np.all(np.isfinite(res)) and float(np.max(np.abs(res), initial=0.0)) < 1e100
         return res if ok else np.full(2 * weight.size, 1e3)

@@ -5,6 +5,13 @@ With a controller, the loop is simulated from the measured r_h; without one (ope
 the plant is driven by the measured u_h. In open loop the means of u and y are removed
 first (a linear model describes deviations from the operating point; a constant current
 that balances friction is not modelled).
+
+Missing samples (NaN in u or y): in closed loop the prediction is driven by r, which is
+never missing, and a missing sample is only left out where prediction and measurement
+are compared. In open loop the measured u drives the plant: its missing samples are
+replaced by their least-squares estimates from the lifted local fit
+(:func:`~mr_ident.numerics.lifted.missing.estimate_missing`, as identification makes them),
+once per record (:func:`driving_input`).
 """
 
 from __future__ import annotations
@@ -43,9 +50,37 @@ def centred(rec: LoopData, model: Model) -> tuple[FloatArray, FloatArray, FloatA
     lowest bins, which the criterion then weighed too little).
     """
     if model.controller is None:
-        r, u, y = (x - x.mean(axis=0) for x in (rec.r, rec.u, rec.y))
+        r, u, y = (x - np.nanmean(x, axis=0) for x in (rec.r, rec.u, rec.y))
         return r, u, y
     return rec.r, rec.u, rec.y
+
+
+#: The open-loop inputs estimated lately: (the record's u, with NaN; its estimate).
+_DRIVEN: list[tuple[FloatArray, FloatArray]] = []
+
+
+def driving_input(rec: LoopData, model: Model) -> FloatArray:
+    """The centred u that drives the plant in open loop, its missing samples estimated.
+
+    By :func:`~mr_ident.numerics.lifted.missing.estimate_missing` on the lifted fit of
+    r -> [y; u] with ``freq-lifted``'s default window; kept for the last few records (a
+    criterion predicts on one record many times).
+    """
+    r, u, y = centred(rec, model)
+    if not np.isnan(u).any():
+        return u
+    for src, est in _DRIVEN:
+        if src is rec.u:
+            return est
+    from ...numerics.lifted.missing import estimate_missing
+    from ...numerics.lifted.options import default_n
+
+    F = rec.ratio or model.ratio
+    n = default_n("freq-lifted", 2, F, r.shape[1], max(u.shape[1], y.shape[1]))
+    est = estimate_missing(r, u, y, F, n, 2).u
+    _DRIVEN.append((rec.u, est))
+    del _DRIVEN[:-4]
+    return est
 
 
 def predict(model: Model, rec: LoopData, *, free_from: int | None = None) -> Prediction:
@@ -58,6 +93,7 @@ def predict(model: Model, rec: LoopData, *, free_from: int | None = None) -> Pre
     stream = LoopStream(model)
     free = None
     if model.controller is None:
+        u = driving_input(rec, model)
         _, y_hat = stream.next(u)
         u_hat = u
     else:
@@ -68,9 +104,14 @@ def predict(model: Model, rec: LoopData, *, free_from: int | None = None) -> Pre
 
 
 def fit_percent(measured: FloatArray, simulated: FloatArray) -> float:
-    """MATLAB ``compare`` fit: ``100 (1 - |y - y_hat| / |y - mean y|)``, averaged over channels."""
-    e = np.linalg.norm(measured - simulated, axis=0)
-    d = np.linalg.norm(measured - measured.mean(axis=0), axis=0)
+    """MATLAB ``compare`` fit: ``100 (1 - |y - y_hat| / |y - mean y|)``, averaged over channels.
+
+    Over the samples measured (a missing one, NaN, is left out of both norms).
+    """
+    miss = np.isnan(measured)
+    x = np.where(miss, 0.0, measured)
+    e = np.linalg.norm(np.where(miss, 0.0, x - simulated), axis=0)
+    d = np.linalg.norm(np.where(miss, 0.0, x - np.nanmean(measured, axis=0)), axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         return float(np.mean(100.0 * (1.0 - e / d)))
 

@@ -35,6 +35,7 @@ from ...numerics.identify import method_of
 from ...numerics.local.lpm import dof as lpm_dof
 from ...numerics.signals import LoopData
 from ...numerics.systems.model import Model
+from ..criterion.holes import diagnosable
 from .drift import LEVELS, Drift, Reference, drift
 
 if TYPE_CHECKING:
@@ -231,7 +232,7 @@ class PlantWatch:
         if self.model is None:
             return None
         t0 = time.perf_counter()
-        window = complete_stretch(window)  # diagnose needs every sample
+        window, _ = diagnosable(window, self.model)  # its holes within the limits: all of it
         d = diagnose_window(self.model, window)
         return WindowDiagnosis(
             d.cause,
@@ -244,24 +245,6 @@ class PlantWatch:
             int(window.n_samples),
             time.perf_counter() - t0,
         )
-
-
-def complete_stretch(window: LoopData) -> LoopData:
-    """The longest part of ``window`` without a missing sample, on the F grid (itself if none).
-
-    Diagnose simulates the loop sample by sample: a live window with holes the node bridged
-    (NaN in u or y) is diagnosed on this stretch.
-    """
-    lost = np.isnan(window.u).any(axis=1) | np.isnan(window.y).any(axis=1)
-    if not lost.any() or window.ratio is None:
-        return window
-    F = window.ratio
-    edges = np.concatenate([[-1], np.flatnonzero(lost), [lost.size]])
-    k = int(np.argmax(np.diff(edges)))
-    lo, hi = int(edges[k]) + 1, int(edges[k + 1])
-    lo += -(window.first + lo) % F  # whole periods at both ends, on the absolute grid
-    hi -= (window.first + hi) % F
-    return window.part(lo, max(lo, hi))
 
 
 def diagnose_window(model: Model, window: LoopData) -> Diagnosis:

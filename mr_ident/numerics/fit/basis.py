@@ -124,6 +124,69 @@ def split_pairs(values: ComplexArray, tol: float = 1e-9) -> ComplexArray:
     return np.asarray(out[np.argsort(np.abs(out))], dtype=complex)
 
 
+def _split_delay(delay: float, h: float) -> tuple[int, float]:
+    """``τ = m h + ε`` with ``0 <= ε < h`` (ε below 1e-12 h is zero)."""
+    m = int(np.floor(delay / h + 1e-9))
+    eps = max(delay - m * h, 0.0)
+    return m, (0.0 if eps < 1e-12 * h else eps)
+
+
+def _fractions(
+    p: ComplexArray, z: ComplexArray, domain: str, h: float, m: int, eps: float, kind: str
+) -> ComplexArray:
+    """Each pole's basis function at the bins (K, n), or its derivative.
+
+    ``kind``: "value" ``b(p)``; "pole" ``∂b/∂p`` (b is holomorphic in p); "delay"
+    ``∂b/∂ε`` (continuous only).
+    """
+    shift = (z ** (-m))[:, None]
+    zz = z[:, None]
+    if domain == "discrete":
+        b = shift / (zz - p)
+        return b / (zz - p) if kind == "pole" else (b if kind == "value" else 0.0 * b)
+    a = h - eps
+    Ea, Eh = np.exp(p * a), np.exp(p * h)
+    g0 = np.expm1(p * a) / p
+    g1 = Ea * np.expm1(p * eps) / p
+    d = zz - Eh
+    if kind == "value":
+        return np.asarray(shift * (g0 + g1 / zz) / d, dtype=complex)
+    if kind == "delay":
+        return np.asarray(shift * Ea * (1.0 / zz - 1.0) / d, dtype=complex)
+    dg0 = (a * Ea - g0) / p
+    dg1 = (h * Eh - a * Ea - g1) / p
+    return np.asarray(
+        shift * ((dg0 + dg1 / zz) + (g0 + g1 / zz) * (h * Eh) / d) / d, dtype=complex
+    )
+
+
+def _assemble(
+    poles: ComplexArray,
+    z: ComplexArray,
+    domain: str,
+    h: float,
+    delay: float,
+    kind: str,
+    direct: bool,
+) -> ComplexArray:
+    m, eps = _split_delay(delay, h)
+    poles = np.asarray(poles, dtype=complex)
+    pair = poles.imag > 0
+    width = np.where(pair, 2, 1)
+    first = np.concatenate([[0], np.cumsum(width)[:-1]]).astype(int)
+    n = int(width.sum())
+    out = np.zeros((z.size, n + (1 if direct else 0)), dtype=complex)
+    if poles.size:
+        B = _fractions(poles, z, domain, h, m, eps, kind)
+        Bc = _fractions(poles[pair].conj(), z, domain, h, m, eps, kind)
+        out[:, first[~pair]] = B[:, ~pair]
+        out[:, first[pair]] = B[:, pair] + Bc
+        out[:, first[pair] + 1] = 1j * (B[:, pair] - Bc)
+    if direct and kind == "value":
+        out[:, n] = z ** (-m) / z if (domain == "continuous" and eps > 0) else z ** (-m)
+    return out
+
+
 def columns(
     poles: ComplexArray,
     z: ComplexArray,
@@ -137,33 +200,29 @@ def columns(
 
     Column order: per pole its one (real) or two (pair) columns, then the direct term.
     """
-    m = int(np.floor(delay / h + 1e-9))
-    eps = max(delay - m * h, 0.0)
-    if eps < 1e-12 * h:
-        eps = 0.0
-    shift = z ** (-m)
-    cols: list[ComplexArray] = []
+    return _assemble(poles, z, domain, h, delay, "value", direct)
 
-    def one(p: complex) -> ComplexArray:
-        if domain == "discrete":
-            return shift / (z - p)
-        e = np.exp(p * (h - eps))
-        g0 = (e - 1.0) / p
-        g1 = e * (np.exp(p * eps) - 1.0) / p
-        return np.asarray(shift * (g0 + g1 / z) / (z - np.exp(p * h)), dtype=complex)
 
-    for p in poles:
-        b = one(complex(p))
-        if p.imag > 0:
-            bc = one(complex(p).conjugate())
-            cols += [b + bc, 1j * (b - bc)]
-        else:
-            cols.append(b)
-    if direct:
-        cols.append(shift / z if (domain == "continuous" and eps > 0) else shift)
-    if not cols:
-        return np.zeros((z.size, 0), dtype=complex)
-    return np.column_stack(cols)
+def pole_derivatives(
+    poles: ComplexArray, z: ComplexArray, domain: str, h: float, delay: float = 0.0
+) -> ComplexArray:
+    """``∂/∂Re p`` of each pole's columns (K, order), exactly.
+
+    A pair's columns ``φ1 = b(p) + b(p̄)``, ``φ2 = j(b(p) - b(p̄))`` have ``∂/∂Re p`` =
+    ``ψ1 = b'(p) + b'(p̄)``, ``ψ2 = j(b'(p) - b'(p̄))`` (returned), and ``∂/∂Im p``:
+    ``∂φ1 = ψ2``, ``∂φ2 = -ψ1``.
+    """
+    return _assemble(poles, z, domain, h, delay, "pole", False)
+
+
+def delay_derivatives(
+    poles: ComplexArray, z: ComplexArray, h: float, delay: float, *, direct: bool
+) -> ComplexArray:
+    """``∂/∂τ`` of the continuous columns (K, order [+1]) within a sample.
+
+    The direct term's column is piecewise constant in τ: its derivative is 0.
+    """
+    return _assemble(poles, z, "continuous", h, delay, "delay", direct)
 
 
 def residues_of(

@@ -25,9 +25,9 @@ from ...errors import ConfigError, DataError
 from ..arrays import ComplexArray, FloatArray
 from ..results import FRF
 from ..systems.modal import ModalPlant
-from .basis import DOMAINS, columns, from_params, initial_poles, n_states, residues_of
-from .refine import Problem, cost, covariance, refine, solve_linear
-from .start import relocate
+from .basis import DOMAINS, columns, from_params, n_states, residues_of
+from .refine import Problem, cost, covariance, solve_linear
+from .strategy import fit_order
 
 
 @dataclass(frozen=True)
@@ -171,15 +171,6 @@ def expected_band(
     return k * nu, k * math.sqrt(nu * max(correlation, 1.0))
 
 
-def _continuous_poles(lam: ComplexArray, fs: float) -> ComplexArray:
-    """Discrete poles as continuous ones (a negative real λ stays a real pole)."""
-    lam = np.where(np.abs(lam) < 1e-9, 1e-9, lam)
-    out = np.log(lam.astype(complex)) * fs
-    real = lam.imag == 0
-    out[real] = np.log(np.abs(lam[real])) * fs
-    return np.asarray(out, dtype=complex)
-
-
 def _select(
     frf: FRF, band: tuple[float, float] | None
 ) -> tuple[FloatArray, ComplexArray, FloatArray]:
@@ -197,56 +188,6 @@ def _select(
         )
     no, ni = P.shape[1:]
     return f[ok], P[ok].reshape(-1, no * ni), S[ok].reshape(-1, no * ni)
-
-
-def _fit_order(
-    prob: Problem,
-    f: FloatArray,
-    order: int,
-    fs: float,
-    delays: list[float],
-    free_delay: bool,
-    max_delay: float,
-) -> tuple[ComplexArray, float]:
-    """Poles and delay of one order: the better of two starts, each refined.
-
-    Vector fitting weighted by 1/σ (the cost's own weights) and by 1/|P̂| (relative: where
-    σ peaks at a resonance, the 1/σ start can miss the resonance, measured on the motor
-    bench); per start the delay candidates told apart by five relocations, the best one
-    relocated further.
-    """
-    h = 1.0 / fs
-    rel = 1.0 / np.maximum(np.abs(prob.P), 1e-300 + np.abs(prob.P).max() * 1e-12)
-    out: tuple[float, ComplexArray, float] | None = None
-    for W in (prob.W, rel):
-        best: tuple[float, ComplexArray, float] | None = None
-        for tau in delays:
-            H = prob.P * np.exp(2j * np.pi * f * tau)[:, None]
-            probe = 5 if len(delays) > 1 else 20  # a few relocations tell the delays apart
-            start = initial_poles(order, f[0], f[-1], "discrete", h)
-            lam = relocate(prob.z, H, W, start, iterations=probe)
-            v = cost(prob, _domain_poles(lam, prob.domain, fs), tau)
-            if best is None or v < best[0]:
-                best = (v, lam, tau)
-        assert best is not None
-        lam, tau = best[1], best[2]
-        if len(delays) > 1:
-            H = prob.P * np.exp(2j * np.pi * f * tau)[:, None]
-            lam = relocate(prob.z, H, W, lam, iterations=15)
-        poles, tau = refine(
-            prob, _domain_poles(lam, prob.domain, fs), tau, free_delay=free_delay,
-            max_delay=max_delay,
-        )  # fmt: skip
-        v = cost(prob, poles, tau)
-        if out is None or v < out[0]:
-            out = (v, poles, tau)
-    assert out is not None
-    return out[1], out[2]
-
-
-def _domain_poles(lam: ComplexArray, domain: str, fs: float) -> ComplexArray:
-    poles = lam if domain == "discrete" else _continuous_poles(lam, fs)
-    return np.asarray(poles[np.argsort(np.abs(poles))], dtype=complex)
 
 
 def fit_frf(
@@ -370,7 +311,7 @@ def _fit(
     fits: dict[int, tuple[ComplexArray, float]] = {}
     chosen = None
     for n in orders:
-        poles, tau = _fit_order(prob, f, n, fs, delays, free_delay, max_delay)
+        poles, tau = fit_order(prob, f, n, fs, delays, free_delay, max_delay)
         v = cost(prob, poles, tau)
         p = n + n * no * ni + (no * ni if direct else 0) + (1 if free_delay else 0)
         e, sd = expected_band(N, p, noise_dof, correlation_length(noise_kernel))

@@ -3,8 +3,9 @@
 
 In z (bins on the unit circle, so the partial fractions ``1/(z - λ)`` are well scaled
 whatever the frequencies), common poles for every entry, each bin weighted by ``1/σ``:
-per iteration solve ``Σ c_e ψ - H_e Σ c̃ ψ ≈ H_e`` in least squares (per entry a QR, whose
-lower block gives the shared ``c̃``: the fast form of Deschrijver et al. 2008), then the
+per iteration solve ``Σ c_e ψ - H_e Σ c̃ ψ ≈ H_e`` in least squares (per entry the Schur
+complement of its own coefficients' block, summed over entries, gives the shared ``c̃``:
+the fast form of Deschrijver et al. 2008, on Gram matrices over blocks of bins), then the
 new poles are the zeros of ``σ(z) = 1 + Σ c̃ ψ(z)``: ``eig(A - b c̃ᵀ)`` in real form;
 unstable ones are mirrored inside the unit circle.
 """
@@ -15,6 +16,7 @@ import numpy as np
 
 from ..arrays import ComplexArray, FloatArray
 from .basis import columns, split_pairs, stabilise
+from .normal import gram, solve
 
 
 def _real_form(poles: ComplexArray) -> tuple[FloatArray, FloatArray]:
@@ -35,6 +37,33 @@ def _real_form(poles: ComplexArray) -> tuple[FloatArray, FloatArray]:
     return A, b
 
 
+def _sigma(
+    z: ComplexArray,
+    H: ComplexArray,
+    W: FloatArray,
+    poles: ComplexArray,
+    direct: bool,
+    workers: int | None,
+) -> FloatArray:
+    """The coefficients ``c̃`` of σ (one relocation's least squares)."""
+    K, E = H.shape
+    Psi = columns(poles, z, "discrete", 1.0)
+    n = Psi.shape[1]
+    lhs = np.column_stack([Psi, np.ones(z.size)]) if direct else Psi
+    nl = lhs.shape[1]
+
+    def build(r: slice, e: int) -> ComplexArray:
+        w, y = W[r, e, None], H[r, e, None]
+        return np.hstack([w * lhs[r], -(w * y) * Psi[r], w * y])
+
+    G = gram(build, K, E, nl + n + 1, workers)
+    # per entry the Schur complement of its residues' block: the shared c̃'s equations
+    Y, _ = solve(G[:, :nl, :nl], G[:, :nl, nl:])
+    S = G[:, nl:, nl:] - np.swapaxes(G[:, :nl, nl:], 1, 2) @ Y
+    ct, _ = solve(np.sum(S[:, :n, :n], axis=0), np.sum(S[:, :n, n], axis=0))
+    return ct
+
+
 def relocate(
     z: ComplexArray,
     H: ComplexArray,
@@ -43,35 +72,19 @@ def relocate(
     *,
     iterations: int = 20,
     direct: bool = False,
+    workers: int | None = None,
 ) -> ComplexArray:
     """Discrete poles (one of each pair) fitted to ``H`` (K, E) with weights ``W`` (K, E).
 
     ``poles``: the starting set (inside the unit circle); its order is kept.
     """
-    E = H.shape[1]
     for _ in range(iterations):
-        Psi = columns(poles, z, "discrete", 1.0)
-        n = Psi.shape[1]
-        lhs = np.column_stack([Psi, np.ones(z.size)]) if direct else Psi
-        nl = lhs.shape[1]
-        rows_R, rows_y = [], []
-        for e in range(E):
-            w = W[:, e]
-            M = np.column_stack([w[:, None] * lhs, -(w * H[:, e])[:, None] * Psi])
-            Mr = np.vstack([M.real, M.imag])
-            y = w * H[:, e]
-            yr = np.concatenate([y.real, y.imag])
-            scale = np.linalg.norm(Mr, axis=0)
-            scale[scale == 0] = 1.0
-            R = np.asarray(np.linalg.qr(np.column_stack([Mr / scale, yr]), mode="r"))  # Qᵀy last
-            rows_R.append(R[nl:-1, nl:-1] * scale[nl:][None, :])  # on the unscaled c̃
-            rows_y.append(R[nl:-1, -1])
-        ct, *_ = np.linalg.lstsq(np.vstack(rows_R), np.concatenate(rows_y), rcond=None)
+        ct = _sigma(z, H, W, poles, direct, workers)
         A, b = _real_form(poles)
-        new = split_pairs(np.asarray(np.linalg.eigvals(A - np.outer(b, ct[:n])), dtype=complex))
+        new = split_pairs(np.asarray(np.linalg.eigvals(A - np.outer(b, ct)), dtype=complex))
         new = stabilise(new, "discrete")
         done = new.size == poles.size and np.allclose(
-            np.sort_complex(new), np.sort_complex(poles), rtol=1e-8, atol=1e-10
+            np.sort_complex(new), np.sort_complex(poles), rtol=1e-7, atol=1e-9
         )
         poles = new
         if done:
