@@ -87,6 +87,7 @@ def test_the_true_model_on_a_record_with_holes_has_no_cause(holed):
     assert d.cause == "none", d.cause
     assert d.criterion is not None and d.criterion.holes.count > 0
     assert d.relation is not None and d.relation.exact  # u from y, its holes unknowns
+    assert d.segments is not None and not d.time_varying  # its segments, holes in them
 
 
 def test_a_wrong_gain_is_named_from_the_whole_record_with_holes(holed):
