@@ -284,3 +284,17 @@ def test_bad_fit_options_exit_2_with_an_error(tmp_path, args, match):
 def test_a_missing_result_file_is_an_error_with_exit_2(tmp_path):
     r = _run("fit", "nothing.npz", "--out", "m.yaml", cwd=tmp_path)
     assert r.returncode == 2 and r.stderr.startswith("error: ") and "Traceback" not in r.stderr
+
+
+def test_a_discrete_pair_driven_to_critical_damping_stays_a_pair():
+    """At ζ -> 1 the radius ``e^{-ζθ/sqrt(1 - ζ²)}`` underflows to 0; the pole must keep a
+    positive imaginary part, or the basis takes it for a real pole (one column, not two)
+    and the refinement indexed past its columns (a correction's fit in diagnose raised
+    IndexError)."""
+    from mr_ident.numerics.fit.basis import from_params, pole_derivatives
+
+    for b in (-40.0, 0.0, 40.0):
+        p = from_params(np.array([40.0, b]), [True], "discrete", 1e-3, 100.0)
+        assert p[0].imag > 0.0, (b, p)
+        z = np.exp(1j * np.linspace(0.1, 3.0, 5))
+        assert pole_derivatives(p, z, "discrete", 1e-3).shape == (5, 2)

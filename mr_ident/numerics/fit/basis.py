@@ -76,7 +76,8 @@ def from_params(
     """The pole set of parameters ``u``; ``pair[k]``: pole k is a complex pair.
 
     Pair: damping ``ζ = ζ_min + (1 - ζ_min) σ(a)``; continuous ``|p| = ω_ref e^{b}``,
-    discrete angle ``π σ(b)`` (so it stays a pair) and radius ``e^{-ζ θ / sqrt(1 - ζ²)}``.
+    discrete angle ``π σ(b)`` (so it stays a pair) and radius ``e^{-ζ θ / sqrt(1 - ζ²)}``
+    (where that underflows, at ζ -> 1, the pair keeps the least positive imaginary part).
     Real: ``-(ω_min + ω_ref e^{a})``, discrete ``tanh(a) e^{-h ω_min}``.
     """
     out = np.empty(len(pair), dtype=complex)
@@ -92,6 +93,8 @@ def from_params(
             else:
                 theta = np.pi * _sigmoid(u[j + 1])
                 out[k] = np.exp(-zeta * theta / c + 1j * theta)
+                if not out[k].imag > 0.0:  # ζ -> 1 underflows the radius: stay a pair
+                    out[k] = complex(out[k].real, np.finfo(float).tiny)
             j += 2
         elif domain == "continuous":
             out[k] = -(w_min + w_ref * np.exp(u[j]))
