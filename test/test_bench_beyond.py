@@ -10,7 +10,14 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from mr_bench.beyond import NONLINEAR, UNLISTED, draw_beyond, simulate_actuated
+from mr_bench.beyond import (
+    NONLINEAR,
+    UNLISTED,
+    _multisine,
+    distortion_db,
+    draw_beyond,
+    simulate_actuated,
+)
 from mr_bench.scenarios import draw_loop
 from mr_bench.verdict import NAMED_DB, judge_beyond
 from mr_ident.errors import ConfigError
@@ -38,6 +45,17 @@ def test_a_strong_dead_zone_distorts_well_above_the_noise_and_a_weak_one_less():
     assert strong.nonlinear and strong.data.period and strong.validation.period
     assert strong.distortion_db > NAMED_DB and weak.distortion_db < strong.distortion_db
     assert not np.allclose(strong.data.r, strong.validation.r)  # two realizations
+
+
+def test_the_truths_distortion_through_a_linear_actuator_is_none():
+    """In steady state: through the identity every realization gives the same FRF (it read
+    12-21 dB with the slow loops' transient after one period; a saturation that never acts
+    was counted as distorting 16 dB above the noise)."""
+    b = draw_beyond("saturation", np.random.default_rng(6006000), level=0.1, duration=10.0)
+    r, N = _multisine(b.loop, "odd", 123, 3)
+    m = b.nominal
+    assert distortion_db(m, lambda: lambda u, dy: u, r, N, m.noise_std) < 0.01
+    assert b.distortion_db < 0.01  # at 10 sigma_u the saturation never acts
 
 
 @pytest.mark.parametrize("effect", UNLISTED)
