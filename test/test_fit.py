@@ -284,3 +284,16 @@ def test_bad_fit_options_exit_2_with_an_error(tmp_path, args, match):
 def test_a_missing_result_file_is_an_error_with_exit_2(tmp_path):
     r = _run("fit", "nothing.npz", "--out", "m.yaml", cwd=tmp_path)
     assert r.returncode == 2 and r.stderr.startswith("error: ") and "Traceback" not in r.stderr
+
+
+def test_a_discrete_pair_at_full_damping_stays_a_pair_with_two_columns():
+    """At ζ -> 1 (the damping parameter at its bound) a discrete pair's radius underflowed to
+    0: the pole became real, its columns one instead of two, and a refinement indexed past
+    them (seen fitting a correction to a dead zone's BLA). The radius is floored (5e-131)."""
+    from mr_ident.numerics.fit.basis import columns, from_params
+
+    u = np.array([40.0, 2.0, 0.5])  # pair: ζ at its bound, angle π σ(2); one real pole
+    poles = from_params(u, [True, False], "discrete", 1e-3, 2 * np.pi * 10.0)
+    assert poles[0].imag > 0 and abs(poles[0]) < 1e-100
+    z = np.exp(1j * np.linspace(0.1, 3.0, 50))
+    assert columns(poles, z, "discrete", 1e-3).shape == (50, 3)

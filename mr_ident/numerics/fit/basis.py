@@ -70,6 +70,11 @@ def to_params(poles: ComplexArray, domain: str, h: float, w_ref: float) -> Float
     return np.array(out)
 
 
+#: The least log-radius of a discrete pair (a radius of 5e-131: at the origin for any fit, and
+#: still a pair: its imaginary part stays above zero).
+LOG_RADIUS_MIN = -300.0
+
+
 def from_params(
     u: FloatArray, pair: list[bool], domain: str, h: float, w_ref: float
 ) -> ComplexArray:
@@ -91,7 +96,9 @@ def from_params(
                 out[k] = complex(-zeta * w, c * w)
             else:
                 theta = np.pi * _sigmoid(u[j + 1])
-                out[k] = np.exp(-zeta * theta / c + 1j * theta)
+                # log-radius floored: at ζ -> 1 the radius underflowed to 0, the pole became
+                # real (imag 0) and its columns one instead of two
+                out[k] = np.exp(max(-zeta * theta / c, LOG_RADIUS_MIN) + 1j * theta)
             j += 2
         elif domain == "continuous":
             out[k] = -(w_min + w_ref * np.exp(u[j]))
