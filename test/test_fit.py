@@ -286,15 +286,14 @@ def test_a_missing_result_file_is_an_error_with_exit_2(tmp_path):
     assert r.returncode == 2 and r.stderr.startswith("error: ") and "Traceback" not in r.stderr
 
 
-def test_a_discrete_pair_driven_to_critical_damping_stays_a_pair():
-    """At ζ -> 1 the radius ``e^{-ζθ/sqrt(1 - ζ²)}`` underflows to 0; the pole must keep a
-    positive imaginary part, or the basis takes it for a real pole (one column, not two)
-    and the refinement indexed past its columns (a correction's fit in diagnose raised
-    IndexError)."""
-    from mr_ident.numerics.fit.basis import from_params, pole_derivatives
+def test_a_discrete_pair_at_full_damping_stays_a_pair_with_two_columns():
+    """At ζ -> 1 (the damping parameter at its bound) a discrete pair's radius underflowed to
+    0: the pole became real, its columns one instead of two, and a refinement indexed past
+    them (seen fitting a correction to a dead zone's BLA). The radius is floored (5e-131)."""
+    from mr_ident.numerics.fit.basis import columns, from_params
 
-    for b in (-40.0, 0.0, 40.0):
-        p = from_params(np.array([40.0, b]), [True], "discrete", 1e-3, 100.0)
-        assert p[0].imag > 0.0, (b, p)
-        z = np.exp(1j * np.linspace(0.1, 3.0, 5))
-        assert pole_derivatives(p, z, "discrete", 1e-3).shape == (5, 2)
+    u = np.array([40.0, 2.0, 0.5])  # pair: ζ at its bound, angle π σ(2); one real pole
+    poles = from_params(u, [True, False], "discrete", 1e-3, 2 * np.pi * 10.0)
+    assert poles[0].imag > 0 and abs(poles[0]) < 1e-100
+    z = np.exp(1j * np.linspace(0.1, 3.0, 50))
+    assert columns(poles, z, "discrete", 1e-3).shape == (50, 3)

@@ -70,14 +70,18 @@ def to_params(poles: ComplexArray, domain: str, h: float, w_ref: float) -> Float
     return np.array(out)
 
 
+#: The least log-radius of a discrete pair (a radius of 5e-131: at the origin for any fit, and
+#: still a pair: its imaginary part stays above zero).
+LOG_RADIUS_MIN = -300.0
+
+
 def from_params(
     u: FloatArray, pair: list[bool], domain: str, h: float, w_ref: float
 ) -> ComplexArray:
     """The pole set of parameters ``u``; ``pair[k]``: pole k is a complex pair.
 
     Pair: damping ``ζ = ζ_min + (1 - ζ_min) σ(a)``; continuous ``|p| = ω_ref e^{b}``,
-    discrete angle ``π σ(b)`` (so it stays a pair) and radius ``e^{-ζ θ / sqrt(1 - ζ²)}``
-    (where that underflows, at ζ -> 1, the pair keeps the least positive imaginary part).
+    discrete angle ``π σ(b)`` (so it stays a pair) and radius ``e^{-ζ θ / sqrt(1 - ζ²)}``.
     Real: ``-(ω_min + ω_ref e^{a})``, discrete ``tanh(a) e^{-h ω_min}``.
     """
     out = np.empty(len(pair), dtype=complex)
@@ -92,9 +96,9 @@ def from_params(
                 out[k] = complex(-zeta * w, c * w)
             else:
                 theta = np.pi * _sigmoid(u[j + 1])
-                out[k] = np.exp(-zeta * theta / c + 1j * theta)
-                if not out[k].imag > 0.0:  # ζ -> 1 underflows the radius: stay a pair
-                    out[k] = complex(out[k].real, np.finfo(float).tiny)
+                # log-radius floored: at ζ -> 1 the radius underflowed to 0, the pole became
+                # real (imag 0) and its columns one instead of two
+                out[k] = np.exp(max(-zeta * theta / c, LOG_RADIUS_MIN) + 1j * theta)
             j += 2
         elif domain == "continuous":
             out[k] = -(w_min + w_ref * np.exp(u[j]))

@@ -180,7 +180,8 @@ function draw(state) {
     Plotly.react("sigma", traces, layout);
   }
   plotted.frequency = est.frequency; plotted.pfg = est.pfg; plotted.pfg_data = est.pfg_data;
-  plotted.version = state.version;
+  plotted.version = est.version;  // the estimate's own: the server keeps it by this
+  plotted.state_version = state.version;  // any change (health, plant) redraws
   document.getElementById("plotted").textContent = JSON.stringify(plotted);
 }
 
