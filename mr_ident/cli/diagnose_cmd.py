@@ -42,9 +42,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     summary = report_dict(
         d, extended_model=str(args.out_model) if args.out_model else None, alpha=args.alpha
     )
-    corrected = d.correction is not None and d.correction.accepted
     applied = ", ".join(
-        [a.cause for a in d.applied] + (["a plant correction"] if corrected else [])
+        [a.cause for a in d.applied] + (["a plant correction"] if d.corrected else [])
     )
     nothing = (
         "nothing (no extension validated)"
@@ -62,7 +61,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     atomic_write(args.json, lambda fh: json.dump(summary, fh, indent=2), binary=False)
     if args.report:
         ext = None
-        if d.applied or corrected:
+        if d.applied or d.corrected:
             ext = d.extended.plant_discrete().freqresp(d.evidence_before.frequency)
         page = report_html(
             d, summary, ext, f"mr-ident diagnose: {args.model.name} on {args.data.name}"
@@ -88,7 +87,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             print(f"    or, as well (BIC {q.delta_bic:+.1f}): {q.description}")
     v = d.decision
     if v is not None and v.candidates and not v.validated:
-        print(f"  {v.text(corrected=corrected)}")
+        print(f"  {v.text(corrected=d.corrected)}")
     if v is not None and v.candidates:
         for k in v.checks:
             status = "validated" if k.validated else "rejected on validation"

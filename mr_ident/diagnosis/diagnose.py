@@ -218,6 +218,11 @@ class Diagnosis:
         return self.segments is not None and self.segments.varying
 
     @property
+    def corrected(self) -> bool:
+        """A correction beyond the listed causes validated and is in ``extended``."""
+        return self.correction is not None and self.correction.accepted
+
+    @property
     def nonlinear(self) -> bool:
         """Nonlinear distortion stands out of the noise.
 

@@ -22,18 +22,13 @@ def _finite(x: float | None) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
 
 
-def _corrected(d: Diagnosis) -> bool:
-    """Whether a correction beyond the listed causes validated and was applied."""
-    return d.correction is not None and d.correction.accepted
-
-
 def _validation_findings(d: Diagnosis) -> list[str]:
     """No extension validated, or the causes the validation data rejected, in words."""
     v = d.decision
     if v is None or not v.candidates:
         return []
     if not v.validated:
-        return [v.text(corrected=_corrected(d))]
+        return [v.text(corrected=d.corrected)]
     return [
         f"accepted on the estimation data, rejected on validation (z = {k.gain.z:.2f} <= "
         f"{v.z_critical:.2f}): {k.description}"
@@ -47,8 +42,8 @@ def _decision(d: Diagnosis) -> dict[str, Any] | None:
     if v is None:
         return None
     return {
-        "extension_validated": v.validated or _corrected(d),
-        "text": v.text(corrected=_corrected(d)) or "no cause found on the estimation data",
+        "extension_validated": v.validated or d.corrected,
+        "text": v.text(corrected=d.corrected) or "no cause found on the estimation data",
         "statistic": v.statistic,
         "alpha": v.alpha,
         "z_critical": v.z_critical,
