@@ -20,6 +20,8 @@ Shapes: ``A`` (n, n), ``B`` (n, n_in), ``C`` (n_out, n), ``D`` (n_out, n_in).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -364,11 +366,14 @@ def split_mode(ss: StateSpace, pole: complex) -> tuple[FloatArray, FloatArray, S
     return c1, c0, rest
 
 
+@functools.lru_cache(maxsize=64)
 def realize(system: TransferMatrix) -> StateSpace:
     """A state-space realisation of every entry of a transfer matrix, through sections.
 
     Block-diagonal and non-minimal (entries sharing a denominator keep their own states);
-    a zero entry has no states.
+    a zero entry has no states. Cached (the transfer matrix is immutable, the result is
+    shared and never changed in place): the diagnosis realises the same controller for
+    every model it evaluates (about 700 times per diagnosis, 7 % of its time).
     """
     no, ni = system.shape
     parts, where = [], []
