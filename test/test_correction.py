@@ -184,11 +184,17 @@ def test_a_gain_on_few_bins_validates_on_the_causes_test():
     validates, a third-order multiplicative correction 80 %. Its gain sits on the few bins
     of the loop's resonance: the mean per-bin drop of the residual was within 1.7 of its
     standard error there (refused before); the causes' test, on the known difference of
-    the two residuals, gives z 3.9 > 2.33: applied."""
+    the two residuals, gives z 3.9 > 2.33: applied.
+
+    One cause allowed: no cause validates at any count, so the correction starts from the
+    nominal either way and every asserted figure equals the default search's (measured:
+    z 10.0 > 2.33 on both tests, fit of y 0.5 % -> 89.3 %) at a fifth of its time (2.7 s
+    instead of 14 s of CPU)."""
     from mr_bench.beyond import draw_beyond
 
     b = draw_beyond("second_delay_path", np.random.default_rng(5025002), duration=10.0)
-    d = diagnose(b.nominal, b.data, b.validation)
+    d = diagnose(b.nominal, b.data, b.validation, max_causes=1)
+    assert d.cause == "none"
     c = d.correction
     assert c is not None and c.accepted and c.best is not None, c and c.text()
     assert min(c.z_nominal, c.z_causes) > c.z_critical
