@@ -10,7 +10,6 @@ Noise-free, so the identified P_h is g P_0 and the drift against the nominal mod
 from __future__ import annotations
 
 import csv
-import shutil
 from dataclasses import replace
 from pathlib import Path
 
@@ -65,19 +64,32 @@ def _run_batch(recs: Path, out: Path, *extra: str) -> int:
     return main(["batch", *argv])
 
 
+@pytest.fixture(scope="module")
+def pool_batch(recordings, tmp_path_factory):
+    """The recordings' batch on the local pool of 2 workers: (exit code, what it printed
+    on stderr, its output directory); run once, read by the two tests below."""
+    import contextlib
+    import io
+
+    recs, _ = recordings
+    out = tmp_path_factory.mktemp("pool") / "out"
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        code = _run_batch(recs, out, "--workers", "2")
+    return code, err.getvalue(), out
+
+
 def test_a_batch_gives_a_row_per_recording_with_the_drift_and_a_result_each(
-    recordings, tmp_path, capsys
+    recordings, pool_batch
 ):
-    recs, gains = recordings
-    out = tmp_path / "out"
-    code = _run_batch(recs, out, "--workers", "2")
-    captured = capsys.readouterr()
+    _, gains = recordings
+    code, err, out = pool_batch
     assert code == 1  # one recording failed; the others are all there
     rows = {Path(r["recording"]).name: r for r in _table(out / "summary.csv")}
     assert sorted(rows) == sorted(gains)
     bad = rows["notes.csv"]
     assert bad["status"] == "error" and "header names 4 columns" in bad["error"]
-    assert "notes.csv: error" in captured.err  # the progress names the failure
+    assert "notes.csv: error" in err  # the progress names the failure
     for name, g in gains.items():
         if g is None:
             continue
@@ -94,20 +106,24 @@ def test_a_batch_gives_a_row_per_recording_with_the_drift_and_a_result_each(
     assert rows["robot_bag"]["n_samples"] == "14400"
 
 
-def test_the_local_pool_and_a_dask_cluster_write_identical_tables(recordings, tmp_path):
+def test_the_local_pool_and_a_dask_cluster_write_identical_tables(
+    recordings, pool_batch, tmp_path
+):
+    """The same table, but for the output directory named in its result column."""
     distributed = pytest.importorskip(
         "distributed", reason="Dask distributed (the optional 'cluster' extra) not installed"
     )
     recs, _ = recordings
+    pool_out = pool_batch[2]
+    pool_table = (pool_out / "summary.csv").read_text()
     out = tmp_path / "out"
-    _run_batch(recs, out)
-    pool_table = (out / "summary.csv").read_text()
-    shutil.rmtree(out)
     with distributed.LocalCluster(
         n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
     ) as cluster:
         _run_batch(recs, out, "--scheduler", cluster.scheduler_address)
-    assert (out / "summary.csv").read_text() == pool_table
+    table = (out / "summary.csv").read_text()
+    assert str(out) in table and str(pool_out) not in table
+    assert table.replace(str(out), str(pool_out)) == pool_table
 
 
 def test_diagnose_rows_carry_the_cause(tmp_path, capsys):

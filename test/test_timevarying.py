@@ -49,9 +49,11 @@ def test_a_time_invariant_loop_is_not_named_time_varying(seed):
 def test_a_gain_that_changes_during_the_record_is_named_in_the_report():
     """The benchmark's time-varying gain (1 + 0.26 sin(2 pi t / 7 s), 10 s records): no
     time-invariant correction describes it; the diagnosis says the plant changes within
-    the record."""
+    the record. One cause allowed: none validates at any count, so the segments, the
+    correction and the texts are the default search's (measured: the same 6.7 dB over 4
+    segments, nothing applied) at a third of its time."""
     b = draw_beyond("time_varying_gain", np.random.default_rng(5026000), duration=10.0)
-    d = diagnose(b.nominal, b.data, b.validation)
+    d = diagnose(b.nominal, b.data, b.validation, max_causes=1)
     s = d.segments
     assert d.time_varying and s is not None and s.parts == SEGMENTS and s.level_db > VARYING_DB
     assert s.text().startswith("the plant changes within the record")

@@ -130,12 +130,15 @@ def test_a_linear_loop_from_two_realizations_shows_no_distortion():
 def test_one_record_of_every_odd_line_says_it_cannot_see_odd_distortion():
     """One periodic record whose design excites every odd line: the report says odd
     distortion cannot show and recommends an odd-random design or more realizations; with
-    detection lines (odd-random) it does not."""
-    d = diagnose(_model(0.6), _record(dead_zone, 0, periods=8))  # 3 periods held out
+    detection lines (odd-random) it does not. No cause searched: what the records show of
+    distortion does not depend on the causes (measured: the same spread and texts as with
+    the default search, at a fifth of its time)."""
+    d = diagnose(_model(0.6), _record(dead_zone, 0, periods=8), max_causes=0)  # 3 held out
     assert "mr-ident excite --kind odd-random" in d.blind_text()
     rep = report_dict(d, extended_model=None, alpha=0.01)
     assert d.blind_text() in rep["findings"]
-    d2 = diagnose(_model(0.6), _record(dead_zone, 0, kind="odd-random", periods=8))
+    rec2 = _record(dead_zone, 0, kind="odd-random", periods=8)
+    d2 = diagnose(_model(0.6), rec2, max_causes=0)
     assert d2.blind_text() == "" and d2.nonlinear
 
 
