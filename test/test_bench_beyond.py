@@ -16,6 +16,7 @@ from mr_bench.beyond import (
     _multisine,
     distortion_db,
     draw_beyond,
+    effect_db,
     simulate_actuated,
 )
 from mr_bench.scenarios import draw_loop
@@ -67,14 +68,30 @@ def test_each_unlisted_effect_changes_the_loop(effect):
     assert change > 0.02, (effect, b.parameters, change)
 
 
+def test_an_unlisted_effect_where_the_loop_has_no_gain_left_changes_y_within_its_noise():
+    """The benchmark's cases 6024005 (a pole pair at 273 Hz of 1000 Hz: the nominal's fit of
+    y 98.87 %, the truth's 98.91 %) and 6024000 (at 95 Hz of 500 Hz: 98.79 and 99.87 %)."""
+    quiet = draw_beyond("pole_zero_pair", np.random.default_rng(6024005), duration=10.0)
+    loud = draw_beyond("pole_zero_pair", np.random.default_rng(6024000), duration=10.0)
+    assert quiet.effect_db < NAMED_DB < loud.effect_db
+    m = loud.nominal
+    r = loud.validation.r
+    same = simulate(m, reference=r, noise=np.zeros_like(r)).y
+    assert effect_db(m, same, r) == 0.0
+
+
 def test_an_unknown_effect_is_refused():
     with pytest.raises(ConfigError, match="effect must be one of"):
         draw_beyond("hysteresis", np.random.default_rng(0))
     assert set(NONLINEAR) == {"dead_zone", "saturation", "coulomb_friction", "backlash"}
 
 
-def _diagnosis(applied, fit, correction=None, nonlinear=False, corrections=(), varying=False):
+def _diagnosis(
+    applied, fit, correction=None, nonlinear=False, corrections=(), varying=False, left=False
+):
+    significant = np.array([False, left])
     return SimpleNamespace(
+        evidence_after=SimpleNamespace(significant=significant, loop_significant=significant),
         applied=applied,
         extended=SimpleNamespace(plant_corrections=corrections),
         fit_before=SimpleNamespace(y=fit[0]),
@@ -95,9 +112,17 @@ def test_the_verdict_counts_what_the_issue_asks():
     fixed = judge_beyond(False, math.nan, _diagnosis([], (80.0, 95.0), corr, corrections=(1,)))
     assert fixed.corrected and fixed.offered and fixed.named is None and not fixed.explained
     refused = SimpleNamespace(model=None, best=best, fit_nominal=80.0)
-    no = judge_beyond(False, math.nan, _diagnosis(["gain_error"], (80.0, 90.0), refused))
-    assert no.offered and not no.corrected and not no.explained
-    described = judge_beyond(False, math.nan, _diagnosis(["gain_error"], (80.0, 90.0)))
+    no = judge_beyond(
+        False, math.nan, _diagnosis(["gain_error"], (80.0, 90.0), refused, left=True)
+    )
+    assert no.offered and not no.corrected and not no.explained and not no.described
+    # offered on the estimation data, refused, nothing left on the validation record
+    quiet = judge_beyond(False, math.nan, _diagnosis(["gain_error"], (80.0, 90.0), refused))
+    assert quiet.described and not quiet.corrected
+    described = judge_beyond(False, math.nan, _diagnosis(["gain_error"], (80.0, 90.0)), 9.0)
     assert described.explained and not described.offered and not described.varying
+    assert described.described and described.counts and fixed.described and not no.described
+    left = judge_beyond(False, math.nan, _diagnosis(["gain_error"], (80.0, 90.0), left=True))
+    assert left.explained and not left.described and not left.counts  # effect_db unknown
     changing = judge_beyond(False, math.nan, _diagnosis([], (80.0, 80.0), varying=True))
     assert changing.varying and not changing.corrected and not changing.worse_applied

@@ -12,7 +12,14 @@ from mr_bench.beyond import draw_beyond
 from mr_bench.scenarios import draw_loop
 from mr_ident import simulate
 from mr_ident.diagnosis import diagnose
-from mr_ident.diagnosis.criterion.timevarying import SEGMENTS, VARYING_DB, segments, within
+from mr_ident.diagnosis.criterion.timevarying import (
+    POOLED_ALPHA,
+    SEGMENTS,
+    VARYING_DB,
+    pooled,
+    segments,
+    within,
+)
 from mr_ident.diagnosis.report import report_dict
 
 
@@ -44,6 +51,40 @@ def test_a_time_invariant_loop_is_not_named_time_varying(seed):
     got = within(rec, m)
     assert got is not None and got.parts == SEGMENTS and got.bands
     assert got.level_db < VARYING_DB and not got.varying and got.text() == ""
+    assert got.pooled is not None and got.pooled.p > POOLED_ALPHA
+
+
+def _lines(rng, M, K, change, width=9):
+    """M estimates of a plant on K lines, relative changes ``change``, noise correlated over
+    ``width`` neighbouring lines (as a local fit's overlapping windows make it)."""
+    f = np.arange(1, K + 1, dtype=float)
+    G0 = 1.0 / (1.0 + 1j * f / 40.0)
+    e = rng.standard_normal((M, K + width)) + 1j * rng.standard_normal((M, K + width))
+    noise = np.stack([np.convolve(x, np.ones(width) / np.sqrt(width), "valid")[:K] for x in e])
+    sd = 0.05 * np.abs(G0)
+    G = (1.0 + np.asarray(change))[:, None] * G0 + sd * noise / np.sqrt(2)
+    V = np.broadcast_to(sd**2, (M, K))
+    return f, G[..., None], np.array(V)[..., None]
+
+
+def test_the_pooled_change_is_an_f_test_whatever_the_lines_correlation():
+    """Noise correlated over 9 lines: a chi-square over the lines would be 9 times too large;
+    the blocks' scatter scales it away (about 5 % below 0.05 under no change)."""
+    rng = np.random.default_rng(0)
+    ps = [pooled(*_lines(rng, 4, 600, [0.0] * 4), fold_hz=0.0, window=9).p for _ in range(300)]
+    assert 0.02 < np.mean(np.array(ps) < 0.05) < 0.09
+    got = pooled(*_lines(rng, 4, 600, [0.03, -0.03, 0.02, -0.02]), fold_hz=0.0, window=9)
+    assert got is not None and got.p < POOLED_ALPHA and 0.015 < got.change < 0.04
+    assert pooled(*_lines(rng, 4, 10, [0.0] * 4), fold_hz=0.0, window=9) is None  # one block
+
+
+def test_a_gain_change_the_mean_level_misses_is_found_by_pooling_the_lines():
+    """The benchmark's case 6026004 (1 + 0.19 sin(2 pi t / 4.0 s), 10 s): 0.75 dB on average
+    over the lines, below the level's threshold; the lines pooled name it."""
+    b = draw_beyond("time_varying_gain", np.random.default_rng(6026004), duration=10.0)
+    got = within(b.data, b.nominal)
+    assert got is not None and got.level_db < VARYING_DB and got.pooled is not None
+    assert got.pooled.p < POOLED_ALPHA and got.varying and "gain moves by" in got.text()
 
 
 def test_a_gain_that_changes_during_the_record_is_named_in_the_report():

@@ -407,3 +407,23 @@ def test_diagnose_on_random_loops_never_raises_a_traceback(tmp_path, seed):
 
     report = json.loads((tmp_path / "r.json").read_text())
     assert report["cause"] == "input_delay", report["cause"]
+
+
+def test_the_bins_whose_local_window_reaches_dc_are_not_tested():
+    """A random loop of the benchmark (seed 107: 240 Hz, F = 3) whose model is exact: the
+    local fit is biased at the first bins (56 sigma at 0.1 Hz, above the threshold's 6.8);
+    the bins up to n of them are not tested, so nothing is flagged."""
+    from mr_bench.scenarios import draw_loop
+    from mr_ident.diagnosis.criterion.evidence import frf_evidence
+    from mr_ident.numerics.identify import default_n
+
+    rng = np.random.default_rng(107)
+    loop = draw_loop(rng, duration=10.0)
+    m = loop.nominal
+    v = m.noise_std * rng.standard_normal(loop.y_clean.shape)
+    rec = simulate(m, reference=loop.reference, noise=v)
+    n = default_n("freq-lifted", 2, m.ratio, m.n_u, max(m.n_u, m.n_y))
+    ev = frf_evidence(m, rec, n=n, degree=2, alpha=0.01)
+    assert ev.sigma_error[0] > 3 * ev.threshold  # the bias is there, and shown
+    assert not ev.significant.any() and ev.bands() == []
+    assert ev.loop_frequency.min() > n * m.fs_high / rec.n_samples

@@ -16,6 +16,9 @@ second handed to the diagnosis as its validation record.
   it, damping U(0.02, 0.1) each, unit DC gain), a second delay path (``u + c u[n - k]``,
   k 3..10 samples, |c| U(0.15, 0.4)), or a time-varying gain (``1 + a sin(2π t / T)``, a
   U(0.1, 0.3), T U(0.3, 1) of the record); white r of std 1, records of ``duration``.
+  How far such an effect stands out of the noise (:func:`effect_db`) is measured on the
+  validation record: a pole pair drawn where the loop has no gain left changes y less than
+  its noise, and no diagnosis can be asked to correct it.
 
 The loop is simulated sample by sample (the controller at its phase, the hold, the
 control delay, as :func:`~mr_ident.numerics.systems.simulate.lifted_loop`) with the
@@ -57,7 +60,9 @@ class Beyond:
     ``data``, ``validation`` the two records; ``true`` the true model where the effect is
     linear and time-invariant (the pole-zero pair), else None; ``distortion_db`` the true
     stochastic distortion above the noise of the period means, dB, the largest of four
-    log-spaced bands (nonlinear cases; nan otherwise).
+    log-spaced bands (nonlinear cases; nan otherwise); ``effect_db`` the unlisted effect's
+    change of y above the noise on the validation record (:func:`effect_db`; nan for the
+    nonlinear cases).
     """
 
     loop: Loop
@@ -68,6 +73,7 @@ class Beyond:
     true: Model | None
     distortion_db: float
     design: str
+    effect_db: float = math.nan
 
     @property
     def nominal(self) -> Model:
@@ -273,6 +279,36 @@ def distortion_db(
     return max(levels)
 
 
+def effect_db(model: Model, y_true: FloatArray, r: FloatArray) -> float:
+    """The change an unlisted effect makes to y, above the noise, dB (worst band).
+
+    ``y_true`` the noise-free output of the loop with the effect under ``r``; against the
+    nominal loop's noise-free output under the same r, after its transient
+    (:func:`~mr_ident.diagnosis.criterion.objective.settle_samples`): per band (four
+    log-spaced) ``10 log10(1 + mean |ΔY|² / mean |Y_v|²)``, Y_v the output noise through
+    the nominal loop (one seeded realization), as :func:`distortion_db` measures the
+    distortion.
+    """
+    from mr_ident.diagnosis.criterion.objective import settle_samples
+
+    n = r.shape[0]
+    skip = settle_samples(model, n)
+    y_nom = simulate(model, reference=r, noise=np.zeros((n, 1))).y
+    v = model.noise_std * np.random.default_rng(0).standard_normal((n, 1))
+    y_v = simulate(model, reference=np.zeros((n, 1)), noise=v).y
+    dY = np.fft.rfft(y_true[skip:, 0] - y_nom[skip:, 0])
+    Yv = np.fft.rfft(y_v[skip:, 0])
+    f = np.arange(dY.size) * model.fs_high / (n - skip)
+    edges = np.geomspace(f[1], f[-1] * (1 + 1e-9), 5)
+    levels = []
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        b = (f >= lo) & (f < hi)
+        if b.any():
+            ratio = np.mean(np.abs(dY[b]) ** 2) / max(np.mean(np.abs(Yv[b]) ** 2), 1e-300)
+            levels.append(10 * math.log10(1.0 + ratio))
+    return max(levels)
+
+
 def draw_beyond(
     effect: str,
     rng: np.random.Generator,
@@ -301,7 +337,10 @@ def draw_beyond(
                 simulate(replace(true, noise_std=m.noise_std), duration=duration, rng=rng)
                 for _ in range(2)
             ]
-            return Beyond(loop, effect, p, recs[0], recs[1], true, math.nan, "white")
+            r = recs[1].r
+            clean = simulate(true, reference=r, noise=np.zeros_like(recs[1].y)).y
+            return Beyond(loop, effect, p, recs[0], recs[1], true, math.nan, "white",
+                          effect_db(m, clean, r))  # fmt: skip
         p = draw_effect(effect, loop, rng, level, duration)
         make = _actuator(effect, p, m.fs_high)
         if effect in NONLINEAR:
@@ -320,5 +359,8 @@ def draw_beyond(
             n = loop.reference.shape[0]
             r = rng.standard_normal((n, 1))
             recs.append(simulate_actuated(m, r, m.noise_std * rng.standard_normal((n, 1)), make()))
-        return Beyond(loop, effect, p, recs[0], recs[1], None, math.nan, "white")
+        r = recs[1].r
+        clean = simulate_actuated(m, r, np.zeros_like(r), make()).y
+        return Beyond(loop, effect, p, recs[0], recs[1], None, math.nan, "white",
+                      effect_db(m, clean, r))  # fmt: skip
     raise ConfigError(f"no loop in {max_loops} draws takes {effect!r}")

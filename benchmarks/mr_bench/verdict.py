@@ -249,13 +249,18 @@ class BeyondVerdict:
 
     ``named``: nonlinear distortion named (nonlinear cases; None otherwise); ``counts``:
     a nonlinear case whose true distortion is at least :data:`NAMED_DB` above the noise
-    (where naming it is asked for); ``worse_applied``: an extension (a cause or a
-    correction) is in the extended model although its validation fit of y is below the
-    nominal's; ``offered``: a correction was fitted (something was left after the causes);
-    ``corrected``: one was applied and validates better than the nominal; ``explained``:
-    nothing significant was left after the causes and they validate better than the
-    nominal (the vocabulary described the effect; no correction needed); ``varying``: the
-    diagnosis says the plant changes within the record (its ``time_varying`` finding).
+    (where naming it is asked for), or an unlisted case whose effect changes y by at least
+    as much above the noise (where describing it is asked for); ``worse_applied``: an
+    extension (a cause or a correction) is in the extended model although its validation
+    fit of y is below the nominal's; ``offered``: a correction was fitted (something was
+    left after the causes); ``corrected``: one was applied and validates better than the
+    nominal; ``explained``: nothing significant was left after the causes and they
+    validate better than the nominal (the vocabulary described the effect; no correction
+    needed); ``described``: corrected, or the extension validates better than the nominal
+    with the validation record's residual in the noise (no bin of the plant's or the loop
+    maps' significant there: what the data allow any model to be; offered or not);
+    ``varying``: the diagnosis says the plant changes within the record (its
+    ``time_varying`` finding).
     """
 
     named: bool | None
@@ -265,6 +270,7 @@ class BeyondVerdict:
     corrected: bool
     explained: bool
     varying: bool = False
+    described: bool = False
 
 
 def nonlinearity_named(diagnosis: Diagnosis) -> bool:
@@ -272,10 +278,14 @@ def nonlinearity_named(diagnosis: Diagnosis) -> bool:
     return bool(getattr(diagnosis, "nonlinear", False))
 
 
-def judge_beyond(nonlinear: bool, distortion_db: float, diagnosis: Diagnosis) -> BeyondVerdict:
+def judge_beyond(
+    nonlinear: bool, distortion_db: float, diagnosis: Diagnosis, effect_db: float = math.nan
+) -> BeyondVerdict:
     """The verdict (:class:`BeyondVerdict`) on a case with or without a nonlinearity.
 
-    ``distortion_db``: the truth's distortion above the noise (nan for a linear effect).
+    ``distortion_db``: the truth's distortion above the noise (nan for a linear effect);
+    ``effect_db``: an unlisted effect's change of y above the noise (nan for a nonlinear
+    one; ``mr_bench.beyond.effect_db``).
     """
     d = diagnosis
     extended = bool(d.applied) or bool(d.extended.plant_corrections)
@@ -284,12 +294,16 @@ def judge_beyond(nonlinear: bool, distortion_db: float, diagnosis: Diagnosis) ->
         c is not None and c.model is not None and c.best is not None
         and c.best.fit_y > c.fit_nominal
     )  # fmt: skip
+    level = distortion_db if nonlinear else effect_db
+    ev = d.evidence_after
+    in_noise = not ev.significant.any() and not ev.loop_significant.any()
     return BeyondVerdict(
         named=nonlinearity_named(d) if nonlinear else None,
-        counts=nonlinear and math.isfinite(distortion_db) and distortion_db >= NAMED_DB,
+        counts=math.isfinite(level) and level >= NAMED_DB,
         worse_applied=extended and d.fit_after.y < d.fit_before.y,
         offered=c is not None,
         corrected=corrected,
         explained=c is None and extended and d.fit_after.y > d.fit_before.y,
         varying=bool(getattr(d, "time_varying", False)),
+        described=corrected or (extended and d.fit_after.y > d.fit_before.y and in_noise),
     )

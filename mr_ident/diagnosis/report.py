@@ -13,7 +13,7 @@ from typing import Any
 from ..numerics.lifted.pfg_check import COVERAGE, MIN_FRACTION
 from .controller.relation import EXACT
 from .criterion.distortion import NL_THRESHOLD_DB
-from .criterion.timevarying import VARYING_DB
+from .criterion.timevarying import POOLED_ALPHA, VARYING_DB
 from .diagnose import Diagnosis
 from .selection.forward import ACCEPT_MARGIN
 
@@ -154,6 +154,14 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
             "segments": d.segments.parts,
             "level_db": _finite(d.segments.level_db),
             "threshold_db": VARYING_DB,
+            "pooled": None
+            if d.segments.pooled is None
+            else {
+                "gain_change": _finite(d.segments.pooled.change),
+                "p": _finite(d.segments.pooled.p),
+                "alpha": POOLED_ALPHA,
+                "blocks": d.segments.pooled.blocks,
+            },
             "bands": [
                 {"band_hz": list(b.band), "level_db": _finite(b.line_ratio_db), "lines": b.lines}
                 for b in d.segments.bands

@@ -126,7 +126,7 @@ def same_realization(a: ComplexArray, b: ComplexArray) -> bool:
     return bool(np.mean(np.abs(ua - ub)) < 0.1)
 
 
-def compare(
+def aligned(
     records: list[LoopData],
     model: Model,
     *,
@@ -134,28 +134,26 @@ def compare(
     degree: int = 2,
     idents: Sequence[Identification | None] = (),
     realizations: bool = True,
-) -> list[SpreadLevels]:
-    """The records' FRF spread against their noise, per band (module docstring).
+) -> tuple[FloatArray, ComplexArray, FloatArray, int] | None:
+    """The records' plant estimates on their common lines: ``(f, G, V, q)``.
 
-    [] for fewer than 2 usable records or, with ``realizations``, the same realization
-    twice (False: segments of one record, :mod:`.timevarying`, where the same periodic
-    realization is what makes the comparison). ``idents``: the first records'
-    :func:`~.evidence.identify_record` where at hand (None: computed).
+    ``f`` (K,) Hz; ``G`` (M, K, n_entries) the estimates; ``V`` (M, K, n_entries) their
+    noise variances; ``q`` the sum of their noise dofs. None where :func:`compare` gives
+    nothing (fewer than 2 usable records, fewer than 2 common lines, or with
+    ``realizations`` the same periodic realization twice).
     """
-    import scipy.stats  # not at the top: identify's start-up stays light
-
     known = list(idents) + [None] * (len(records) - len(idents))
     got = (_estimate(r, model, n, degree, i) for r, i in zip(records, known, strict=True))
     ests = [e for e in got if e is not None]
     if len(ests) < 2:
-        return []
+        return None
     ref = min(ests, key=lambda e: e.frequency.size)
     f = ref.frequency
     lo = max(float(e.frequency.min()) for e in ests)
     hi = min(float(e.frequency.max()) for e in ests)
     keep = (f >= lo) & (f <= hi) & (f > 0)
     if np.count_nonzero(keep) < 2:
-        return []
+        return None
     f = f[keep]
     periodic = [e for e in ests if e.R is not None]
     if (
@@ -166,16 +164,47 @@ def compare(
         first = periodic[0].R
         assert first is not None
         if any(same_realization(first, e.R) for e in periodic[1:] if e.R is not None):
-            return []
+            return None
     Gs, Vs = zip(*(_on(e, f) for e in ests), strict=True)
-    G = np.stack(Gs)  # (M, K, n_entries)
-    V = np.stack(Vs)
+    return f, np.stack(Gs), np.stack(Vs), sum(e.dof for e in ests)
+
+
+def band_edges(f: FloatArray) -> FloatArray:
+    """The four log-spaced bands' edges over the lines ``f`` (Hz)."""
+    return np.geomspace(f[0], f[-1] * (1 + 1e-9), 5)
+
+
+def compare(
+    records: list[LoopData],
+    model: Model,
+    *,
+    n: int = 8,
+    degree: int = 2,
+    idents: Sequence[Identification | None] = (),
+    realizations: bool = True,
+    stack: tuple[FloatArray, ComplexArray, FloatArray, int] | None = None,
+) -> list[SpreadLevels]:
+    """The records' FRF spread against their noise, per band (module docstring).
+
+    [] for fewer than 2 usable records or, with ``realizations``, the same realization
+    twice (False: segments of one record, :mod:`.timevarying`, where the same periodic
+    realization is what makes the comparison). ``idents``: the first records'
+    :func:`~.evidence.identify_record` where at hand (None: computed); ``stack``: their
+    :func:`aligned` estimates where at hand.
+    """
+    import scipy.stats  # not at the top: identify's start-up stays light
+
+    got = stack or aligned(
+        records, model, n=n, degree=degree, idents=idents, realizations=realizations
+    )
+    if got is None:
+        return []
+    f, G, V, q = got
     M = G.shape[0]
     spread = np.sum(np.abs(G - G.mean(axis=0)) ** 2, axis=0) / (M - 1)  # (K, n_entries)
     noise = V.mean(axis=0)
     mag2 = np.abs(G.mean(axis=0)) ** 2
-    q = sum(e.dof for e in ests)
-    edges = np.geomspace(f[0], f[-1] * (1 + 1e-9), 5)
+    edges = band_edges(f)
     out = []
     for a, b in zip(edges[:-1], edges[1:], strict=True):
         inb = (f >= a) & (f < b)
