@@ -216,7 +216,8 @@ def speed(rng, bins: int, order: int = 40) -> None:
         f"speed: {bins} bins, 3x3, order {order}: {wall:.1f} s wall, {cpu:.1f} s CPU "
         f"(load average {load0:.1f} before, {os.getloadavg()[0]:.1f} after); "
         f"cost {fit.cost:.0f} = E{{V}} {band:+.1f} sd; stable "
-        f"{bool(np.all(fit.plant.poles.real < 0))}"
+        f"{bool(np.all(fit.plant.poles.real < 0))}; largest condition number of a linear "
+        f"step {fit.max_condition:.3g}"
     )
 
 
