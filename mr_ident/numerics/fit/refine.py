@@ -33,6 +33,7 @@ F_TOL = 0.02
 
 #: Most refinement steps of a linear solve (stopped once the correction is at rounding).
 REFINEMENTS = 4
+EPS = float(np.finfo(float).eps)
 
 
 @dataclass(frozen=True)
@@ -65,7 +66,9 @@ def _coefficients(
         G = weighted_gram(Phi, W, workers=prob.workers)
     coef, kappa = solve(G, real_product(Phi, W * W * prob.P).T)
     res = W * (prob.P - times_real(Phi, coef.T))
-    for _ in range(REFINEMENTS):  # on the residual: each step gains -log10(κ² eps) digits
+    # on the residual: each step gains -log10(κ² eps) digits; none needed when the normal
+    # equations' own error, κ² eps relative, is already below 1e-12
+    for _ in range(REFINEMENTS if kappa * kappa * EPS > 1e-12 else 0):
         fix, _ = solve(G, real_product(Phi, W * res).T)
         coef = coef + fix
         res = W * (prob.P - times_real(Phi, coef.T))
@@ -80,7 +83,8 @@ class Solution:
 
     ``cost``: V; ``condition``: the condition number of the residues' weighted columns
     (scaled to unit norm, the largest over the entries); ``coef`` (n_cols, E); ``residual``
-    ``W (P - Φ c)`` (K, E).
+    ``W (P - Φ c)`` (K, E); ``blocks``: the Gram of ``wₑ [Φ, Dₑ]`` per entry
+    (:meth:`_Projected.blocks`, the delay per sample) when the refinement formed it there.
     """
 
     poles: ComplexArray
@@ -89,6 +93,7 @@ class Solution:
     condition: float
     coef: FloatArray
     residual: ComplexArray
+    blocks: FloatArray | None = None
 
 
 def solution(prob: Problem, poles: ComplexArray, delay: float) -> Solution:
@@ -121,11 +126,14 @@ class _Point:
             self.coef, self.res, self.kappa = known.coef, known.residual, known.condition
         else:
             self.coef, self.res, self.kappa = _coefficients(prob, self.Phi)
+        self.blocks: FloatArray | None = None if known is None else known.blocks
         self.f = 2.0 * float(np.sum(self.res.real**2 + self.res.imag**2))
 
     def solution(self) -> Solution:
         """What the linear step gave at this point."""
-        return Solution(self.poles, self.tau, 0.5 * self.f, self.kappa, self.coef, self.res)
+        return Solution(
+            self.poles, self.tau, 0.5 * self.f, self.kappa, self.coef, self.res, self.blocks
+        )
 
 
 class _Projected:
@@ -253,6 +261,7 @@ class _Projected:
         """``(JᵀJ, Jᵀr)`` at a point (Kaufman's Jacobian of the projected residual)."""
         nc = pt.Phi.shape[1]
         G, grad = self.blocks(pt)
+        pt.blocks = G
         AD = G[:, :nc, nc:]
         Y, _ = solve(G[:, :nc, :nc], AD)
         Hg = 2.0 * np.sum(G[:, nc:, nc:] - np.swapaxes(AD, 1, 2) @ Y, axis=0)
@@ -384,7 +393,12 @@ def covariance(
     pt = _Point(prob, xf, poles, delay, known)
     K, E = prob.P.shape
     nu, nc = x.size, pt.Phi.shape[1]
-    blocks = 2.0 * f.blocks(pt, 1.0 / prob.h)[0]  # the delay in s
+    if pt.blocks is None:
+        pt.blocks = f.blocks(pt)[0]
+    blocks = 2.0 * pt.blocks
+    if free_delay:  # the delay in s
+        blocks[:, -1, :] /= prob.h
+        blocks[:, :, -1] /= prob.h
     n = nu + E * nc
     M = np.zeros((n, n))
     B = None if kernel is None or len(kernel) <= 1 else np.zeros((n, n))

@@ -106,7 +106,8 @@ def _start(
     cond = 1.0
     for tau in delays:
         H = prob.P * np.exp(2j * np.pi * f * tau)[:, None]
-        start = initial_poles(order, f[0], f[-1], "discrete", h)
+        spacing = 2.0 * (f[-1] - f[0]) / f.size  # two bins (of the mean spacing)
+        start = initial_poles(order, f[0], f[-1], "discrete", h, spacing)
         probe = len(delays) > 1
         lam, v, kappa = relocate(
             prob.z,
