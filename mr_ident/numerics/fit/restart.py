@@ -52,8 +52,8 @@ def weakest_pair(prob: Problem, sol: Solution) -> int | None:
     return best_k
 
 
-def excess_peak(f: FloatArray, residual: ComplexArray) -> tuple[float, float]:
-    """Frequency (Hz) and relative width (a damping) of the most significant excess.
+def excess_peak(f: FloatArray, residual: ComplexArray) -> tuple[float, float, float]:
+    """Frequency (Hz), relative width (a damping) and z-score of the most significant excess.
 
     Per bin the excess ``Σ_e |r_e|² - E`` (mean 0, variance E for unit-variance
     residuals), summed over 2L+1 bins for each half-width L of :data:`WIDTHS`; the
@@ -72,7 +72,7 @@ def excess_peak(f: FloatArray, residual: ComplexArray) -> tuple[float, float]:
         if z[i] > best:
             best, at, half = float(z[i]), i + L, L
     lo, hi = f[max(at - half - 1, 0)], f[min(at + half + 1, K - 1)]
-    return float(f[at]), float(np.clip((hi - lo) / (2.0 * f[at]), 0.002, 0.5))
+    return float(f[at]), float(np.clip((hi - lo) / (2.0 * f[at]), 0.002, 0.5)), best
 
 
 def moved(prob: Problem, f: FloatArray, sol: Solution) -> ComplexArray | None:
@@ -80,7 +80,7 @@ def moved(prob: Problem, f: FloatArray, sol: Solution) -> ComplexArray | None:
     k = weakest_pair(prob, sol)
     if k is None:
         return None
-    f0, zeta = excess_peak(f, sol.residual)
+    f0, zeta, _ = excess_peak(f, sol.residual)
     w = 2.0 * np.pi * f0
     s = complex(-zeta * w, w * np.sqrt(1.0 - zeta * zeta))
     poles = sol.poles.copy()
@@ -96,10 +96,16 @@ def escape(
     *,
     free_delay: bool,
     max_delay: float,
+    gain: float = np.inf,
 ) -> Solution:
-    """``sol`` or a restart's lower minimum (module docstring); ``bound``: the band's top."""
+    """``sol`` or a restart's lower minimum (module docstring); ``bound``: the band's top.
+
+    Inside the band a restart is made too when ``gain`` is finite, and kept only when it
+    lowers V by more than ``gain`` (moving the weakest pair onto the noise gains a little).
+    """
     for _ in range(RESTARTS):
-        if sol.cost <= bound:
+        inside = sol.cost <= bound
+        if inside and not np.isfinite(gain):
             break
         poles = moved(prob, f, sol)
         if poles is None:
@@ -112,7 +118,7 @@ def escape(
             max_delay=max_delay,
             max_nfev=RESTART_NFEV,
         )
-        if not new.cost < sol.cost - F_TOL:
+        if not new.cost < sol.cost - (gain if inside else F_TOL):
             break
         sol = new
     return sol

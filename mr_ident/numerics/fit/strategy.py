@@ -12,7 +12,13 @@ The start weighted by 1/σ (vector fitting) is refined; a minimum above the cost
 is left by restarts (:mod:`.restart`: the weakest pair moved to where the residual is
 largest, refined, kept when the cost is lower). Only when that minimum still lies above
 the band is the second start (weighted by 1/|P̂|) made, and refined unless its cost
-exceeds :data:`SECOND_START` times the first's; the lower minimum is kept.
+exceeds :data:`SECOND_START` times the first's; the lower minimum is kept. A problem
+without a coarse stage is cheap: there both starts are refined and restarts made inside
+the band too, kept when they lower V by more than :data:`IN_BAND_GAIN` sd{V} (a minimum
+inside the band can still be a local one: of 30 drawn SISO plants, 4 and 8 on two seeds
+ended above the minimum reached from the truth with the band's test alone, 3 and 7 so;
+kept at any decrease, 2 and 4, but the weakest pair then moved onto the noise in some
+fits, lowering V by less than 0.2 sd{V} and raising that mode's pole error tenfold).
 """
 
 from __future__ import annotations
@@ -40,6 +46,10 @@ PROBE = 5
 
 #: The second start is refined only when its cost is within this factor of the first's.
 SECOND_START = 4.0
+
+#: Inside the band (problems without a coarse stage), the least decrease of V, in units
+#: of about sd{V}, for which a restart is kept.
+IN_BAND_GAIN = 0.25
 
 
 def continuous_poles(lam: ComplexArray, fs: float) -> ComplexArray:
@@ -164,7 +174,9 @@ def fit_order(
     """
     coarse, fc = _subset(prob, f)
     rel = 1.0 / np.maximum(np.abs(coarse.P), 1e-300 + np.abs(coarse.P).max() * 1e-12)
+    small = coarse is prob  # cheap: both starts, and restarts inside the band too
     top = bound(coarse.P.size)
+    gain = IN_BAND_GAIN * math.sqrt(coarse.P.size) if small else np.inf
     sol: Solution | None = None
     first, cond = np.inf, 1.0
     for W in (coarse.W, rel):
@@ -174,9 +186,9 @@ def fit_order(
         if sol is not None and v > SECOND_START * first:
             continue
         new = refine(coarse, poles, tau, free_delay=free_delay, max_delay=max_delay)
-        new = escape(coarse, fc, new, top, free_delay=free_delay, max_delay=max_delay)
+        new = escape(coarse, fc, new, top, free_delay=free_delay, max_delay=max_delay, gain=gain)
         sol = new if sol is None or new.cost < sol.cost else sol
-        if sol.cost <= top:
+        if sol.cost <= top and not small:
             break
     assert sol is not None
     if coarse is not prob:
