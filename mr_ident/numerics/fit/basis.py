@@ -249,11 +249,37 @@ def residues_of(
     return R, np.asarray(D, dtype=float)
 
 
-def initial_poles(order: int, f_lo: float, f_hi: float, domain: str, h: float) -> ComplexArray:
-    """Starting poles: lightly damped pairs log-spaced over the band (+ one real pole)."""
+def initial_poles(
+    order: int, f_lo: float, f_hi: float, domain: str, h: float, spacing: float = 0.0
+) -> ComplexArray:
+    """Starting poles: lightly damped pairs over the band (+ one real pole).
+
+    The pairs' frequencies are equally spaced in ``log(f + c)``: log-spaced (c = 0) where
+    that keeps neighbours ``spacing`` Hz apart (two bins, say), else with the least c
+    that does (towards linear spacing). Pairs closer than the bins are nearly the same
+    columns: the first relocation's least squares lost up to 5 digits to them (a
+    condition number of 5e4 at order 40 over three decades).
+    """
     n_pairs = order // 2
     lo = max(f_lo, 1e-6)
-    f = lo * (f_hi / lo) ** ((np.arange(n_pairs) + 0.5) / max(n_pairs, 1))  # log mid-points
+    k = (np.arange(n_pairs) + 0.5) / max(n_pairs, 1)  # mid-points
+
+    def freqs(c: float) -> FloatArray:
+        out: FloatArray = (lo + c) * ((f_hi + c) / (lo + c)) ** k - c
+        return out
+
+    def tight(c: float) -> bool:
+        f = freqs(c)
+        return bool(f.size > 1 and np.min(np.diff(f)) < spacing)
+
+    c = 0.0
+    if tight(0.0) and not tight(1e6 * (f_hi + spacing)):
+        a, b = 0.0, 1e6 * (f_hi + spacing)
+        for _ in range(60):
+            c = 0.5 * (a + b)
+            a, b = (c, b) if tight(c) else (a, c)
+        c = b
+    f = freqs(c)
     w = 2.0 * np.pi * f
     s = np.concatenate([(-0.01 * w + 1j * w), [-2.0 * np.pi * np.sqrt(f_lo * f_hi)]])
     if order % 2 == 0:

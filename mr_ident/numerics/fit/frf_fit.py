@@ -26,7 +26,7 @@ from ..arrays import ComplexArray, FloatArray
 from ..results import FRF
 from ..systems.modal import ModalPlant
 from .basis import DOMAINS, columns, from_params, n_states, residues_of
-from .refine import Problem, cost, covariance, solve_linear
+from .refine import Problem, Solution, covariance
 from .strategy import fit_order
 
 
@@ -81,6 +81,11 @@ class FitResult:
         0 when the delay was given.
     orders : tuple of OrderReport
         Every order tried (one when the order was given).
+    max_condition : float
+        The largest condition number of the fit's linear least-squares steps: the
+        residues' at the solution and every pole relocation of its starts (vector
+        fitting's), each of the weighted columns scaled to unit norm (the square root of
+        the scaled Gram's condition number). Above about 1e8 the linear steps lose digits.
     """
 
     plant: ModalPlant
@@ -102,6 +107,7 @@ class FitResult:
     c0_std: FloatArray
     delay_std: float
     orders: tuple[OrderReport, ...]
+    max_condition: float = 1.0
 
     @property
     def order(self) -> int:
@@ -308,32 +314,38 @@ def _fit(
     N = P.size
     orders = range(1, max_order + 1) if order == "auto" else [order]
     reports: list[OrderReport] = []
-    fits: dict[int, tuple[ComplexArray, float]] = {}
+    fits: dict[int, tuple[Solution, float]] = {}
     chosen = None
+    corr = correlation_length(noise_kernel)
     for n in orders:
-        poles, tau = fit_order(prob, f, n, fs, delays, free_delay, max_delay)
-        v = cost(prob, poles, tau)
         p = n + n * no * ni + (no * ni if direct else 0) + (1 if free_delay else 0)
-        e, sd = expected_band(N, p, noise_dof, correlation_length(noise_kernel))
+
+        def bound(n_terms: int, p: int = p) -> float:
+            e, sd = expected_band(n_terms, p, noise_dof, corr)
+            return e + 2.0 * sd
+
+        sol, start_cond = fit_order(prob, f, n, fs, delays, free_delay, max_delay, bound)
+        poles, tau, v = sol.poles, sol.delay, sol.cost
+        e, sd = expected_band(N, p, noise_dof, corr)
         stable = bool(
             np.all(poles.real < 0) if domain == "continuous" else np.all(np.abs(poles) < 1)
         )
         reports.append(
             OrderReport(n, v, e, sd, 2 * v + 2 * p, 2 * v + p * math.log(2 * N), tau, stable)
         )
-        fits[n] = (poles, tau)
+        fits[n] = (sol, start_cond)
         if order == "auto" and chosen is None and v <= e + 2.0 * sd:
             chosen = n
         if chosen is not None and n >= chosen + 2:
             break
     if chosen is None:
         chosen = min(reports, key=lambda r: r.mdl).order if order == "auto" else orders[0]
-    poles, tau = fits[chosen]
+    sol, start_cond = fits[chosen]
     rep = next(r for r in reports if r.order == chosen)
     return _result(
         prob,
-        poles,
-        tau,
+        sol,
+        start_cond,
         free_delay,
         f,
         frf.response.shape[1:],
@@ -346,8 +358,8 @@ def _fit(
 
 def _result(
     prob: Problem,
-    poles: ComplexArray,
-    tau: float,
+    sol: Solution,
+    start_cond: float,
     free_delay: bool,
     f: FloatArray,
     shape: tuple[int, ...],
@@ -357,10 +369,10 @@ def _result(
     kernel: FloatArray | None,
 ) -> FitResult:
     no, ni = int(shape[0]), int(shape[1])
-    coef, res = solve_linear(prob, poles, tau)
+    poles, tau, coef, res = sol.poles, sol.delay, sol.coef, sol.residual
     R, D = residues_of(coef.reshape(-1, no, ni), poles, no, ni, direct=prob.direct)
     plant = ModalPlant(poles, R, D, None if prob.domain == "continuous" else prob.h)
-    x, cov, _ = covariance(prob, poles, tau, free_delay=free_delay, kernel=kernel)
+    x, cov, _ = covariance(prob, poles, tau, free_delay=free_delay, kernel=kernel, known=sol)
     nu = x.size - coef.size
     E = no * ni
     pair = [bool(p.imag > 0) for p in poles]
@@ -426,4 +438,5 @@ def _result(
         c0_std=c0s,
         delay_std=delay_std,
         orders=reports,
+        max_condition=max(sol.condition, start_cond),
     )

@@ -57,6 +57,59 @@ def gram(
     return np.stack(thread_map(one, range(n_entries), n))
 
 
+def weighted_gram(
+    Y: ComplexArray,
+    W: FloatArray,
+    extra: Callable[[slice, int], ComplexArray] | None = None,
+    n_extra: int = 0,
+    workers: int | None = None,
+) -> FloatArray:
+    """``Re(Xₑᴴ Xₑ)`` of ``Xₑ = wₑ ⊙ [Y, extra(e)]`` per entry, (E, m + n_extra, m + n_extra).
+
+    ``Y`` (K, m): columns common to every entry; ``W`` (K, E): each entry's weights;
+    ``extra(rows, e)`` (len(rows), n_extra): an entry's own columns. Only the weighting is
+    done per entry and block: no complex array is formed there.
+    """
+    K, m = Y.shape
+    E = W.shape[1]
+    n = m + n_extra
+    Yr, Yi = Y.real, Y.imag
+
+    def one(e: int) -> FloatArray:
+        G = np.zeros((n, n))
+        buf = np.empty((2 * min(BLOCK, K), n))
+        for start in range(0, K, BLOCK):
+            r = slice(start, min(start + BLOCK, K))
+            b = r.stop - r.start
+            w = W[r, e, None]
+            S = buf[: 2 * b]
+            np.multiply(w, Yr[r], out=S[:b, :m])
+            np.multiply(w, Yi[r], out=S[b:, :m])
+            if extra is not None:
+                X = w * extra(r, e)
+                S[:b, m:] = X.real
+                S[b:, m:] = X.imag
+            G += S.T @ S
+        return G
+
+    nw = resolve_workers(workers) if K * n >= 4 * BLOCK * 64 else 1
+    return np.stack(thread_map(one, range(E), nw))
+
+
+def real_product(Y: ComplexArray, R: ComplexArray) -> FloatArray:
+    """``Re(Yᴴ R)`` by two real products: (m, E) of ``Y`` (K, m) and ``R`` (K, E)."""
+    out: FloatArray = Y.real.T @ R.real + Y.imag.T @ R.imag
+    return out
+
+
+def times_real(Y: ComplexArray, C: FloatArray) -> ComplexArray:
+    """``Y C`` for real ``C`` by two real products (half the flops of a complex one)."""
+    out = np.empty((Y.shape[0], C.shape[1]), dtype=complex)
+    out.real = Y.real @ C
+    out.imag = Y.imag @ C
+    return out
+
+
 def solve(G: FloatArray, b: FloatArray, rcond: float = 1e-14) -> tuple[FloatArray, float]:
     """``G⁻¹ b`` per leading index, and the largest condition number of the scaled columns.
 

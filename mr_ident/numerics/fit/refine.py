@@ -6,9 +6,11 @@ a weighted linear least-squares problem in the residues (one per entry, all shar
 columns of :func:`~mr_ident.numerics.fit.basis.columns`); its solution put back leaves a
 function of the poles alone (Golub & Pereyra 1973), minimised by Levenberg–Marquardt over
 the stable parametrisation. Nothing of the size bins x parameters is factorised: every
-product the method needs is a Gram matrix summed over blocks of bins (:mod:`.normal`), so
-one step costs about one pass over the data per entry (1e5 bins, 3 x 3, order 40: about
-0.5 s of one core). The Jacobian is Kaufman's (1975), ``J = -√2 P⊥ D`` with ``D = ∂(Φ c)/∂x``
+product the method needs is a Gram matrix summed over blocks of bins (:mod:`.normal`).
+Every entry's Jacobian is the same pole derivatives Ψ mixed by its own coefficients
+(``Dₑ = Ψ Mₑ``), so one step is one weighted Gram of the common ``[Φ, Ψ]`` per entry
+(1e5 bins, 3 x 3, order 40: about 1.1 s of one core, the residues' solve at a trial
+point 0.5 s). The Jacobian is Kaufman's (1975), ``J = -√2 P⊥ D`` with ``D = ∂(Φ c)/∂x``
 from the exact pole derivatives of the columns (:func:`~.basis.pole_derivatives`); its
 normal matrix ``JᵀJ = 2 (DᵀD - DᵀA (AᵀA)⁻¹ AᵀD)`` and the gradient ``Jᵀr = -2 Re(Dᴴ r)``
 (exact: the dropped term is orthogonal to r). The covariance of every parameter is that of
@@ -24,13 +26,14 @@ import numpy as np
 
 from ..arrays import ComplexArray, FloatArray, IndexArray
 from .basis import columns, delay_derivatives, from_params, pole_derivatives, to_params
-from .normal import gram, solve
+from .normal import real_product, solve, times_real, weighted_gram
 
 #: Least decrease of ``‖r‖² = 2V`` that continues Levenberg–Marquardt.
 F_TOL = 0.02
 
 #: Most refinement steps of a linear solve (stopped once the correction is at rounding).
 REFINEMENTS = 4
+EPS = float(np.finfo(float).eps)
 
 
 @dataclass(frozen=True)
@@ -50,51 +53,87 @@ class Problem:
     workers: int | None = None
 
 
-def _coefficients(prob: Problem, Phi: ComplexArray) -> tuple[FloatArray, ComplexArray, float]:
-    """Coefficients (n_cols, E), weighted residuals (K, E), condition number (columns)."""
+def _coefficients(
+    prob: Problem, Phi: ComplexArray, G: FloatArray | None = None
+) -> tuple[FloatArray, ComplexArray, float]:
+    """Coefficients (n_cols, E), weighted residuals (K, E), condition number (columns).
+
+    ``G``: the Gram of the weighted columns per entry when already at hand.
+    """
     K, E = prob.P.shape
     W = prob.W
-    G = gram(lambda r, e: W[r, e, None] * Phi[r], K, E, Phi.shape[1], prob.workers)
-    Ph = Phi.conj().T
-    coef, kappa = solve(G, (Ph @ (W * W * prob.P)).real.T)
-    res = W * (prob.P - Phi @ coef.T)
-    for _ in range(REFINEMENTS):  # on the residual: each step gains -log10(κ² eps) digits
-        fix, _ = solve(G, (Ph @ (W * res)).real.T)
+    if G is None:
+        G = weighted_gram(Phi, W, workers=prob.workers)
+    coef, kappa = solve(G, real_product(Phi, W * W * prob.P).T)
+    res = W * (prob.P - times_real(Phi, coef.T))
+    # on the residual: each step gains -log10(κ² eps) digits; none needed when the normal
+    # equations' own error, κ² eps relative, is already below 1e-12
+    for _ in range(REFINEMENTS if kappa * kappa * EPS > 1e-12 else 0):
+        fix, _ = solve(G, real_product(Phi, W * res).T)
         coef = coef + fix
-        res = W * (prob.P - Phi @ coef.T)
+        res = W * (prob.P - times_real(Phi, coef.T))
         if np.max(np.abs(fix)) <= 1e-14 * np.max(np.abs(coef)):
             break
     return coef.T, res, kappa
 
 
-def solve_linear(
-    prob: Problem, poles: ComplexArray, delay: float
-) -> tuple[FloatArray, ComplexArray]:
-    """Coefficients (n_cols, E) and weighted residuals ``W (P - Φ c)`` (K, E)."""
+@dataclass(frozen=True)
+class Solution:
+    """Poles and delay with what the linear step gives there.
+
+    ``cost``: V; ``condition``: the condition number of the residues' weighted columns
+    (scaled to unit norm, the largest over the entries); ``coef`` (n_cols, E); ``residual``
+    ``W (P - Φ c)`` (K, E); ``blocks``: the Gram of ``wₑ [Φ, Dₑ]`` per entry
+    (:meth:`_Projected.blocks`, the delay per sample) when the refinement formed it there.
+    """
+
+    poles: ComplexArray
+    delay: float
+    cost: float
+    condition: float
+    coef: FloatArray
+    residual: ComplexArray
+    blocks: FloatArray | None = None
+
+
+def solution(prob: Problem, poles: ComplexArray, delay: float) -> Solution:
+    """The residues solved at fixed poles and delay."""
     Phi = columns(poles, prob.z, prob.domain, prob.h, delay, direct=prob.direct)
-    coef, res, _ = _coefficients(prob, Phi)
-    return coef, res
+    coef, res, kappa = _coefficients(prob, Phi)
+    v = float(np.sum(res.real**2 + res.imag**2))
+    return Solution(np.asarray(poles, dtype=complex), float(delay), v, kappa, coef, res)
 
 
 def cost(prob: Problem, poles: ComplexArray, delay: float) -> float:
     """``V`` with the residues solved."""
-    return float(np.sum(np.abs(solve_linear(prob, poles, delay)[1]) ** 2))
-
-
-def _stack(res: ComplexArray) -> FloatArray:
-    """Weighted complex residuals as unit-variance reals: ``√2 [Re; Im]``."""
-    r = res.ravel()
-    return np.asarray(np.sqrt(2.0) * np.concatenate([r.real, r.imag]), dtype=float)
+    return solution(prob, poles, delay).cost
 
 
 class _Point:
     """One evaluation: poles, delay, columns, coefficients, residuals, cost 2V."""
 
-    def __init__(self, prob: Problem, x: FloatArray, poles: ComplexArray, tau: float) -> None:
+    def __init__(
+        self,
+        prob: Problem,
+        x: FloatArray,
+        poles: ComplexArray,
+        tau: float,
+        known: Solution | None = None,
+    ) -> None:
         self.x, self.poles, self.tau = x, poles, tau
         self.Phi = columns(poles, prob.z, prob.domain, prob.h, tau, direct=prob.direct)
-        self.coef, self.res, self.kappa = _coefficients(prob, self.Phi)
+        if known is not None:  # the linear step at these poles, solved before
+            self.coef, self.res, self.kappa = known.coef, known.residual, known.condition
+        else:
+            self.coef, self.res, self.kappa = _coefficients(prob, self.Phi)
+        self.blocks: FloatArray | None = None if known is None else known.blocks
         self.f = 2.0 * float(np.sum(self.res.real**2 + self.res.imag**2))
+
+    def solution(self) -> Solution:
+        """What the linear step gave at this point."""
+        return Solution(
+            self.poles, self.tau, 0.5 * self.f, self.kappa, self.coef, self.res, self.blocks
+        )
 
 
 class _Projected:
@@ -162,77 +201,105 @@ class _Projected:
         out: IndexArray = np.concatenate([self.group_u, np.arange(self.n_u, self.n_x)])
         return out.astype(np.intp)
 
-    def columns_d(
-        self,
-        Psi: ComplexArray,
-        Dt: ComplexArray | None,
-        T: FloatArray,
-        c: FloatArray,
-        rows: slice,
-    ) -> ComplexArray:
-        """``D = ∂(Φ c)/∂x`` on ``rows`` for coefficients ``c`` (n_cols,), (rows, n_x).
+    def mix(self, T: FloatArray, coef: FloatArray) -> FloatArray:
+        """``M`` per entry with ``∂(Φ cₑ)/∂u = Ψ Mₑ`` (E, n_poles_cols, n_u), grouped order.
 
-        Its columns in the order of :attr:`group`.
+        A pair's ``∂/∂Re p = ψ1 c1 + ψ2 c2``, ``∂/∂Im p = ψ2 c1 - ψ1 c2`` (the columns of
+        :func:`~.basis.pole_derivatives`), then the chain ``T`` to its two parameters; a
+        real pole's ``ψ c T``. Every entry's derivative is the same Ψ mixed by its own
+        coefficients: the data are passed once for all parameters.
         """
-        P = Psi[rows]
-        D = np.empty((P.shape[0], self.n_x), dtype=complex)
         q = self.is_pair
         n2, nr = int(q.sum()), int((~q).sum())
-        cg = c[self.group_u]
+        cg = coef[self.group_u].T  # (E, n)
+        E = cg.shape[0]
+        M = np.zeros((E, 2 * n2 + nr, self.n_u))
+        i2, ir = np.arange(n2), np.arange(nr)
         if n2:
-            c1, c2, Tp = cg[:n2], cg[n2 : 2 * n2], T[q]
-            P1, P2 = P[:, :n2], P[:, n2 : 2 * n2]
-            a = P1 * c1 + P2 * c2  # ∂/∂Re p
-            b = P2 * c1 - P1 * c2  # ∂/∂Im p
-            D[:, :n2] = a * Tp[:, 0, 0] + b * Tp[:, 1, 0]
-            D[:, n2 : 2 * n2] = a * Tp[:, 0, 1] + b * Tp[:, 1, 1]
+            c1, c2, Tp = cg[:, :n2], cg[:, n2 : 2 * n2], T[q]
+            for k in range(2):  # the pair's parameter k
+                M[:, i2, i2 + k * n2] = c1 * Tp[:, 0, k] - c2 * Tp[:, 1, k]
+                M[:, n2 + i2, i2 + k * n2] = c2 * Tp[:, 0, k] + c1 * Tp[:, 1, k]
         if nr:
-            D[:, 2 * n2 : 2 * n2 + nr] = P[:, 2 * n2 :] * (cg[2 * n2 :] * T[~q, 0, 0])
+            M[:, 2 * n2 + ir, 2 * n2 + ir] = cg[:, 2 * n2 :] * T[~q, 0, 0]
+        return M
+
+    def blocks(self, pt: _Point, delay_scale: float = 1.0) -> tuple[FloatArray, FloatArray]:
+        """Per entry the Gram of ``wₑ [Φ, Dₑ]`` (E, nc + n_x, nc + n_x) and ``Re(Dₑᴴ wₑ rₑ)``.
+
+        ``Dₑ = ∂(Φ cₑ)/∂x`` in grouped order (:attr:`group`); the second is (E, n_x).
+
+        One pass over the data: the weighted Gram of the common ``[Φ, Ψ]`` (and of each
+        entry's delay column ``Dt cₑ``), mixed afterwards by ``Mₑ`` (:meth:`mix`).
+        ``delay_scale`` multiplies the delay's column (1: per sample of h).
+        """
+        prob = self.prob
+        Psi, Dt, T = self.derivative(pt)
         if Dt is not None:
-            D[:, -1] = Dt[rows] @ c
-        return D
+            Dt = Dt * delay_scale
+        nc, npc = pt.Phi.shape[1], Psi.shape[1]
+        coef = pt.coef
+        extra = None if Dt is None else (lambda r, e: Dt[r] @ coef[:, e, None])
+        Y = np.hstack([pt.Phi, Psi])
+        G = weighted_gram(Y, prob.W, extra, 0 if Dt is None else 1, prob.workers)
+        E = G.shape[0]
+        n = nc + self.n_x
+        B = np.zeros((E, nc + npc + (0 if Dt is None else 1), n))  # [Φ, Ψ, Dt c] -> [Φ, D]
+        B[:, np.arange(nc), np.arange(nc)] = 1.0
+        B[:, nc : nc + npc, nc : nc + self.n_u] = self.mix(T, coef)
+        if Dt is not None:
+            B[:, -1, -1] = 1.0
+        out = np.swapaxes(B, 1, 2) @ G @ B
+        WR = prob.W * pt.res
+        gr = real_product(Psi, WR).T[:, None, :] @ B[:, nc : nc + npc, nc : nc + self.n_u]
+        grad = gr[:, 0, :]
+        if Dt is not None:
+            grad = np.column_stack([grad, np.sum(real_product(Dt, WR) * coef, axis=0)])
+        return out, grad
 
     def normal(self, pt: _Point) -> tuple[FloatArray, FloatArray]:
         """``(JᵀJ, Jᵀr)`` at a point (Kaufman's Jacobian of the projected residual)."""
-        prob = self.prob
-        K, E = prob.P.shape
-        Psi, Dt, T = self.derivative(pt)
-        W, Phi, nc = prob.W, pt.Phi, pt.Phi.shape[1]
-        g_e = np.zeros((E, self.n_x))  # each entry's part of Jᵀr (one thread per entry)
-
-        def build(r: slice, e: int) -> ComplexArray:
-            w = W[r, e, None]
-            X = np.empty((w.shape[0], nc + self.n_x), dtype=complex)
-            np.multiply(w, Phi[r], out=X[:, :nc])
-            D = np.multiply(w, self.columns_d(Psi, Dt, T, pt.coef[:, e], r), out=X[:, nc:])
-            g_e[e] -= 2.0 * (pt.res[r, e] @ D.conj()).real
-            return X
-
-        G = gram(build, K, E, nc + self.n_x, prob.workers)
+        nc = pt.Phi.shape[1]
+        G, grad = self.blocks(pt)
+        pt.blocks = G
         AD = G[:, :nc, nc:]
         Y, _ = solve(G[:, :nc, :nc], AD)
         Hg = 2.0 * np.sum(G[:, nc:, nc:] - np.swapaxes(AD, 1, 2) @ Y, axis=0)
         lam, V = np.linalg.eigh(0.5 * (Hg + Hg.T))  # a Gram: what rounding made negative is 0
         back = np.argsort(self.group)  # grouped order to x's
         H = ((V * np.maximum(lam, 0.0)) @ V.T)[np.ix_(back, back)]
-        return H, g_e.sum(axis=0)[back]
+        return H, -2.0 * grad.sum(axis=0)[back]
+
+    def columns_d(self, pt: _Point, e: int, delay_scale: float = 1.0) -> ComplexArray:
+        """``Dₑ = ∂(Φ cₑ)/∂x`` of entry e on every bin (K, n_x), grouped order."""
+        Psi, Dt, T = self.derivative(pt)
+        D = times_real(Psi, self.mix(T, pt.coef)[e])
+        if Dt is not None:
+            D = np.column_stack([D, delay_scale * (Dt @ pt.coef[:, e])])
+        return D
+
+
+def _converged(H: FloatArray, g: FloatArray) -> bool:
+    """Whether the Gauss–Newton step would lower ``2V`` by less than :data:`F_TOL`."""
+    gn, _ = solve(H, -g)
+    return bool(np.all(np.isfinite(gn)) and -(2.0 * g @ gn + gn @ H @ gn) < F_TOL)
 
 
 def _levenberg_marquardt(
     f: _Projected, x0: FloatArray, lo: FloatArray, hi: FloatArray, max_nfev: int
-) -> FloatArray:
+) -> _Point:
     """Minimise ``‖r(x)‖²`` within the box [lo, hi] (Marquardt's scaling, Nielsen's damping).
 
-    Stops when a step lowers ``‖r‖² = 2V`` by less than :data:`F_TOL` (the parameters are
-    then within about a tenth of their std of the minimum, whatever the number of
-    bins), the step is below 1e-9 of x, the scaled gradient is below 1e-10, or after
-    ``max_nfev`` evaluations.
+    Stops when a step lowers ``‖r‖² = 2V`` by less than :data:`F_TOL`, or the
+    Gauss–Newton step at a point predicts less (the parameters are then within about a
+    tenth of their std of the minimum, whatever the number of bins), the step is below
+    1e-9 of x, the scaled gradient is below 1e-10, or after ``max_nfev`` evaluations.
     """
     pt = f.point(x0)
     nfev = 1
     H, g = f.normal(pt)
     mu, nu = 1e-3, 2.0
-    while nfev < max_nfev:
+    while nfev < max_nfev and not _converged(H, g):
         d = np.maximum(np.diag(H), 1e-12 * max(float(np.max(np.diag(H))), 1e-300))
         if np.max(np.abs(g) / np.sqrt(d * max(pt.f, 1e-300))) < 1e-10:
             break
@@ -263,7 +330,7 @@ def _levenberg_marquardt(
             nu *= 2.0
             if mu > 1e16:
                 break
-    return pt.x
+    return pt
 
 
 def refine(
@@ -274,20 +341,20 @@ def refine(
     free_delay: bool,
     max_delay: float,
     max_nfev: int = 100,
-) -> tuple[ComplexArray, float]:
+) -> Solution:
     """Poles (and the delay when ``free_delay``) at the minimum of the projected cost."""
     pair = [bool(p.imag > 0) for p in poles]
     u0 = to_params(poles, prob.domain, prob.h, prob.w_ref)
     x0 = np.concatenate([u0, [delay / prob.h]]) if free_delay else u0
     if x0.size == 0:
-        return poles, delay
+        return solution(prob, poles, delay)
     lo = np.full(x0.size, -np.inf)
     hi = np.full(x0.size, np.inf)
     if free_delay:
         lo[-1], hi[-1] = 0.0, max(max_delay / prob.h, 1e-9)
         x0[-1] = np.clip(x0[-1], lo[-1], hi[-1])
     f = _Projected(prob, pair, None if free_delay else delay)
-    return f.unpack(_levenberg_marquardt(f, x0, lo, hi, max_nfev))
+    return _levenberg_marquardt(f, x0, lo, hi, max_nfev).solution()
 
 
 def _toeplitz(F: FloatArray, kernel: FloatArray) -> FloatArray:
@@ -306,6 +373,7 @@ def covariance(
     *,
     free_delay: bool,
     kernel: FloatArray | None = None,
+    known: Solution | None = None,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """``(x, cov, coef)``: the full parameter vector, its covariance, the coefficients.
 
@@ -314,38 +382,34 @@ def covariance(
     ``M = JᵀJ``, ``B = Σ_l ρ(l) Σ_k J_kᵀ J_{k+l}`` (both signs of l).
 
     ``x`` = [pole parameters (:func:`~mr_ident.numerics.fit.basis.to_params`), delay in s
-    (when free), coefficients entry-major (E, n_cols) flattened].
+    (when free), coefficients entry-major (E, n_cols) flattened]. ``known``: the linear
+    step at these poles and delay, when solved before.
     """
     pair = [bool(p.imag > 0) for p in poles]
     u = to_params(poles, prob.domain, prob.h, prob.w_ref)
     x = np.concatenate([u, [delay] if free_delay else []])
     f = _Projected(prob, pair, None if free_delay else delay)
     xf = np.concatenate([u, [delay / prob.h]]) if free_delay else u
-    pt = _Point(prob, xf, poles, delay)
-    Psi, Dt, T = f.derivative(pt)
-    if Dt is not None:
-        Dt = Dt / prob.h  # the delay in s
+    pt = _Point(prob, xf, poles, delay, known)
     K, E = prob.P.shape
     nu, nc = x.size, pt.Phi.shape[1]
-    W, Phi = prob.W, pt.Phi
-
-    def build(r: slice, e: int) -> ComplexArray:
-        F = np.hstack([f.columns_d(Psi, Dt, T, pt.coef[:, e], r), Phi[r]])
-        return np.asarray(W[r, e, None] * F, dtype=complex)
-
-    m = nu + nc
-    blocks = 2.0 * gram(build, K, E, m, prob.workers)
+    if pt.blocks is None:
+        pt.blocks = f.blocks(pt)[0]
+    blocks = 2.0 * pt.blocks
+    if free_delay:  # the delay in s
+        blocks[:, -1, :] /= prob.h
+        blocks[:, :, -1] /= prob.h
     n = nu + E * nc
     M = np.zeros((n, n))
     B = None if kernel is None or len(kernel) <= 1 else np.zeros((n, n))
     for e in range(E):
-        idx = np.concatenate([f.group, nu + e * nc + np.arange(nc)])
+        idx = np.concatenate([nu + e * nc + np.arange(nc), f.group])
         M[np.ix_(idx, idx)] += blocks[e]
         if B is not None and kernel is not None:  # the whole entry at once: T couples bins
-            F = build(slice(0, K), e)
+            F = prob.W[:, e, None] * np.hstack([pt.Phi, f.columns_d(pt, e, 1.0 / prob.h)])
             Fr, Fi = np.ascontiguousarray(F.real), np.ascontiguousarray(F.imag)
             Be = Fr.T @ _toeplitz(Fr, kernel) + Fi.T @ _toeplitz(Fi, kernel)
-            B[np.ix_(idx, idx)] += Be + Be.T  # 2 FᵀTF (the √2 of r, squared), symmetric
+            B[np.ix_(idx, idx)] += 2.0 * Be  # 2 FᵀTF (the √2 of r, squared)
     scale = np.sqrt(np.maximum(np.diag(M), 0.0))
     scale[scale == 0] = 1.0
     Mi = np.linalg.pinv(M / np.outer(scale, scale))

@@ -12,11 +12,16 @@ unstable ones are mirrored inside the unit circle.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from ..arrays import ComplexArray, FloatArray
 from .basis import columns, split_pairs, stabilise
 from .normal import gram, solve
+
+#: Relocations without a decrease of the judged cost beyond the tolerance that stop them.
+PATIENCE = 15
 
 
 def _real_form(poles: ComplexArray) -> tuple[FloatArray, FloatArray]:
@@ -44,8 +49,12 @@ def _sigma(
     poles: ComplexArray,
     direct: bool,
     workers: int | None,
-) -> FloatArray:
-    """The coefficients ``c̃`` of σ (one relocation's least squares)."""
+) -> tuple[FloatArray, float]:
+    """The coefficients ``c̃`` of σ (one relocation's least squares), its condition number.
+
+    The condition number: the largest of the entries' residue blocks and of the shared
+    ``c̃``'s Schur complement (each of its columns scaled to unit norm).
+    """
     K, E = H.shape
     Psi = columns(poles, z, "discrete", 1.0)
     n = Psi.shape[1]
@@ -58,10 +67,10 @@ def _sigma(
 
     G = gram(build, K, E, nl + n + 1, workers)
     # per entry the Schur complement of its residues' block: the shared c̃'s equations
-    Y, _ = solve(G[:, :nl, :nl], G[:, :nl, nl:])
+    Y, k1 = solve(G[:, :nl, :nl], G[:, :nl, nl:])
     S = G[:, nl:, nl:] - np.swapaxes(G[:, :nl, nl:], 1, 2) @ Y
-    ct, _ = solve(np.sum(S[:, :n, :n], axis=0), np.sum(S[:, :n, n], axis=0))
-    return ct
+    ct, k2 = solve(np.sum(S[:, :n, :n], axis=0), np.sum(S[:, :n, n], axis=0))
+    return ct, max(k1, k2)
 
 
 def relocate(
@@ -73,13 +82,21 @@ def relocate(
     iterations: int = 20,
     direct: bool = False,
     workers: int | None = None,
-) -> ComplexArray:
+    judge: Callable[[ComplexArray], float] | None = None,
+    tol: float = 0.0,
+) -> tuple[ComplexArray, float, float]:
     """Discrete poles (one of each pair) fitted to ``H`` (K, E) with weights ``W`` (K, E).
 
-    ``poles``: the starting set (inside the unit circle); its order is kept.
+    ``poles``: the starting set (inside the unit circle); its order is kept. ``judge``:
+    the cost of a pole set (None: the poles' own convergence stops the relocations); the
+    best poles judged are kept, and the relocations stop once :data:`PATIENCE` of them
+    lowered it by no more than ``tol``. Returns the poles, their cost (``inf`` without a
+    judge) and the largest condition number of the relocations' least-squares steps.
     """
+    best, best_v, stall, cond = poles, np.inf, 0, 1.0
     for _ in range(iterations):
-        ct = _sigma(z, H, W, poles, direct, workers)
+        ct, kappa = _sigma(z, H, W, poles, direct, workers)
+        cond = max(cond, kappa)
         A, b = _real_form(poles)
         new = split_pairs(np.asarray(np.linalg.eigvals(A - np.outer(b, ct)), dtype=complex))
         new = stabilise(new, "discrete")
@@ -87,6 +104,14 @@ def relocate(
             np.sort_complex(new), np.sort_complex(poles), rtol=1e-7, atol=1e-9
         )
         poles = new
+        if judge is not None:
+            v = judge(poles)
+            stall = stall + 1 if v > best_v - tol else 0
+            if v < best_v:
+                best, best_v = poles, v
+            done = done or stall >= PATIENCE
+        else:
+            best = poles
         if done:
             break
-    return poles
+    return best, best_v, cond
