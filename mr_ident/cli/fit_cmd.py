@@ -129,7 +129,13 @@ def cmd_fit(args: argparse.Namespace) -> int:
             f"{kind}: {abs(s) / (2 * np.pi):.6g} ± {fit.frequency_std[k]:.2g} Hz, "
             f"damping {-s.real / abs(s):.4g} ± {fit.damping_std[k]:.2g}"
         )
-    print(f"delay {fit.delay * fs:.4g} ± {fit.delay_std * fs:.2g} samples")
+    if fit.delay_determined:
+        print(f"delay {fit.delay * fs:.4g} ± {fit.delay_std * fs:.2g} samples")
+    else:
+        print(
+            f"delay: not determined by the data (free, its std was {fit.delay_std * fs:.2g} "
+            "samples; at 0 the cost is within 2 sd of it): fixed at 0, the model fitted so"
+        )
     res = np.abs(fit.residual)
     print(
         f"residual: rms {np.sqrt(np.mean(res**2)):.3g} σ, {np.mean(res > 2) * 100:.1f} % of "

@@ -89,6 +89,7 @@ def fit_summary(fit: FitResult) -> dict[str, Any]:
         "domain": fit.domain,
         "delay_s": fit.delay,
         "delay_s_std": fit.delay_std,
+        "delay_determined": fit.delay_determined,
         "cost": fit.cost,
         "expected_cost": fit.expected,
         "expected_cost_sd": fit.expected_sd,

@@ -16,7 +16,7 @@ V lies within ``E{V} + 2 sd{V}``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -78,7 +78,8 @@ class FitResult:
     c1_std, c0_std : ndarray, shape (n_p, n_out, n_in)
         Std of the modal numerator ``c1 x + c0`` of each pair (NaN for a real pole).
     delay_std : float
-        0 when the delay was given.
+        0 when the delay was given. When ``delay_determined`` is False: the std the free
+        delay had (the range it is not pinned within).
     orders : tuple of OrderReport
         Every order tried (one when the order was given).
     max_condition : float
@@ -86,6 +87,12 @@ class FitResult:
         residues' at the solution and every pole relocation of its starts (vector
         fitting's), each of the weighted columns scaled to unit norm (the square root of
         the scaled Gram's condition number). Above about 1e8 the linear steps lose digits.
+    delay_determined : bool
+        False when ``delay="auto"`` left the delay free but the data do not pin it: its std
+        exceeded one sample and fixing it at 0 costs less than 2 sd{V}. The delay is then 0
+        and the other parameters are those of that fit. (A plant whose response falls as
+        1/s² or faster: ``d/dτ e^{-sτ} G = -s G e^{-sτ}`` is a change of the residues
+        alone, so a small delay trades with them.)
     """
 
     plant: ModalPlant
@@ -108,6 +115,7 @@ class FitResult:
     delay_std: float
     orders: tuple[OrderReport, ...]
     max_condition: float = 1.0
+    delay_determined: bool = True
 
     @property
     def order(self) -> int:
@@ -342,18 +350,36 @@ def _fit(
         chosen = min(reports, key=lambda r: r.mdl).order if order == "auto" else orders[0]
     sol, start_cond = fits[chosen]
     rep = next(r for r in reports if r.order == chosen)
-    return _result(
-        prob,
-        sol,
-        start_cond,
-        free_delay,
-        f,
-        frf.response.shape[1:],
-        fs,
-        rep,
-        tuple(reports),
-        noise_kernel,
+    shape = frf.response.shape[1:]
+    out = _result(
+        prob, sol, start_cond, free_delay, f, shape, fs, rep, tuple(reports), noise_kernel
     )
+    if free_delay and out.delay_std > h:
+        # the data do not pin the delay: the fit with it fixed at 0, unless that costs more
+        p0 = chosen + chosen * no * ni + (no * ni if direct else 0)
+        e0, sd0 = expected_band(N, p0, noise_dof, corr)
+
+        def bound0(n_terms: int) -> float:
+            e, sd = expected_band(n_terms, p0, noise_dof, corr)
+            return e + 2.0 * sd
+
+        fixed, cond0 = fit_order(prob, f, chosen, fs, [0.0], False, max_delay, bound0)
+        if fixed.cost <= sol.cost + 2.0 * rep.sd:
+            rep0 = OrderReport(
+                chosen,
+                fixed.cost,
+                e0,
+                sd0,
+                2 * fixed.cost + 2 * p0,
+                2 * fixed.cost + p0 * math.log(2 * N),
+                0.0,
+                rep.stable,
+            )
+            zero = _result(
+                prob, fixed, cond0, False, f, shape, fs, rep0, tuple(reports), noise_kernel
+            )
+            out = replace(zero, delay_std=out.delay_std, delay_determined=False)
+    return out
 
 
 def _result(
