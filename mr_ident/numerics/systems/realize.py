@@ -366,15 +366,31 @@ def split_mode(ss: StateSpace, pole: complex) -> tuple[FloatArray, FloatArray, S
     return c1, c0, rest
 
 
-@functools.lru_cache(maxsize=64)
 def realize(system: TransferMatrix) -> StateSpace:
     """A state-space realisation of every entry of a transfer matrix, through sections.
 
     Block-diagonal and non-minimal (entries sharing a denominator keep their own states);
-    a zero entry has no states. Cached (the transfer matrix is immutable, the result is
-    shared and never changed in place): the diagnosis realises the same controller for
-    every model it evaluates (about 700 times per diagnosis, 7 % of its time).
+    a zero entry has no states. Cached on the (immutable) transfer matrix: the diagnosis
+    realises the same controller for every model it evaluates (about 700 times per
+    diagnosis, 7 % of its time). The result's arrays are read-only (shared by every
+    caller); a transfer matrix whose coefficients are not hashable (lists) is realised
+    without the cache.
     """
+    try:
+        return _realize_cached(system)
+    except TypeError:  # unhashable coefficients
+        return _realize(system)
+
+
+@functools.lru_cache(maxsize=64)
+def _realize_cached(system: TransferMatrix) -> StateSpace:
+    ss = _realize(system)
+    for a in (ss.A, ss.B, ss.C, ss.D):
+        a.flags.writeable = False
+    return ss
+
+
+def _realize(system: TransferMatrix) -> StateSpace:
     no, ni = system.shape
     parts, where = [], []
     for o in range(no):
