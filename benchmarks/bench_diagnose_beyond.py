@@ -14,9 +14,9 @@ under white r), two records, the second given as the validation record:
 - the unlisted time-invariant effects (the pole-zero pair, the second delay path) that
   change y by at least ``verdict.NAMED_DB`` above the noise (``beyond.effect_db``)
   described in >= 90 %: a correction offered and validating better than the nominal, or
-  the listed causes validating better with the validation record's residual in the noise
-  (nothing left that any correction could fit); also shown: the correction alone, over
-  every case;
+  the listed causes validating better and fitting the validation record as the true loop
+  does (residual within ``verdict.TRUTH_RATIO`` of the truth's: nothing left that any
+  correction could fit); also shown: the correction alone, over every case;
 - the time-varying gain, which no time-invariant model or correction describes: the plant
   named as changing within the record in >= 90 % (also shown: that finding in the other
   cases, where it is a false alarm).
@@ -104,7 +104,8 @@ def run_case(case: dict, duration: float) -> dict:
         return out | {"status": "data_error", "error": str(err)}
     except Exception:
         return out | {"status": "traceback", "error": traceback.format_exc()}
-    v = judge_beyond(b.nonlinear, b.distortion_db, d, b.effect_db)
+    truth = b.truth_fit()
+    v = judge_beyond(b.nonlinear, b.distortion_db, d, b.effect_db, truth)
     c = d.correction
     return out | {
         "status": "ok",
@@ -112,6 +113,7 @@ def run_case(case: dict, duration: float) -> dict:
         "applied": [a.cause for a in d.applied],
         "fit_before": d.fit_before.y,
         "fit_after": d.fit_after.y,
+        "truth_fit": None if math.isnan(truth) else truth,
         "correction": None if c is None else c.text(),
         "verdict": v.__dict__,
     }
@@ -173,7 +175,8 @@ def report(rows: list[dict]) -> str:
         f"{TARGETS['worse_applied']:g} %: {'met' if not any(worse) else 'NOT met'})",
         f"- unlisted time-invariant effects ({', '.join(INVARIANT)}) changing y >= "
         f"{NAMED_DB:g} dB above the noise, described (corrected, or the causes validating "
-        f"better with the validation residual in the noise): {_pct(desc)} (target >= "
+        f"better and fitting the validation record as the true loop does): {_pct(desc)} "
+        f"(target >= "
         f"{TARGETS['described']:g} %: "
         f"{'met' if rate(desc) >= TARGETS['described'] else 'NOT met'}); of those, corrected: "
         f"{_pct([v['corrected'] for v in seen])}; effect below {NAMED_DB:g} dB: "

@@ -112,17 +112,20 @@ def test_the_verdict_counts_what_the_issue_asks():
     fixed = judge_beyond(False, math.nan, _diagnosis([], (80.0, 95.0), corr, corrections=(1,)))
     assert fixed.corrected and fixed.offered and fixed.named is None and not fixed.explained
     refused = SimpleNamespace(model=None, best=best, fit_nominal=80.0)
+    # described is judged against the true loop's validation fit (90.4 %: residual 9.6;
+    # the extension's 10.0 is within TRUTH_RATIO of it), never by the diagnosis's own tests
     no = judge_beyond(
-        False, math.nan, _diagnosis(["gain_error"], (80.0, 90.0), refused, left=True)
+        False, math.nan, _diagnosis(["gain_error"], (80.0, 90.0), refused), 9.0, 95.0
     )
     assert no.offered and not no.corrected and not no.explained and not no.described
-    # offered on the estimation data, refused, nothing left on the validation record
-    quiet = judge_beyond(False, math.nan, _diagnosis(["gain_error"], (80.0, 90.0), refused))
+    quiet = judge_beyond(
+        False, math.nan, _diagnosis(["gain_error"], (80.0, 90.0), refused), 9.0, 90.4
+    )
     assert quiet.described and not quiet.corrected
-    described = judge_beyond(False, math.nan, _diagnosis(["gain_error"], (80.0, 90.0)), 9.0)
+    described = judge_beyond(False, math.nan, _diagnosis(["gain_error"], (80.0, 90.0)), 9.0, 90.4)
     assert described.explained and not described.offered and not described.varying
     assert described.described and described.counts and fixed.described and not no.described
-    left = judge_beyond(False, math.nan, _diagnosis(["gain_error"], (80.0, 90.0), left=True))
-    assert left.explained and not left.described and not left.counts  # effect_db unknown
+    unknown = judge_beyond(False, math.nan, _diagnosis(["gain_error"], (80.0, 90.0)))
+    assert unknown.explained and not unknown.described and not unknown.counts  # no truth
     changing = judge_beyond(False, math.nan, _diagnosis([], (80.0, 80.0), varying=True))
     assert changing.varying and not changing.corrected and not changing.worse_applied

@@ -62,7 +62,8 @@ class Beyond:
     stochastic distortion above the noise of the period means, dB, the largest of four
     log-spaced bands (nonlinear cases; nan otherwise); ``effect_db`` the unlisted effect's
     change of y above the noise on the validation record (:func:`effect_db`; nan for the
-    nonlinear cases).
+    nonlinear cases); ``clean`` the noise-free y of the true loop under the validation
+    record's r (unlisted effects; None for the nonlinear ones).
     """
 
     loop: Loop
@@ -74,6 +75,22 @@ class Beyond:
     distortion_db: float
     design: str
     effect_db: float = math.nan
+    clean: FloatArray | None = None
+
+    def truth_fit(self) -> float:
+        """The true loop's validation fit of y (%), as the diagnosis measures a model's.
+
+        Its noise-free output against the validation record from the nominal's settling on
+        (``fit_percent`` after ``settle_samples``, as ``diagnose`` skips a separate
+        record's transient): the best any model can reach there. nan without ``clean``.
+        """
+        from mr_ident.diagnosis.criterion.objective import settle_samples
+        from mr_ident.diagnosis.criterion.prediction import fit_percent
+
+        if self.clean is None:
+            return math.nan
+        s = settle_samples(self.nominal, self.validation.n_samples)
+        return fit_percent(self.validation.y[s:], self.clean[s:])
 
     @property
     def nominal(self) -> Model:
@@ -340,7 +357,7 @@ def draw_beyond(
             r = recs[1].r
             clean = simulate(true, reference=r, noise=np.zeros_like(recs[1].y)).y
             return Beyond(loop, effect, p, recs[0], recs[1], true, math.nan, "white",
-                          effect_db(m, clean, r))  # fmt: skip
+                          effect_db(m, clean, r), clean)  # fmt: skip
         p = draw_effect(effect, loop, rng, level, duration)
         make = _actuator(effect, p, m.fs_high)
         if effect in NONLINEAR:
@@ -362,5 +379,5 @@ def draw_beyond(
         r = recs[1].r
         clean = simulate_actuated(m, r, np.zeros_like(r), make()).y
         return Beyond(loop, effect, p, recs[0], recs[1], None, math.nan, "white",
-                      effect_db(m, clean, r))  # fmt: skip
+                      effect_db(m, clean, r), clean)  # fmt: skip
     raise ConfigError(f"no loop in {max_loops} draws takes {effect!r}")

@@ -241,6 +241,10 @@ def _fits(scenario: Scenario, fit_gap: float) -> bool:
 #: Distortion above the noise (dB, the truth's worst band) from which a nonlinearity must
 #: be named (:func:`judge_beyond`).
 NAMED_DB = 6.0
+#: An extension describes an unlisted effect when its validation residual (100 - fit of y)
+#: is at most this many times the true loop's (the model error's energy at most a tenth
+#: of the noise's: 1.05² = 1.1), :func:`judge_beyond`.
+TRUTH_RATIO = 1.05
 
 
 @dataclass(frozen=True)
@@ -257,8 +261,9 @@ class BeyondVerdict:
     nominal; ``explained``: nothing significant was left after the causes and they
     validate better than the nominal (the vocabulary described the effect; no correction
     needed); ``described``: corrected, or the extension validates better than the nominal
-    with the validation record's residual in the noise (no bin of the plant's or the loop
-    maps' significant there: what the data allow any model to be; offered or not);
+    and fits the validation record as the true loop does (its residual at most
+    :data:`TRUTH_RATIO` times the truth's: what the data allow any model to be; judged
+    against the truth, not by the diagnosis's own tests);
     ``varying``: the diagnosis says the plant changes within the record (its
     ``time_varying`` finding).
     """
@@ -279,13 +284,18 @@ def nonlinearity_named(diagnosis: Diagnosis) -> bool:
 
 
 def judge_beyond(
-    nonlinear: bool, distortion_db: float, diagnosis: Diagnosis, effect_db: float = math.nan
+    nonlinear: bool,
+    distortion_db: float,
+    diagnosis: Diagnosis,
+    effect_db: float = math.nan,
+    truth_fit: float = math.nan,
 ) -> BeyondVerdict:
     """The verdict (:class:`BeyondVerdict`) on a case with or without a nonlinearity.
 
     ``distortion_db``: the truth's distortion above the noise (nan for a linear effect);
     ``effect_db``: an unlisted effect's change of y above the noise (nan for a nonlinear
-    one; ``mr_bench.beyond.effect_db``).
+    one; ``mr_bench.beyond.effect_db``); ``truth_fit``: the true loop's validation fit of y,
+    % (``Beyond.truth_fit``; nan: nothing is described but by a correction).
     """
     d = diagnosis
     extended = bool(d.applied) or bool(d.extended.plant_corrections)
@@ -295,8 +305,9 @@ def judge_beyond(
         and c.best.fit_y > c.fit_nominal
     )  # fmt: skip
     level = distortion_db if nonlinear else effect_db
-    ev = d.evidence_after
-    in_noise = not ev.significant.any() and not ev.loop_significant.any()
+    as_truth = math.isfinite(truth_fit) and 100.0 - d.fit_after.y <= TRUTH_RATIO * (
+        100.0 - truth_fit
+    )
     return BeyondVerdict(
         named=nonlinearity_named(d) if nonlinear else None,
         counts=math.isfinite(level) and level >= NAMED_DB,
@@ -305,5 +316,5 @@ def judge_beyond(
         corrected=corrected,
         explained=c is None and extended and d.fit_after.y > d.fit_before.y,
         varying=bool(getattr(d, "time_varying", False)),
-        described=corrected or (extended and d.fit_after.y > d.fit_before.y and in_noise),
+        described=corrected or (extended and d.fit_after.y > d.fit_before.y and as_truth),
     )
