@@ -8,7 +8,7 @@ LPM's noise already holds; under a periodic r the same realization repeats, dist
 included). A plant whose gain or dynamics change during the record (a load, a
 temperature, a wearing part, a gain scheduled on the operating point) gives segment
 estimates that differ beyond their noise. The spread is the one across records
-(:func:`~.realizations.compare`, the :data:`SEGMENTS` segments as the M estimates); the
+(:func:`~.realizations.levels`, the :data:`SEGMENTS` segments as the M estimates); the
 statistic is each line's own ratio ``s²(k) / σ²(k)`` (spread over noise) averaged over
 every common line, in dB (``SpreadLevels.line_ratio_db``, weighted by the bands' lines):
 a gain that drifts moves every line by the same relative amount, so each line counts
@@ -47,7 +47,7 @@ from ...numerics.arrays import ComplexArray, FloatArray
 from ...numerics.identify import min_samples
 from ...numerics.signals import LoopData
 from ...numerics.systems.model import Model
-from .realizations import SpreadLevels, aligned, compare
+from .realizations import SpreadLevels, aligned, levels
 
 #: Segments a record is cut into (at most).
 SEGMENTS = 4
@@ -221,7 +221,7 @@ def within(rec: LoopData, model: Model, *, n: int = 8, degree: int = 2) -> Segme
     got = aligned(segs, model, n=n, degree=degree, realizations=False)
     if got is None:
         return None
-    bands = compare(segs, model, n=n, degree=degree, realizations=False, stack=got)
+    bands = levels(*got)
     lines = sum(b.lines for b in bands)
     if not lines:
         return None
