@@ -53,15 +53,17 @@ def fig_sigma(before: Evidence, after: Evidence) -> Figure:
     fig = Figure(figsize=(9, 3.2 * rows))
     axes = fig.subplots(rows, 1, squeeze=False)[:, 0]
     ax = axes[0]
-    ax.loglog(before.frequency, before.sigma_error, ".", ms=2, color="C3", label="nominal model")
-    ax.loglog(
-        after.frequency,
-        after.sigma_error,
-        ".",
-        ms=2,
-        color="C0",
-        label="extended model (validation)",
-    )
+    for ev, color, label in (
+        (before, "C3", "nominal model"),
+        (after, "C0", "extended model (validation)"),
+    ):
+        t = ev.tested
+        ax.loglog(ev.frequency[t], ev.sigma_error[t], ".", ms=2, color=color, label=label)
+    untested = [(e.frequency[~e.tested], e.sigma_error[~e.tested]) for e in (before, after)]
+    if any(f.size for f, _ in untested):  # biased where the window reaches DC: not tested
+        for i, (f, z) in enumerate(untested):
+            grey = "not tested (the fit's window reaches DC)" if i == 0 else None
+            ax.loglog(f, z, ".", ms=3, color="0.6", label=grey)
     ax.axhline(
         before.threshold,
         color="k",

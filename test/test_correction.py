@@ -203,7 +203,7 @@ def test_a_gain_on_few_bins_validates_on_the_causes_test():
     validates, a third-order multiplicative correction 80 %. Its gain sits on the few bins
     of the loop's resonance: the mean per-bin drop of the residual was within 1.7 of its
     standard error there (refused before); the causes' test, on the known difference of
-    the two residuals, gives z 3.9 > 2.33: applied.
+    the two residuals, gives z 10.0 > 2.33: applied.
 
     One cause allowed: no cause validates at any count, so the correction starts from the
     nominal either way and every asserted figure equals the default search's (measured:

@@ -23,7 +23,7 @@ from mr_ident.errors import ConfigError, DimensionError
 from mr_ident.io.modelfile import load_model
 from mr_ident.numerics.identify import identify
 from mr_ident.numerics.local.lpm import dof as lpm_dof
-from mr_ident.numerics.local.lpm import smallest_n
+from mr_ident.numerics.local.lpm import reaches_dc, smallest_n
 from mr_ident.numerics.systems.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -89,16 +89,22 @@ def test_a_reference_identification_with_its_std(paper):
 @pytest.mark.parametrize("seed", [3, 4])
 def test_random_loops_drift_only_when_their_plant_changes(seed):
     """Loops drawn at random (scenarios.draw_loop): unchanged ok, gain x 0.75 not ok, size
-    20 log10(1.25) within 0.5 dB. Bins below 0.5 Hz are not tested: at the first n bins an
-    integrating plant's 1/f biases the LPM (seed 4 shows 85 % at 0.05 Hz without min_hz)."""
+    20 log10(1.25) within 0.5 dB. The bins whose window reaches DC are not tested: there an
+    integrating plant's 1/f biases the LPM (seed 4 shows 85 % at 0.05 Hz tested)."""
     loop = draw_loop(np.random.default_rng(seed), duration=20.0, fs_choices=(240.0,))
     m = loop.nominal
     P, q = _estimate(m, 20.0, seed)
-    low = 0.5  # Hz: above the LPM's one-sided edge windows ((n + 1) / 20 s for n <= 9)
-    assert drift(P, Reference.of_model(m), dof=q, min_hz=low).level == "ok"
+    n = max(N_WIN, smallest_n(DEGREE, m.n_u * m.ratio, m.n_y * m.ratio, margin=2))
+    low = reaches_dc(P.frequency, 1 / 20.0, n)  # bins 1..n of a 20 s record
+    assert low.sum() == n and drift(P, Reference.of_model(m), dof=q, untested=low).level == "ok"
     P, q = _estimate(replace(m, plant_gain=0.75), 20.0, seed + 100)
-    d = drift(P, Reference.of_model(m), dof=q, min_hz=low)
+    d = drift(P, Reference.of_model(m), dof=q, untested=low)
     assert d.level != "ok" and abs(d.size_db - 20 * math.log10(1 + 0.25)) < 0.5
+    assert np.isnan(d.sigma_error[low]).all() and not d.significant[low].any()
+    everything = drift(P, Reference.of_model(m), dof=q)  # counted: a higher threshold
+    assert np.all(everything.threshold > d.threshold)
+    with pytest.raises(DimensionError, match="untested must have shape"):
+        drift(P, Reference.of_model(m), dof=q, untested=low[1:])
 
 
 def test_drift_refuses_bad_arguments(paper):

@@ -71,11 +71,29 @@ def test_the_pooled_change_is_an_f_test_whatever_the_lines_correlation():
     """Noise correlated over 9 lines: a chi-square over the lines would be 9 times too large;
     the blocks' scatter scales it away (about 5 % below 0.05 under no change)."""
     rng = np.random.default_rng(0)
-    ps = [pooled(*_lines(rng, 4, 600, [0.0] * 4), fold_hz=0.0, window=9).p for _ in range(300)]
+    ps = [
+        pooled(*_lines(rng, 4, 600, [0.0] * 4), df=1.0, low_bins=0, window=9).p for _ in range(300)
+    ]
     assert 0.02 < np.mean(np.array(ps) < 0.05) < 0.09
-    got = pooled(*_lines(rng, 4, 600, [0.03, -0.03, 0.02, -0.02]), fold_hz=0.0, window=9)
+    got = pooled(*_lines(rng, 4, 600, [0.03, -0.03, 0.02, -0.02]), df=1.0, low_bins=0, window=9)
     assert got is not None and got.p < POOLED_ALPHA and 0.015 < got.change < 0.04
-    assert pooled(*_lines(rng, 4, 10, [0.0] * 4), fold_hz=0.0, window=9) is None  # one block
+    assert (
+        pooled(*_lines(rng, 4, 10, [0.0] * 4), df=1.0, low_bins=0, window=9) is None
+    )  # one block
+
+
+def test_the_pooled_blocks_are_two_windows_wide_in_the_bins_folded_onto_the_low_rate():
+    """A lifted fit (F = 3, segments of 1500 samples, 500 low-rate bins): the high-rate lines
+    1..750 fold onto the low-rate bins 0..250 (k mod 500, and m with 500 - m), 251 bins;
+    blocks of at least two windows of 21: 5 of them, holding every line."""
+    rng = np.random.default_rng(1)
+    f, G, V = _lines(rng, 4, 750, [0.0] * 4)
+    got = pooled(0.2 * f, G, V, df=0.2, low_bins=500, window=21)
+    assert got is not None and got.blocks == 251 // 42 == 5 and got.lines == 750
+    assert got.p > POOLED_ALPHA
+    assert pooled(0.2 * f, G, V, df=0.2, low_bins=500, window=5).blocks == 12  # at most
+    assert pooled(0.2 * f, G, V, df=0.2, low_bins=60, window=21) is None  # 31 bins
+    assert pooled(f, G, V, df=1.0, low_bins=0, window=21).blocks == 12  # 17 fit, unfolded
 
 
 def test_a_gain_change_the_mean_level_misses_is_found_by_pooling_the_lines():

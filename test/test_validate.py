@@ -424,6 +424,7 @@ def test_the_bins_whose_local_window_reaches_dc_are_not_tested():
     rec = simulate(m, reference=loop.reference, noise=v)
     n = default_n("freq-lifted", 2, m.ratio, m.n_u, max(m.n_u, m.n_y))
     ev = frf_evidence(m, rec, n=n, degree=2, alpha=0.01)
-    assert ev.sigma_error[0] > 3 * ev.threshold  # the bias is there, and shown
+    assert ev.sigma_error[0] > 3 * ev.threshold  # the bias is there, and shown (grey)
     assert not ev.significant.any() and ev.bands() == []
+    assert np.flatnonzero(~ev.tested).tolist() == list(range(n))  # bins 1..n
     assert ev.loop_frequency.min() > n * m.fs_high / rec.n_samples

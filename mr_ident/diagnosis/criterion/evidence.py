@@ -7,10 +7,11 @@ The identified P̂_h with its std is held against the model's P_h, per bin the e
 ``1 - alpha / n_tests`` quantile of its null distribution F(2, 2q) (complex Gaussian
 error over a variance estimated with q degrees of freedom), Bonferroni-corrected over all
 bins and entries, so that noise alone raises an alarm with probability at most ``alpha``.
-The lowest n bins of a local fit (window half-width n) are not tested: their window
-reaches DC and is one-sided, and where the plant bends fast there (an integrator's 1/f)
-the estimate's bias exceeds its std (measured on random loops whose model is exact: the
-first bin flagged in 4 of 30 records at up to 85 σ, in steady state too).
+The lowest n bins of a local fit (window half-width n) are not tested, nor counted in the
+correction (:func:`~mr_ident.numerics.local.lpm.reaches_dc`, as the monitor's drift): their
+window reaches DC and is one-sided, and where the plant bends fast there (an integrator's
+1/f) the estimate's bias exceeds its std (measured on random loops whose model is exact:
+the first bin flagged in 4 of 30 records at up to 85 σ, in steady state too).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from ...numerics.identify import identify
 from ...numerics.lifted.loop import closed_loop_maps
 from ...numerics.lifting import half_to_full
 from ...numerics.local.lpm import dof as lpm_dof
+from ...numerics.local.lpm import reaches_dc
 from ...numerics.results import Identification
 from ...numerics.signals import LoopData
 from ...numerics.systems.model import Model
@@ -46,17 +48,21 @@ class Evidence:
         Identified plant and its std (std of the complex entry).
     P_model : ndarray, shape (K, n_y, n_u)
     sigma_error : ndarray, shape (K,)
-        ``max_entries |P̂ - P| / σ̂``.
+        ``max_entries |P̂ - P| / σ̂``, at every bin (the untested ones too: see ``tested``).
     threshold : float
         σ-error above which a bin is significant (the test in the module docstring).
     significant : ndarray of bool, shape (K,)
+        Above the threshold at a tested bin: False at the bins not tested (``tested``).
     loop_frequency, loop_sigma_error : ndarray, shape (K_l,)
-        The same for the lifted maps J̃ and S̃ (max over their entries) at low-rate
-        bins; empty without a controller.
+        The same for the lifted maps J̃ and S̃ (max over their entries) at the tested
+        low-rate bins (those whose window reaches DC left out); empty without a controller.
     loop_threshold : float
     loop_significant : ndarray of bool, shape (K_l,)
     dof : int
         Degrees of freedom q of the variance estimate.
+    tested : ndarray of bool, shape (K,)
+        The bins tested and counted in the correction: not those whose window reaches DC
+        (module docstring).
     """
 
     frequency: FloatArray
@@ -71,6 +77,7 @@ class Evidence:
     loop_threshold: float
     loop_significant: NDArray[np.bool_]
     dof: int
+    tested: NDArray[np.bool_]
 
     def bands(self, merge_hz: float | None = None) -> list[tuple[float, float]]:
         """Significant frequency bands [(f_lo, f_hi), ...] in Hz, plant and loop maps together."""
@@ -210,18 +217,21 @@ def frf_evidence(
                 zJ = np.abs(J.response - Jm) / J.std
                 zS = np.abs(S.response - Sm) / S.std
             z = np.concatenate([zJ.reshape(zJ.shape[0], -1), zS.reshape(zS.shape[0], -1)], axis=1)
-            keep = J.bins > n  # the bins whose window reaches DC: not tested (below)
+            keep = ~reaches_dc(J.bins, 1.0, n)  # the window reaches DC: not tested
             zl = np.nanmax(np.where(np.isfinite(z), z, np.nan)[keep], axis=1)
             thr_l = threshold(alpha, int(np.isfinite(z[keep]).sum()), dof)
             loop = (J.bins[keep] * rec.rates()[0] / N, zl, thr_l, zl > thr_l)
     with np.errstate(divide="ignore", invalid="ignore"):
         zP = np.abs(P_hat - P_model) / P_std
-    zP = np.where(np.isfinite(zP), zP, np.nan)
-    z = np.nanmax(zP.reshape(zP.shape[0], -1), axis=1) if zP.size else np.zeros(0)
-    thr = threshold(alpha, int(np.isfinite(zP).sum()), dof)
     # a local fit whose window reaches DC is one-sided there and biased beyond its std
     # where the plant bends fast (an integrator's 1/f): those bins are not tested
-    tested = np.asarray(f, float) > (n if rec.period is None else 0) * rec.rates()[0] / N
+    f = np.asarray(f, float)
+    untested = (
+        reaches_dc(f, rec.rates()[0] / N, n) if rec.period is None else np.zeros(f.size, bool)
+    )
+    zP = np.where(np.isfinite(zP), zP, np.nan)
+    z = np.nanmax(zP.reshape(zP.shape[0], -1), axis=1) if zP.size else np.zeros(0)
+    thr = threshold(alpha, int(np.isfinite(zP[~untested]).sum()), dof)
     return Evidence(
         np.asarray(f, float),
         P_hat,
@@ -229,10 +239,11 @@ def frf_evidence(
         P_model,
         z,
         thr,
-        (z > thr) & tested,
+        (z > thr) & ~untested,
         loop[0],
         loop[1],
         loop[2],
         loop[3],
         dof,
+        ~untested,
     )

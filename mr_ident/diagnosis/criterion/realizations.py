@@ -169,7 +169,7 @@ def aligned(
     return f, np.stack(Gs), np.stack(Vs), sum(e.dof for e in ests)
 
 
-def band_edges(f: FloatArray) -> FloatArray:
+def _band_edges(f: FloatArray) -> FloatArray:
     """The four log-spaced bands' edges over the lines ``f`` (Hz)."""
     return np.geomspace(f[0], f[-1] * (1 + 1e-9), 5)
 
@@ -182,29 +182,32 @@ def compare(
     degree: int = 2,
     idents: Sequence[Identification | None] = (),
     realizations: bool = True,
-    stack: tuple[FloatArray, ComplexArray, FloatArray, int] | None = None,
 ) -> list[SpreadLevels]:
-    """The records' FRF spread against their noise, per band (module docstring).
+    """The records' FRF spread against their noise, per band: levels(aligned(...)).
 
-    [] for fewer than 2 usable records or, with ``realizations``, the same realization
-    twice (False: segments of one record, :mod:`.timevarying`, where the same periodic
-    realization is what makes the comparison). ``idents``: the first records'
-    :func:`~.evidence.identify_record` where at hand (None: computed); ``stack``: their
-    :func:`aligned` estimates where at hand.
+    :func:`levels` of their :func:`aligned` estimates; [] for fewer than 2 usable records
+    or, with ``realizations``, the same realization twice (False: segments of one record,
+    :mod:`.timevarying`, where the same periodic realization is what makes the
+    comparison). ``idents``: the first records' :func:`~.evidence.identify_record` where
+    at hand (None: computed).
+    """
+    got = aligned(records, model, n=n, degree=degree, idents=idents, realizations=realizations)
+    return [] if got is None else levels(*got)
+
+
+def levels(f: FloatArray, G: ComplexArray, V: FloatArray, q: int) -> list[SpreadLevels]:
+    """The spread of estimates against their noise, per band (module docstring).
+
+    ``G`` (M, K, e) the estimates on the lines ``f`` (K,), ``V`` their noise variances,
+    ``q`` the sum of their noise dofs (:func:`aligned`'s ``(f, G, V, q)``).
     """
     import scipy.stats  # not at the top: identify's start-up stays light
 
-    got = stack or aligned(
-        records, model, n=n, degree=degree, idents=idents, realizations=realizations
-    )
-    if got is None:
-        return []
-    f, G, V, q = got
     M = G.shape[0]
     spread = np.sum(np.abs(G - G.mean(axis=0)) ** 2, axis=0) / (M - 1)  # (K, n_entries)
     noise = V.mean(axis=0)
     mag2 = np.abs(G.mean(axis=0)) ** 2
-    edges = band_edges(f)
+    edges = _band_edges(f)
     out = []
     for a, b in zip(edges[:-1], edges[1:], strict=True):
         inb = (f >= a) & (f < b)

@@ -8,7 +8,7 @@ LPM's noise already holds; under a periodic r the same realization repeats, dist
 included). A plant whose gain or dynamics change during the record (a load, a
 temperature, a wearing part, a gain scheduled on the operating point) gives segment
 estimates that differ beyond their noise. The spread is the one across records
-(:func:`~.realizations.compare`, the :data:`SEGMENTS` segments as the M estimates); the
+(:func:`~.realizations.levels`, the :data:`SEGMENTS` segments as the M estimates); the
 statistic is each line's own ratio ``s²(k) / σ²(k)`` (spread over noise) averaged over
 every common line, in dB (``SpreadLevels.line_ratio_db``, weighted by the bands' lines):
 a gain that drifts moves every line by the same relative amount, so each line counts
@@ -25,8 +25,9 @@ scatter about it, ``Σ_j W_j Σ_m |D_mj - δ_m|² / ((M - 1)(J - 1))``: under a
 time-invariant loop their ratio is F(2(M - 1), 2(M - 1)(J - 1)) whatever the scale of the
 LPM's σ² and however neighbouring lines correlate (a local fit's windows overlap, which
 made a χ² over the lines 2-10 times too large on time-invariant loops); the blocks are
-contiguous in the lines folded onto the low rate (a lifted fit's aliases share its
-windows), at least two windows wide, at most :data:`BLOCKS`. Named also where its
+contiguous in the lines' bins folded onto the low rate (:func:`fold_bins`: a lifted fit's
+aliases and their conjugates share its windows), at least two windows wide, at most
+:data:`BLOCKS`. Named also where its
 false-alarm probability is below :data:`POOLED_ALPHA`.
 
 Segments: a random record is cut into :data:`SEGMENTS` equal parts (multiples of F),
@@ -46,7 +47,7 @@ from ...numerics.arrays import ComplexArray, FloatArray
 from ...numerics.identify import min_samples
 from ...numerics.signals import LoopData
 from ...numerics.systems.model import Model
-from .realizations import SpreadLevels, aligned, compare
+from .realizations import SpreadLevels, aligned, levels
 
 #: Segments a record is cut into (at most).
 SEGMENTS = 4
@@ -73,7 +74,7 @@ class Pooled:
     ``change``: the rms over the segments of ``|δ_m - δ̄|`` (relative: 0.1 is 10 %);
     ``ratio``: the F ratio of the change against the blocks' scatter, with ``dof`` (the
     numerator's and the denominator's); ``p``: the probability that noise alone reaches it;
-    ``blocks``: how many.
+    ``blocks``: how many; ``lines``: the lines they hold (every usable one).
     """
 
     change: float
@@ -81,19 +82,25 @@ class Pooled:
     dof: tuple[int, int]
     p: float
     blocks: int
+    lines: int = 0
 
 
 def pooled(
-    f: FloatArray, G: ComplexArray, V: FloatArray, *, fold_hz: float, window: int
+    f: FloatArray, G: ComplexArray, V: FloatArray, *, df: float, low_bins: int, window: int
 ) -> Pooled | None:
     """The pooled relative change of the estimates ``G`` (M, K, e) (module docstring).
 
-    ``V`` their noise variances (the weights); ``fold_hz`` the low rate (the lines ``f``
-    folded onto it share the lifted fit's windows); ``window`` its width in bins. None where
-    fewer than two blocks two windows wide fit.
+    ``V`` their noise variances (the weights); ``df`` the spacing of the grid the lines
+    ``f`` lie on (Hz: ``fs_high`` over the segment's samples); ``low_bins`` the low-rate
+    bins of that grid, ``N / F`` (a lifted fit's window at low-rate bin m serves every
+    high-rate bin k with ``k mod N/F`` equal to m or ``N/F - m``, so the lines are folded
+    onto ``min(m, N/F - m)``; 0: not folded); ``window`` the fit's width in those bins.
+    None where fewer than two blocks two windows wide fit.
     """
     import scipy.stats  # not at the top: identify's start-up stays light
 
+    if df <= 0:
+        raise ValueError(f"df must be positive (Hz), got {df}")
     M = G.shape[0]
     mean, var = G.mean(axis=0), V.mean(axis=0)
     ok = np.isfinite(mean) & np.isfinite(var) & (var > 0) & (np.abs(mean) > 0)
@@ -102,17 +109,17 @@ def pooled(
     w = np.where(ok, np.abs(mean) ** 2 / safe, 0.0)  # (K, e)
     g = np.where(ok, np.conj(mean) / safe, 0.0)
     dev = np.where(ok, G - mean, 0.0)  # (M, K, e)
-    folded = np.mod(f, fold_hz) if fold_hz > 0 else f
-    df = float(np.min(np.diff(np.unique(folded)))) if np.unique(folded).size > 1 else 1.0
-    span = float(folded.max() - folded.min())
-    J = min(int(round(span / df)) // (2 * window), BLOCKS)
+    folded = fold_bins(f, df, low_bins)
+    lo, hi = int(folded.min()), int(folded.max()) + 1  # the blocks cover [lo, hi) bins
+    J = min((hi - lo) // (2 * window), BLOCKS)
     if J < 2:  # narrower blocks share windows: their scatter would understate the noise
         return None
-    edges = np.linspace(float(folded.min()), float(folded.max()) + 0.5 * df, J + 1)
-    W, D = [], []
-    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
-        sel = (folded >= lo) & (folded < hi)
+    edges = np.linspace(lo, hi, J + 1)
+    W, D, lines = [], [], 0
+    for a, b in zip(edges[:-1], edges[1:], strict=True):
+        sel = (folded >= a) & (folded < b)
         wj = float(w[sel].sum())
+        lines += int(np.count_nonzero(sel))
         if wj > 0:
             W.append(wj)
             D.append(np.sum(g[sel] * dev[:, sel], axis=(1, 2)) / wj)
@@ -126,7 +133,21 @@ def pooled(
     d1, d2 = 2 * (M - 1), 2 * (M - 1) * (J - 1)
     ratio = num / den if den > 0 else math.inf
     p = float(scipy.stats.f.sf(ratio, d1, d2))
-    return Pooled(math.sqrt(float(np.mean(np.abs(delta) ** 2))), ratio, (d1, d2), p, J)
+    change = math.sqrt(float(np.mean(np.abs(delta) ** 2)))
+    return Pooled(change, ratio, (d1, d2), p, J, lines)
+
+
+def fold_bins(f: FloatArray, df: float, low_bins: int) -> np.ndarray:
+    """The lines ``f`` as bins of the grid ``df``, folded onto the low rate (:func:`pooled`).
+
+    ``k = rint(f / df)``, ``m = k mod low_bins``, ``min(m, low_bins - m)``; ``k`` where
+    ``low_bins`` is 0.
+    """
+    k = np.rint(np.asarray(f, dtype=float) / df).astype(np.int64)
+    if low_bins <= 0:
+        return k
+    m = np.mod(k, low_bins)
+    return np.minimum(m, low_bins - m)
 
 
 @dataclass(frozen=True)
@@ -200,12 +221,13 @@ def within(rec: LoopData, model: Model, *, n: int = 8, degree: int = 2) -> Segme
     got = aligned(segs, model, n=n, degree=degree, realizations=False)
     if got is None:
         return None
-    bands = compare(segs, model, n=n, degree=degree, realizations=False, stack=got)
+    bands = levels(*got)
     lines = sum(b.lines for b in bands)
     if not lines:
         return None
     mean = sum(b.lines * 10.0 ** (b.line_ratio_db / 10.0) for b in bands) / lines
     level = 10.0 * math.log10(mean) if mean > 0 else -math.inf
     unit = rec.ratio or model.ratio
-    fold = model.fs_high / unit if unit > 1 else 0.0
-    return Segments(bands, len(segs), level, pooled(*got[:3], fold_hz=fold, window=2 * n + 1))
+    grid = rec.period if rec.period is not None else segs[0].n_samples  # the lines' grid
+    pool = pooled(*got[:3], df=model.fs_high / grid, low_bins=grid // unit, window=2 * n + 1)
+    return Segments(bands, len(segs), level, pool)

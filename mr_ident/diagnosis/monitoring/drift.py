@@ -132,16 +132,17 @@ def drift(
     dof: int | ArrayLike,
     alpha: float = 0.01,
     error_db: float = 6.0,
-    min_hz: float = 0.0,
+    untested: ArrayLike | None = None,
 ) -> Drift:
     """``estimate`` held against ``reference`` (see the module docstring).
 
     ``dof``: the estimate's degrees of freedom q (``numerics.local.lpm.dof`` of its window), one
     for every bin or one per bin (shape (K,), where the window width varies);
     ``alpha``: false-alarm probability per estimate over the whole band; ``error_db``: the
-    size at which the level is ``error``; ``min_hz``: bins below it are not tested (the
-    LPM's first n bins fit their polynomial on one side only, which an integrator's 1/f
-    there turns into bias, not noise: give ``(n + 1) fs / N``).
+    size at which the level is ``error``; ``untested``: (K,) bool, the bins not tested nor
+    counted in the correction (the LPM's first n bins fit their polynomial on one side
+    only, which an integrator's 1/f there turns into bias, not noise: give
+    :func:`~mr_ident.numerics.local.lpm.reaches_dc`).
     """
     if not 0.0 < alpha < 1.0:
         raise ConfigError(f"alpha must be in (0, 1), got {alpha}")
@@ -161,7 +162,10 @@ def drift(
     with np.errstate(divide="ignore", invalid="ignore"):
         z = diff / np.sqrt(estimate.std**2 + S_ref**2)
         rel = diff / np.abs(P_ref)
-    z = np.where(np.isfinite(z) & (f >= min_hz)[:, None, None], z, np.nan).reshape(f.size, -1)
+    skip = np.zeros(f.size, bool) if untested is None else np.asarray(untested, bool)
+    if skip.shape != f.shape:
+        raise DimensionError(f"untested must have shape {f.shape} (the bins), got {skip.shape}")
+    z = np.where(np.isfinite(z) & ~skip[:, None, None], z, np.nan).reshape(f.size, -1)
     rel = np.where(np.isfinite(rel), rel, np.nan).reshape(f.size, -1)
     tested = np.isfinite(z)
     n_tests = max(int(tested.sum()), 1)

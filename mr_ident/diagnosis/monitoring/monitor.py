@@ -33,6 +33,7 @@ from ...io.modelfile import load_model
 from ...live.estimate import Estimate, estimate
 from ...numerics.identify import method_of
 from ...numerics.local.lpm import dof as lpm_dof
+from ...numerics.local.lpm import reaches_dc
 from ...numerics.signals import LoopData
 from ...numerics.systems.model import Model
 from ..criterion.holes import diagnosable
@@ -204,7 +205,7 @@ class PlantWatch:
             dof=q,
             alpha=cfg.monitor_alpha,
             error_db=cfg.monitor_error_db,
-            min_hz=(float(n[0]) + 1) * cfg.fs_high / est.n_samples,
+            untested=reaches_dc(plant.frequency, cfg.fs_high / est.n_samples, n),
         )
         state = self.monitor.update(d)
         end = est.first + est.n_samples

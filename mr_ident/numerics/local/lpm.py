@@ -104,6 +104,26 @@ def smallest_n(degree: int, n_in: int, n_out: int, margin: int = 0) -> int:
     return (n_out + margin + (degree + 1) * (n_in + 1) - 1) // 2 + 1
 
 
+def reaches_dc(frequency: ArrayLike, df: float, n: ArrayLike) -> NDArray[np.bool_]:
+    """The bins whose window (half-width ``n``, one or one per bin) reaches DC.
+
+    Bin ``k = rint(f / df)`` of the grid ``df`` (Hz, ``fs / N``) with ``k <= n``: its window
+    is one-sided there, and where the plant bends fast (an integrator's 1/f) its estimate's
+    bias exceeds its std, so a test against a model leaves it out (and out of its count).
+    A lifted fit's aliases of those bins, ``k = j N/F ± m`` with ``m <= n``, share the
+    windows but not the bias, which follows the plant's bend at the low frequency
+    (docs/diagnose.md: on 23 random loops with their exact model they stayed below half
+    the threshold while the bins ``k <= n`` crossed it in 3): they are tested.
+
+    >>> reaches_dc([0.1, 0.2, 0.3, 0.4], 0.1, 2).tolist()
+    [True, True, False, False]
+    """
+    if not df > 0:
+        raise ValueError(f"df must be positive (Hz), got {df}")
+    k = np.rint(np.asarray(frequency, float) / df)
+    return np.asarray(k <= np.asarray(n, float), bool)
+
+
 def check_window(n: int, degree: int) -> None:
     """ConfigError unless n (window half-width) is an integer >= 1 and the degree >= 0."""
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
