@@ -328,9 +328,8 @@ def _fit(
     for n in orders:
         p = n + n * no * ni + (no * ni if direct else 0) + (1 if free_delay else 0)
 
-        def bound(n_terms: int, p: int = p) -> float:
-            e, sd = expected_band(n_terms, p, noise_dof, corr)
-            return e + 2.0 * sd
+        def bound(n_terms: int, p: int = p) -> tuple[float, float]:
+            return expected_band(n_terms, p, noise_dof, corr)
 
         sol, start_cond = fit_order(prob, f, n, fs, delays, free_delay, max_delay, bound)
         poles, tau, v = sol.poles, sol.delay, sol.cost
@@ -359,9 +358,8 @@ def _fit(
         p0 = chosen + chosen * no * ni + (no * ni if direct else 0)
         e0, sd0 = expected_band(N, p0, noise_dof, corr)
 
-        def bound0(n_terms: int) -> float:
-            e, sd = expected_band(n_terms, p0, noise_dof, corr)
-            return e + 2.0 * sd
+        def bound0(n_terms: int) -> tuple[float, float]:
+            return expected_band(n_terms, p0, noise_dof, corr)
 
         fixed, cond0 = fit_order(prob, f, chosen, fs, [0.0], False, max_delay, bound0)
         if fixed.cost <= sol.cost + 2.0 * rep.sd:
