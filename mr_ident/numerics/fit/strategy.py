@@ -8,17 +8,16 @@ not need 1e5 bins to be placed); only the last refinement runs on all bins, from
 coarse solution. A problem of at most :data:`COARSE_BINS` bins is fitted on all of them
 throughout.
 
-The start weighted by 1/σ (vector fitting) is refined; a minimum above the cost's band
-is left by restarts (:mod:`.restart`: the weakest pair moved to where the residual is
-largest, refined, kept when the cost is lower). Only when that minimum still lies above
-the band is the second start (weighted by 1/|P̂|) made, and refined unless its cost
-exceeds :data:`SECOND_START` times the first's; the lower minimum is kept. A problem
-without a coarse stage is cheap: there both starts are refined and restarts made inside
-the band too, kept when they lower V by more than :data:`IN_BAND_GAIN` sd{V} (a minimum
-inside the band can still be a local one: of 30 drawn SISO plants, 4 and 8 on two seeds
-ended above the minimum reached from the truth with the band's test alone, 3 and 7 so;
-kept at any decrease, 2 and 4, but the weakest pair then moved onto the noise in some
-fits, lowering V by less than 0.2 sd{V} and raising that mode's pole error tenfold).
+The start weighted by 1/σ (vector fitting) is refined and restarts (:mod:`.restart`: the
+weakest pair moved to where the residual is largest, refined) leave a minimum above the
+cost's band, kept at any decrease of V. Then the second start (weighted by 1/|P̂|) is
+made, and refined unless its cost exceeds :data:`SECOND_START` times the first's; the
+lower minimum is kept. With a coarse stage the second start is made only when the first
+one's minimum still lies above the band. A problem without a coarse stage is cheap: there
+the second start is always made, and restarts run inside the band too, kept when they
+lower V by more than :data:`IN_BAND_GAIN` sd{V} (a minimum inside the band can still be a
+local one; kept at any decrease, the weakest pair moved onto the noise in some fits: the
+counts are in docs/benchmarks.md).
 """
 
 from __future__ import annotations
