@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 
 from mr_ident.numerics.fit import restart
-from mr_ident.numerics.fit.basis import columns, pole_derivatives
+from mr_ident.numerics.fit.basis import columns, initial_poles, pole_derivatives
 from mr_ident.numerics.fit.frf_fit import fit_frf, hold_response
 from mr_ident.numerics.fit.refine import Problem, _Projected, solution, to_params
 from mr_ident.numerics.fit.restart import moved
@@ -148,3 +148,9 @@ def test_a_restart_inside_the_band_is_kept_only_past_its_gain(monkeypatch):
     assert run(200.0, 1.0, 98.5, 98.0) == (98.5, 2)  # kept, then one that gains too little
     assert run(50.0, np.inf, 99.0, 98.0, 97.0, 1.0) == (97.0, 3)  # above: any decrease, 3 times
     assert run(50.0, np.inf, 100.5) == (100.0, 1)  # above, but higher: rejected
+
+
+def test_starting_pairs_that_linear_spacing_cannot_keep_two_bins_apart_are_spaced_linearly():
+    s = initial_poles(10, 1.0, 100.0, "continuous", 1e-3, spacing=50.0)
+    f = s.imag / (2 * np.pi)  # the pairs' frequencies (Hz)
+    np.testing.assert_allclose(np.diff(f), 19.8, rtol=1e-6)  # mid-points of [1, 100]

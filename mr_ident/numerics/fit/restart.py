@@ -120,7 +120,7 @@ def escape(
             max_delay=max_delay,
             max_nfev=RESTART_NFEV,
         )
-        if not new.cost < sol.cost - (gain if inside else F_TOL):
+        if not new.cost < sol.cost - (gain if inside else 0.5 * F_TOL):  # F_TOL is of 2V
             break
         sol = new
     return sol
