@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """The fit's engine: conditioning of its linear steps, the one-pass normal equations, the
-coarse stage's bins and the restarts from a local minimum."""
+coarse stage's bins, the restarts from a local minimum and which of them are kept."""
 
 from __future__ import annotations
 
@@ -8,7 +8,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from mr_ident.numerics.fit.basis import columns, pole_derivatives
+from mr_ident.numerics.fit import restart
+from mr_ident.numerics.fit.basis import columns, initial_poles, pole_derivatives
 from mr_ident.numerics.fit.frf_fit import fit_frf, hold_response
 from mr_ident.numerics.fit.refine import Problem, _Projected, solution, to_params
 from mr_ident.numerics.fit.restart import moved
@@ -74,19 +75,32 @@ def test_the_one_pass_normal_equations_equal_the_explicit_jacobians():
     x = np.append(to_params(poles, "continuous", prob.h, prob.w_ref), 0.3)
     pt = f.point(x)
     H, g = f.normal(pt)
-    # the explicit way: every entry's D formed, projected, stacked
+    # the explicit way: every entry's D = ∂(Φ(x) c)/∂x by central differences (c fixed),
+    # projected, stacked; independent of the mixing by residues under test
     Phi, W = pt.Phi, prob.W
+
+    def Phi_at(xx):
+        poles_x, tau_x = f.unpack(xx)
+        return columns(poles_x, prob.z, "continuous", prob.h, tau_x, direct=True)
+
+    dPhi = []
+    for j in range(x.size):
+        step = 1e-6 * max(abs(x[j]), 1.0)
+        xp, xm = x.copy(), x.copy()
+        xp[j] += step
+        xm[j] -= step
+        dPhi.append((Phi_at(xp) - Phi_at(xm)) / (2 * step))
     J, r = [], []
     for e in range(prob.P.shape[1]):
         A = W[:, e, None] * Phi
-        D = W[:, e, None] * f.columns_d(pt, e)
+        D = W[:, e, None] * np.column_stack([d @ pt.coef[:, e] for d in dPhi])
         Ar, Dr = np.vstack([A.real, A.imag]), np.vstack([D.real, D.imag])
         Q, _ = np.linalg.qr(Ar)
         J.append(-np.sqrt(2) * (Dr - Q @ (Q.T @ Dr)))
         r.append(np.sqrt(2) * np.concatenate([pt.res[:, e].real, pt.res[:, e].imag]))
-    Jm, rv = np.vstack(J)[:, np.argsort(f.group)], np.concatenate(r)
-    np.testing.assert_allclose(H, Jm.T @ Jm, rtol=1e-8, atol=1e-8 * np.abs(H).max())
-    np.testing.assert_allclose(g, Jm.T @ rv, rtol=1e-7, atol=1e-8 * np.abs(g).max())
+    Jm, rv = np.vstack(J), np.concatenate(r)
+    np.testing.assert_allclose(H, Jm.T @ Jm, rtol=1e-6, atol=1e-7 * np.abs(H).max())
+    np.testing.assert_allclose(g, Jm.T @ rv, rtol=1e-6, atol=1e-7 * np.abs(g).max())
     assert pole_derivatives(poles, prob.z, "continuous", prob.h, 0.3 / FS).shape == (300, 5)
 
 
@@ -113,3 +127,30 @@ def test_a_restart_moves_the_weakest_pair_to_the_missed_mode():
     assert np.min(np.abs(np.abs(new) / (2 * np.pi) - 80.0)) < 2.0
     assert np.min(np.abs(new - p[0])) < 1e-9  # the needed 20 Hz pair kept
     assert columns(new, prob.z, "continuous", prob.h).shape == (1000, 6)
+
+
+def test_a_restart_inside_the_band_is_kept_only_past_its_gain(monkeypatch):
+    rng = np.random.default_rng(6)
+    truth = _plant(rng, [20.0, 80.0], [0.03, 0.02])
+    f, prob, _ = _problem(truth, 200, rng)
+    sol = replace(solution(prob, truth.poles, 0.0), cost=100.0)
+    costs: list[float] = []
+    monkeypatch.setattr(restart, "moved", lambda prob, f, s: s.poles)
+    monkeypatch.setattr(restart, "refine", lambda *a, **k: replace(sol, cost=costs.pop(0)))
+
+    def run(bound, gain, *new):
+        costs[:] = new
+        out = restart.escape(prob, f, sol, bound, free_delay=False, max_delay=0.0, gain=gain)
+        return out.cost, len(new) - len(costs)  # the cost kept, the restarts made
+
+    assert run(200.0, np.inf, 10.0) == (100.0, 0)  # inside the band, no gain: no restart
+    assert run(200.0, 1.0, 99.5) == (100.0, 1)  # lowers V by less than the gain: rejected
+    assert run(200.0, 1.0, 98.5, 98.0) == (98.5, 2)  # kept, then one that gains too little
+    assert run(50.0, np.inf, 99.0, 98.0, 97.0, 1.0) == (97.0, 3)  # above: any decrease, 3 times
+    assert run(50.0, np.inf, 100.5) == (100.0, 1)  # above, but higher: rejected
+
+
+def test_starting_pairs_that_linear_spacing_cannot_keep_two_bins_apart_are_spaced_linearly():
+    s = initial_poles(10, 1.0, 100.0, "continuous", 1e-3, spacing=50.0)
+    f = s.imag / (2 * np.pi)  # the pairs' frequencies (Hz)
+    np.testing.assert_allclose(np.diff(f), 19.8, rtol=1e-6)  # mid-points of [1, 100]

@@ -256,9 +256,10 @@ def initial_poles(
 
     The pairs' frequencies are equally spaced in ``log(f + c)``: log-spaced (c = 0) where
     that keeps neighbours ``spacing`` Hz apart (two bins, say), else with the least c
-    that does (towards linear spacing). Pairs closer than the bins are nearly the same
-    columns: the first relocation's least squares lost up to 5 digits to them (a
-    condition number of 5e4 at order 40 over three decades).
+    that does (towards linear spacing), or linear spacing (the widest) when none does.
+    Pairs closer than the bins are nearly the same columns: the first relocation's least
+    squares lost up to 5 digits to them (a condition number of 5e4 at order 40 over three
+    decades).
     """
     n_pairs = order // 2
     lo = max(f_lo, 1e-6)
@@ -273,11 +274,12 @@ def initial_poles(
         return bool(f.size > 1 and np.min(np.diff(f)) < spacing)
 
     c = 0.0
-    if tight(0.0) and not tight(1e6 * (f_hi + spacing)):
-        a, b = 0.0, 1e6 * (f_hi + spacing)
-        for _ in range(60):
-            c = 0.5 * (a + b)
-            a, b = (c, b) if tight(c) else (a, c)
+    if tight(0.0):
+        a, b = 0.0, 1e6 * (f_hi + spacing)  # b: as good as linear spacing
+        if not tight(b):
+            for _ in range(60):
+                c = 0.5 * (a + b)
+                a, b = (c, b) if tight(c) else (a, c)
         c = b
     f = freqs(c)
     w = 2.0 * np.pi * f

@@ -322,15 +322,16 @@ def _fit(
     N = P.size
     orders = range(1, max_order + 1) if order == "auto" else [order]
     reports: list[OrderReport] = []
-    fits: dict[int, tuple[Solution, float]] = {}
-    chosen = None
+    # only two solutions are kept (each holds K x E residuals): the first order inside the
+    # band (the choice) and, until there is one, the least MDL so far (the fallback)
+    chosen: tuple[OrderReport, Solution, float] | None = None
+    fallback: tuple[OrderReport, Solution, float] | None = None
     corr = correlation_length(noise_kernel)
     for n in orders:
         p = n + n * no * ni + (no * ni if direct else 0) + (1 if free_delay else 0)
 
-        def bound(n_terms: int, p: int = p) -> float:
-            e, sd = expected_band(n_terms, p, noise_dof, corr)
-            return e + 2.0 * sd
+        def bound(n_terms: int, p: int = p) -> tuple[float, float]:
+            return expected_band(n_terms, p, noise_dof, corr)
 
         sol, start_cond = fit_order(prob, f, n, fs, delays, free_delay, max_delay, bound)
         poles, tau, v = sol.poles, sol.delay, sol.cost
@@ -338,35 +339,35 @@ def _fit(
         stable = bool(
             np.all(poles.real < 0) if domain == "continuous" else np.all(np.abs(poles) < 1)
         )
-        reports.append(
-            OrderReport(n, v, e, sd, 2 * v + 2 * p, 2 * v + p * math.log(2 * N), tau, stable)
-        )
-        fits[n] = (sol, start_cond)
-        if order == "auto" and chosen is None and v <= e + 2.0 * sd:
-            chosen = n
-        if chosen is not None and n >= chosen + 2:
+        report = OrderReport(n, v, e, sd, 2 * v + 2 * p, 2 * v + p * math.log(2 * N), tau, stable)
+        reports.append(report)
+        if chosen is None:
+            if order == "auto" and v <= e + 2.0 * sd:
+                chosen, fallback = (report, sol, start_cond), None
+            elif fallback is None or report.mdl < fallback[0].mdl:
+                fallback = (report, sol, start_cond)
+        elif n >= chosen[0].order + 2:
             break
-    if chosen is None:
-        chosen = min(reports, key=lambda r: r.mdl).order if order == "auto" else orders[0]
-    sol, start_cond = fits[chosen]
-    rep = next(r for r in reports if r.order == chosen)
+    kept = chosen if chosen is not None else fallback
+    assert kept is not None
+    rep, sol, start_cond = kept
+    chosen_order = rep.order
     shape = frf.response.shape[1:]
     out = _result(
         prob, sol, start_cond, free_delay, f, shape, fs, rep, tuple(reports), noise_kernel
     )
     if free_delay and out.delay_std > h:
         # the data do not pin the delay: the fit with it fixed at 0, unless that costs more
-        p0 = chosen + chosen * no * ni + (no * ni if direct else 0)
+        p0 = chosen_order * (1 + no * ni) + (no * ni if direct else 0)
         e0, sd0 = expected_band(N, p0, noise_dof, corr)
 
-        def bound0(n_terms: int) -> float:
-            e, sd = expected_band(n_terms, p0, noise_dof, corr)
-            return e + 2.0 * sd
+        def bound0(n_terms: int) -> tuple[float, float]:
+            return expected_band(n_terms, p0, noise_dof, corr)
 
-        fixed, cond0 = fit_order(prob, f, chosen, fs, [0.0], False, max_delay, bound0)
+        fixed, cond0 = fit_order(prob, f, chosen_order, fs, [0.0], False, max_delay, bound0)
         if fixed.cost <= sol.cost + 2.0 * rep.sd:
             rep0 = OrderReport(
-                chosen,
+                chosen_order,
                 fixed.cost,
                 e0,
                 sd0,

@@ -8,7 +8,9 @@ the pair the cost needs least (the least increase of V when its columns are drop
 the other residues solved again: ``cᵀ ((G⁻¹)_JJ)⁻¹ c`` per entry from the Gram G of the
 weighted columns), puts it where the residual's excess over its expectation is most
 significant on any of a few widths, and refines; the result is kept when its cost is
-lower. Up to :data:`RESTARTS` times, while the cost lies above its band.
+lower. Up to :data:`RESTARTS` times, while the cost lies above its band; when the caller
+gives a ``gain`` (:func:`escape`: problems without a coarse stage) inside the band too,
+kept there only when V drops by more than that gain.
 """
 
 from __future__ import annotations
@@ -118,7 +120,7 @@ def escape(
             max_delay=max_delay,
             max_nfev=RESTART_NFEV,
         )
-        if not new.cost < sol.cost - (gain if inside else F_TOL):
+        if not new.cost < sol.cost - (gain if inside else 0.5 * F_TOL):  # F_TOL is of 2V
             break
         sol = new
     return sol

@@ -8,17 +8,16 @@ not need 1e5 bins to be placed); only the last refinement runs on all bins, from
 coarse solution. A problem of at most :data:`COARSE_BINS` bins is fitted on all of them
 throughout.
 
-The start weighted by 1/σ (vector fitting) is refined; a minimum above the cost's band
-is left by restarts (:mod:`.restart`: the weakest pair moved to where the residual is
-largest, refined, kept when the cost is lower). Only when that minimum still lies above
-the band is the second start (weighted by 1/|P̂|) made, and refined unless its cost
-exceeds :data:`SECOND_START` times the first's; the lower minimum is kept. A problem
-without a coarse stage is cheap: there both starts are refined and restarts made inside
-the band too, kept when they lower V by more than :data:`IN_BAND_GAIN` sd{V} (a minimum
-inside the band can still be a local one: of 30 drawn SISO plants, 4 and 8 on two seeds
-ended above the minimum reached from the truth with the band's test alone, 3 and 7 so;
-kept at any decrease, 2 and 4, but the weakest pair then moved onto the noise in some
-fits, lowering V by less than 0.2 sd{V} and raising that mode's pole error tenfold).
+The start weighted by 1/σ (vector fitting) is refined and restarts (:mod:`.restart`: the
+weakest pair moved to where the residual is largest, refined) leave a minimum above the
+cost's band, kept at any decrease of V. Then the second start (weighted by 1/|P̂|) is
+made, and refined unless its cost exceeds :data:`SECOND_START` times the first's; the
+lower minimum is kept. With a coarse stage the second start is made only when the first
+one's minimum still lies above the band. A problem without a coarse stage is cheap: there
+the second start is always made, and restarts run inside the band too, kept when they
+lower V by more than :data:`IN_BAND_GAIN` sd{V} (a minimum inside the band can still be a
+local one; kept at any decrease, the weakest pair moved onto the noise in some fits: the
+counts are in docs/benchmarks.md).
 """
 
 from __future__ import annotations
@@ -48,7 +47,7 @@ PROBE = 5
 SECOND_START = 4.0
 
 #: Inside the band (problems without a coarse stage), the least decrease of V, in units
-#: of about sd{V}, for which a restart is kept.
+#: of sd{V} (the band's, the bins' correlation included), for which a restart is kept.
 IN_BAND_GAIN = 0.25
 
 
@@ -104,14 +103,15 @@ def _start(
     order: int,
     fs: float,
     delays: list[float],
+    sd: float,
 ) -> tuple[float, ComplexArray, float, float]:
     """Vector fitting weighted by ``W``: ``(V, poles, delay, condition number)``.
 
     Each delay candidate by a few relocations, the best one relocated until its cost
-    settles.
+    settles (no decrease beyond a tenth of ``sd``, sd{V}, in :data:`~.start.PATIENCE` of them).
     """
     h = 1.0 / fs
-    tol = 0.1 * math.sqrt(prob.P.size)
+    tol = 0.1 * sd
     best: tuple[float, ComplexArray, float] | None = None
     cond = 1.0
     for tau in delays:
@@ -162,25 +162,28 @@ def fit_order(
     delays: list[float],
     free_delay: bool,
     max_delay: float,
-    bound: Callable[[int], float],
+    bound: Callable[[int], tuple[float, float]],
 ) -> tuple[Solution, float]:
     """One order's solution on all bins and the largest condition number of its start.
 
     Vector fitting weighted by 1/σ (the cost's own weights) and by 1/|P̂| (relative: where
     σ peaks at a resonance, the 1/σ start can miss the resonance, measured on the motor
     bench); per start the delay candidates told apart by five relocations, the best one
-    relocated further. ``bound(N)``: the upper edge of the cost's band for N complex
-    terms. Coarse to fine past :data:`COARSE_BINS` bins (module docstring).
+    relocated further. ``bound(N)``: the cost's band ``(E{V}, sd{V})`` for N complex
+    terms (sd{V} with the bins' correlation length: the relocations' stopping tolerance
+    and the restarts' least gain are in its units). Coarse to fine past
+    :data:`COARSE_BINS` bins (module docstring).
     """
     coarse, fc = _subset(prob, f)
     rel = 1.0 / np.maximum(np.abs(coarse.P), 1e-300 + np.abs(coarse.P).max() * 1e-12)
     small = coarse is prob  # cheap: both starts, and restarts inside the band too
-    top = bound(coarse.P.size)
-    gain = IN_BAND_GAIN * math.sqrt(coarse.P.size) if small else np.inf
+    e, sd = bound(coarse.P.size)
+    top = e + 2.0 * sd
+    gain = IN_BAND_GAIN * sd if small else np.inf
     sol: Solution | None = None
     first, cond = np.inf, 1.0
     for W in (coarse.W, rel):
-        v, poles, tau, kappa = _start(coarse, fc, W, order, fs, delays)
+        v, poles, tau, kappa = _start(coarse, fc, W, order, fs, delays, sd)
         cond = max(cond, kappa)
         first = min(first, v)
         if sol is not None and v > SECOND_START * first:
