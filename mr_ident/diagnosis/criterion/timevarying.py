@@ -61,7 +61,8 @@ VARYING_DB = 1.5
 #: the plant is named time-varying. The test is calibrated: over 320 time-invariant records
 #: of the benchmark's random loops (10 s of white r; nothing or one cause hidden, a
 #: pole-zero pair, a second delay path) its smallest p was 9e-4, as 320 uniform draws give;
-#: it named 36 of 40 time-varying gains (10-30 %), the level alone 32 (2026-11-26).
+#: it named 36 of 40 time-varying gains (10-30 %), the level alone 32 (2026-11-26, with the
+#: blocks stuck at 12 by a bug since fixed: docs/diagnose.md says what changed).
 POOLED_ALPHA = 1e-4
 #: Most blocks of lines the pooled test compares the segments' change against.
 BLOCKS = 12
