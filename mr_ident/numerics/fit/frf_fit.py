@@ -327,19 +327,29 @@ def _fit(
     chosen: tuple[OrderReport, Solution, float] | None = None
     fallback: tuple[OrderReport, Solution, float] | None = None
     corr = correlation_length(noise_kernel)
-    for n in orders:
-        p = n + n * no * ni + (no * ni if direct else 0) + (1 if free_delay else 0)
 
-        def bound(n_terms: int, p: int = p) -> tuple[float, float]:
+    def n_params(n: int, free: bool) -> int:
+        return int(n * (1 + no * ni) + (no * ni if direct else 0) + (1 if free else 0))
+
+    def fit_at(n: int, at: list[float], free: bool) -> tuple[OrderReport, Solution, float]:
+        """Order n fitted (delays ``at``, free or not) with its report."""
+        p = n_params(n, free)
+
+        def bound(n_terms: int) -> tuple[float, float]:
             return expected_band(n_terms, p, noise_dof, corr)
 
-        sol, start_cond = fit_order(prob, f, n, fs, delays, free_delay, max_delay, bound)
-        poles, tau, v = sol.poles, sol.delay, sol.cost
+        sol, start_cond = fit_order(prob, f, n, fs, at, free, max_delay, bound)
+        poles, v = sol.poles, sol.cost
         e, sd = expected_band(N, p, noise_dof, corr)
         stable = bool(
             np.all(poles.real < 0) if domain == "continuous" else np.all(np.abs(poles) < 1)
         )
-        report = OrderReport(n, v, e, sd, 2 * v + 2 * p, 2 * v + p * math.log(2 * N), tau, stable)
+        aic, mdl = 2 * v + 2 * p, 2 * v + p * math.log(2 * N)
+        return OrderReport(n, v, e, sd, aic, mdl, sol.delay, stable), sol, start_cond
+
+    for n in orders:
+        report, sol, start_cond = fit_at(n, delays, free_delay)
+        e, sd, v = report.expected, report.sd, report.cost
         reports.append(report)
         if chosen is None:
             if order == "auto" and v <= e + 2.0 * sd:
@@ -358,24 +368,8 @@ def _fit(
     )
     if free_delay and out.delay_std > h:
         # the data do not pin the delay: the fit with it fixed at 0, unless that costs more
-        p0 = chosen_order * (1 + no * ni) + (no * ni if direct else 0)
-        e0, sd0 = expected_band(N, p0, noise_dof, corr)
-
-        def bound0(n_terms: int) -> tuple[float, float]:
-            return expected_band(n_terms, p0, noise_dof, corr)
-
-        fixed, cond0 = fit_order(prob, f, chosen_order, fs, [0.0], False, max_delay, bound0)
+        rep0, fixed, cond0 = fit_at(chosen_order, [0.0], False)
         if fixed.cost <= sol.cost + 2.0 * rep.sd:
-            rep0 = OrderReport(
-                chosen_order,
-                fixed.cost,
-                e0,
-                sd0,
-                2 * fixed.cost + 2 * p0,
-                2 * fixed.cost + p0 * math.log(2 * N),
-                0.0,
-                rep.stable,
-            )
             zero = _result(
                 prob, fixed, cond0, False, f, shape, fs, rep0, tuple(reports), noise_kernel
             )
