@@ -377,9 +377,10 @@ def realize(system: TransferMatrix) -> StateSpace:
     without the cache.
     """
     try:
-        return _realize_cached(system)
+        hash(system)
     except TypeError:  # unhashable coefficients
         return _realize(system)
+    return _realize_cached(system)
 
 
 @functools.lru_cache(maxsize=64)
