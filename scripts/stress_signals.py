@@ -44,6 +44,9 @@ PAPER = ROOT / "config" / "paper_example.yaml"
 #: Seconds after the start within which each program is signalled (its interesting life).
 SPAN = {"record": 4.0, "node": 6.0, "sim": 4.0, "demo": 25.0}
 
+#: Seconds a run waits for its output file to hold messages (``after_output``).
+READY_TIMEOUT = 60.0
+
 
 @dataclass(frozen=True)
 class Outcome:
@@ -141,8 +144,32 @@ def _command(program: str, work: Path) -> tuple[list[str], Path | None]:
     raise ValueError(f"program must be one of {sorted(SPAN)}, got {program!r}")
 
 
-def signal_run(program: str, delay: float, sig: int, work: Path, domain: int) -> Outcome:
-    """Start ``program`` in ``domain``, signal it with ``sig`` after ``delay`` s, check it."""
+def _wait_for(path: Path, proc: subprocess.Popen, timeout: float) -> None:
+    """Until ``path`` exists (the program is past its start-up: its subscriptions made, its
+    writer open; the writer buffers, so the size tells nothing yet), ``proc`` ended or
+    ``timeout`` s passed, polling every 20 ms."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and proc.poll() is None:
+        if path.exists():
+            return
+        time.sleep(0.02)
+
+
+def signal_run(
+    program: str,
+    delay: float,
+    sig: int,
+    work: Path,
+    domain: int,
+    *,
+    after_output: bool = False,
+) -> Outcome:
+    """Start ``program`` in ``domain``, signal it with ``sig`` after ``delay`` s, check it.
+
+    ``after_output``: the delay counts from when the program's output file exists (waited
+    for at most :data:`READY_TIMEOUT` s), not from its start: a signal "mid-stream"
+    then meets the program mid-stream however slowly it started.
+    """
     work.mkdir(parents=True, exist_ok=True)
     env = _env(domain)
     argv, output = _command(program, work)
@@ -156,6 +183,8 @@ def signal_run(program: str, delay: float, sig: int, work: Path, domain: int) ->
             text=True,
             start_new_session=True,
         )  # the signal reaches this process only
+        if after_output and output is not None:
+            _wait_for(output, proc, READY_TIMEOUT)
         time.sleep(delay)
         proc.send_signal(sig)
         try:
