@@ -17,18 +17,40 @@ any correction of one, describes such a plant: it describes the plant's average 
 record.
 
 A change that moves every line alike (a gain) is tested with more power by pooling the
-lines, each as its SNR allows: per segment m and block j of lines the relative change
-``D_mj``, the weighted least-squares fit of ``G_m - Ḡ = D_mj Ḡ`` over the block's lines
-(weights ``|Ḡ|² / σ²``, summing to ``W_j``), and over all blocks ``δ_m`` (weights
-``W_j``). The segments' change ``W Σ_m |δ_m|² / (M - 1)`` is held against the blocks'
-scatter about it, ``Σ_j W_j Σ_m |D_mj - δ_m|² / ((M - 1)(J - 1))``: under a
-time-invariant loop their ratio is F(2(M - 1), 2(M - 1)(J - 1)) whatever the scale of the
-LPM's σ² and however neighbouring lines correlate (a local fit's windows overlap, which
-made a χ² over the lines 2-10 times too large on time-invariant loops); the blocks are
-contiguous in the lines' bins folded onto the low rate (:func:`fold_bins`: a lifted fit's
-aliases and their conjugates share its windows), at least two windows wide, at most
-:data:`BLOCKS`. Named also where its
-false-alarm probability is below :data:`POOLED_ALPHA`.
+lines, each as its SNR allows. Per segment m and block j of lines (contiguous in the
+lines' bins folded onto the low rate, :func:`fold_bins`: a lifted fit's aliases and their
+conjugates share its windows) the relative change ``D_mj = S_mj / W_j``, the weighted
+least-squares fit of ``G_m - Ḡ = D_mj Ḡ`` over the block's lines: ``S_mj = Σ_k g_k (G_mk
+- Ḡ_k)``, ``g_k = conj(Ḡ_k) / σ²_k``, ``W_j = Σ_k h²_k``, ``h_k = |Ḡ_k| / σ_k``. Under a
+time-invariant loop each line's relative error, turned to Ḡ's phase and scaled by its
+SNR, ``z_mk = g_k (G_mk - G_k) / h_k``, has variance s² (a scale the test never needs:
+the LPM's σ² may be off by a factor) and correlates over the lines of one fit as the local
+fit's overlapping windows make it, ``E z_k conj(z_k') = s² ρ(|k - k'|)``: ρ the local
+polynomial's kernel (``lpm_kernel(n, R)`` of ``numerics.fit.frf_fit``: the centre
+weights' autocorrelation) for lines on one branch of the folding (a half of a low-rate
+period, ``2k // (N/F)``: one fit's neighbours, k and k' both on the grid's bins), 0
+otherwise. So ``S_mj = Σ_k h_k z_mk`` and the block vector ``D_m`` is complex normal with
+covariance ``s² C``,
+
+    ``C_jj' = Σ_{k in j, k' in j'} h_k h_k' ρ(|k - k'|) / (W_j W_j')``,
+
+independent over the segments (whose mean takes one of them away: M - 1 remain). A change
+common to every line, ``D_mj = δ_m``, has the generalized least-squares estimate ``δ_m =
+1ᵀC⁻¹D_m / u``, ``u = 1ᵀC⁻¹1``: ``u Σ_m |δ_m|²`` is ``s² χ²(2(M - 1)) / 2``, the
+residual ``Σ_m (D_m - δ_m 1)ᴴ C⁻¹ (D_m - δ_m 1)`` is ``s² χ²(2(M - 1)(J - 1)) / 2`` and
+independent of it: per degree of freedom their ratio is F(2(M - 1), 2(M - 1)(J - 1))
+whatever s². Uncorrelated lines (``ρ = [1]``) make ``C = diag(1 / W_j)`` and the test the
+plain F test of the segments' change against the blocks' scatter, which needs blocks two
+windows wide to stay calibrated (neighbours then correlate by 0.03): a 10 s record at
+240 Hz, F = 5 held no two of them, at F = 3 two or three. With C the blocks can be half a
+window wide (n + 1 folded bins; neighbours correlate by about 0.15 through C; a quarter
+window: 0.6, where the kernel's accuracy would decide), :data:`BLOCKS` at most (wider
+where the lines allow). Named also where the false-alarm probability is below
+:data:`POOLED_ALPHA`. Measured on the benchmark's loops (docs/diagnose.md): the LPM's
+errors correlate a little less than the kernel says (ρ(1) 0.77-0.86 against 0.92;
+neighbouring half-window blocks 0.11-0.15 against 0.15) and its σ² differs from the
+segments' scatter by band (0.6-0.8 of it in the lowest blocks, 1.1-1.3 in the highest),
+both of which leave the test conservative there.
 
 Segments: a random record is cut into :data:`SEGMENTS` equal parts (multiples of F),
 fewer where a part would be shorter than diagnose takes; a periodic one into whole
@@ -52,17 +74,14 @@ from .realizations import SpreadLevels, aligned, levels
 #: Segments a record is cut into (at most).
 SEGMENTS = 4
 #: Mean per-line spread over noise (dB) above which the plant is named time-varying. Under
-#: a time-invariant loop the statistic sits near 0 dB (at most 0.88 dB over 320 records of
+#: a time-invariant loop the statistic sits near 0 dB (at most 0.99 dB over 1120 records of
 #: the benchmark's random loops, 10 and 30 s of white r, nothing or one cause hidden, a
-#: pole-zero pair or a second delay path: 2026-11-26); a gain moving by 10-30 % over a few
-#: seconds of a 10 s record reached 1.5 dB in 20 of 25.
+#: pole-zero pair or a second delay path: benchmarks/bench_timevarying.py); a gain moving
+#: by 10-30 % with a period of 0.3-1 record reached 1.5 dB in 72 of 100 10 s records.
 VARYING_DB = 1.5
 #: False-alarm probability of the pooled relative change (module docstring) below which
-#: the plant is named time-varying. The test is calibrated: over 320 time-invariant records
-#: of the benchmark's random loops (10 s of white r; nothing or one cause hidden, a
-#: pole-zero pair, a second delay path) its smallest p was 9e-4, as 320 uniform draws give;
-#: it named 36 of 40 time-varying gains (10-30 %), the level alone 32 (2026-11-26, with the
-#: blocks stuck at 12 by a bug since fixed: docs/diagnose.md says what changed).
+#: the plant is named time-varying (calibration: docs/diagnose.md,
+#: benchmarks/bench_timevarying.py).
 POOLED_ALPHA = 1e-4
 #: Most blocks of lines the pooled test compares the segments' change against.
 BLOCKS = 12
@@ -87,16 +106,24 @@ class Pooled:
 
 
 def pooled(
-    f: FloatArray, G: ComplexArray, V: FloatArray, *, df: float, low_bins: int, window: int
+    f: FloatArray,
+    G: ComplexArray,
+    V: FloatArray,
+    *,
+    df: float,
+    low_bins: int,
+    window: int,
+    degree: int = 2,
 ) -> Pooled | None:
     """The pooled relative change of the estimates ``G`` (M, K, e) (module docstring).
 
     ``V`` their noise variances (the weights); ``df`` the spacing of the grid the lines
-    ``f`` lie on (Hz: ``fs_high`` over the segment's samples); ``low_bins`` the low-rate
-    bins of that grid, ``N / F`` (a lifted fit's window at low-rate bin m serves every
-    high-rate bin k with ``k mod N/F`` equal to m or ``N/F - m``, so the lines are folded
-    onto ``min(m, N/F - m)``; 0: not folded); ``window`` the fit's width in those bins.
-    None where fewer than two blocks two windows wide fit.
+    ``f`` (K,) lie on, ascending (Hz: ``fs_high`` over the segment's samples); ``low_bins``
+    the low-rate bins of that grid, ``N / F`` (a lifted fit's window at low-rate bin m
+    serves every high-rate bin k with ``k mod N/F`` equal to m or ``N/F - m``, so the lines
+    are folded onto ``min(m, N/F - m)``; 0: not folded); ``window`` the fit's width in
+    those bins (2n + 1) and ``degree`` its polynomial's (the kernel ρ). None where fewer
+    than two blocks half a window wide fit.
     """
     import scipy.stats  # not at the top: identify's start-up stays light
 
@@ -107,35 +134,82 @@ def pooled(
     ok = np.isfinite(mean) & np.isfinite(var) & (var > 0) & (np.abs(mean) > 0)
     ok &= np.all(np.isfinite(G), axis=0)
     safe = np.where(ok, var, 1.0)
-    w = np.where(ok, np.abs(mean) ** 2 / safe, 0.0)  # (K, e)
+    h = np.where(ok, np.abs(mean) / np.sqrt(safe), 0.0)  # (K, e): sqrt of the weights
     g = np.where(ok, np.conj(mean) / safe, 0.0)
     dev = np.where(ok, G - mean, 0.0)  # (M, K, e)
     folded = fold_bins(f, df, low_bins)
     lo, hi = int(folded.min()), int(folded.max()) + 1  # the blocks cover [lo, hi) bins
-    J = min((hi - lo) // (2 * window), BLOCKS)
-    if J < 2:  # narrower blocks share windows: their scatter would understate the noise
+    J = min((hi - lo) // (window // 2 + 1), BLOCKS)  # wider where the lines allow
+    if J < 2:  # narrower blocks would lean on the kernel's accuracy
         return None
     edges = np.linspace(lo, hi, J + 1)
-    W, D, lines = [], [], 0
-    for a, b in zip(edges[:-1], edges[1:], strict=True):
-        sel = (folded >= a) & (folded < b)
-        wj = float(w[sel].sum())
-        lines += int(np.count_nonzero(sel))
-        if wj > 0:
-            W.append(wj)
-            D.append(np.sum(g[sel] * dev[:, sel], axis=(1, 2)) / wj)
-    if len(W) < 2:
+    block = np.clip(np.searchsorted(edges, folded, side="right") - 1, 0, J - 1)
+    W = np.zeros(J)
+    S = np.zeros((M, J), dtype=complex)
+    for e in range(g.shape[1]):
+        W += np.bincount(block, h[:, e] ** 2, J)
+        for m in range(M):
+            x = g[:, e] * dev[m, :, e]
+            S[m] += np.bincount(block, x.real, J) + 1j * np.bincount(block, x.imag, J)
+    k = np.rint(np.asarray(f, dtype=float) / df).astype(np.int64)
+    piece = 2 * k // low_bins if low_bins > 0 else np.zeros_like(k)  # one fit's neighbours
+    C = _block_covariance(k, piece, block, h, J, (window - 1) // 2, degree)
+    used = W > 0
+    J = int(np.count_nonzero(used))
+    if J < 2:
         return None
-    Wa, Da = np.array(W), np.array(D).T  # (J,), (M, J)
-    delta = Da @ Wa / Wa.sum()  # (M,)
-    J = Wa.size
-    num = Wa.sum() * float(np.sum(np.abs(delta) ** 2)) / (M - 1)
-    den = float(np.sum(Wa * np.abs(Da - delta[:, None]) ** 2)) / ((M - 1) * (J - 1))
+    Wa = W[used]
+    D = S[:, used] / Wa  # (M, J)
+    C = C[np.ix_(used, used)] / np.outer(Wa, Wa)
+    try:
+        Ci1 = np.linalg.solve(C, np.ones(J))  # C⁻¹ 1 (C real symmetric)
+        u = float(np.sum(Ci1))
+        delta = D @ Ci1 / u  # 1ᵀC⁻¹D_m
+        R = D - delta[:, None]
+        res = float(np.real(np.sum(np.conj(R) * np.linalg.solve(C, R.T).T)))
+    except np.linalg.LinAlgError:
+        return None
+    num = u * float(np.sum(np.abs(delta) ** 2)) / (M - 1)
+    den = res / ((M - 1) * (J - 1))
     d1, d2 = 2 * (M - 1), 2 * (M - 1) * (J - 1)
     ratio = num / den if den > 0 else math.inf
     p = float(scipy.stats.f.sf(ratio, d1, d2))
     change = math.sqrt(float(np.mean(np.abs(delta) ** 2)))
-    return Pooled(change, ratio, (d1, d2), p, J, lines)
+    return Pooled(change, ratio, (d1, d2), p, J, int(folded.size))
+
+
+def _block_covariance(
+    k: np.ndarray,
+    piece: np.ndarray,
+    block: np.ndarray,
+    h: FloatArray,
+    J: int,
+    n: int,
+    degree: int,
+) -> FloatArray:
+    """``Σ h_k h_k' ρ(|k - k'|)`` over the lines of blocks j, j' (module docstring).
+
+    ``k`` (K,) the lines' bins on the grid, ascending; ``piece`` the branch of the folding
+    each lies on (``2k // (N/F)``: the half of a low-rate period, over which the folded
+    bin moves with k), pairs counted within one only; ``block`` (K,) each line's block
+    (< J); ``h`` (K, e); ``n``, ``degree`` the fit's half-width and degree (the kernel
+    ρ, of reach 2n).
+    """
+    from ...numerics.fit.frf_fit import lpm_kernel  # not at the top: start-up stays light
+
+    rho = lpm_kernel(n, degree)
+    C = np.zeros((J, J))
+    for e in range(h.shape[1]):
+        np.add.at(C, (block, block), h[:, e] ** 2)
+    for lag in range(1, rho.size):
+        at = np.minimum(np.searchsorted(k, k + lag), k.size - 1)
+        pair = (k[at] == k + lag) & (piece[at] == piece)
+        a, b = np.nonzero(pair)[0], at[pair]
+        for e in range(h.shape[1]):
+            v = rho[lag] * h[a, e] * h[b, e]
+            np.add.at(C, (block[a], block[b]), v)
+            np.add.at(C, (block[b], block[a]), v)
+    return C
 
 
 def fold_bins(f: FloatArray, df: float, low_bins: int) -> np.ndarray:
@@ -230,5 +304,7 @@ def within(rec: LoopData, model: Model, *, n: int = 8, degree: int = 2) -> Segme
     level = 10.0 * math.log10(mean) if mean > 0 else -math.inf
     unit = rec.ratio or model.ratio
     grid = rec.period if rec.period is not None else segs[0].n_samples  # the lines' grid
-    pool = pooled(*got[:3], df=model.fs_high / grid, low_bins=grid // unit, window=2 * n + 1)
+    pool = pooled(
+        *got[:3], df=model.fs_high / grid, low_bins=grid // unit, window=2 * n + 1, degree=degree
+    )
     return Segments(bands, len(segs), level, pool)
