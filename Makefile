@@ -100,7 +100,7 @@ bench-structured: $(STAMP)
 	$(PY) benchmarks/bench_structured.py
 
 # fit_frf on drawn modal plants (order 2-30, SISO and 3x3): pole errors against the
-# Cramér-Rao bound, the cost in its band (with its 95 % interval: 40 plants x 5 noise
+# Cramér-Rao bound, the cost in its band (with its 95 % interval: 100 plants x 2 noise
 # draws per shape), stability, the order found (8 plants), time per fit; scikit-rf's
 # VectorFitting beside it on the same data; 1e5 bins, 3x3, order 40 timed. About 10 min.
 bench-fit: $(STAMP)

@@ -15,7 +15,9 @@ auto) too: the order chosen against the truth, the time.
 Printed per shape: the median and 90th percentile of the pole errors in CRB units (an
 efficient estimator: 1.52-1.64 at the 90th, 0.67-0.83 the median: a 2-D Gaussian error
 over ``sqrt(tr cov)``, isotropic to one-dimensional), the share of fits with the cost in
-its band with its binomial 95 % interval (Clopper-Pearson), beside it *truth*: the share
+its band with its binomial 95 % interval (Clopper-Pearson; the fits taken as independent:
+the draws of one plant share its modes, so a share that depends on the plant, *local*, is
+known less well than its interval says), beside it *truth*: the share
 whose minimum reached from the true poles is in that band (what any estimator reaches:
 the rest is the noise's draw) and *local*: the share whose cost lies above that minimum
 by more than :data:`LOCAL_TOL` (a local minimum). Then the band itself checked: the
@@ -41,7 +43,7 @@ and once more on the plant's own G(jω) with the same noise (its own model class
 its best case). python-control has no FRF fit (its request is open since 2021): it is
 the target of ``mr-ident fit --export python-control``, not a competitor.
 
-    .venv/bin/python benchmarks/bench_fit.py [--plants 40] [--draws 5] [--auto-plants 8]
+    .venv/bin/python benchmarks/bench_fit.py [--plants 100] [--draws 2] [--auto-plants 8]
         [--bins 1000] [--seed 0] [--tail X] [--speed-bins 100000] [--no-auto]
         [--no-speed] [--no-compare]
 """
@@ -336,8 +338,8 @@ def report(shape, rows: list[dict], plants: int, tail: float | None) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--plants", type=int, default=40, help="plants per shape")
-    ap.add_argument("--draws", type=int, default=5, help="noise draws per plant")
+    ap.add_argument("--plants", type=int, default=100, help="plants per shape")
+    ap.add_argument("--draws", type=int, default=2, help="noise draws per plant")
     ap.add_argument(
         "--auto-plants", type=int, default=8, help="plants fitted with order auto (first draw)"
     )
