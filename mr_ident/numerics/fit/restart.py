@@ -10,8 +10,8 @@ their columns are dropped and the other residues solved again: ``cᵀ ((G⁻¹)_
 entry from the Gram G of the weighted columns), puts one pair in its place where the
 residual's excess over its expectation is most significant on any of a few widths, and
 refines; the result is kept when its cost is lower. (With complex pairs alone, two real
-poles left by the start were never moved: of 200 drawn 3x3 fits, 10 ended in such a
-minimum, 6 of them above the band; docs/benchmarks.md.)
+poles left by the start were never moved: of bench-fit's 200 drawn 3x3 fits, 10 ended in
+a local minimum, 5 of them above the band, and 2 with two real poles movable.)
 
 Up to :data:`RESTARTS` times, while the cost lies above its band; when the caller
 gives a ``gain`` (:func:`escape`: problems without a coarse stage) inside the band too,
