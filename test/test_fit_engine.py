@@ -7,11 +7,12 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from mr_ident.numerics.fit import restart
 from mr_ident.numerics.fit.basis import columns, initial_poles, pole_derivatives
 from mr_ident.numerics.fit.frf_fit import fit_frf, hold_response
-from mr_ident.numerics.fit.refine import Problem, _Projected, solution, to_params
+from mr_ident.numerics.fit.refine import Problem, _Projected, refine, solution, to_params
 from mr_ident.numerics.fit.restart import moved
 from mr_ident.numerics.fit.strategy import COARSE_BINS, coarse_rows
 from mr_ident.numerics.results import FRF
@@ -127,6 +128,24 @@ def test_a_restart_moves_the_weakest_pair_to_the_missed_mode():
     assert np.min(np.abs(np.abs(new) / (2 * np.pi) - 80.0)) < 2.0
     assert np.min(np.abs(new - p[0])) < 1e-9  # the needed 20 Hz pair kept
     assert columns(new, prob.z, "continuous", prob.h).shape == (1000, 6)
+
+
+def test_a_restart_moves_two_real_poles_as_one_pair_and_leaves_that_minimum():
+    """The minimum of drawn 3x3 plants that the restarts missed: a mode unfitted, its order
+    spent on two real poles (only complex pairs were moved before)."""
+    rng = np.random.default_rng(5)
+    truth = _plant(rng, [20.0, 80.0, 150.0], [0.03, 0.02, 0.03])
+    f, prob, _ = _problem(truth, 1000, rng, rel=0.02)
+    p = truth.poles
+    start = np.array([p[0], p[2], -30.0 + 0j, -5000.0 + 0j])
+    new = moved(prob, f, solution(prob, start, 0.0))
+    assert new is not None and new.size == 3 and np.all(new.imag > 0)  # the same order
+    assert np.min(np.abs(np.abs(new) / (2 * np.pi) - 80.0)) < 2.0
+    local = refine(prob, start, 0.0, free_delay=False, max_delay=0.0)
+    assert np.sum(local.poles.imag == 0) == 2 and local.cost > 1e6  # still the two real poles
+    out = restart.escape(prob, f, local, 1100.0, free_delay=False, max_delay=0.0)
+    best = refine(prob, p, 0.0, free_delay=False, max_delay=0.0)  # the minimum at the truth
+    assert out.cost == pytest.approx(best.cost, abs=1e-3)
 
 
 def test_a_restart_inside_the_band_is_kept_only_past_its_gain(monkeypatch):
