@@ -2,10 +2,11 @@
 """Benchmark: the calibration of the test for a plant that changes within the record.
 
 The test (``mr_ident.diagnosis.criterion.timevarying.within``, docs/diagnose.md, "A plant
-that changes within the record") has two parts, each shown alone and together: the mean
+that changes within the record") has three parts, each shown alone and together: the mean
 per-line spread of the segments' estimates over their noise (the level, named above
-``VARYING_DB``) and the pooled relative gain change (an F test, named below
-``POOLED_ALPHA``). Run on
+``VARYING_DB``), the pooled relative gain change (an F test, named below
+``POOLED_ALPHA``) and the segments' gains in time (``criterion.gain_drift``, an F test
+named below ``DRIFT_ALPHA``). Run on
 
 - time-invariant records, where every naming is a false alarm: the loops of
   ``mr_bench.scenarios.draw_scenario`` with nothing or one cause hidden (each cause of
@@ -20,8 +21,11 @@ Printed per group: the records, how many the pooled test could judge (it needs t
 blocks of lines), the level's largest value and how many exceed its threshold, the pooled
 test's smallest p, how many fall below 0.05, 0.01, 1e-3 and ``POOLED_ALPHA`` (a calibrated
 test: those shares of the judged records, within their binomial scatter) and how many the
-test names in all; a Kolmogorov-Smirnov test of the pooled p against uniform over every
-time-invariant record.
+test names in all; then the time-domain gains' test
+(``mr_ident.diagnosis.criterion.gain_drift``): how many it judged, its smallest p, how many
+fall below 0.05, 0.01 and ``DRIFT_ALPHA``, and the named share with and without it; a
+Kolmogorov-Smirnov test of each test's p against uniform over every time-invariant
+record.
 
     .venv/bin/python benchmarks/bench_timevarying.py        # the figures of docs/diagnose.md
     .venv/bin/python benchmarks/bench_timevarying.py --per-kind 2 --per-varying 5
@@ -34,6 +38,7 @@ the time-invariant records, then the time-varying durations.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -93,6 +98,7 @@ def run_case(case: dict) -> dict:
         n = default_n("freq-lifted", 2, m.ratio, m.n_u, max(m.n_u, m.n_y))
         got = within(data, m, n=n)
     pool = None if got is None else got.pooled
+    drift = None if got is None else got.drift
     return case | {
         "loop": f"{m.fs_high:g} Hz F={m.ratio}",
         "effect": text,
@@ -104,6 +110,9 @@ def run_case(case: dict) -> dict:
         "dof": None if pool is None else list(pool.dof),
         "change": None if pool is None else pool.change,
         "named": got is not None and got.varying,
+        "p_drift": None if drift is None else drift.p,
+        "drift_change": None if drift is None else drift.change,
+        "named_without_drift": got is not None and dataclasses.replace(got, drift=None).varying,
     }
 
 
@@ -150,25 +159,52 @@ def report(rows: list[dict]) -> str:
             + f" | {_count([r['named'] for r in g])} |"
         )
     ps = [r["p"] for r in invariant if r["p"] is not None]
-    out = ["\n".join(lines), ""]
-    if len(ps) > 1:
-        ks = scipy.stats.kstest(ps, "uniform")
-        out.append(
-            f"- time-invariant: the pooled p against uniform, Kolmogorov-Smirnov "
-            f"D {ks.statistic:.3f}, p {ks.pvalue:.2g} ({len(ps)} records)"
-        )
+    out = ["\n".join(lines), "", _drift_table(groups), ""]
+    for what, key in (("pooled", "p"), ("time-domain gains'", "p_drift")):
+        ps = [r[key] for r in invariant if r.get(key) is not None]
+        if len(ps) > 1:
+            ks = scipy.stats.kstest(ps, "uniform")
+            out.append(
+                f"- time-invariant: the {what} p against uniform, Kolmogorov-Smirnov "
+                f"D {ks.statistic:.3f}, p {ks.pvalue:.2g} ({len(ps)} records)"
+            )
     for r in rows:
         miss = r["kind"] == "time_varying_gain" and not r["named"]
         false = r["kind"] != "time_varying_gain" and r["named"]
         if miss or false:
-            p = "-" if r["p"] is None else f"{r['p']:.2g}"
-            lv = "-" if r["level_db"] is None else f"{r['level_db']:.2f}"
+            pv = "-" if r["p"] is None else f"{r['p']:.2g}"
+            pv += "" if r.get("p_drift") is None else f", time-domain p {r['p_drift']:.2g}"
+            lvl = "-" if r["level_db"] is None else f"{r['level_db']:.2f}"
             out.append(
                 f"- {'not named' if miss else 'false alarm'}: {r['kind']}:{r['duration']:g}:"
-                f"{r['seed']} {r['loop']} {r['effect']}; level {lv} dB, p {p}, blocks "
+                f"{r['seed']} {r['loop']} {r['effect']}; level {lvl} dB, p {pv}, blocks "
                 f"{r['blocks']}"
             )
     return "\n".join(out)
+
+
+def _drift_table(groups: list[tuple[str, float, list[dict]]]) -> str:
+    """The time-domain gains' test per group (``gain_drift``): judged, smallest p, the
+    counts below 0.05, 0.01 and ``DRIFT_ALPHA``, named with it and without it."""
+    from mr_ident.diagnosis.criterion.timevarying import DRIFT_ALPHA
+
+    alphas = (0.05, 0.01, DRIFT_ALPHA)
+    lines = [
+        "| records | duration s | n | time-domain judged | p min "
+        + " ".join(f"| p < {a:g}" for a in alphas)
+        + " | named | named without it |",
+        "|" + "---|" * (7 + len(alphas)),
+    ]
+    for name, d, g in groups:
+        ps = [r["p_drift"] for r in g if r.get("p_drift") is not None]
+        lines.append(
+            f"| {name} | {'all' if math.isnan(d) else f'{d:g}'} | {len(g)} | {len(ps)} "
+            f"| {min(ps) if ps else math.nan:.2g} "
+            + " ".join(f"| {_count([p < a for p in ps])}" for a in alphas)
+            + f" | {_count([r['named'] for r in g])} "
+            f"| {_count([r.get('named_without_drift', r['named']) for r in g])} |"
+        )
+    return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:

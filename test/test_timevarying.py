@@ -12,7 +12,10 @@ from mr_bench.beyond import draw_beyond
 from mr_bench.scenarios import draw_loop
 from mr_ident import simulate
 from mr_ident.diagnosis import diagnose
+from mr_ident.diagnosis.criterion.gain_drift import PARTS, gain_drift, long_run, neighbours
+from mr_ident.diagnosis.criterion.objective import settle_samples
 from mr_ident.diagnosis.criterion.timevarying import (
+    DRIFT_ALPHA,
     POOLED_ALPHA,
     SEGMENTS,
     VARYING_DB,
@@ -54,6 +57,7 @@ def test_a_time_invariant_loop_is_not_named_time_varying(seed):
     assert got is not None and got.parts == SEGMENTS and got.bands
     assert got.level_db < VARYING_DB and not got.varying and got.text() == ""
     assert got.pooled is not None and got.pooled.p > POOLED_ALPHA
+    assert got.drift is not None and got.drift.p > DRIFT_ALPHA and len(got.drift.gains) == PARTS
 
 
 def _lines(rng, M, K, change, n=8):
@@ -167,3 +171,76 @@ def test_a_gain_that_changes_during_the_record_is_named_in_the_report():
     assert rep["time_varying"]["detected"] and s.text() in rep["findings"]
     assert len(rep["time_varying"]["bands"]) == len(s.bands)
     assert not (d.applied and d.fit_after.y < d.fit_before.y)
+
+
+def test_the_time_domain_gains_follow_the_gain_over_each_segment():
+    """The case above, the gain ``1 + a sin(2 pi t / T)`` on u: each segment's IV gain is the
+    gain's mean over the segment's samples (within 0.035, 0.023 measured: the products weigh
+    the samples unevenly, most where the gain moves fastest), far beyond the scatter of
+    time-invariant segments (p < DRIFT_ALPHA)."""
+    b = draw_beyond("time_varying_gain", np.random.default_rng(6026004), duration=10.0)
+    got = gain_drift(b.data, b.nominal)
+    assert got is not None and got.p < DRIFT_ALPHA
+    a, T = b.parameters["amplitude"], b.parameters["period_s"]
+    n, k = b.data.n_samples, len(got.gains)
+    start = settle_samples(b.nominal, n)  # the samples used: from the loop's settling on
+    size = (n - start) // k
+    t = np.arange(start, start + k * size) / b.nominal.fs_high
+    want = (1.0 + a * np.sin(2 * np.pi * t / T)).reshape(k, size).mean(axis=1)
+    np.testing.assert_allclose(got.gains, want, atol=0.035)
+
+
+def test_a_neighbours_mean_leaves_the_bin_itself_out_and_wraps_around_the_circle():
+    x = np.arange(20.0) ** 2
+    got = neighbours(x, 2)
+    want = [np.mean([x[(k + j) % 20] for j in (-2, -1, 1, 2)]) for k in range(20)]
+    np.testing.assert_allclose(got, want)
+
+
+def test_the_long_run_variance_of_the_products_is_the_isserlis_one():
+    """z and e coloured (AR(1) 0.8 and 0.6), e holding a part of z (a model error: ``0.5 q⁻¹
+    / (1 - 0.5 q⁻¹)`` of z): Σ_τ γ_x(τ) of x = z e against ∫ (Φ_z Φ_e + Φ_ze²) on a fine
+    grid (72.5; without the cross term 45.4). The estimate's mean over 300 records of 4096
+    samples within 3 % (measured 0.03 %, its sd 0.9 %); the Monte Carlo variance of Σ z e
+    over 1500 records within 12 % (measured 0.5 %, sd about 4 %)."""
+    import scipy.signal
+
+    w = np.linspace(0, 2 * np.pi, 1 << 16, endpoint=False)
+    q = np.exp(-1j * w)
+    Hz, He, G = 1 / (1 - 0.8 * q), 1 / (1 - 0.6 * q), 0.5 * q / (1 - 0.5 * q)
+    Pz = np.abs(Hz) ** 2
+    Pe = np.abs(He) ** 2 + np.abs(G) ** 2 * Pz
+    Pze = np.conj(G) * Pz  # E Z conj(E)
+    truth = float(np.mean(Pz * Pe + Pze**2).real)
+    rng = np.random.default_rng(5)
+    L, burn = 4096, 300
+    est, sums = [], []
+    for i in range(1500):
+        w1, w2 = rng.standard_normal((2, L + burn))
+        z = scipy.signal.lfilter([1], [1, -0.8], w1)
+        e = scipy.signal.lfilter([1], [1, -0.6], w2) + scipy.signal.lfilter([0, 0.5], [1, -0.5], z)
+        z, e = z[burn:], e[burn:]
+        sums.append(float(z @ e))
+        if i < 300:
+            est.append(float(long_run(z[:, None], e[:, None]).sum()) / L)
+    np.testing.assert_allclose(np.mean(est), truth, rtol=0.03)
+    np.testing.assert_allclose(np.var(sums) / L, truth, rtol=0.12)
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_the_time_domain_gains_of_periodic_and_open_loop_records_stay_within_their_noise(seed):
+    """A periodic record (whole periods, e's noise only) and the same plant in open loop (z
+    the plant model driven by u): time-invariant, so p above DRIFT_ALPHA (measured over 30
+    loops: p from 0.15 periodic and 0.018 open loop)."""
+    loop = draw_loop(np.random.default_rng(seed), duration=10.0)
+    m = loop.nominal
+    noise = m.noise_std * np.random.default_rng(seed + 100).standard_normal(loop.y_clean.shape)
+    P = 256 * m.ratio
+    reps = loop.reference.shape[0] // P
+    r = np.tile(loop.reference[:P], (reps, 1))
+    rec = dataclasses.replace(simulate(m, reference=r, noise=noise[: reps * P]), period=P)
+    got = gain_drift(rec, m)
+    assert got is not None and got.p > DRIFT_ALPHA and got.dof[0] == min(PARTS, reps - 1) - 1
+    opened = dataclasses.replace(m, controller=None)
+    got = gain_drift(simulate(opened, reference=loop.reference, noise=noise), opened)
+    assert got is not None and got.p > DRIFT_ALPHA

@@ -13,7 +13,7 @@ from typing import Any
 from ..numerics.lifted.pfg_check import COVERAGE, MIN_FRACTION
 from .controller.relation import EXACT
 from .criterion.distortion import NL_THRESHOLD_DB
-from .criterion.timevarying import POOLED_ALPHA, VARYING_DB
+from .criterion.timevarying import DRIFT_ALPHA, POOLED_ALPHA, VARYING_DB
 from .diagnose import Diagnosis
 from .selection.forward import ACCEPT_MARGIN
 
@@ -161,6 +161,14 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
                 "p": _finite(d.segments.pooled.p),
                 "alpha": POOLED_ALPHA,
                 "blocks": d.segments.pooled.blocks,
+            },
+            "time_domain": None
+            if d.segments.drift is None
+            else {
+                "gain_change": _finite(d.segments.drift.change),
+                "gains": [_finite(c) for c in d.segments.drift.gains],
+                "p": _finite(d.segments.drift.p),
+                "alpha": DRIFT_ALPHA,
             },
             "bands": [
                 {"band_hz": list(b.band), "level_db": _finite(b.line_ratio_db), "lines": b.lines}

@@ -52,6 +52,11 @@ neighbouring half-window blocks 0.11-0.15 against 0.15) and its σ² differs fro
 segments' scatter by band (0.6-0.8 of it in the lowest blocks, 1.1-1.3 in the highest),
 both of which leave the test conservative there.
 
+A third test pools the whole band into one gain per segment, in time
+(:mod:`.gain_drift`: the instrumental-variable gain of the plant model's output driven by
+the measured u, the closed-loop prediction from r the instrument, against a long-run
+variance from the record's spectra); named also below :data:`DRIFT_ALPHA`.
+
 Segments: a random record is cut into :data:`SEGMENTS` equal parts (multiples of F),
 fewer where a part would be shorter than diagnose takes; a periodic one into whole
 periods, at least 4 per segment (the first is dropped as transient); none when fewer than
@@ -69,6 +74,7 @@ from ...numerics.arrays import ComplexArray, FloatArray
 from ...numerics.identify import min_samples
 from ...numerics.signals import LoopData
 from ...numerics.systems.model import Model
+from .gain_drift import GainDrift, gain_drift
 from .realizations import SpreadLevels, aligned, levels
 
 #: Segments a record is cut into (at most).
@@ -83,6 +89,10 @@ VARYING_DB = 1.5
 #: the plant is named time-varying (calibration: docs/diagnose.md,
 #: benchmarks/bench_timevarying.py).
 POOLED_ALPHA = 1e-4
+#: False-alarm probability of the segments' time-domain gains (:mod:`.gain_drift`) below
+#: which the plant is named time-varying (Bonferroni with :data:`POOLED_ALPHA`: the two
+#: p-tests together false-alarm with at most their sum).
+DRIFT_ALPHA = 1e-4
 #: Most blocks of lines the pooled test compares the segments' change against.
 BLOCKS = 12
 
@@ -237,16 +247,20 @@ class Segments:
     parts: int
     level_db: float
     pooled: Pooled | None = None
+    drift: GainDrift | None = None
 
     @property
     def varying(self) -> bool:
         """The segments differ beyond their noise (module docstring).
 
-        The level above :data:`VARYING_DB`, or the pooled relative change's false-alarm
-        probability below :data:`POOLED_ALPHA`.
+        The level above :data:`VARYING_DB`, the pooled relative change's false-alarm
+        probability below :data:`POOLED_ALPHA` or the segments' time-domain gains'
+        (:mod:`.gain_drift`) below :data:`DRIFT_ALPHA`.
         """
-        return (math.isfinite(self.level_db) and self.level_db > VARYING_DB) or (
-            self.pooled is not None and self.pooled.p < POOLED_ALPHA
+        return (
+            (math.isfinite(self.level_db) and self.level_db > VARYING_DB)
+            or (self.pooled is not None and self.pooled.p < POOLED_ALPHA)
+            or (self.drift is not None and self.drift.p < DRIFT_ALPHA)
         )
 
     def text(self) -> str:
@@ -263,6 +277,12 @@ class Segments:
             if pool is not None and pool.p < POOLED_ALPHA
             else ""
         )
+        drift = self.drift
+        if drift is not None and drift.p < DRIFT_ALPHA:
+            gain += (
+                f"; its gain, one per segment of {len(drift.gains)} in time, moves by "
+                f"{100 * drift.change:.0f} % rms (p = {drift.p:.1g})"
+            )
         return (
             f"the plant changes within the record: the plant estimates of its {self.parts} "
             f"consecutive segments differ beyond their noise, {self.level_db:.1f} dB on "
@@ -307,4 +327,4 @@ def within(rec: LoopData, model: Model, *, n: int = 8, degree: int = 2) -> Segme
     pool = pooled(
         *got[:3], df=model.fs_high / grid, low_bins=grid // unit, window=2 * n + 1, degree=degree
     )
-    return Segments(bands, len(segs), level, pool)
+    return Segments(bands, len(segs), level, pool, gain_drift(rec, model))
