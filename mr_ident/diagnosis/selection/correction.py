@@ -7,8 +7,8 @@ significant, no listed cause explains them. An error spread thinly over many bin
 them significant alone, is seen by the total of the squared σ-errors over the tested bins
 against its null (:mod:`~mr_ident.diagnosis.criterion.broadband`); when either test is
 significant, a stable low-order correction ``C`` of the
-plant at the high rate is fitted to what is left on the tested bins (those whose window
-reaches DC left out, as by the tests), weighted by the FRF's std
+plant at the high rate is fitted to what is left (on every bin: the lowest ones, untested,
+hold its low-frequency end), weighted by the FRF's std
 (:func:`~mr_ident.numerics.fit.frf_fit.fit_frf`, discrete at ``1/fs_high``, so that no hold
 or delay is assumed):
 
@@ -267,14 +267,19 @@ def window(ident: Identification | None, n: int) -> int:
 
 
 def _targets(ev: Evidence, multiplicative: bool) -> FRF | None:
-    """What the correction must fit on the evidence's tested bins: P̂ - P or P̂ / P - 1, with σ."""
+    """What the correction must fit on the evidence's bins: P̂ - P or P̂ / P - 1, with σ.
+
+    Every bin with a finite std, those whose window reaches DC too (untested, but they hold
+    the correction's low-frequency end: without them a benchmark pole-zero pair at 2.7 Hz,
+    corrected with them, was fitted a correction that validated worse).
+    """
     f, P_hat, std, P = ev.frequency, ev.P_hat, ev.P_std, ev.P_model
     if not multiplicative:
         H, S = P_hat - P, std
     else:
         with np.errstate(divide="ignore", invalid="ignore"):
             H, S = P_hat / P - 1.0, std / np.abs(P)
-    ok = ev.tested & (f > 0) & np.all(np.isfinite(H) & np.isfinite(S) & (S > 0), axis=(1, 2))
+    ok = (f > 0) & np.all(np.isfinite(H) & np.isfinite(S) & (S > 0), axis=(1, 2))
     if ok.sum() < 8:
         return None
     return FRF(f[ok], H[ok], S[ok], "correction")
