@@ -322,7 +322,8 @@ def correction(
     Returns
     -------
     Correction or None
-        None when nothing is significant any more on the estimation data.
+        None when nothing is significant any more on the estimation data: no bin, nor the
+        total over the band (:mod:`~mr_ident.diagnosis.criterion.broadband`).
     """
     ev = frf_evidence(current, est, n=n, degree=degree, alpha=alpha, ident=ident)
     bb = broadband(ev, n=window(ident, n), degree=degree, alpha=alpha)
