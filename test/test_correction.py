@@ -135,6 +135,9 @@ def test_the_cli_writes_the_correction_to_the_model_file_and_the_report(out_of_v
     rep = json.loads((tmp_path / "r.json").read_text())
     corr = rep["correction"]
     assert corr["accepted"] and corr["z_causes"] > corr["z_critical"]
+    bb = corr["broadband"]  # the broadband test on the estimation data, reported beside
+    assert bb["n_terms"] > 0 and bb["sd"] > 0
+    assert bb["significant"] == (bb["total"] > bb["threshold"])
     text = (tmp_path / "ext.yaml").read_text()
     assert "a plant correction" in text.splitlines()[1] and "plant_corrections:" in text
     assert load_model(tmp_path / "ext.yaml").plant_corrections
@@ -226,3 +229,15 @@ def test_a_correction_that_could_not_be_fitted_says_so():
     c = Correction([(1.0, 2.0)], None, (), False, *(np.nan,) * 4)
     assert c.model is None and c.text().endswith("no stable correction could be fitted")
     assert c.summary()["kind"] is None and c.summary()["fit_nominal"] is None
+
+
+def test_a_correction_found_by_the_broadband_test_alone_says_so():
+    from mr_ident.diagnosis.criterion.broadband import Broadband
+    from mr_ident.diagnosis.selection.correction import Correction
+
+    bb = Broadband(1300.0, 1100.0, 80.0, 1000, 5.9, 1286.0)
+    assert bb.significant and bb.z == pytest.approx(2.5)
+    c = Correction([(1.0, 2.0)], None, (), False, *(np.nan,) * 4, broadband=bb, per_bin=False)
+    assert c.thin and "spread thinly: no bin significant alone, the total 2.5 sd" in c.text()
+    s = c.summary()["broadband"]
+    assert s is not None and s["significant"] and s["z"] == pytest.approx(2.5)

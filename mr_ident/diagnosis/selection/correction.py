@@ -3,8 +3,12 @@
 
 After the best causes, the extended model is held against the estimation data's FRF again
 (:func:`~mr_ident.diagnosis.criterion.evidence.frf_evidence`); where bins are still
-significant, no listed cause explains them. There a stable low-order correction ``C`` of the
-plant at the high rate is fitted to what is left, weighted by the FRF's std
+significant, no listed cause explains them. An error spread thinly over many bins, none of
+them significant alone, is seen by the total of the squared σ-errors over the tested bins
+against its null (:mod:`~mr_ident.diagnosis.criterion.broadband`); when either test is
+significant, a stable low-order correction ``C`` of the
+plant at the high rate is fitted to what is left (on every bin: the lowest ones, untested,
+hold its low-frequency end), weighted by the FRF's std
 (:func:`~mr_ident.numerics.fit.frf_fit.fit_frf`, discrete at ``1/fs_high``, so that no hold
 or delay is assumed):
 
@@ -46,6 +50,7 @@ from ...numerics.signals import LoopData
 from ...numerics.systems.modal import ModalPlant
 from ...numerics.systems.model import Model
 from ...numerics.systems.simulate import loop_poles
+from ..criterion.broadband import Broadband, broadband
 from ..criterion.evidence import Evidence, frf_evidence, identify_record
 from ..criterion.noise import noise_spectrum
 from ..criterion.objective import Objective, settle_samples
@@ -86,7 +91,8 @@ class Correction:
     Attributes
     ----------
     bands : list of (float, float)
-        Hz: where the extended model was still significantly wrong on the estimation data.
+        Hz: where the extended model was still significantly wrong on the estimation data
+        (bin by bin; the tested range when only the broadband test was significant).
     best : Candidate or None
         Of the candidates that validate, the one of lowest validation BIC; when none does,
         the lowest of all (None: no candidate could be fitted).
@@ -102,6 +108,10 @@ class Correction:
         ``z_{1-alpha}``.
     fit_nominal, fit_causes : float
         Their validation fits of y (%).
+    broadband : Broadband or None
+        The broadband test of the extended model on the estimation data.
+    per_bin : bool
+        Some bin was significant (False: only the broadband test was, the error thin).
     """
 
     bands: list[tuple[float, float]]
@@ -115,6 +125,13 @@ class Correction:
     z_nominal: float = math.nan
     z_causes: float = math.nan
     z_critical: float = math.nan
+    broadband: Broadband | None = None
+    per_bin: bool = True
+
+    @property
+    def thin(self) -> bool:
+        """Only the broadband test was significant (no single bin was)."""
+        return not self.per_bin
 
     @property
     def model(self) -> Model | None:
@@ -136,6 +153,11 @@ class Correction:
             else f"{len(self.bands)} bands between {self.bands[0][0]:.3g} and "
             f"{self.bands[-1][1]:.3g} Hz"
         )
+        if self.thin and self.broadband is not None:
+            where += (
+                f" (spread thinly: no bin significant alone, the total "
+                f"{self.broadband.z:.1f} sd above the noise's)"
+            )
         if self.best is None:
             return f"not a listed cause at {where}, and no stable correction could be fitted"
         b = self.best
@@ -168,6 +190,7 @@ class Correction:
             "z_nominal": _finite(self.z_nominal),
             "z_causes": _finite(self.z_causes),
             "z_critical": _finite(self.z_critical),
+            "broadband": None if self.broadband is None else self.broadband.summary(),
             "candidates": [
                 {
                     "kind": c.kind,
@@ -233,8 +256,23 @@ def describe(kind: str, C: ModalPlant) -> str:
     return f"{article} {kind} correction of the plant with {body}"
 
 
+def window(ident: Identification | None, n: int) -> int:
+    """The LPM's window half-width of ``ident`` (median of ``n_used``; 0: periodic lines)."""
+    if ident is None:
+        return 0
+    used = ident.n_used
+    if used is None or not np.any(used > 0):
+        return n
+    return int(np.median(used[used > 0]))
+
+
 def _targets(ev: Evidence, multiplicative: bool) -> FRF | None:
-    """What the correction must fit on the evidence's bins: P̂ - P or P̂ / P - 1, with σ."""
+    """What the correction must fit on the evidence's bins: P̂ - P or P̂ / P - 1, with σ.
+
+    Every bin with a finite std, those whose window reaches DC too (untested, but they hold
+    the correction's low-frequency end: without them a benchmark pole-zero pair at 2.7 Hz,
+    corrected with them, was fitted a correction that validated worse).
+    """
     f, P_hat, std, P = ev.frequency, ev.P_hat, ev.P_std, ev.P_model
     if not multiplicative:
         H, S = P_hat - P, std
@@ -284,12 +322,16 @@ def correction(
     Returns
     -------
     Correction or None
-        None when nothing is significant any more on the estimation data.
+        None when nothing is significant any more on the estimation data: no bin, nor the
+        total over the band (:mod:`~mr_ident.diagnosis.criterion.broadband`).
     """
     ev = frf_evidence(current, est, n=n, degree=degree, alpha=alpha, ident=ident)
-    if not ev.significant.any():
+    bb = broadband(ev, n=window(ident, n), degree=degree, alpha=alpha)
+    per_bin = bool(ev.significant.any())
+    if not per_bin and not bb.significant:
         return None
-    bands = ev.bands()
+    f_tested = ev.frequency[ev.tested]
+    bands = ev.bands() if per_bin else [(float(f_tested.min()), float(f_tested.max()))]
     siso = nominal.n_u == 1 and nominal.n_y == 1
     fits: list[tuple[str, int, ModalPlant, int]] = []
     for kind in ("additive", "multiplicative") if siso else ("additive",):
@@ -301,7 +343,7 @@ def correction(
             if C is not None:
                 fits.append((kind, order, C, _n_params(C, kind == "multiplicative")))
     if not fits:
-        return Correction(bands, None, (), False, *(math.nan,) * 4)
+        return Correction(bands, None, (), False, *(math.nan,) * 4, broadband=bb, per_bin=per_bin)
     val_part = val.part(val_start, val.n_samples) if val_start else val
     start = val_start
     if not start and nominal.controller is not None and val.period is None:
@@ -342,7 +384,7 @@ def correction(
     best = min(good or cands, key=lambda c: c.bic, default=None)
     z_nom, z_cur = (math.nan, math.nan) if best is None else (best.z_nominal, best.z_causes)
     return Correction(bands, best, tuple(cands), bool(good), score_nom, score_cur, fit_nom,
-                      fit_cur, z_nom, z_cur, z_crit)  # fmt: skip
+                      fit_cur, z_nom, z_cur, z_crit, bb, per_bin)  # fmt: skip
 
 
 def _bin_power(crit: Objective, model: Model) -> FloatArray:
