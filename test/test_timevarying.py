@@ -244,3 +244,23 @@ def test_the_time_domain_gains_of_periodic_and_open_loop_records_stay_within_the
     opened = dataclasses.replace(m, controller=None)
     got = gain_drift(simulate(opened, reference=loop.reference, noise=noise), opened)
     assert got is not None and got.p > DRIFT_ALPHA
+
+
+def test_a_line_without_noise_is_left_out_of_the_line_ratio():
+    """A line whose noise variance is 0 (an exact estimate; a benchmark record had one and
+    read inf) is left out of the mean of the lines' own ratios: the rest's mean, exactly."""
+    from mr_ident.diagnosis.criterion.realizations import levels
+
+    rng = np.random.default_rng(3)
+    f = np.linspace(1.0, 10.0, 40)
+    G = 1.0 + 0.1 * (rng.standard_normal((4, 40, 1)) + 1j * rng.standard_normal((4, 40, 1)))
+    V = np.full((4, 40, 1), 0.02)
+    V[:, 7] = 0.0
+    spread = np.sum(np.abs(G - G.mean(axis=0)) ** 2, axis=0) / 3
+    keep = np.arange(40) != 7
+    bands = levels(f, G, V, 10)
+    assert any(b.band[0] <= f[7] < b.band[1] for b in bands)
+    for b in bands:
+        inb = (f >= b.band[0]) & (f < b.band[1])
+        want = 10 * np.log10(np.mean(spread[inb & keep] / 0.02))
+        assert abs(b.line_ratio_db - want) < 1e-9

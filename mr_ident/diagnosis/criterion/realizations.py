@@ -195,6 +195,11 @@ def compare(
     return [] if got is None else levels(*got)
 
 
+#: A line whose noise variance is below this share of its band's median is left out of
+#: the lines' own ratios (an exact estimate: its ratio is no measure of the spread).
+LINE_NOISE_FLOOR = 1e-3
+
+
 def levels(f: FloatArray, G: ComplexArray, V: FloatArray, q: int) -> list[SpreadLevels]:
     """The spread of estimates against their noise, per band (module docstring).
 
@@ -220,7 +225,13 @@ def levels(f: FloatArray, G: ComplexArray, V: FloatArray, q: int) -> list[Spread
             rel = np.mean(mag2[inb])
             nl = math.sqrt(max(s2 - n2, 0.0) / M / rel) if rel > 0 else float("nan")
             nz = math.sqrt(n2 / M / rel) if rel > 0 else float("nan")
-            ratio = 10.0 * float(np.log10(np.mean(spread[inb] / noise[inb])))
+            nb = noise[inb]
+            ok = nb > LINE_NOISE_FLOOR * np.median(nb)  # exact lines carry no ratio
+            ratio = (
+                10.0 * float(np.log10(np.mean(spread[inb][ok] / nb[ok])))
+                if ok.any()
+                else float("nan")
+            )
         thr = 10.0 * math.log10(
             float(scipy.stats.f.isf(LEVEL_ALPHA, 2 * L * (M - 1), 2 * L * max(q, 1)))
         )
