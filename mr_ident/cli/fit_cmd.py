@@ -87,8 +87,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
     fs, ratio = ident.fs_high, ident.ratio
     n_in = ident.plant.n_in
     q, kernel = None, None
-    if ident.n_used is not None and np.any(ident.n_used > 0):
-        n = int(np.median(ident.n_used[ident.n_used > 0]))
+    n = ident.median_window
+    if n is not None:
         q = float(dof(n, 2, n_in * ratio)) if ident.local == "polynomial" else None
         q = q if q is not None and q > 1 else None
         kernel = lpm_kernel(n)

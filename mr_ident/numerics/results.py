@@ -244,3 +244,13 @@ class Identification:
             raise DimensionError(
                 f"fs_high must be > 0 and ratio >= 1, got {self.fs_high}, {self.ratio}"
             )
+
+    @property
+    def median_window(self) -> int | None:
+        """The fit's typical window half-width: the median of the positive ``n_used``.
+
+        None where no window was recorded.
+        """
+        if self.n_used is None or not np.any(self.n_used > 0):
+            return None
+        return int(np.median(self.n_used[self.n_used > 0]))

@@ -233,7 +233,7 @@ def frf_evidence(
     z = np.nanmax(zP.reshape(zP.shape[0], -1), axis=1) if zP.size else np.zeros(0)
     thr = threshold(alpha, int(np.isfinite(zP[~untested]).sum()), dof)
     return Evidence(
-        np.asarray(f, float),
+        f,
         P_hat,
         P_std,
         P_model,

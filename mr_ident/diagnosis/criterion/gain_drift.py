@@ -71,6 +71,7 @@ import numpy as np
 
 from ...numerics.arrays import FloatArray
 from ...numerics.signals import LoopData
+from ...numerics.systems.lti import StateSpace
 from ...numerics.systems.model import Model
 from .objective import settle_samples
 from .prediction import centred, driving_input, predict
@@ -110,7 +111,8 @@ def gain_drift(rec: LoopData, model: Model, parts: int = PARTS) -> GainDrift | N
 
     if parts < 2:
         raise ValueError(f"parts must be at least 2, got {parts}")
-    got = _signals(rec, model)
+    Pd = model.plant_discrete()  # realised once: the regressor's plant and its free responses
+    got = _signals(rec, model, Pd)
     if got is None:
         return None
     z, y, yh, start = got
@@ -127,7 +129,7 @@ def gain_drift(rec: LoopData, model: Model, parts: int = PARTS) -> GainDrift | N
         return None
     used = slice(start, start + k * size)
     z, y, yh = z[used], y[used], yh[used]
-    basis = _free_basis(model, size)
+    basis = _free_basis(Pd, size)
     if basis is None:
         return None
     y, yh = _project(y, basis, k), _project(yh, basis, k)
@@ -145,7 +147,7 @@ def gain_drift(rec: LoopData, model: Model, parts: int = PARTS) -> GainDrift | N
     total = float(T.sum())
     if not total > 0:
         return None
-    V = size * total / (k * size)  # per segment (equal sizes)
+    V = total / k  # per segment: N_s Σ T̂ / L with N_s = size, L = k size
     w = D**2 / V
     cbar = float(np.sum(w * cs) / np.sum(w))
     X = float(np.sum(w * (cs - cbar) ** 2))
@@ -209,8 +211,13 @@ def dof(T: FloatArray) -> float:
     return float(2.0 * np.sum(half) ** 2 / np.sum(half**2))
 
 
-def _signals(rec: LoopData, model: Model) -> tuple[FloatArray, FloatArray, FloatArray, int] | None:
-    """``(z, y, ŷ, start)`` over the whole record (module docstring); None: not done."""
+def _signals(
+    rec: LoopData, model: Model, Pd: StateSpace
+) -> tuple[FloatArray, FloatArray, FloatArray, int] | None:
+    """``(z, y, ŷ, start)`` over the whole record (module docstring); None: not done.
+
+    ``Pd``: the model's plant, discrete (``model.plant_discrete()``).
+    """
     from ...numerics.systems.simulate import StateRecursion
 
     _, u, y = centred(rec, model)
@@ -227,7 +234,6 @@ def _signals(rec: LoopData, model: Model) -> tuple[FloatArray, FloatArray, Float
         y = y - model.disturbance(0, rec.n_samples)
     if rec.period is not None:
         start = -(-max(start, rec.period) // rec.period) * rec.period
-    Pd = model.plant_discrete()
     if Pd.A.size and np.max(np.abs(np.linalg.eigvals(Pd.A))) > 1.0 + 1e-9:
         return None
     with warnings.catch_warnings():  # a double integrator's: the direct recursion, slower
@@ -237,13 +243,12 @@ def _signals(rec: LoopData, model: Model) -> tuple[FloatArray, FloatArray, Float
     return z, y, yh, start
 
 
-def _free_basis(model: Model, n: int) -> FloatArray | None:
+def _free_basis(Pd: StateSpace, n: int) -> FloatArray | None:
     """A constant and the plant's free responses ``C A^t``, t = 0..n-1: (n, n_y, 1 + n_x).
 
     Orthonormal per channel over the n samples (columns below ``1e-9`` of the largest
     singular value dropped: modes that decayed, a delay's states). None where not finite.
     """
-    Pd = model.plant_discrete()
     A, C = np.asarray(Pd.A, dtype=float), np.asarray(Pd.C, dtype=float)
     nx, ny = A.shape[0], C.shape[0]
     cols = np.zeros((n, ny, 1 + nx))

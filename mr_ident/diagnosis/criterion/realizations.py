@@ -140,7 +140,8 @@ def aligned(
     ``f`` (K,) Hz; ``G`` (M, K, n_entries) the estimates; ``V`` (M, K, n_entries) their
     noise variances; ``q`` the sum of their noise dofs. None where :func:`compare` gives
     nothing (fewer than 2 usable records, fewer than 2 common lines, or with
-    ``realizations`` the same periodic realization twice).
+    ``realizations`` the same periodic realization twice; False: segments of one record,
+    :mod:`.timevarying`, where the same periodic realization is what makes the comparison).
     """
     known = list(idents) + [None] * (len(records) - len(idents))
     got = (_estimate(r, model, n, degree, i) for r, i in zip(records, known, strict=True))
@@ -181,17 +182,14 @@ def compare(
     n: int = 8,
     degree: int = 2,
     idents: Sequence[Identification | None] = (),
-    realizations: bool = True,
 ) -> list[SpreadLevels]:
     """The records' FRF spread against their noise, per band: levels(aligned(...)).
 
-    :func:`levels` of their :func:`aligned` estimates; [] for fewer than 2 usable records
-    or, with ``realizations``, the same realization twice (False: segments of one record,
-    :mod:`.timevarying`, where the same periodic realization is what makes the
-    comparison). ``idents``: the first records' :func:`~.evidence.identify_record` where
-    at hand (None: computed).
+    :func:`levels` of their :func:`aligned` estimates as realizations; [] for fewer than 2
+    usable records or the same realization twice. ``idents``: the first records'
+    :func:`~.evidence.identify_record` where at hand (None: computed).
     """
-    got = aligned(records, model, n=n, degree=degree, idents=idents, realizations=realizations)
+    got = aligned(records, model, n=n, degree=degree, idents=idents)
     return [] if got is None else levels(*got)
 
 

@@ -72,6 +72,7 @@ import numpy as np
 
 from ...numerics.arrays import ComplexArray, FloatArray
 from ...numerics.identify import min_samples
+from ...numerics.local.lpm import grid_bins
 from ...numerics.signals import LoopData
 from ...numerics.systems.model import Model
 from .gain_drift import GainDrift, gain_drift
@@ -161,7 +162,7 @@ def pooled(
         for m in range(M):
             x = g[:, e] * dev[m, :, e]
             S[m] += np.bincount(block, x.real, J) + 1j * np.bincount(block, x.imag, J)
-    k = np.rint(np.asarray(f, dtype=float) / df).astype(np.int64)
+    k = grid_bins(f, df)
     piece = 2 * k // low_bins if low_bins > 0 else np.zeros_like(k)  # one fit's neighbours
     C = _block_covariance(k, piece, block, h, J, (window - 1) // 2, degree)
     used = W > 0
@@ -228,7 +229,7 @@ def fold_bins(f: FloatArray, df: float, low_bins: int) -> np.ndarray:
     ``k = rint(f / df)``, ``m = k mod low_bins``, ``min(m, low_bins - m)``; ``k`` where
     ``low_bins`` is 0.
     """
-    k = np.rint(np.asarray(f, dtype=float) / df).astype(np.int64)
+    k = grid_bins(f, df)
     if low_bins <= 0:
         return k
     m = np.mod(k, low_bins)

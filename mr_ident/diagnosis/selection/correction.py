@@ -260,10 +260,8 @@ def window(ident: Identification | None, n: int) -> int:
     """The LPM's window half-width of ``ident`` (median of ``n_used``; 0: periodic lines)."""
     if ident is None:
         return 0
-    used = ident.n_used
-    if used is None or not np.any(used > 0):
-        return n
-    return int(np.median(used[used > 0]))
+    used = ident.median_window
+    return n if used is None else used
 
 
 def _targets(ev: Evidence, multiplicative: bool) -> FRF | None:

@@ -104,6 +104,15 @@ def smallest_n(degree: int, n_in: int, n_out: int, margin: int = 0) -> int:
     return (n_out + margin + (degree + 1) * (n_in + 1) - 1) // 2 + 1
 
 
+def grid_bins(frequency: ArrayLike, df: float) -> NDArray[np.int64]:
+    """The lines ``frequency`` (Hz) as bins of the grid ``df`` (Hz): ``rint(f / df)``.
+
+    >>> grid_bins([0.1, 0.2, 0.3], 0.1).tolist()
+    [1, 2, 3]
+    """
+    return np.rint(np.asarray(frequency, float) / df).astype(np.int64)
+
+
 def reaches_dc(frequency: ArrayLike, df: float, n: ArrayLike) -> NDArray[np.bool_]:
     """The bins whose window (half-width ``n``, one or one per bin) reaches DC.
 
@@ -120,8 +129,7 @@ def reaches_dc(frequency: ArrayLike, df: float, n: ArrayLike) -> NDArray[np.bool
     """
     if not df > 0:
         raise ValueError(f"df must be positive (Hz), got {df}")
-    k = np.rint(np.asarray(frequency, float) / df)
-    return np.asarray(k <= np.asarray(n, float), bool)
+    return np.asarray(grid_bins(frequency, df) <= np.asarray(n, float), bool)
 
 
 def check_window(n: int, degree: int) -> None:
