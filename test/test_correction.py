@@ -241,3 +241,74 @@ def test_a_correction_found_by_the_broadband_test_alone_says_so():
     assert c.thin and "spread thinly: no bin significant alone, the total 2.5 sd" in c.text()
     s = c.summary()["broadband"]
     assert s is not None and s["significant"] and s["z"] == pytest.approx(2.5)
+
+
+def _comb(d: int, c: float, r: float = 0.3) -> ModalPlant:
+    """``c / (z^d - r^d)`` in modal form: ``c z^-d`` to ``r^d`` (a delay's d poles, which
+    sit at z = 0, spread on a circle of radius r; pairs once)."""
+    p = r * np.exp(2j * np.pi * np.arange(d) / d)
+    keep = p.imag > -1e-12
+    p = np.where(np.abs(p.imag) < 1e-12, p.real, p)[keep]
+    return ModalPlant(p, (c / (d * p ** (d - 1)))[:, None, None], np.zeros((1, 1)), 1 / FS)
+
+
+def test_a_second_delay_path_gets_a_correction_above_order_four():
+    """u + 0.3 u[n - 6] at the plant's input (``1 + 0.3 z^-6``, a comb of six states): the
+    additive mode found leaves ten bands; the validation BIC still falls past order 4, so
+    higher orders are tried (measured: order 7, multiplicative, fit of y 77.2 % (nominal)
+    -> 91.9 % (the cause) -> 99.5 %, the true model's), stopping two orders after each
+    kind's lowest BIC; the text summarises its poles; the model file holds it."""
+    from mr_ident.diagnosis.criterion.prediction import time_fit
+    from mr_ident.diagnosis.selection.correction import MAX_ORDER, ORDER_CAP, PATIENCE
+
+    f = np.linspace(1.0, 249.0, 50)
+    comb = _comb(6, 0.3)
+    assert np.allclose(comb.freqresp(f)[:, 0, 0], 0.3 * np.exp(-2j * np.pi * f * 6 / FS),
+                       atol=1e-3)  # fmt: skip
+    true = dataclasses.replace(
+        _model(), noise_std=5e-4, plant_corrections=(("multiplicative", comb),)
+    )
+    data = simulate(true, duration=10.0, rng=np.random.default_rng(1))
+    val = simulate(true, duration=10.0, rng=np.random.default_rng(2))
+    d = diagnose(_model(), data, val, max_causes=1)
+    c = d.correction
+    assert c is not None and c.accepted and c.best is not None, c and c.text()
+    assert MAX_ORDER < c.best.order <= ORDER_CAP, c.text()
+    assert d.fit_after.y > time_fit(true, val, d.traces["start"]).y - 0.5
+    for kind in ("additive", "multiplicative"):
+        mine = [x for x in c.candidates if x.kind == kind]
+        lowest = min(mine, key=lambda x: x.bic).order
+        assert max(x.order for x in mine) <= min(max(lowest + PATIENCE, MAX_ORDER), ORDER_CAP)
+    assert f"correction of the plant of order {c.best.order}: " in c.text()
+    assert len(c.summary()["poles"]) == c.best.correction.poles.size
+    back = model_from_dict(yaml.safe_load(yaml.safe_dump(model_to_dict(d.extended))))
+    a, b = back.plant_discrete().freqresp(f), d.extended.plant_discrete().freqresp(f)
+    assert np.allclose(a, b, rtol=1e-8, atol=1e-12)
+
+
+def test_orders_past_four_are_tried_only_while_the_bic_falls(monkeypatch):
+    """The ladder of one kind: orders 1..4 always; past them one at a time, until two in a
+    row gave no lower BIC (an order that could not be fitted counts as none)."""
+    from mr_ident.diagnosis.selection import correction as corr
+
+    def run(bics: dict[int, float | None]) -> list[int]:
+        tried: list[int] = []
+
+        def fit(target, fs, order, kind):
+            tried.append(order)
+            return None if bics.get(order) is None else _pair()
+
+        def score(kind, order, C):
+            return corr.Candidate(kind, order, C, _model(), 3, bics[order], 90.0)
+
+        monkeypatch.setattr(corr, "_fit", fit)
+        first = [fit(None, FS, o, "additive") for o in range(1, corr.MAX_ORDER + 1)]
+        out = corr._ladder("additive", None, FS, first, score)
+        assert [x.order for x in out] == [o for o in tried if bics.get(o) is not None]
+        return tried
+
+    settled = {1: 5.0, 2: 1.0, 3: 2.0, 4: 3.0}  # lowest at 2: nothing more is fitted
+    assert run(settled) == [1, 2, 3, 4]
+    falling = {o: 100.0 - o for o in range(1, 8)} | {8: 95.0, 9: None, 10: 1.0}
+    assert run(falling) == list(range(1, 10))  # 8 and 9 (not fitted) gave none lower
+    assert run({o: -float(o) for o in range(1, 30)}) == list(range(1, corr.ORDER_CAP + 1))

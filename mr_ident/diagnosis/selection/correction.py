@@ -17,8 +17,15 @@ or delay is assumed):
   ``P̂ / P_ext - 1`` with ``σ̂ / |P_ext|`` (C has a direct term: a pole-zero pair's
   ratio does not vanish at high frequency).
 
-Every kind and order 1..:data:`MAX_ORDER` (states; a pair counts two) is a candidate. Each
-is judged on data it was not fitted on (the validation record, or the held-out part):
+Every kind and order 1..:data:`MAX_ORDER` (states; a pair counts two) is a candidate, and
+higher orders while the validation asks for them: past :data:`MAX_ORDER` one more at a time,
+per kind, up to :data:`ORDER_CAP`, until :data:`PATIENCE` orders in a row gave no lower
+validation BIC than the kind's lowest (a correction settled by order 4 costs nothing more).
+A second delay path ``u + c u[n-d]`` is the comb ``1 + c z^-d``: d states, its poles at
+z = 0, which the modal fit (distinct poles) places on a small circle (``c / (z^d - r^d)``,
+within the noise at order d).
+
+Each is judged on data it was not fitted on (the validation record, or the held-out part):
 the criterion of the causes (:class:`~mr_ident.diagnosis.criterion.objective.Objective`,
 whitened by the validation data's own noise level) as ``BIC = 2 J + p ln n``, p the
 correction's real parameters. A candidate validates when its BIC is lower than both the
@@ -31,13 +38,15 @@ that unmodelled nonlinear distortion, which inflates the BIC's differences alike
 change, counts as noise; a gain on a few bins, a resonance's, is judged as surely as one
 spread over the band). Of those that validate, the one of lowest BIC is applied (the
 order thus chosen on the validation data); when none does, the lowest of all is reported
-as a candidate that did not validate.
+as a candidate that did not validate. Past :data:`LISTED` poles and zeros the text counts
+and summarises them (:func:`describe`); the JSON lists every pole.
 """
 
 from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -58,8 +67,14 @@ from ..criterion.prediction import time_fit
 from .forward import ACCEPT_MARGIN
 from .validation import critical, gain, later
 
-#: Highest order (states) of a correction tried.
+#: Orders (states) of a correction always tried: 1..MAX_ORDER.
 MAX_ORDER = 4
+#: Highest order tried: past :data:`MAX_ORDER` only while the validation BIC still falls.
+ORDER_CAP = 12
+#: Orders in a row without a lower validation BIC (per kind) after which none higher is tried.
+PATIENCE = 2
+#: Past this many poles and zeros (pairs once) the text summarises them (:func:`describe`).
+LISTED = 6
 
 
 @dataclass(frozen=True)
@@ -97,7 +112,7 @@ class Correction:
         Of the candidates that validate, the one of lowest validation BIC; when none does,
         the lowest of all (None: no candidate could be fitted).
     candidates : tuple of Candidate
-        Every kind and order tried.
+        Every kind and order tried (that could be fitted and left the loop stable).
     accepted : bool
         ``best`` validates better than the nominal and than the causes (module docstring).
     score_nominal, score_causes : float
@@ -243,17 +258,43 @@ def _zeros(C: ModalPlant) -> ComplexArray:
 
 
 def describe(kind: str, C: ModalPlant) -> str:
-    """The correction in words: "an additive correction ... with a pole pair at 83 Hz, ..."."""
-    parts = poles_text(C)
-    if kind == "multiplicative" and C.shape == (1, 1) and C.dt is not None:
-        for z in _zeros(C):
-            f, zeta = _hz_damping(complex(z), 1.0 / C.dt)
-            kind_z = "a zero pair" if z.imag > 0 else "a real zero"
-            parts.append(f"{kind_z} at {f:.3g} Hz, damping {zeta:.2g}" if z.imag > 0 else
-                         f"{kind_z} at {f:.3g} Hz")  # fmt: skip
-    body = ", ".join(parts[:-1]) + (" and " if len(parts) > 1 else "") + parts[-1]
+    """The correction in words: "an additive correction ... with a pole pair at 83 Hz, ...".
+
+    Past :data:`LISTED` poles and zeros (a high order), counted and summarised instead:
+    "... of order 9: 3 pole pairs and 3 real poles between 0.005 and 258 Hz (the least
+    damped pair at 21.9 Hz, damping 0.59); ... zeros ...".
+    """
+    assert C.dt is not None  # fitted discrete
+    fs = 1.0 / C.dt
+    siso = kind == "multiplicative" and C.shape == (1, 1)
+    zeros = _zeros(C) if siso else np.zeros(0, complex)
     article = "an" if kind == "additive" else "a"
+    if C.poles.size + zeros.size > LISTED:
+        parts = [_summarised(C.poles, "pole", fs)]
+        if zeros.size:
+            parts.append(_summarised(zeros, "zero", fs))
+        return f"{article} {kind} correction of the plant of order {C.order}: {'; '.join(parts)}"
+    parts = poles_text(C)
+    for z in zeros:
+        f, zeta = _hz_damping(complex(z), fs)
+        kind_z = "a zero pair" if z.imag > 0 else "a real zero"
+        parts.append(f"{kind_z} at {f:.3g} Hz, damping {zeta:.2g}" if z.imag > 0 else
+                     f"{kind_z} at {f:.3g} Hz")  # fmt: skip
+    body = ", ".join(parts[:-1]) + (" and " if len(parts) > 1 else "") + parts[-1]
     return f"{article} {kind} correction of the plant with {body}"
+
+
+def _summarised(roots: ComplexArray, name: str, fs: float) -> str:
+    """Discrete poles or zeros (pairs once) counted, with their range and the least damped."""
+    pairs = [complex(r) for r in roots if r.imag > 0]
+    kinds = ((len(pairs), f"{name} pair"), (roots.size - len(pairs), f"real {name}"))
+    counts = [f"{k} {what}{'s' if k > 1 else ''}" for k, what in kinds if k]
+    hz = [_hz_damping(complex(r), fs)[0] for r in roots]
+    text = f"{' and '.join(counts)} between {min(hz):.3g} and {max(hz):.3g} Hz"
+    if pairs:
+        f, zeta = min((_hz_damping(p, fs) for p in pairs), key=lambda t: t[1])
+        text += f" (the least damped pair at {f:.3g} Hz, damping {zeta:.2g})"
+    return text
 
 
 def window(ident: Identification | None, n: int) -> int:
@@ -331,16 +372,11 @@ def correction(
     f_tested = ev.frequency[ev.tested]
     bands = ev.bands() if per_bin else [(float(f_tested.min()), float(f_tested.max()))]
     siso = nominal.n_u == 1 and nominal.n_y == 1
-    fits: list[tuple[str, int, ModalPlant, int]] = []
-    for kind in ("additive", "multiplicative") if siso else ("additive",):
-        target = _targets(ev, kind == "multiplicative")
-        if target is None:
-            continue
-        for order in range(1, MAX_ORDER + 1):
-            C = _fit(target, nominal.fs_high, order, kind == "multiplicative")
-            if C is not None:
-                fits.append((kind, order, C, _n_params(C, kind == "multiplicative")))
-    if not fits:
+    kinds = ("additive", "multiplicative") if siso else ("additive",)
+    targets = {k: t for k in kinds if (t := _targets(ev, k == "multiplicative")) is not None}
+    fits = {k: [_fit(t, nominal.fs_high, o, k) for o in range(1, MAX_ORDER + 1)]
+            for k, t in targets.items()}  # fmt: skip
+    if not any(C is not None for row in fits.values() for C in row):
         return Correction(bands, None, (), False, *(math.nan,) * 4, broadband=bb, per_bin=per_bin)
     val_part = val.part(val_start, val.n_samples) if val_start else val
     start = val_start
@@ -355,11 +391,14 @@ def correction(
     power_nom = _bin_power(crit, nominal)
     power_cur = power_nom if current is nominal else _bin_power(crit, seen)
     score_nom, score_cur = 2.0 * float(power_nom.sum()), 2.0 * float(power_cur.sum())
-    cands, z_crit = [], critical(alpha)
-    for kind, order, C, p in fits:
+    z_crit = critical(alpha)
+
+    def score(kind: str, order: int, C: ModalPlant) -> Candidate | None:
+        """C scored on the validation data (None: the loop with it is unstable)."""
         model = replace(current, plant_corrections=(*current.plant_corrections, (kind, C)))
         if not _stable(model):
-            continue
+            return None
+        p = _n_params(C, kind == "multiplicative")
         power = _bin_power(crit, later(model, val_start))
         bic = 2.0 * float(power.sum()) + p * math.log(crit.n_bins)
         with warnings.catch_warnings():
@@ -367,9 +406,13 @@ def correction(
             fy = time_fit(model, val, start).y
         z_nom = gain(crit, nominal, later(model, val_start)).z
         z = (z_nom, z_nom if current is nominal else gain(crit, seen, later(model, val_start)).z)
-        cands.append(
-            Candidate(kind, order, C, model, p, bic, fy if math.isfinite(fy) else -1e9, *z)
-        )
+        return Candidate(kind, order, C, model, p, bic, fy if math.isfinite(fy) else -1e9, *z)
+
+    cands = [
+        c
+        for kind, target in targets.items()
+        for c in _ladder(kind, target, nominal.fs_high, fits[kind], score)
+    ]
 
     def validates(c: Candidate) -> bool:
         return (
@@ -385,6 +428,36 @@ def correction(
                       fit_cur, z_nom, z_cur, z_crit, bb, per_bin)  # fmt: skip
 
 
+def _ladder(
+    kind: str,
+    target: FRF,
+    fs: float,
+    first: list[ModalPlant | None],
+    score: Callable[[str, int, ModalPlant], Candidate | None],
+) -> list[Candidate]:
+    """The candidates of one kind: orders 1..:data:`MAX_ORDER` (``first``, fitted), then up.
+
+    Past :data:`MAX_ORDER` one order at a time, up to :data:`ORDER_CAP`, until
+    :data:`PATIENCE` orders in a row gave no lower validation BIC than the kind's lowest so
+    far (an order that could not be fitted, or left the loop unstable, gives none): a
+    correction that had settled by order 4 costs nothing more.
+    """
+    out: list[Candidate] = []
+    lowest, idle = math.inf, 0
+    for order in range(1, ORDER_CAP + 1):
+        if order > MAX_ORDER and idle >= PATIENCE:
+            break
+        C = first[order - 1] if order <= MAX_ORDER else _fit(target, fs, order, kind)
+        c = None if C is None else score(kind, order, C)
+        if c is not None:
+            out.append(c)
+        if c is not None and c.bic < lowest:
+            lowest, idle = c.bic, 0
+        else:
+            idle += 1
+    return out
+
+
 def _bin_power(crit: Objective, model: Model) -> FloatArray:
     """Per bin (and output) the whitened squared residual ``|E_k|² / S_k`` of ``model``."""
     r = crit.residuals(model)
@@ -397,8 +470,12 @@ def _n_params(C: ModalPlant, direct: bool) -> int:
     return C.order * (1 + no * ni) + (no * ni if direct else 0)
 
 
-def _fit(target: FRF, fs: float, order: int, direct: bool) -> ModalPlant | None:
-    """A stable discrete C of ``order`` states fitted to ``target``; None when none is."""
+def _fit(target: FRF, fs: float, order: int, kind: str) -> ModalPlant | None:
+    """A stable discrete C of ``order`` states fitted to ``target``; None when none is.
+
+    With a direct term when multiplicative (``1 + C`` need not tend to 1 at high frequency).
+    """
+    direct = kind == "multiplicative"
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
