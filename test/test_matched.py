@@ -127,3 +127,22 @@ def test_periodic_records_and_foreign_bins_are_handled():
     ev = frf_evidence(m, rec2, n=n, degree=2, alpha=0.01)
     with pytest.raises(ValueError, match="ev must be on the bins"):
         matched_evidence(ev, model, rec, n=8, degree=2, alpha=0.01)
+
+
+def test_the_output_errors_noise_level_is_the_noises_at_the_lowest_bins():
+    """Exact model, white output noise of variance σ²: from y the LPM noise at the first
+    bins is the local fit's misfit (over 10⁶ σ² here); from the output error, unshaped by
+    the loop, it is σ² within the running median's scatter (measured 0.5-2.3 σ²)."""
+    from mr_ident.diagnosis.criterion.evidence import identify_record
+    from mr_ident.diagnosis.criterion.noise import noise_spectrum
+
+    m, r, v, n = _benchmark_loop()
+    rec = simulate(m, reference=r, noise=v)
+    plain = noise_spectrum(rec, m, n=n, degree=2)[:, 0] / m.noise_std**2
+    err = output_error(m, rec)
+    assert err is not None
+    ident = identify_record(err, m, n=n, degree=2)
+    level = noise_spectrum(rec, m, n=n, degree=2, ident=ident, shaped=False)[:, 0]
+    level = level / m.noise_std**2
+    assert np.all(plain[:10] > 1e6)
+    assert np.all((level > 0.4) & (level < 3.0))

@@ -25,7 +25,11 @@ or delay is assumed):
 Every kind and order 1..:data:`MAX_ORDER` (states; a pair counts two) is a candidate. Each
 is judged on data it was not fitted on (the validation record, or the held-out part):
 the criterion of the causes (:class:`~mr_ident.diagnosis.criterion.objective.Objective`,
-whitened by the validation data's own noise level) as ``BIC = 2 J + p ln n``, p the
+whitened by the validation data's own noise level, taken from the causes' output error
+identified as the data are, :func:`~mr_ident.diagnosis.criterion.matched.output_error`,
+the noise before the loop shapes it: from y itself the local fit's misfit reads as noise,
+at the lowest bins of the benchmark's loops hundreds to millions of times the noise, and a
+correction's gain there went unseen) as ``BIC = 2 J + p ln n``, p the
 correction's real parameters. A candidate validates when its BIC is lower than both the
 nominal's and the extended model's ``2 J`` by more than the selection's
 :data:`~mr_ident.diagnosis.selection.forward.ACCEPT_MARGIN`, its validation fit of y is
@@ -57,7 +61,7 @@ from ...numerics.systems.model import Model
 from ...numerics.systems.simulate import loop_poles
 from ..criterion.broadband import Broadband, broadband
 from ..criterion.evidence import Evidence, frf_evidence, identify_record
-from ..criterion.matched import matched_evidence
+from ..criterion.matched import matched_evidence, output_error
 from ..criterion.noise import noise_spectrum
 from ..criterion.objective import Objective, settle_samples
 from ..criterion.prediction import time_fit
@@ -355,8 +359,12 @@ def correction(
     start = val_start
     if not start and nominal.controller is not None and val.period is None:
         start = settle_samples(nominal, val.n_samples)  # separate data: skip the transient
-    ident_val = identify_record(val_part, nominal, n=n, degree=degree)
-    noise = noise_spectrum(val_part, nominal, n=n, degree=degree, ident=ident_val)
+    # the noise without the local fit's misfit: from the causes' output error (matched.py)
+    err_val = output_error(later(current, val_start), val_part)
+    ident_val = identify_record(err_val or val_part, nominal, n=n, degree=degree)
+    noise = noise_spectrum(
+        val_part, nominal, n=n, degree=degree, ident=ident_val, shaped=err_val is None
+    )
     crit = Objective(val_part, nominal, noise)
     fit_nom = time_fit(nominal, val, start).y
     fit_cur = fit_nom if current is nominal else time_fit(current, val, start).y
