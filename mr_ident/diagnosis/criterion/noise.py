@@ -73,6 +73,7 @@ def noise_spectrum(
     n: int = 8,
     degree: int = 2,
     ident: Identification | None = None,
+    shaped: bool = True,
 ) -> FloatArray:
     """The noise level of y on the bins of ``rfft(y[skip:], norm="ortho")``, (n_bins, n_y).
 
@@ -90,6 +91,9 @@ def noise_spectrum(
     at :data:`PLATEAU_CAP` times the median of its ring of neighbours 2n + 2 to 2n + 33
     bins away (outside any plateau it lies in). A closed-loop pole's hump, smooth over more
     bins, stays. ``ident``: :func:`identify_record` of ``rec``, computed when not given.
+    ``shaped`` False: ``ident`` is of a model's output error ``y - P u``
+    (:func:`~.matched.output_error`), whose residual is the noise before the loop shapes
+    it: the level itself, not divided by the loop's gain.
     """
     _, u, y = centred(rec, model)
     if rec.period is not None:
@@ -115,7 +119,8 @@ def noise_spectrum(
         S[kappa.ravel()] = cv.reshape(-1, ny)
         dof = 2 * J.dof
     S = np.where(np.isfinite(S) & (S > 0), S, np.nan)
-    gain = np.ones(S.shape) if rec.period is not None else loop_noise_gain(model, rec.n_samples)
+    unshaped = rec.period is not None or not shaped
+    gain = np.ones(S.shape) if unshaped else loop_noise_gain(model, rec.n_samples)
     S = S / gain  # the level: the loop's sharp shaping divided out
     fill = np.nanmedian(S, axis=0) if np.any(np.isfinite(S)) else np.ones(S.shape[1])
     S = np.where(np.isnan(S), fill, S)

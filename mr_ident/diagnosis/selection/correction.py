@@ -2,19 +2,24 @@
 """Where the vocabulary ends: a low-order correction of P_h, offered only when it validates.
 
 After the best causes, the extended model is held against the estimation data's FRF again
-(:func:`~mr_ident.diagnosis.criterion.evidence.frf_evidence`); where bins are still
+(:func:`~mr_ident.diagnosis.criterion.evidence.frf_evidence`), seen through the same
+estimator (:func:`~mr_ident.diagnosis.criterion.matched.matched_evidence`: the local fit of
+the model's output error, so that the fit's bias and misfit at the lowest bins cancel and
+every bin is tested, those whose window reaches DC included); where bins are still
 significant, no listed cause explains them. An error spread thinly over many bins, none of
 them significant alone, is seen by the total of the squared σ-errors over the tested bins
 against its null (:mod:`~mr_ident.diagnosis.criterion.broadband`); when either test is
 significant, a stable low-order correction ``C`` of the
-plant at the high rate is fitted to what is left (on every bin: the lowest ones, untested,
-hold its low-frequency end), weighted by the FRF's std
+plant at the high rate is fitted to what is left (on every bin: the lowest ones hold its
+low-frequency end), weighted by the matched std
 (:func:`~mr_ident.numerics.fit.frf_fit.fit_frf`, discrete at ``1/fs_high``, so that no hold
 or delay is assumed):
 
-- **additive**: ``P_h + C``, fitted to ``P̂ - P_ext`` with σ̂;
+- **additive**: ``P_h + C``, fitted to ``P̂ - P̂_ext`` with σ̂ (``P̂_ext`` the extended
+  model seen through the estimator: without its bias, the lowest bins' "correction" was a
+  real pole at 0.001 Hz fitted to that bias);
 - **multiplicative** (one input and one output): ``P_h (1 + C)``, fitted to
-  ``P̂ / P_ext - 1`` with ``σ̂ / |P_ext|`` (C has a direct term: a pole-zero pair's
+  ``(P̂ - P̂_ext) / P_ext`` with ``σ̂ / |P_ext|`` (C has a direct term: a pole-zero pair's
   ratio does not vanish at high frequency).
 
 Every kind and order 1..:data:`MAX_ORDER` (states; a pair counts two) is a candidate, and
@@ -27,7 +32,11 @@ within the noise at order d).
 
 Each is judged on data it was not fitted on (the validation record, or the held-out part):
 the criterion of the causes (:class:`~mr_ident.diagnosis.criterion.objective.Objective`,
-whitened by the validation data's own noise level) as ``BIC = 2 J + p ln n``, p the
+whitened by the validation data's own noise level, taken from the causes' output error
+identified as the data are, :func:`~mr_ident.diagnosis.criterion.matched.output_error`,
+the noise before the loop shapes it: from y itself the local fit's misfit reads as noise,
+at the lowest bins of the benchmark's loops hundreds to millions of times the noise, and a
+correction's gain there went unseen) as ``BIC = 2 J + p ln n``, p the
 correction's real parameters. A candidate validates when its BIC is lower than both the
 nominal's and the extended model's ``2 J`` by more than the selection's
 :data:`~mr_ident.diagnosis.selection.forward.ACCEPT_MARGIN`, its validation fit of y is
@@ -61,6 +70,7 @@ from ...numerics.systems.model import Model
 from ...numerics.systems.simulate import loop_poles
 from ..criterion.broadband import Broadband, broadband
 from ..criterion.evidence import Evidence, frf_evidence, identify_record
+from ..criterion.matched import matched_evidence, output_error
 from ..criterion.noise import noise_spectrum
 from ..criterion.objective import Objective, settle_samples
 from ..criterion.prediction import time_fit
@@ -308,7 +318,9 @@ def window(ident: Identification | None, n: int) -> int:
 def _targets(ev: Evidence, multiplicative: bool) -> FRF | None:
     """What the correction must fit on the evidence's bins: P̂ - P or P̂ / P - 1, with σ.
 
-    Every bin with a finite std, those whose window reaches DC too (untested, but they hold
+    ``ev`` matched (:func:`~mr_ident.diagnosis.criterion.matched.matched_evidence`): its
+    ``P̂ - P`` is the data's estimate less the model's through the same estimator, its σ
+    the noise's. Every bin with a finite std, those whose window reaches DC too (they hold
     the correction's low-frequency end: without them a benchmark pole-zero pair at 2.7 Hz,
     corrected with them, was fitted a correction that validated worse).
     """
@@ -365,6 +377,7 @@ def correction(
         total over the band (:mod:`~mr_ident.diagnosis.criterion.broadband`).
     """
     ev = frf_evidence(current, est, n=n, degree=degree, alpha=alpha, ident=ident)
+    ev = matched_evidence(ev, current, est, n=n, degree=degree, alpha=alpha)  # every bin tested
     bb = broadband(ev, n=window(ident, n), degree=degree, alpha=alpha)
     per_bin = bool(ev.significant.any())
     if not per_bin and not bb.significant:
@@ -382,8 +395,12 @@ def correction(
     start = val_start
     if not start and nominal.controller is not None and val.period is None:
         start = settle_samples(nominal, val.n_samples)  # separate data: skip the transient
-    ident_val = identify_record(val_part, nominal, n=n, degree=degree)
-    noise = noise_spectrum(val_part, nominal, n=n, degree=degree, ident=ident_val)
+    # the noise without the local fit's misfit: from the causes' output error (matched.py)
+    err_val = output_error(later(current, val_start), val_part)
+    ident_val = identify_record(err_val or val_part, nominal, n=n, degree=degree)
+    noise = noise_spectrum(
+        val_part, nominal, n=n, degree=degree, ident=ident_val, shaped=err_val is None
+    )
     crit = Objective(val_part, nominal, noise)
     fit_nom = time_fit(nominal, val, start).y
     fit_cur = fit_nom if current is nominal else time_fit(current, val, start).y
