@@ -47,8 +47,8 @@ that unmodelled nonlinear distortion, which inflates the BIC's differences alike
 change, counts as noise; a gain on a few bins, a resonance's, is judged as surely as one
 spread over the band). Of those that validate, the one of lowest BIC is applied (the
 order thus chosen on the validation data); when none does, the lowest of all is reported
-as a candidate that did not validate. Past :data:`LISTED` poles and zeros the text counts
-and summarises them (:func:`describe`); the JSON lists every pole.
+as a candidate that did not validate. Its words: :mod:`.correction_text` (past six poles
+and zeros counted and summarised); the JSON lists every pole.
 """
 
 from __future__ import annotations
@@ -61,7 +61,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ...errors import MrIdentError
-from ...numerics.arrays import ComplexArray, FloatArray
+from ...numerics.arrays import FloatArray
 from ...numerics.fit.frf_fit import fit_frf
 from ...numerics.results import FRF, Identification
 from ...numerics.signals import LoopData
@@ -74,6 +74,7 @@ from ..criterion.matched import matched_evidence, output_error
 from ..criterion.noise import noise_spectrum
 from ..criterion.objective import Objective, settle_samples
 from ..criterion.prediction import time_fit
+from .correction_text import describe, poles_text
 from .forward import ACCEPT_MARGIN
 from .validation import critical, gain, later
 
@@ -83,8 +84,6 @@ MAX_ORDER = 4
 ORDER_CAP = 12
 #: Orders in a row without a lower validation BIC (per kind) after which none higher is tried.
 PATIENCE = 2
-#: Past this many poles and zeros (pairs once) the text summarises them (:func:`describe`).
-LISTED = 6
 
 
 @dataclass(frozen=True)
@@ -234,77 +233,6 @@ class Correction:
 
 def _finite(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
-
-
-def _hz_damping(z: complex, fs: float) -> tuple[float, float]:
-    s = complex(np.log(complex(z))) * fs
-    w = abs(s)
-    return w / (2.0 * math.pi), (-s.real / w if w > 0 else 1.0)
-
-
-def poles_text(C: ModalPlant) -> list[str]:
-    """Each pole (pair) of a discrete correction in words: frequency and damping of ln(z) fs."""
-    assert C.dt is not None
-    fs = 1.0 / C.dt
-    out = []
-    for p in C.poles:
-        f, z = _hz_damping(complex(p), fs)
-        out.append(
-            f"a pole pair at {f:.3g} Hz, damping {z:.2g}"
-            if p.imag > 0
-            else f"a real pole at {f:.3g} Hz"
-        )
-    return out
-
-
-def _zeros(C: ModalPlant) -> ComplexArray:
-    """Zeros of the SISO ``1 + C`` (multiplicative), upper half plane and real ones."""
-    S = C.state_space()
-    d = float(S.D[0, 0]) + 1.0
-    if not S.A.size or abs(d) < 1e-12:
-        return np.zeros(0, complex)
-    z = np.linalg.eigvals(S.A - S.B @ S.C / d)
-    return np.asarray(z[z.imag >= 0], complex)
-
-
-def describe(kind: str, C: ModalPlant) -> str:
-    """The correction in words: "an additive correction ... with a pole pair at 83 Hz, ...".
-
-    Past :data:`LISTED` poles and zeros (a high order), counted and summarised instead:
-    "... of order 9: 3 pole pairs and 3 real poles between 0.005 and 258 Hz (the least
-    damped pair at 21.9 Hz, damping 0.59); ... zeros ...".
-    """
-    assert C.dt is not None  # fitted discrete
-    fs = 1.0 / C.dt
-    siso = kind == "multiplicative" and C.shape == (1, 1)
-    zeros = _zeros(C) if siso else np.zeros(0, complex)
-    article = "an" if kind == "additive" else "a"
-    if C.poles.size + zeros.size > LISTED:
-        parts = [_summarised(C.poles, "pole", fs)]
-        if zeros.size:
-            parts.append(_summarised(zeros, "zero", fs))
-        return f"{article} {kind} correction of the plant of order {C.order}: {'; '.join(parts)}"
-    parts = poles_text(C)
-    for z in zeros:
-        f, zeta = _hz_damping(complex(z), fs)
-        kind_z = "a zero pair" if z.imag > 0 else "a real zero"
-        parts.append(f"{kind_z} at {f:.3g} Hz, damping {zeta:.2g}" if z.imag > 0 else
-                     f"{kind_z} at {f:.3g} Hz")  # fmt: skip
-    body = ", ".join(parts[:-1]) + (" and " if len(parts) > 1 else "") + parts[-1]
-    return f"{article} {kind} correction of the plant with {body}"
-
-
-def _summarised(roots: ComplexArray, name: str, fs: float) -> str:
-    """Discrete poles or zeros (pairs once) counted, with their range and the least damped."""
-    pairs = [complex(r) for r in roots if r.imag > 0]
-    kinds = ((len(pairs), f"{name} pair"), (roots.size - len(pairs), f"real {name}"))
-    counts = [f"{k} {what}{'s' if k > 1 else ''}" for k, what in kinds if k]
-    hz = [_hz_damping(complex(r), fs)[0] for r in roots]
-    text = f"{' and '.join(counts)} between {min(hz):.3g} and {max(hz):.3g} Hz"
-    if pairs:
-        f, zeta = min((_hz_damping(p, fs) for p in pairs), key=lambda t: t[1])
-        text += f" (the least damped pair at {f:.3g} Hz, damping {zeta:.2g})"
-    return text
 
 
 def window(ident: Identification | None, n: int) -> int:
