@@ -12,9 +12,10 @@ of the same loop as validation data (``separate``), and with the last 30 % of th
 held out as diagnose does without one (``held-out``). Every acceptance is false (the truth
 needs no correction); the target is at most alpha (1 %). Shown: acceptances with the order
 and the criteria met, the orders the ladder reached, the candidates that met each criterion
-of the acceptance (BIC margin, fit of y, gain z against the nominal), seconds per call.
+of the acceptance (BIC margin, fit of y, gain z against the nominal), seconds per call
+(the estimation record's identification and the correction, as diagnose calls them).
 
-    nice -n 10 .venv/bin/python benchmarks/bench_correction_null.py          # ~10 min
+    nice -n 10 .venv/bin/python benchmarks/bench_correction_null.py    # 400 calls, 8 min at load 5
     .venv/bin/python benchmarks/bench_correction_null.py --n 10 --seed 3 --json out.json
 
 Sizes: ``--n`` loops (default 200, so 400 calls), records of ``--duration`` s (10);
@@ -96,6 +97,10 @@ def run_call(seed: int, mode: str, duration: float) -> dict[str, Any]:
         accepted=c.accepted,
         kind=c.best.kind,
         order=c.best.order,
+        pole_radii=[abs(complex(q)) for q in c.best.correction.poles],  # |z|
+        angles_hz=[
+            float(np.angle(q)) * m.fs_high / (2 * math.pi) for q in c.best.correction.poles
+        ],
         z_critical=c.z_critical,
         candidates=[
             {
@@ -121,6 +126,8 @@ def report(rows: list[dict[str, Any]]) -> str:
     out = []
     for mode in ("separate", "held-out"):
         rs = [r for r in rows if r["mode"] == mode]
+        if not rs:
+            continue
         ok = [r for r in rs if "error" not in r]
         acc = [r for r in ok if r.get("accepted")]
         n_ok = max(len(ok), 1)
@@ -168,7 +175,11 @@ def report(rows: list[dict[str, Any]]) -> str:
                 f"  accepted: seed {r['seed']} fs {r['fs']:g} F {r['ratio']} {r['kind']} order "
                 f"{r['order']} (p {b['p']}): dBIC {b['dbic']:+.1f}, dfit {b['dfit']:+.2f} %, "
                 f"z {b['z']:.2f} (critical {r['z_critical']:.2f}), of "
-                f"{len(r['candidates'])} candidates"
+                f"{len(r['candidates'])} candidates; poles |z| "
+                + ", ".join(
+                    f"{a:.5f} at {h:.3g} Hz"
+                    for a, h in zip(r["pole_radii"], r["angles_hz"], strict=True)
+                )
             )
         for r in rs:
             if "error" in r:
