@@ -79,7 +79,8 @@ interpolated:
   ``(P - P_h) δ`` as it does through the free responses. A run of consecutive holes with
   more entries than the plant's order n_x instead drops its own samples and takes the n_x
   free responses from its end (the state there unknown): fewer columns, the same span
-  after it. A segment's holes take at most :data:`MAX_HOLE_COLUMNS` columns.
+  after it. A segment's holes take at most :data:`MAX_HOLE_COLUMNS` columns, and
+  samples times columns² at most :data:`MAX_HOLE_WORK` (the projection's cost).
 - z (from r, never missing) needs no filling; the instrument stays independent of the
   noise (in open loop ŷ's holes hold 0, not an estimate from y).
 - The variance: the periodograms are of the series with the samples left out at 0. For
@@ -126,8 +127,12 @@ MIN_SEGMENT = 200
 #: Largest share of the samples used that may be missing (y's, and those of long holes
 #: of u) ...
 MAX_MISSING = 0.2
-#: ... and most columns of u's holes per segment (module docstring, "Missing samples").
+#: ... and most columns of u's holes per segment (module docstring, "Missing samples") ...
 MAX_HOLE_COLUMNS = 400
+#: ... and most ``samples x columns²`` per segment (the projection's cost: 4e8 is 0.1-0.5 s
+#: per segment and channel on a shared core; a 10 kHz record of 60 s, 50 000 samples a
+#: segment, takes 89 columns in all, the free responses among them).
+MAX_HOLE_WORK = 4e8
 
 
 @dataclass(frozen=True)
@@ -372,7 +377,8 @@ def _project_all(
     Off a constant, the free responses and the responses to u's missing samples, over the
     samples kept (y present, outside long holes of u), which come with them. None where
     more than :data:`MAX_MISSING` of the samples are not kept or a segment's holes take more
-    than :data:`MAX_HOLE_COLUMNS` columns (module docstring, "Missing samples"). ``step``
+    than :data:`MAX_HOLE_COLUMNS` columns or :data:`MAX_HOLE_WORK` (module docstring,
+    "Missing samples"). ``step``
     (open loop): also off the step responses (what u's mean, taken out, did).
     """
     keep = ~np.isnan(y)
@@ -387,7 +393,8 @@ def _project_all(
     shared = None
     for s in range(k):
         cols, ks[s] = _hole_columns(hs[s], ks[s], free, h)
-        if cols.shape[2] > MAX_HOLE_COLUMNS:
+        m = cols.shape[2]
+        if m and (m > MAX_HOLE_COLUMNS or size * (m + base.shape[2]) ** 2 > MAX_HOLE_WORK):
             return None
         if not cols.shape[2] and ks[s].all():  # a complete segment: the shared basis
             shared = _orthonormal(base) if shared is None else shared
