@@ -70,6 +70,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...errors import DataError
 from ...numerics.arrays import ComplexArray, FloatArray
 from ...numerics.identify import min_samples
 from ...numerics.local.lpm import grid_bins
@@ -241,7 +242,9 @@ class Segments:
     """A record's segments compared (module docstring).
 
     ``bands``: their spread per band (:class:`~.realizations.SpreadLevels`); ``parts``:
-    how many segments; ``level_db``: the mean per-line spread over noise, dB.
+    how many segments; ``level_db``: the mean per-line spread over noise, dB. Where a
+    segment's missing samples are more than its lifted fit carries (DataError), ``bands``
+    empty, ``level_db`` NaN and ``pooled`` None: the time-domain gains alone.
     """
 
     bands: list[SpreadLevels]
@@ -284,6 +287,12 @@ class Segments:
                 f"; its gain, one per segment of {len(drift.gains)} in time, moves by "
                 f"{100 * drift.change:.0f} % rms (p = {drift.p:.1g})"
             )
+        if not self.bands:  # the segments' estimates refused for their holes: the gains
+            return (
+                f"the plant changes within the record: {gain.removeprefix('; ')} (a "
+                "time-invariant model, and any correction of one, describes the average "
+                "over the record)"
+            )
         return (
             f"the plant changes within the record: the plant estimates of its {self.parts} "
             f"consecutive segments differ beyond their noise, {self.level_db:.1f} dB on "
@@ -314,7 +323,11 @@ def within(rec: LoopData, model: Model, *, n: int = 8, degree: int = 2) -> Segme
     segs = segments(rec, n)
     if len(segs) < 2:
         return None
-    got = aligned(segs, model, n=n, degree=degree, realizations=False)
+    try:
+        got = aligned(segs, model, n=n, degree=degree, realizations=False)
+    except DataError:  # a segment's holes past what its lifted fit carries: the gains alone
+        drift = gain_drift(rec, model)
+        return None if drift is None else Segments([], len(segs), math.nan, None, drift)
     if got is None:
         return None
     bands = levels(*got)
