@@ -182,3 +182,20 @@ def test_a_segment_refused_for_its_holes_leaves_the_time_domain_gains_alone():
     assert got is not None and got.bands == [] and np.isnan(got.level_db) and got.pooled is None
     assert got.drift is not None and got.drift.p < DRIFT_ALPHA and got.varying
     assert got.text().startswith("the plant changes within the record: its gain, one per")
+
+
+def test_a_lossy_record_leaves_the_pooled_test_out_and_keeps_the_gains():
+    """2 % of u and y missing on a time-invariant loop: the pooled test over the lines is not
+    done (a hole's error is common to every line of its segment), the time-domain gains
+    are, and nothing is named."""
+    from mr_ident.diagnosis.criterion.timevarying import within
+    from mr_ident.numerics.identify import default_n
+
+    loop = draw_loop(np.random.default_rng(2), duration=10.0)
+    m = loop.nominal
+    noise = m.noise_std * np.random.default_rng(12).standard_normal(loop.y_clean.shape)
+    rec = holes(simulate(m, reference=loop.reference, noise=noise), 0.02, np.random.default_rng(3))
+    n = default_n("freq-lifted", 2, m.ratio, m.n_u, max(m.n_u, m.n_y))
+    got = within(rec, m, n=n)
+    assert got is not None and got.bands and got.pooled is None
+    assert got.drift is not None and got.drift.p > DRIFT_ALPHA and not got.varying
