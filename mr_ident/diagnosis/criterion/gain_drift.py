@@ -87,15 +87,17 @@ interpolated:
   the sum over the samples kept, ``var = Σ_τ a(τ) γ_x(τ)`` with ``a_ij(τ) = Σ_t m_i(t + τ)
   m_j(t)`` the pairs kept at lag τ (m the samples kept), whereas a product of two masked
   periodograms weighs lag τ by ``a(τ)² / L`` (a share q of white holes would read the
-  variance a factor 1 - q low). The smoothed factor's lags are therefore scaled by
-  ``L / a_ij(τ)`` (its circular autocovariance, one inverse FFT, divided by the pairs
-  kept: the amplitude-modulated series' estimate), the raw one kept, so ``Σ_k T̂_k``
-  estimates the variance of the sum over the samples kept; a segment's share is its count
-  of samples kept over the record's, ``V_s = Σ T̂ n_s / Σ n``. Periodic data: the period
-  mean over the periods present at each sample, ``n / (n - 1)`` with its own n.
+  variance a factor 1 - q low). The smoothed factor is therefore scaled by ``L / a(1)``
+  (:func:`_pairs_fix`; the raw one kept): every lag near its due weight where the
+  products' correlation time is short against the holes' spacing, lag 0 a factor ``a(0) /
+  a(1)`` high (conservative); scaling each lag by its own ``L / a(τ)`` is exact in
+  expectation but can read a record's variance negative (below 0 where z has no power and
+  e a sinusoid's line). A segment's share is its count of samples kept over the record's,
+  ``V_s = Σ T̂ n_s / Σ n``. Periodic data: the period mean over the periods present at
+  each sample, ``n / (n - 1)`` with its own n.
 - Not done where more than :data:`MAX_MISSING` of the samples used are missing (y's, and
-  the samples of long holes of u): ``a(τ)`` stays above ``(1 - 2 MAX_MISSING) L``, the
-  scaled lags' noise moderate, the segments alike enough for the shares above.
+  the samples of long holes of u): the segments stay alike enough for the shares above,
+  the scaling near 1.
 """
 
 from __future__ import annotations
@@ -248,9 +250,9 @@ def long_run(
     ``Σ_k T̂_k / L`` estimates ``Σ_τ γ_x(τ)`` of ``x_t = Σ_i z_i(t) e_i(t)``. ``periodic``:
     z is periodic (a line spectrum) and e noise independent of it: ``I^z`` raw against
     e's smoothed spectrum, no cross term. ``mask`` (L, n): the samples used, z and e 0
-    elsewhere; the smoothed factor's lags are then divided by their share of pairs present
-    (module docstring, "Missing samples"), so ``Σ_k T̂_k`` estimates the variance of the
-    sum over the samples used.
+    elsewhere; the smoothed factor is then scaled by L over its pairs kept one sample apart
+    (module docstring, "Missing samples"), so ``Σ_k T̂_k`` estimates (a little high) the
+    variance of the sum over the samples used.
     """
     L = z.shape[0]
     Z, E = np.fft.fft(z, axis=0), np.fft.fft(e, axis=0)  # (L, n)
@@ -270,18 +272,22 @@ def long_run(
 def _pairs_fix(mask: BoolArray | None) -> Callable[[np.ndarray], np.ndarray]:
     """The correction of a cross-periodogram (L, n, n) of series masked by ``mask`` (L, n).
 
-    Each lag τ's products scaled from their pairs present ``a_ij(τ) = Σ_t m_i(t + τ)
-    m_j(t)`` to L; the identity without a mask.
+    Scaled by ``L / a_ij(1)``, ``a_ij(1)`` the pairs kept one sample apart (the mean of
+    lags ±1): every lag but 0 to about its pairs kept, lag 0 by ``a(0) / a(1)`` (about
+    ``1 / (1 - q)`` for a share q of single holes) more, which errs high, never low (module
+    docstring). The exact per-lag scaling ``L / a_ij(τ)`` and a lag-0 term of its own read
+    a benchmark record's variance negative: where z has no power and e a sinusoidal
+    disturbance's line, the corrected ``I^z`` dips below 0. The identity without a mask.
     """
     if mask is None:
         return lambda x: x
     L = mask.shape[0]
-    M = np.fft.fft(mask.astype(float), axis=0)
-    pairs = np.fft.ifft(np.einsum("ki,kj->kij", M, M.conj()), axis=0).real
-    scale = L / np.maximum(np.round(pairs), 1.0)
+    m = mask.astype(float)
+    a1 = (m[1:].T @ m[:-1] + m[:-1].T @ m[1:]) / 2
+    scale = L / np.maximum(a1, 1.0)
 
     def fix(x: np.ndarray) -> np.ndarray:
-        out: np.ndarray = np.fft.fft(np.fft.ifft(x, axis=0).real * scale, axis=0)
+        out: np.ndarray = scale * x
         return out
 
     return fix
