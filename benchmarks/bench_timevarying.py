@@ -17,6 +17,10 @@ named below ``DRIFT_ALPHA``). Run on
   U(0.1, 0.3), T U(0.3, 1) of the record), ``--varying-durations`` s, where the test
   should name them.
 
+``--missing q``: every record loses a share q of its samples of u and of y (as a bag
+that dropped messages): half as single samples, drawn for u and y apart, half in bursts
+of 5-50 samples of both at once (:func:`drop`); 0, the complete records.
+
 Printed per group: the records, how many the pooled test could judge (it needs two
 blocks of lines), the level's largest value and how many exceed its threshold, the pooled
 test's smallest p, how many fall below 0.05, 0.01, 1e-3 and ``POOLED_ALPHA`` (a calibrated
@@ -30,6 +34,7 @@ record.
     .venv/bin/python benchmarks/bench_timevarying.py        # the figures of docs/diagnose.md
     .venv/bin/python benchmarks/bench_timevarying.py --per-kind 2 --per-varying 5
     .venv/bin/python benchmarks/bench_timevarying.py --case time_varying_gain:10:1026066
+    .venv/bin/python benchmarks/bench_timevarying.py --missing 0.02
 
 Seeds: ``seed * 10**6 + 1000 * group + k``, the groups numbered over (duration, kind) of
 the time-invariant records, then the time-varying durations.
@@ -51,6 +56,7 @@ import numpy as np
 from mr_bench.beyond import draw_beyond
 from mr_bench.scenarios import draw_scenario
 from mr_bench.verdict import CAUSE_NAMES
+from mr_ident.numerics.signals import LoopData
 
 #: The time-invariant kinds: nothing hidden, one cause, an unlisted time-invariant effect.
 KINDS: tuple[str, ...] = ("none", *CAUSE_NAMES, "pole_zero_pair", "second_delay_path")
@@ -85,18 +91,40 @@ def draw(case: dict) -> tuple:
     return sc.data, sc.nominal, ""
 
 
+def drop(data: LoopData, share: float, rng: np.random.Generator) -> LoopData:
+    """``data`` with a ``share`` of its samples of u and y missing (NaN; module docstring)."""
+    N = data.n_samples
+    u, y = data.u.copy(), data.y.copy()
+    for x in (u, y):  # single samples, u and y apart
+        x[rng.random(N) < share / 2] = np.nan
+    lost = 0
+    while lost < share / 2 * N:  # bursts of both
+        b = int(rng.integers(5, 51))
+        a = int(rng.integers(0, N - b))
+        u[a : a + b], y[a : a + b] = np.nan, np.nan
+        lost += b
+    return dataclasses.replace(data, u=u, y=y)
+
+
 def run_case(case: dict) -> dict:
-    """One record through :func:`within`, with diagnose's window; a JSON-able row."""
+    """One record through :func:`within`, with diagnose's window; a JSON-able row.
+
+    ``case["missing"]``: the share of samples dropped (:func:`drop`), if any; ``refused``:
+    a segment's holes were more than its lifted fit carries, the time-domain gains alone.
+    """
     from mr_ident.diagnosis.criterion.timevarying import within
     from mr_ident.numerics.identify import default_n
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         data, nominal, text = draw(case)
+        if case.get("missing"):
+            data = drop(data, case["missing"], np.random.default_rng([case["seed"], 41]))
         t0 = time.perf_counter()
         m = nominal
         n = default_n("freq-lifted", 2, m.ratio, m.n_u, max(m.n_u, m.n_y))
         got = within(data, m, n=n)
+    refused = got is not None and not got.bands  # the time-domain gains alone
     pool = None if got is None else got.pooled
     drift = None if got is None else got.drift
     return case | {
@@ -109,6 +137,7 @@ def run_case(case: dict) -> dict:
         "blocks": None if pool is None else pool.blocks,
         "dof": None if pool is None else list(pool.dof),
         "change": None if pool is None else pool.change,
+        "refused": refused,
         "named": got is not None and got.varying,
         "p_drift": None if drift is None else drift.p,
         "drift_change": None if drift is None else drift.change,
@@ -219,6 +248,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--durations", default="10,30", help="s of the time-invariant records")
     p.add_argument("--varying-durations", default="10,30", help="s of the time-varying ones")
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument(
+        "--missing", type=float, default=0.0, help="share of u's and y's samples dropped"
+    )
     p.add_argument("--case", help="KIND:DURATION:SEED, one record")
     p.add_argument("--json", type=Path)
     a = p.parse_args(argv)
@@ -231,6 +263,9 @@ def main(argv: list[str] | None = None) -> int:
             f"got {a.durations!r}, {a.varying_durations!r}",
             file=sys.stderr,
         )
+        return 2
+    if not 0.0 <= a.missing < 0.5:
+        print(f"error: --missing must be a share in [0, 0.5), got {a.missing}", file=sys.stderr)
         return 2
     if a.case:
         kind, _, rest = a.case.partition(":")
@@ -246,9 +281,12 @@ def main(argv: list[str] | None = None) -> int:
     else:
         cases = plan(a.per_kind, a.per_varying, a.seed, durations, varying)
     t0 = time.perf_counter()
-    rows = [run_case(c) for c in cases]
+    rows = [run_case(c | {"missing": a.missing}) for c in cases]
     wall = time.perf_counter() - t0
     print(report(rows))
+    refused = sum(r["refused"] for r in rows)
+    if refused:
+        print(f"\n{refused} records: a segment refused by the frequency-domain estimates")
     print(f"\n{len(rows)} records in {wall / 60:.1f} min")
     if a.json:
         a.json.write_text(json.dumps({"records": rows, "wall_s": wall}, indent=1, default=float))

@@ -50,7 +50,11 @@ where the lines allow). Named also where the false-alarm probability is below
 errors correlate a little less than the kernel says (ρ(1) 0.77-0.86 against 0.92;
 neighbouring half-window blocks 0.11-0.15 against 0.15) and its σ² differs from the
 segments' scatter by band (0.6-0.8 of it in the lowest blocks, 1.1-1.3 in the highest),
-both of which leave the test conservative there.
+both of which leave the test conservative there. Not done on a record with missing
+samples: each hole's estimate errs in every bin of its segment alike (its column
+``e^{-j2πkm/N}``), an error correlated over all the lines, as the kernel does not say, and
+a common change of the lines is what the test looks for (at 2 % of u and y missing it
+named 24 of 1120 time-invariant benchmark records, p down to 1e-33).
 
 A third test pools the whole band into one gain per segment, in time
 (:mod:`.gain_drift`: the instrumental-variable gain of the plant model's output driven by
@@ -70,6 +74,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...errors import DataError
 from ...numerics.arrays import ComplexArray, FloatArray
 from ...numerics.identify import min_samples
 from ...numerics.local.lpm import grid_bins
@@ -241,7 +246,9 @@ class Segments:
     """A record's segments compared (module docstring).
 
     ``bands``: their spread per band (:class:`~.realizations.SpreadLevels`); ``parts``:
-    how many segments; ``level_db``: the mean per-line spread over noise, dB.
+    how many segments; ``level_db``: the mean per-line spread over noise, dB. Where a
+    segment's missing samples are more than its lifted fit carries (DataError), ``bands``
+    empty, ``level_db`` NaN and ``pooled`` None: the time-domain gains alone.
     """
 
     bands: list[SpreadLevels]
@@ -284,6 +291,12 @@ class Segments:
                 f"; its gain, one per segment of {len(drift.gains)} in time, moves by "
                 f"{100 * drift.change:.0f} % rms (p = {drift.p:.1g})"
             )
+        if not self.bands:  # the segments' estimates refused for their holes: the gains
+            return (
+                f"the plant changes within the record: {gain.removeprefix('; ')} (a "
+                "time-invariant model, and any correction of one, describes the average "
+                "over the record)"
+            )
         return (
             f"the plant changes within the record: the plant estimates of its {self.parts} "
             f"consecutive segments differ beyond their noise, {self.level_db:.1f} dB on "
@@ -314,7 +327,11 @@ def within(rec: LoopData, model: Model, *, n: int = 8, degree: int = 2) -> Segme
     segs = segments(rec, n)
     if len(segs) < 2:
         return None
-    got = aligned(segs, model, n=n, degree=degree, realizations=False)
+    try:
+        got = aligned(segs, model, n=n, degree=degree, realizations=False)
+    except DataError:  # a segment's holes past what its lifted fit carries: the gains alone
+        drift = gain_drift(rec, model)
+        return None if drift is None else Segments([], len(segs), math.nan, None, drift)
     if got is None:
         return None
     bands = levels(*got)
@@ -325,7 +342,16 @@ def within(rec: LoopData, model: Model, *, n: int = 8, degree: int = 2) -> Segme
     level = 10.0 * math.log10(mean) if mean > 0 else -math.inf
     unit = rec.ratio or model.ratio
     grid = rec.period if rec.period is not None else segs[0].n_samples  # the lines' grid
-    pool = pooled(
-        *got[:3], df=model.fs_high / grid, low_bins=grid // unit, window=2 * n + 1, degree=degree
+    lossy = bool(np.isnan(rec.u).any() or np.isnan(rec.y).any())  # not done (above)
+    pool = (
+        None
+        if lossy
+        else pooled(
+            *got[:3],
+            df=model.fs_high / grid,
+            low_bins=grid // unit,
+            window=2 * n + 1,
+            degree=degree,
+        )
     )
     return Segments(bands, len(segs), level, pool, gain_drift(rec, model))
