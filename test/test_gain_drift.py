@@ -200,3 +200,14 @@ def test_a_lossy_record_leaves_the_pooled_test_out_and_keeps_the_gains():
     got = within(rec, m, n=n)
     assert got is not None and got.bands and got.pooled is None
     assert got.drift is not None and got.drift.p > DRIFT_ALPHA and not got.varying
+    assert got.lossy
+
+
+def test_on_a_lossy_record_the_level_is_reported_but_names_nothing():
+    """The segments' level above its threshold names a complete record, not a lossy one
+    (a hole errs in every line of its segment alike): there the time-domain gains decide."""
+    from mr_ident.diagnosis.criterion.timevarying import VARYING_DB, Segments
+
+    high = Segments([], 4, VARYING_DB + 5.0)
+    assert high.varying
+    assert not dataclasses.replace(high, lossy=True).varying

@@ -50,11 +50,13 @@ where the lines allow). Named also where the false-alarm probability is below
 errors correlate a little less than the kernel says (ρ(1) 0.77-0.86 against 0.92;
 neighbouring half-window blocks 0.11-0.15 against 0.15) and its σ² differs from the
 segments' scatter by band (0.6-0.8 of it in the lowest blocks, 1.1-1.3 in the highest),
-both of which leave the test conservative there. Not done on a record with missing
-samples: each hole's estimate errs in every bin of its segment alike (its column
-``e^{-j2πkm/N}``), an error correlated over all the lines, as the kernel does not say, and
-a common change of the lines is what the test looks for (at 2 % of u and y missing it
-named 24 of 1120 time-invariant benchmark records, p down to 1e-33).
+both of which leave the test conservative there. Neither it nor the level names a record
+with missing samples (it is not computed there; the level is reported): each hole's
+estimate errs in every bin of its segment alike (its column ``e^{-j2πkm/N}``), an error
+correlated over all the lines, as the kernel does not say, and a common change of the
+lines is what both look for (at 2 % of u and y missing the pooled test named 24 of 1120
+time-invariant benchmark records, p down to 1e-33; at 5 % the level named 3 of 280,
+2.0-11.2 dB).
 
 A third test pools the whole band into one gain per segment, in time
 (:mod:`.gain_drift`: the instrumental-variable gain of the plant model's output driven by
@@ -248,7 +250,9 @@ class Segments:
     ``bands``: their spread per band (:class:`~.realizations.SpreadLevels`); ``parts``:
     how many segments; ``level_db``: the mean per-line spread over noise, dB. Where a
     segment's missing samples are more than its lifted fit carries (DataError), ``bands``
-    empty, ``level_db`` NaN and ``pooled`` None: the time-domain gains alone.
+    empty, ``level_db`` NaN and ``pooled`` None: the time-domain gains alone. ``lossy``:
+    the record has missing samples, so neither the level nor the pooled test names it (a
+    hole errs in every line of its segment alike): the time-domain gains alone decide.
     """
 
     bands: list[SpreadLevels]
@@ -256,6 +260,7 @@ class Segments:
     level_db: float
     pooled: Pooled | None = None
     drift: GainDrift | None = None
+    lossy: bool = False
 
     @property
     def varying(self) -> bool:
@@ -266,7 +271,7 @@ class Segments:
         (:mod:`.gain_drift`) below :data:`DRIFT_ALPHA`.
         """
         return (
-            (math.isfinite(self.level_db) and self.level_db > VARYING_DB)
+            (not self.lossy and math.isfinite(self.level_db) and self.level_db > VARYING_DB)
             or (self.pooled is not None and self.pooled.p < POOLED_ALPHA)
             or (self.drift is not None and self.drift.p < DRIFT_ALPHA)
         )
@@ -291,7 +296,7 @@ class Segments:
                 f"; its gain, one per segment of {len(drift.gains)} in time, moves by "
                 f"{100 * drift.change:.0f} % rms (p = {drift.p:.1g})"
             )
-        if not self.bands:  # the segments' estimates refused for their holes: the gains
+        if not self.bands or self.lossy:  # missing samples: the gains decided
             return (
                 f"the plant changes within the record: {gain.removeprefix('; ')} (a "
                 "time-invariant model, and any correction of one, describes the average "
@@ -331,7 +336,7 @@ def within(rec: LoopData, model: Model, *, n: int = 8, degree: int = 2) -> Segme
         got = aligned(segs, model, n=n, degree=degree, realizations=False)
     except DataError:  # a segment's holes past what its lifted fit carries: the gains alone
         drift = gain_drift(rec, model)
-        return None if drift is None else Segments([], len(segs), math.nan, None, drift)
+        return None if drift is None else Segments([], len(segs), math.nan, None, drift, True)
     if got is None:
         return None
     bands = levels(*got)
@@ -354,4 +359,4 @@ def within(rec: LoopData, model: Model, *, n: int = 8, degree: int = 2) -> Segme
             degree=degree,
         )
     )
-    return Segments(bands, len(segs), level, pool, gain_drift(rec, model))
+    return Segments(bands, len(segs), level, pool, gain_drift(rec, model), lossy)
