@@ -211,3 +211,20 @@ def test_on_a_lossy_record_the_level_is_reported_but_names_nothing():
     high = Segments([], 4, VARYING_DB + 5.0)
     assert high.varying
     assert not dataclasses.replace(high, lossy=True).varying
+
+
+def test_a_low_rate_y_leaves_the_test_not_done():
+    """y every F-th sample (``y_phase``) is not on ŷ's samples: the test is not done (it
+    compared y with ŷ at the wrong times: a time-invariant loop's gains read -2.2 to 2.3)."""
+    from mr_ident.io.modelfile import model_from_dict
+    from mr_ident.numerics.signals import LoopData
+
+    model = model_from_dict({"fs_high": 200.0, "ratio": 2,
+                             "plant": {"num": [20.0], "den": [1.0, 8.0, 0.0]},
+                             "controller": {"num": [2.0, -1.6], "den": [1.0, -0.2]}})  # fmt: skip
+    rng = np.random.default_rng(0)
+    r = rng.standard_normal((8000, 1))
+    rec = simulate(model, reference=r, noise=0.01 * rng.standard_normal((8000, 1)))
+    assert gain_drift(rec, model) is not None
+    slow = LoopData(rec.r, rec.u, rec.y[1::2], fs_high=200.0, ratio=2, y_phase=1)
+    assert gain_drift(slow, model) is None

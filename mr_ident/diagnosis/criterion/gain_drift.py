@@ -60,7 +60,8 @@ The variance is estimated, with about ``ν = 2 (Σ_k T̂_k)² / Σ_k T̂_k²`` d
 ``F(S - 1, ν)``. Open loop: u's mean is taken out (:func:`~.prediction.centred`), and what
 it did to y (the plant's step responses from the segment's start; an integrator's ramp) is
 projected off too. Not done (None) where the plant is unstable, fewer than two segments of
-:data:`MIN_SEGMENT` samples fit, or too many samples are missing (below).
+:data:`MIN_SEGMENT` samples fit, y is at the low rate (its samples are not ŷ's: the gains
+were compared at the wrong times), or too many samples are missing (below).
 
 Missing samples (NaN in u or y: a bag's dropped messages) are unknowns, nothing is
 interpolated:
@@ -160,6 +161,8 @@ def gain_drift(rec: LoopData, model: Model, parts: int = PARTS) -> GainDrift | N
 
     if parts < 2:
         raise ValueError(f"parts must be at least 2, got {parts}")
+    if rec.y.shape[0] != rec.n_samples:  # y at the low rate: not done (module docstring)
+        return None
     Pd = model.plant_discrete()  # realised once: the regressor's plant and its free responses
     got = _signals(rec, model, Pd)
     if got is None:
