@@ -146,3 +146,23 @@ def test_the_output_errors_noise_level_is_the_noises_at_the_lowest_bins():
     level = level / m.noise_std**2
     assert np.all(plain[:10] > 1e6)
     assert np.all((level > 0.4) & (level < 3.0))
+
+
+def test_in_open_loop_what_us_mean_did_is_taken_out_too():
+    """Open loop, an integrating plant: u's mean, taken out, drove a ramp in y that is no
+    free response; the step responses remove it, so the output error is the noise and its
+    level at the first bins is σ² (without them 1e5-4e9 σ²)."""
+    from mr_ident.diagnosis.criterion.evidence import identify_record
+    from mr_ident.diagnosis.criterion.noise import noise_spectrum
+
+    model = model_from_dict({"fs_high": 200.0, "ratio": 2,
+                             "plant": {"num": [20.0], "den": [1.0, 8.0, 0.0]}})  # fmt: skip
+    rng = np.random.default_rng(0)
+    r = rng.standard_normal((4000, 1)) + 0.3
+    rec = simulate(model, reference=r, noise=0.01 * rng.standard_normal((4000, 1)))
+    err = output_error(model, rec)
+    assert err is not None
+    assert np.std(err.y) < 1.1e-2
+    ident = identify_record(err, model, n=8, degree=2)
+    level = noise_spectrum(rec, model, n=8, degree=2, ident=ident, shaped=False)[:, 0] / 1e-4
+    assert np.all((level[:10] > 0.3) & (level[:10] < 3.0))

@@ -24,7 +24,9 @@ included, from rest; its output is taken from y:
 
 ``O x̂₀`` the plant's free response from the initial state of least squares (the record
 need not start at rest; an integrator's free response, a constant and a ramp, would
-otherwise fill the lowest bins). The record ``(r, u, e)`` is identified with the data's
+otherwise fill the lowest bins); in open loop also the plant's step responses (u's mean,
+taken out, drove an integrator's ramp: without them the noise level at the first bins
+read 1e5-4e9 times the noise). The record ``(r, u, e)`` is identified with the data's
 own settings (:func:`~.evidence.identify_record`: method, window n, degree): as the local
 fit is linear in the outputs, its estimate is ``P̂ - P̂_M``, the data's estimate less the
 model's seen through the same windows, and its residual holds the noise and what the
@@ -115,6 +117,28 @@ def free_response(model: Model, n_samples: int) -> FloatArray:
     return out
 
 
+def step_responses(model: Model, n_samples: int) -> FloatArray:
+    """The plant's output from rest to a unit step of each input: (N, n_y, n_u), unit norm.
+
+    In open loop u's mean is taken out (:func:`~.prediction.centred`); what it did to y,
+    ``P`` of a constant from the record's start (an integrator's ramp), is in their span.
+    """
+    from ...numerics.systems.simulate import StateRecursion
+
+    P = model.plant_discrete()
+    n_u = np.asarray(P.B).shape[1]
+    with warnings.catch_warnings():  # an integrator's Jordan block: the direct recursion
+        warnings.filterwarnings("ignore", "simulate: state matrix", RuntimeWarning)
+        out = np.stack(
+            [StateRecursion(P).run(np.ones((n_samples, 1)) * np.eye(n_u)[j]) for j in range(n_u)],
+            axis=2,
+        )
+    norm = np.sqrt(np.sum(out**2, axis=(0, 1)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scaled: FloatArray = np.where(norm > 0, out / norm, 0.0)
+    return scaled
+
+
 def output_error(model: Model, rec: LoopData) -> LoopData | None:
     """``rec`` with y replaced by the model's output error (module docstring).
 
@@ -132,6 +156,8 @@ def output_error(model: Model, rec: LoopData) -> LoopData | None:
         _, y_plant = LoopStream(replace(model, controller=None)).next(drive)
     step = rec.n_samples // y.shape[0]
     obs = free_response(model, rec.n_samples)
+    if model.controller is None:  # open loop: what u's mean, taken out, did (a ramp, 1/s)
+        obs = np.concatenate([obs, step_responses(model, rec.n_samples)], axis=2)
     if step > 1:  # y at the low rate
         y_plant, obs = y_plant[rec.y_phase :: step], obs[rec.y_phase :: step]
     e = y - y_plant
