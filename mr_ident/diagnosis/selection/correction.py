@@ -324,8 +324,12 @@ def correction(
     if not start and nominal.controller is not None and val.period is None:
         start = settle_samples(nominal, val.n_samples)  # separate data: skip the transient
     # the noise without the local fit's misfit: from the causes' output error (matched.py)
-    err_val = output_error(later(current, val_start), val_part)
-    ident_val = identify_record(err_val or val_part, nominal, n=n, degree=degree)
+    # (periodic data: the noise from the period spread, no local fit, so no output error)
+    periodic = val_part.period is not None
+    err_val = None if periodic else output_error(later(current, val_start), val_part)
+    ident_val = (
+        None if periodic else identify_record(err_val or val_part, nominal, n=n, degree=degree)
+    )
     noise = noise_spectrum(
         val_part, nominal, n=n, degree=degree, ident=ident_val, shaped=err_val is None
     )
