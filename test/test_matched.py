@@ -66,7 +66,7 @@ def test_a_record_not_started_at_rest_loses_the_plants_free_response():
     err = output_error(model, rec)
     assert err is not None
     assert np.max(np.abs(err.y)) < 1e-9 * np.std(rec.y)
-    Ob = free_response(model, 50)
+    Ob = free_response(model.plant_discrete(), 50)
     assert Ob.shape == (50, 1, 2)  # two states: one column each, unit norm
     assert np.allclose(np.sum(Ob**2, axis=(0, 1)), 1.0)
 

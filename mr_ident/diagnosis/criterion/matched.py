@@ -52,13 +52,11 @@ import numpy as np
 
 from ...numerics.arrays import ComplexArray, FloatArray
 from ...numerics.signals import LoopData
+from ...numerics.systems.lti import StateSpace
 from ...numerics.systems.model import Model
 from ...numerics.systems.simulate import LoopStream
 from .evidence import Evidence, identify_record, threshold
-from .prediction import centred, driving_input
-
-#: A plant pole this far outside the unit circle is unstable: no output error is formed.
-UNSTABLE = 1e-9
+from .prediction import centred, driving_input, grows
 
 
 @dataclass(frozen=True)
@@ -94,14 +92,14 @@ class Matched:
         return int(np.isfinite(np.abs(self.difference) / self.std).sum())
 
 
-def free_response(model: Model, n_samples: int) -> FloatArray:
+def free_response(P: StateSpace, n_samples: int) -> FloatArray:
     """The plant's output from each unit initial state at rest input: (N, n_y, n_x).
 
-    ``C A^k`` of :meth:`~mr_ident.numerics.systems.model.Model.plant_discrete` for k = 0..N-1,
-    by doubling (``[O; O A^m]``, m the rows so far), each state's column scaled to unit norm
-    (only the span matters: the least-squares initial state of :func:`output_error`).
+    ``C A^k`` of the discrete plant ``P`` (:meth:`~mr_ident.numerics.systems.model.Model.
+    plant_discrete`) for k = 0..N-1, by doubling (``[O; O A^m]``, m the rows so far), each
+    state's column scaled to unit norm (only the span matters: the least-squares initial
+    state of :func:`output_error`).
     """
-    P = model.plant_discrete()
     A, C = np.asarray(P.A, float), np.asarray(P.C, float)
     nx, ny = A.shape[0], C.shape[0]
     if nx == 0:
@@ -117,15 +115,14 @@ def free_response(model: Model, n_samples: int) -> FloatArray:
     return out
 
 
-def step_responses(model: Model, n_samples: int) -> FloatArray:
-    """The plant's output from rest to a unit step of each input: (N, n_y, n_u), unit norm.
+def step_responses(P: StateSpace, n_samples: int) -> FloatArray:
+    """The plant ``P``'s output from rest to a unit step of each input: (N, n_y, n_u), unit norm.
 
     In open loop u's mean is taken out (:func:`~.prediction.centred`); what it did to y,
     ``P`` of a constant from the record's start (an integrator's ramp), is in their span.
     """
     from ...numerics.systems.simulate import StateRecursion
 
-    P = model.plant_discrete()
     n_u = np.asarray(P.B).shape[1]
     with warnings.catch_warnings():  # an integrator's Jordan block: the direct recursion
         warnings.filterwarnings("ignore", "simulate: state matrix", RuntimeWarning)
@@ -147,7 +144,7 @@ def output_error(model: Model, rec: LoopData) -> LoopData | None:
     (:func:`~.prediction.centred`). None when the plant has a pole outside the unit circle.
     """
     P = model.plant_discrete()
-    if P.A.size and np.max(np.abs(np.linalg.eigvals(P.A))) > 1.0 + UNSTABLE:
+    if grows(P):
         return None
     r, u, y = centred(rec, model)
     drive = driving_input(rec, model)
@@ -155,9 +152,9 @@ def output_error(model: Model, rec: LoopData) -> LoopData | None:
         warnings.filterwarnings("ignore", "simulate: state matrix", RuntimeWarning)
         _, y_plant = LoopStream(replace(model, controller=None)).next(drive)
     step = rec.n_samples // y.shape[0]
-    obs = free_response(model, rec.n_samples)
+    obs = free_response(P, rec.n_samples)
     if model.controller is None:  # open loop: what u's mean, taken out, did (a ramp, 1/s)
-        obs = np.concatenate([obs, step_responses(model, rec.n_samples)], axis=2)
+        obs = np.concatenate([obs, step_responses(P, rec.n_samples)], axis=2)
     if step > 1:  # y at the low rate
         y_plant, obs = y_plant[rec.y_phase :: step], obs[rec.y_phase :: step]
     e = y - y_plant

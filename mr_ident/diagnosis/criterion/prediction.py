@@ -22,6 +22,7 @@ import numpy as np
 
 from ...numerics.arrays import ComplexArray, FloatArray
 from ...numerics.signals import LoopData
+from ...numerics.systems.lti import StateSpace
 from ...numerics.systems.model import Model
 from ...numerics.systems.simulate import LoopStream
 
@@ -137,3 +138,13 @@ def time_fit(
     fy = fit_percent(y[s:], pred.y[s:])
     fu = None if model.controller is None else fit_percent(u[s:], pred.u[s:])
     return TimeFit(fy, fu)
+
+
+#: A discrete plant pole this far outside the unit circle is unstable: its output from the
+#: measured u grows beyond the numbers' reach.
+UNSTABLE = 1e-9
+
+
+def grows(P: StateSpace) -> bool:
+    """``P`` (discrete) has a pole outside the unit circle by more than :data:`UNSTABLE`."""
+    return bool(np.max(np.abs(P.poles()), initial=0.0) > 1.0 + UNSTABLE)
