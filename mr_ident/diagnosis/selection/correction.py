@@ -325,8 +325,9 @@ def correction(
         start = settle_samples(nominal, val.n_samples)  # separate data: skip the transient
     # the noise without the local fit's misfit: from the causes' output error (matched.py)
     # (periodic data: the noise from the period spread, no local fit, so no output error)
+    seen = later(current, val_start)  # a fitted disturbance's phase on the held-out part
     periodic = val_part.period is not None
-    err_val = None if periodic else output_error(later(current, val_start), val_part)
+    err_val = None if periodic else output_error(seen, val_part)
     ident_val = (
         None if periodic else identify_record(err_val or val_part, nominal, n=n, degree=degree)
     )
@@ -336,7 +337,6 @@ def correction(
     crit = Objective(val_part, nominal, noise)
     fit_nom = time_fit(nominal, val, start).y
     fit_cur = fit_nom if current is nominal else time_fit(current, val, start).y
-    seen = later(current, val_start)  # a fitted disturbance's phase on the held-out part
     power_nom = _bin_power(crit, nominal)
     power_cur = power_nom if current is nominal else _bin_power(crit, seen)
     score_nom, score_cur = 2.0 * float(power_nom.sum()), 2.0 * float(power_cur.sum())
@@ -348,13 +348,14 @@ def correction(
         if not _stable(model):
             return None
         p = _n_params(C, kind == "multiplicative")
-        power = _bin_power(crit, later(model, val_start))
+        moved = later(model, val_start)
+        power = _bin_power(crit, moved)
         bic = 2.0 * float(power.sum()) + p * math.log(crit.n_bins)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             fy = time_fit(model, val, start).y
-        z_nom = gain(crit, nominal, later(model, val_start)).z
-        z = (z_nom, z_nom if current is nominal else gain(crit, seen, later(model, val_start)).z)
+        z_nom = gain(crit, nominal, moved).z
+        z = (z_nom, z_nom if current is nominal else gain(crit, seen, moved).z)
         return Candidate(kind, order, C, model, p, bic, fy if math.isfinite(fy) else -1e9, *z)
 
     cands = [
