@@ -28,3 +28,15 @@ def readonly(a: object, dtype: type, *, copy: bool = False) -> AnyArray:
     )
     out.setflags(write=False)
     return out
+
+
+def frozen(a: object, dtype: type) -> AnyArray:
+    """``a`` as a read-only array of ``dtype`` that no one else writes through.
+
+    An array already read-only and of that dtype is taken as it is (a view: its owner
+    has given up writing it); anything else is copied. How :class:`~mr_ident.numerics.results.FRF`
+    holds its arrays without copying what an estimator hands over read-only.
+    """
+    if isinstance(a, np.ndarray) and a.dtype == dtype and not a.flags.writeable:
+        return readonly(a, dtype)
+    return readonly(a, dtype, copy=True)

@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import ConfigError, DataError, DimensionError
-from .arrays import FloatArray, IntArray
+from .arrays import ComplexArray, FloatArray, IntArray
 from .lifted.methods import METHODS, FitRequest, PlantFit
 from .lifted.missing import check_share, estimate_missing
 from .lifted.options import check_options, default_n, method_of, min_samples, missing_rules
@@ -275,6 +275,8 @@ def identify(
         )
     std_half = np.sqrt(np.maximum(fit.var_half, 0.0))
     freq = np.arange(1, N // 2 + 1) * fs_high / N
+    for a in (freq, fit.P_half, std_half):  # handed over to the result: not copied
+        a.flags.writeable = False
     plant = FRF(freq, fit.P_half[1:], std_half[1:], method)
     pfg: PFG | None = None
     if controller_low is not None:
@@ -371,19 +373,24 @@ def _choose_widths(
     n_centres = (n_samples // lift) // 2 + 1
     probe = probe_runs(n_centres, ns[-1])
     centre_of = centre_bins(n_samples, lift)
+    inside = np.zeros(n_centres, dtype=bool)
+    for a, b in probe:
+        inside[a:b] = True
+    rows = np.flatnonzero(inside[centre_of])  # the high-rate bins the probe fits
+
+    def probed_fit(nj: int) -> tuple[ComplexArray, FloatArray]:
+        fit = fit_with(nj, False, False, tuple((a, b, nj) for a, b in probe), 1)
+        return fit.P_half[rows], fit.var_half[rows]  # the whole-spectrum arrays freed here
+
     with warnings.catch_warnings():  # the final fit says it for the bins it keeps
         warnings.filterwarnings("ignore", "LPM: .* rank-deficient", RuntimeWarning)
-        fits = thread_map(
-            lambda nj: fit_with(nj, False, False, tuple((a, b, nj) for a, b in probe), 1),
-            ns,
-            workers,
-        )
-    probed = np.flatnonzero(np.isfinite(fits[0].P_half).all(axis=(1, 2)))
+        fits = thread_map(probed_fit, ns, workers)
+    ok = np.isfinite(fits[0][0]).all(axis=(1, 2))  # NaN: no excitation in the window
     return choose_widths(
         ns,
-        np.stack([f.P_half[probed] for f in fits]),
-        np.stack([f.var_half[probed] for f in fits]),
-        centre_of[probed],
+        np.stack([P[ok] for P, _ in fits]),
+        np.stack([v[ok] for _, v in fits]),
+        centre_of[rows[ok]],
         n_centres,
         halfwidth=ns[-1],
     )

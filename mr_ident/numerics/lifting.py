@@ -101,12 +101,22 @@ def half_spectrum(x: FloatArray, *, workers: int = 1) -> list[ComplexArray]:
     One real transform per column, the columns on ``workers`` threads. The upper half is
     never formed; :func:`spectrum_bins` reads any bin through conjugate symmetry.
     """
+    return half_spectra([x], workers=workers)[0]
+
+
+def half_spectra(xs: list[FloatArray], *, workers: int = 1) -> list[list[ComplexArray]]:
+    """:func:`half_spectrum` of several signals, all their columns on the threads at once.
+
+    (Signal by signal, a SISO loop's r, u and y would each be one transform: one thread.)
+    """
 
     def rfft(c: FloatArray) -> ComplexArray:
         out: ComplexArray = np.fft.rfft(c, norm="ortho")
         return out
 
-    return thread_map(rfft, [x[:, i] for i in range(x.shape[1])], workers)
+    flat = thread_map(rfft, [x[:, i] for x in xs for i in range(x.shape[1])], workers)
+    ends = np.cumsum([x.shape[1] for x in xs])
+    return [flat[e - x.shape[1] : e] for x, e in zip(xs, ends, strict=True)]
 
 
 def fold_half(kappa: ArrayLike, n_samples: int) -> tuple[IndexArray, BoolArray]:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import DimensionError
-from .arrays import ComplexArray, FloatArray, IntArray, readonly
+from .arrays import ComplexArray, FloatArray, IntArray, frozen, readonly
 
 
 @dataclass(frozen=True)
@@ -34,6 +34,9 @@ class FRF:
         noise). NaN where the method gives no noise model (``etfe``).
     method : str
         The method that produced the estimate (``"freq-lifted"``, ``"model"``...).
+
+    The arrays are held read-only: writeable ones given are copied, read-only ones of the
+    right dtype are kept as given (an estimator hands its arrays over that way, uncopied).
     """
 
     frequency: FloatArray
@@ -42,9 +45,9 @@ class FRF:
     method: str
 
     def __post_init__(self) -> None:
-        f = readonly(self.frequency, np.float64, copy=True)
-        g = readonly(self.response, np.complex128, copy=True)
-        s = readonly(self.std, np.float64, copy=True)
+        f = frozen(self.frequency, np.float64)
+        g = frozen(self.response, np.complex128)
+        s = frozen(self.std, np.float64)
         if f.ndim != 1:
             raise DimensionError(f"frequency must be 1-D (n_freq,), got shape {f.shape}")
         if g.ndim != 3 or g.shape[0] != f.shape[0]:

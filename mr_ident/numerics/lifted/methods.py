@@ -40,7 +40,7 @@ from ..lifting import (
     dft,
     fold_half,
     freq_lift_half,
-    half_spectrum,
+    half_spectra,
     half_to_full,
     low_rate_lift_half,
     time_lift,
@@ -125,12 +125,12 @@ class FitRequest:
         """The runs to fit on centre bins 0..n_bins-1: :attr:`runs`, or all with :attr:`n`."""
         return full_run(n_bins, self.n) if self.runs is None else self.runs
 
-    def half(self, name: str) -> list[ComplexArray]:
-        """The half spectrum of r, u or y (shared through :attr:`spectra` when given)."""
+    def halves(self, *names: str) -> list[list[ComplexArray]]:
+        """The half spectra of several of r, u, y, computed side by side on the threads."""
         if self.spectra is not None:
-            return self.spectra.half(name)
-        x = {"r": self.r, "u": self.u, "y": self.y}[name]
-        return half_spectrum(x, workers=self.workers)
+            return self.spectra.halves(*names)
+        signals = {"r": self.r, "u": self.u, "y": self.y}
+        return half_spectra([signals[k] for k in names], workers=self.workers)
 
     def time_lifted(self, name: str) -> ComplexArray:
         """The DFT of the time-lifted r, u or y (shared through :attr:`spectra`)."""
@@ -224,7 +224,7 @@ def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
     N = req.n_samples
     ny, nu = req.y.shape[1], req.u.shape[1]
     M, half = N // F, N // 2
-    Rh, Uh, Yh = (req.half(x) for x in ("r", "u", "y"))
+    Rh, Uh, Yh = req.halves("r", "u", "y")
     Kc = M // 2
     P_half = np.full((half + 1, ny, nu), np.nan + 0j)
     var_half = np.full((half + 1, ny, nu), np.nan)
@@ -357,7 +357,7 @@ def _lifted_maps(
 def _structured(req: FitRequest) -> PlantFit:
     F, N = req.ratio, req.n_samples
     ny, nu = req.y.shape[1], req.u.shape[1]
-    Rh, Uh, Yh = (req.half(x) for x in ("r", "u", "y"))
+    Rh, Uh, Yh = req.halves("r", "u", "y")
     Kc = N // F // 2
     P_half = np.full((N // 2 + 1, ny, nu), np.nan + 0j)
     var_half = np.full((N // 2 + 1, ny, nu), np.nan)
@@ -399,7 +399,7 @@ def _etfe(req: FitRequest) -> PlantFit:
             f"etfe needs a SISO loop (one experiment cannot separate {nu} inputs); got "
             f"n_y={ny}, n_u={nu}"
         )
-    Uf, Yf = (req.half(x)[0] for x in ("u", "y"))
+    Uf, Yf = (h[0] for h in req.halves("u", "y"))
     with np.errstate(divide="ignore", invalid="ignore"):
         P = (Yf / Uf)[:, None, None]
     return PlantFit(P, np.full(P.shape, np.nan))

@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike
 
 from ...errors import DimensionError
 from ..arrays import AnyArray, ComplexArray, FloatArray
-from ..lifting import check_multiple, check_ratio, half_to_full
+from ..lifting import check_multiple, check_ratio, fold_half
 from ..results import PFG
 from ..threads import resolve_workers, thread_map
 from .loop import controller_factors
@@ -108,17 +108,14 @@ def pfg_from_plant(
     Kl = np.asarray(K_low, dtype=complex)
     if Kl.shape[0] != M:
         raise DimensionError(f"K_low must cover all M={M} low-rate bins, got {Kl.shape[0]}")
-    # Whole spectra once (conjugate symmetry), so that the aliases of a block of bins
-    # are slices (wrapping at N) rather than gathers with conjugation.
-    P_full = half_to_full(Ph, N)
-    sd_full = None if P_std_half is None else half_to_full(np.asarray(P_std_half, dtype=float), N)
+    sd_half = None if P_std_half is None else np.asarray(P_std_half, dtype=float)
     gain = np.empty(N // 2 + 1)
     std = np.empty(N // 2 + 1)
 
     def block(k0: int) -> None:  # blocks bound the memory and run on threads
         kappa = np.arange(k0, min(k0 + PFG_BLOCK, N // 2 + 1))
         gain[kappa[0] : kappa[-1] + 1], std[kappa[0] : kappa[-1] + 1] = _pfg_block(
-            kappa, P_full, sd_full, Kl, F, N, phase, delay
+            kappa, Ph, sd_half, Kl, F, N, phase, delay
         )
 
     thread_map(block, range(0, N // 2 + 1, PFG_BLOCK), resolve_workers(workers))
@@ -129,41 +126,39 @@ def pfg_from_plant(
 PFG_BLOCK = 16384
 
 
-def _aliases(X_full: AnyArray, kappa: AnyArray, F: int, M: int, axis: int = 1) -> AnyArray:
-    """``X_full[(kappa + l M) mod N]`` for consecutive kappa.
+def _aliases(X_half: AnyArray, kappa: AnyArray, F: int, N: int, axis: int = 1) -> AnyArray:
+    """``X[kappa + l M]`` (bins mod N) of a real signal's spectrum given on bins 0..N//2.
 
-    L on ``axis`` (shape (K, F, ...) by default).
+    Read through ``X(N - k) = conj X(k)`` (no whole spectrum is formed); L on ``axis``
+    (shape (K, F, ...) by default).
     """
-    return np.stack(
-        [
-            np.take(
-                X_full, np.arange(kappa[0] + l * M, kappa[-1] + 1 + l * M), axis=0, mode="wrap"
-            )
-            for l in range(F)
-        ],
-        axis=axis,
-    )
+    M = N // F
+    src, upper = fold_half((kappa[None, :] + M * np.arange(F)[:, None]) % N, N)
+    out = np.take(X_half, src, axis=0)  # (F, K, ...)
+    if np.iscomplexobj(out):
+        mask = upper.reshape(upper.shape + (1,) * (out.ndim - 2))
+        np.conjugate(out, out=out, where=np.broadcast_to(mask, out.shape))
+    return out if axis == 0 else np.moveaxis(out, 0, axis)
 
 
 def _pfg_block(
     kappa: AnyArray,
-    P_full: AnyArray,
-    sd_full: AnyArray | None,
+    P_half: AnyArray,
+    sd_half: AnyArray | None,
     Kl: AnyArray,
     F: int,
     N: int,
     phase: int,
     delay: int,
 ) -> tuple[FloatArray, FloatArray]:
-    """PFG and its std on consecutive high-rate bins kappa, from the plant on all N bins."""
-    M = N // F
-    ny, nu = P_full.shape[1:]
+    """PFG and its std on consecutive high-rate bins kappa, from the plant on bins 0..N//2."""
+    ny, nu = P_half.shape[1:]
     Kk = np.take(Kl, kappa, axis=0, mode="wrap")  # (K, nu, ny)
     a, b = controller_factors(kappa, F, N, phase=phase, delay=delay)
     if ny == nu == 1:
-        sd = None if sd_full is None else _aliases(sd_full[:, 0, 0], kappa, F, M, axis=0)
-        return _pfg_siso(_aliases(P_full[:, 0, 0], kappa, F, M, axis=0), Kk[:, 0, 0], a, b, sd)
-    Pl = _aliases(P_full, kappa, F, M)  # (K, F, ny, nu)
+        sd = None if sd_half is None else _aliases(sd_half[:, 0, 0], kappa, F, N, axis=0)
+        return _pfg_siso(_aliases(P_half[:, 0, 0], kappa, F, N, axis=0), Kk[:, 0, 0], a, b, sd)
+    Pl = _aliases(P_half, kappa, F, N)  # (K, F, ny, nu)
     a = a.T
     b = np.ones_like(a) if b is None else b.T
     PK = Pl @ Kk[:, None]  # (K, F, ny, ny)
@@ -174,8 +169,8 @@ def _pfg_block(
     col[:, 0] += Pl[:, 0]
     gain, uvec, vvec = _column_gain(col.reshape(kappa.size, F * ny, nu))
     std = np.full(gain.shape, np.nan)
-    if sd_full is not None:
-        sd = _aliases(sd_full, kappa, F, M)  # (K, F, ny, nu)
+    if sd_half is not None:
+        sd = _aliases(sd_half, kappa, F, N)  # (K, F, ny, nu)
         ul = uvec.reshape(kappa.size, F, ny)
         # u^H S_o, S_o = (I + P C)^-1 = I - P A K (I+Z)^-1 B^T: block l is
         # conj(u_l) - (sum_m conj(u_m) a_m P_m K) (I+Z)^-1 b_l.

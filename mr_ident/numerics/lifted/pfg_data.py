@@ -24,7 +24,7 @@ import numpy as np
 
 from ..arrays import ComplexArray, FloatArray, IntArray
 from ..budget import block_bins
-from ..lifting import fold_half, freq_lift_half, half_spectrum, unlift_bins
+from ..lifting import fold_half, freq_lift_half, half_spectra, unlift_bins
 from ..local.fit import local_fit
 from ..local.lrm import DenominatorTerm
 from ..threads import thread_map
@@ -113,7 +113,7 @@ def fit_data_pfg(
     """
     F, N = ratio, r.shape[0]
     M = N // F
-    Rh, Uh, Yh = (half_spectrum(x, workers=workers) for x in (r, u, y))
+    Rh, Uh, Yh = half_spectra([r, u, y], workers=workers)
     gain_half, var_half = empty_pfg(N)
     ny = y.shape[1]
     step = block_bins(F, r.shape[1], max(ny, u.shape[1]))

@@ -6,7 +6,7 @@ from __future__ import annotations
 import threading
 
 from ..arrays import ComplexArray, FloatArray
-from ..lifting import dft, half_spectrum, time_lift
+from ..lifting import dft, half_spectra, time_lift
 
 
 class Spectra:
@@ -24,12 +24,17 @@ class Spectra:
         self._time: dict[tuple[str, int], ComplexArray] = {}
         self._lock = threading.Lock()
 
-    def half(self, name: str) -> list[ComplexArray]:
-        """:func:`~mr_ident.numerics.lifting.half_spectrum` of signal ``name`` (r, u or y)."""
+    def halves(self, *names: str) -> list[list[ComplexArray]]:
+        """The half spectra of the signals ``names``; those not yet computed in one pass.
+
+        (:func:`~mr_ident.numerics.lifting.half_spectra`: their columns side by side.)
+        """
         with self._lock:
-            if name not in self._half:
-                self._half[name] = half_spectrum(self._signals[name], workers=self._workers)
-            return self._half[name]
+            todo = [k for k in dict.fromkeys(names) if k not in self._half]
+            if todo:
+                done = half_spectra([self._signals[k] for k in todo], workers=self._workers)
+                self._half.update(zip(todo, done, strict=True))
+            return [self._half[k] for k in names]
 
     def time_lifted(self, name: str, ratio: int) -> ComplexArray:
         """The M-point DFT of the time-lifted signal ``name`` (M, F c)."""
