@@ -15,6 +15,7 @@ spread over the periods the noise std); with too few whole periods, as any windo
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass
 
@@ -27,6 +28,7 @@ from ..numerics.excitation.bla import BLA
 from ..numerics.identify import identify
 from ..numerics.results import Identification
 from ..numerics.signals import LoopData
+from ..numerics.systems.lti import TransferMatrix
 from .periodic import bla_identification, cut_by_labels, periodic_bla
 
 
@@ -173,7 +175,7 @@ def estimate(window: LoopData, config: IdentConfig) -> Estimate:
                 time.perf_counter() - t0, bla, f"BLA from {cut.describe()}", cut.period,
             )  # fmt: skip
     controller = config.controller
-    K_low = None if controller is None else controller.dft_response(window.n_samples // F)
+    K_low = None if controller is None else _controller_low(controller, window.n_samples // F)
     y, y_phase = window.y, 0
     if config.y_rate == "low":
         y, y_phase = low_rate_output(window.first, window.y, F)
@@ -197,6 +199,18 @@ def estimate(window: LoopData, config: IdentConfig) -> Estimate:
     # The result does not depend on the number of threads (bit-identical).
     dt = time.perf_counter() - t0
     return Estimate(window.first, window.n_samples, ident, phase, source, dt, None, periodic)
+
+
+@functools.lru_cache(maxsize=2)
+def _controller_low(controller: TransferMatrix, n_low: int) -> NDArray[np.complex128]:
+    """K_l on the n_low low-rate bins of a window (read-only; the node's windows share it).
+
+    Every estimate of a node has the same window length: evaluated once, not per estimate
+    (0.03 s at 480 k bins).
+    """
+    K = controller.dft_response(n_low)
+    K.flags.writeable = False
+    return K
 
 
 def warm_up(config: IdentConfig, n_samples: int | None = None) -> float:
