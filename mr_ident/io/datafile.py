@@ -21,7 +21,8 @@ NPZ (result, written by ``mr-ident identify``)
     ``pfg_data``, ``pfg_data_std`` (K,), the PFG identified from data alone (the lifted
     r -> y map), where the data give it; with a controller ``pfg``, ``pfg_std`` (K,), the
     PFG of P_h under that controller; plus ``method``, ``fs_high``, ``ratio`` and ``n`` (K,),
-    the LPM window half-width used per bin (0: none; files written before it read the same);
+    the LPM window half-width used per bin (0: none; files written before it read the same;
+    stored in the smallest unsigned integer type that holds it);
     ``n_missing`` (n_y + n_u,), the missing samples of every channel of y then u, when any.
 
 Writers go through a temporary file and a rename: a failed write leaves nothing.
@@ -366,9 +367,11 @@ def write_result(path: str | Path, ident: Identification) -> None:
         "P_std": ident.plant.std,
         "method": np.array(ident.plant.method),
         "local": np.array(ident.local),
-        "n": np.zeros(ident.plant.frequency.size, np.int64)
-        if ident.n_used is None
-        else ident.n_used,
+        "n": _compact(
+            np.zeros(ident.plant.frequency.size, np.int64)
+            if ident.n_used is None
+            else ident.n_used
+        ),
         "fs_high": ident.fs_high,
         "ratio": ident.ratio,
     }
@@ -380,6 +383,11 @@ def write_result(path: str | Path, ident: Identification) -> None:
             arrays[f"{key}_std"] = g.std
             arrays[f"{key}_source"] = np.array(g.source)
     atomic_write(p, lambda fh: np.savez(fh, **arrays), binary=True)
+
+
+def _compact(n: IntArray) -> np.ndarray:
+    """Non-negative integers in the smallest unsigned type that holds them (lossless)."""
+    return n.astype(np.min_scalar_type(max(int(n.max(initial=0)), 0)))
 
 
 def read_result(path: str | Path) -> FRF:

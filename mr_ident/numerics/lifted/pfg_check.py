@@ -101,13 +101,13 @@ def check_controller(ident: Identification, n: int) -> ControllerCheck | None:
     f = gd.frequency
     N = int(round(ident.fs_high / f[0]))  # the bins are k fs_high / N, k = 1..N//2
     M = N // ident.ratio
-    kappa = np.arange(1, f.size + 1)
-    far = np.minimum(kappa % M, M - kappa % M) > n
+    m = np.arange(M)
+    far = np.resize(np.roll(np.minimum(m, M - m) > n, -1), f.size)  # bins 1, 2, ...: k mod M
+    diff = np.abs(gd.gain - gm.gain)
     with np.errstate(invalid="ignore", divide="ignore"):
-        z = np.abs(gd.gain - gm.gain) / np.hypot(gd.std, gm.std)
-        rel = np.abs(gd.gain - gm.gain) / gm.gain
-    keep = far & np.isfinite(z)
-    f, z, rel = f[keep], z[keep], rel[keep]
+        z = diff / np.hypot(gd.std, gm.std)
+        keep = far & np.isfinite(z)
+        f, z, rel = f[keep], z[keep], diff[keep] / gm.gain[keep]
     beyond = z > COVERAGE
     w = 1.0 / f
     return ControllerCheck(
