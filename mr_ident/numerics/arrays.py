@@ -33,10 +33,16 @@ def readonly(a: object, dtype: type, *, copy: bool = False) -> AnyArray:
 def frozen(a: object, dtype: type) -> AnyArray:
     """``a`` as a read-only array of ``dtype`` that no one else writes through.
 
-    An array already read-only and of that dtype is taken as it is (a view: its owner
-    has given up writing it); anything else is copied. How :class:`~mr_ident.numerics.results.FRF`
-    holds its arrays without copying what an estimator hands over read-only.
+    An array of that dtype that is read-only down to the array owning its memory is taken
+    as it is (a view: its owner has given up writing it); anything else is copied (a
+    read-only view of a writeable array too: its owner may still write). How
+    :class:`~mr_ident.numerics.results.FRF` holds its arrays without copying what an
+    estimator hands over read-only.
     """
-    if isinstance(a, np.ndarray) and a.dtype == dtype and not a.flags.writeable:
-        return readonly(a, dtype)
+    if isinstance(a, np.ndarray) and a.dtype == dtype:
+        base: object = a
+        while isinstance(base, np.ndarray) and not base.flags.writeable:
+            base = base.base
+        if base is None:  # every array up to the owner is read-only
+            return readonly(a, dtype)
     return readonly(a, dtype, copy=True)
