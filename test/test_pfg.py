@@ -97,3 +97,23 @@ def test_the_dense_closed_loop_maps_agree_with_the_structured_pfg(paper_model):
     kappa = np.arange(N // 2 + 1)
     dense = np.linalg.norm(J[kappa % M][np.arange(kappa.size), :, kappa // M], axis=1)
     np.testing.assert_allclose(g, dense, rtol=1e-10)
+
+
+@pytest.mark.parametrize("F,N", [(2, 18), (3, 21), (4, 24), (5, 35)])
+def test_the_aliases_read_from_the_half_spectrum_are_the_whole_spectrum_ones_in_c_order(F, N):
+    from mr_ident.numerics.lifted.pfg import _aliases
+    from mr_ident.numerics.lifting import half_to_full
+
+    rng = np.random.default_rng(F)
+    P = rng.standard_normal((N // 2 + 1, 2, 3)) + 1j * rng.standard_normal((N // 2 + 1, 2, 3))
+    kappa = np.arange(2, N // 2 + 1)
+    for X in (P, np.abs(P)):  # a std is real: mirrored, not conjugated
+        whole = half_to_full(X, N)
+        want = np.stack([whole[(kappa + j * (N // F)) % N] for j in range(F)], axis=1)
+        got = _aliases(X, kappa, F, N)  # (K, F, n_y, n_u)
+        np.testing.assert_array_equal(got, want)
+        # C order, as the sums over the aliases expect (a moved-axis view sums differently)
+        assert got.flags.c_contiguous
+        np.testing.assert_array_equal(
+            _aliases(X[:, 0, 0], kappa, F, N, axis=0), want[:, :, 0, 0].T
+        )

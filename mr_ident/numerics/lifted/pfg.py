@@ -133,12 +133,15 @@ def _aliases(X_half: AnyArray, kappa: AnyArray, F: int, N: int, axis: int = 1) -
     (shape (K, F, ...) by default).
     """
     M = N // F
-    src, upper = fold_half((kappa[None, :] + M * np.arange(F)[:, None]) % N, N)
-    out = np.take(X_half, src, axis=0)  # (F, K, ...)
+    bins = (kappa[None, :] + M * np.arange(F)[:, None]) % N  # (F, K)
+    # Gathered straight into the layout asked for (C order): a moved-axis view would change
+    # the order of the sums over it (the std's last bits).
+    src, upper = fold_half(np.moveaxis(bins, 0, axis), N)
+    out = np.take(X_half, src, axis=0)
     if np.iscomplexobj(out):
         mask = upper.reshape(upper.shape + (1,) * (out.ndim - 2))
         np.conjugate(out, out=out, where=np.broadcast_to(mask, out.shape))
-    return out if axis == 0 else np.moveaxis(out, 0, axis)
+    return out
 
 
 def _pfg_block(
