@@ -109,11 +109,11 @@ def peak_mb(fn) -> float:
 _SPAWN = """
 import os, subprocess, sys, time
 t0 = time.perf_counter()
-proc = subprocess.Popen(sys.argv[1:], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+proc = subprocess.Popen(sys.argv[1:], stdout=subprocess.DEVNULL)  # its stderr: ours
 _, status, usage = os.wait4(proc.pid, 0)
 dt = time.perf_counter() - t0
 if status != 0:
-    sys.exit(proc.stderr.read().decode())
+    sys.exit(f"exit status {status}")
 print(dt, usage.ru_maxrss)
 """
 

@@ -22,7 +22,7 @@ NPZ (result, written by ``mr-ident identify``)
     r -> y map), where the data give it; with a controller ``pfg``, ``pfg_std`` (K,), the
     PFG of P_h under that controller; plus ``method``, ``fs_high``, ``ratio`` and ``n`` (K,),
     the LPM window half-width used per bin (0: none; files written before it read the same;
-    stored in the smallest unsigned integer type that holds it);
+    stored as int16 when it fits);
     ``n_missing`` (n_y + n_u,), the missing samples of every channel of y then u, when any.
 
 Writers go through a temporary file and a rename: a failed write leaves nothing.
@@ -386,8 +386,13 @@ def write_result(path: str | Path, ident: Identification) -> None:
 
 
 def _compact(n: IntArray) -> np.ndarray:
-    """Non-negative integers in the smallest unsigned type that holds them (lossless)."""
-    return n.astype(np.min_scalar_type(max(int(n.max(initial=0)), 0)))
+    """Integers in the smallest of int16, int32, int64 that holds them (lossless).
+
+    Signed, so that arithmetic on what is read (``n - 1``) does not wrap.
+    """
+    top = max(abs(int(n.max(initial=0))), abs(int(n.min(initial=0))))
+    kind = next(t for t in (np.int16, np.int32, np.int64) if top <= np.iinfo(t).max)
+    return n.astype(kind)
 
 
 def read_result(path: str | Path) -> FRF:
