@@ -264,9 +264,10 @@ def identify(
     with one_blas_thread():
         runs = None
         if len(ns) > 1:  # the automatic window: candidates on a probe, then one fit
-            widths = _choose_widths(ns, m.lift(F), N, fit_with, n_workers)
+            centre_of = centre_bins(N, m.lift(F))
+            widths = _choose_widths(ns, centre_of, fit_with, n_workers)
             runs = runs_of(widths)
-            n_used = widths[centre_bins(N, m.lift(F))]
+            n_used = widths[centre_of]
         fit = fit_with(n0, keep_lifted, True, runs, n_workers)
         pfg_data = (
             None
@@ -358,21 +359,22 @@ def _fill(
 
 def _choose_widths(
     ns: tuple[int, ...],
-    lift: int,
-    n_samples: int,
+    centre_of: IntArray,
     fit_with: Callable[[int, bool, bool, tuple[Run, ...] | None, int], PlantFit],
     workers: int,
 ) -> IntArray:
     """The half-width of every centre bin: each candidate fitted on the probe, then the rule.
+
+    ``centre_of``: the centre bin of every high-rate bin 0..N//2
+    (:func:`~mr_ident.numerics.local.bandwidth.centre_bins`).
 
     :func:`~mr_ident.numerics.local.bandwidth.probe_runs` and
     :func:`~mr_ident.numerics.local.bandwidth.choose_widths`; only the probed bins of each
     candidate are kept meanwhile. The candidates run side by side on ``workers`` threads (each
     fit serially: a probe is one engine call per candidate, which threads cannot split).
     """
-    n_centres = (n_samples // lift) // 2 + 1
+    n_centres = int(centre_of.max()) + 1  # every centre bin 0..K-1 has its high-rate bins
     probe = probe_runs(n_centres, ns[-1])
-    centre_of = centre_bins(n_samples, lift)
     inside = np.zeros(n_centres, dtype=bool)
     for a, b in probe:
         inside[a:b] = True

@@ -35,8 +35,9 @@ class FRF:
     method : str
         The method that produced the estimate (``"freq-lifted"``, ``"model"``...).
 
-    The arrays are held read-only: writeable ones given are copied, read-only ones of the
-    right dtype are kept as given (an estimator hands its arrays over that way, uncopied).
+    The arrays are held read-only: an array of the right dtype that is read-only down to
+    the array owning its memory is kept as given (an estimator hands its arrays over that
+    way, uncopied); anything else is copied (:func:`~mr_ident.numerics.arrays.frozen`).
     """
 
     frequency: FloatArray

@@ -147,12 +147,12 @@ class TransferMatrix:
         """
         if self.dt is None:
             raise ModelError("dft_response needs a discrete-time system (dt set)")
+        from ..lifting import half_to_full  # (its threads are not every model reader's)
+
         # Real coefficients: evaluated on bins 0..n//2, the rest is their conjugate mirror.
-        h = n // 2
-        half = self(np.exp(2j * np.pi * np.arange(h + 1) / n))
-        out = np.empty((n,) + half.shape[1:], dtype=complex)
-        out[: h + 1] = half
-        np.conjugate(half[n - h - 1 : 0 : -1], out=out[h + 1 :])
+        out: NDArray[np.complex128] = half_to_full(
+            self(np.exp(2j * np.pi * np.arange(n // 2 + 1) / n)), n
+        )
         return out
 
     def times(self, num: ArrayLike, den: ArrayLike) -> TransferMatrix:
