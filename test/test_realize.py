@@ -162,3 +162,36 @@ def test_freqresp_on_a_pole_is_infinite_there_and_exact_elsewhere():
     exact = dt**2 / 2 * (z + 1) / (z - 1) ** 2
     assert np.isinf(G[0])
     np.testing.assert_allclose(G[1:], exact, rtol=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_defective_system_responds_as_one_solve_per_frequency(seed):
+    """Random series of sections, shift registers and a shared repeated pole (defective: the
+    eigenvector path is refused), states shuffled: the block substitution of freqresp equals
+    ``C (xI - A)^-1 B + D`` solved point by point, within 1e-10 relative; and the blocks it
+    uses leave A block lower triangular."""
+    from mr_ident.numerics.systems.lti import StateSpace, triangular_blocks
+    from mr_ident.numerics.systems.realize import shift
+
+    rng = np.random.default_rng(seed)
+    dt = 1e-3
+    parts = [zoh(sections(*_modal_polynomials(MODES[: 1 + seed % 2])), dt)]
+    parts += [shift(1, int(rng.integers(1, 4)), dt)]
+    jordan = np.array([[0.9, 1.0], [0.0, 0.9]])  # a repeated pole, one eigenvector
+    parts += [StateSpace(jordan, rng.standard_normal((2, 1)), rng.standard_normal((1, 2)),
+                         rng.standard_normal((1, 1)), dt)]  # fmt: skip
+    ss = parts[0]
+    for p in rng.permutation(parts[1:]):
+        ss = series(ss, p)
+    perm = rng.permutation(ss.A.shape[0])
+    ss = StateSpace(ss.A[np.ix_(perm, perm)], ss.B[perm], ss.C[:, perm], ss.D, dt)
+    assert np.linalg.cond(np.linalg.eig(ss.A)[1]) >= 1e8
+    f = rng.uniform(0.1, 499.0, 300)
+    z = np.exp(2j * np.pi * f * dt)
+    n = ss.A.shape[0]
+    exact = np.array([ss.C @ np.linalg.solve(zk * np.eye(n) - ss.A, ss.B) + ss.D for zk in z])
+    np.testing.assert_allclose(ss.freqresp(f), exact, rtol=1e-10)
+    order, blocks = triangular_blocks(ss.A)
+    Ap = ss.A[np.ix_(order, order)]
+    for a, b in blocks:
+        assert not Ap[a:b, b:].any()  # nothing after a block drives it

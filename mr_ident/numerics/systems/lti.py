@@ -50,8 +50,10 @@ class StateSpace:
         """``C (xI - A)^-1 B + D`` at ``frequency`` Hz, shape (K, n_out, n_in).
 
         ``x = exp(2j pi f dt)`` (discrete) or ``2j pi f`` (continuous); through the
-        eigendecomposition of A when its eigenvectors are well conditioned, else a batched
-        solve.
+        eigendecomposition of A when its eigenvectors are well conditioned, else (a shift
+        register, a repeated pole) by block forward substitution over A's strongly connected
+        blocks (:func:`triangular_blocks`), each block through its own eigenvectors or, when
+        it is defective itself, one solve per point. On a pole: inf there.
         """
         f = np.atleast_1d(np.asarray(frequency, dtype=float))
         x = 2j * np.pi * f if self.dt is None else np.exp(2j * np.pi * f * self.dt)
@@ -60,25 +62,35 @@ class StateSpace:
         if n == 0:
             return out
         lam, V = np.linalg.eig(self.A)
-        pole = np.min(np.abs(x[:, None] - lam[None, :]), axis=1) <= 1e-7 * (1.0 + np.abs(x))
+        pole = _on_pole(x, lam, self.dt is not None)
         if np.any(pole):  # on a pole (an integrator at DC): infinite there, the rest as usual
             rest = StateSpace(self.A, self.B, self.C, self.D, self.dt).freqresp(f[~pole])
             out[~pole] = rest
             out[pole] = np.inf
             return out
         if np.linalg.cond(V) < 1e8:
+            # C V diag(1 / (x - lam)) V^-1 B: one product of the resolvent's diagonal with
+            # the modes' residues W[m, (o, i)] = (C V)[o, m] (V^-1 B)[m, i] per block
             Bm = np.linalg.solve(V, self.B.astype(complex))  # (n, n_in)
-            Cm = self.C @ V  # (n_out, n)
+            W = ((self.C @ V).T[:, :, None] * Bm[:, None, :]).reshape(n, -1)
             for lo in range(0, f.size, 4096):
                 g = 1.0 / (x[lo : lo + 4096, None] - lam[None, :])  # (k, n)
-                out[lo : lo + 4096] += np.einsum("on,kn,ni->koi", Cm, g, Bm)
+                out[lo : lo + 4096] += (g @ W).reshape(g.shape[0], *self.D.shape)
             return out
-        eye = np.eye(n)
-        for lo in range(0, f.size, 1024):
-            xs = x[lo : lo + 1024]
-            M = xs[:, None, None] * eye - self.A
-            rhs = np.broadcast_to(self.B.astype(complex), (xs.size, *self.B.shape))
-            out[lo : lo + 1024] += self.C @ np.linalg.solve(M, rhs)
+        # defective (a shift register's Jordan block, repeated poles of a series): block
+        # forward substitution over A's strongly connected blocks, each one resolved alone
+        perm, bounds = triangular_blocks(self.A)
+        Ap, Bp, Cp = self.A[np.ix_(perm, perm)], self.B[perm].astype(complex), self.C[:, perm]
+        no, ni = self.D.shape
+        for lo in range(0, f.size, 4096):
+            xs = x[lo : lo + 4096]
+            Z = np.empty((n, xs.size, ni), dtype=complex)  # (x I - A)^-1 B, states first
+            for a, b in bounds:
+                rhs = np.broadcast_to(Bp[a:b, None, :], (b - a, xs.size, ni))
+                if a:
+                    rhs = rhs + (Ap[a:b, :a] @ Z[:a].reshape(a, -1)).reshape(b - a, -1, ni)
+                Z[a:b] = _resolve(Ap[a:b, a:b], rhs, xs)
+            out[lo : lo + 4096] += (Cp @ Z.reshape(n, -1)).reshape(no, -1, ni).transpose(1, 0, 2)
         return out
 
 
@@ -182,6 +194,76 @@ _PADE13 = (
     40840800.0, 960960.0, 16380.0, 182.0, 1.0,
 )  # fmt: skip
 _THETA13 = 5.371920351148152
+
+
+def _on_pole(
+    x: NDArray[np.complex128], lam: NDArray[np.complex128], discrete: bool
+) -> NDArray[np.bool_]:
+    """The points ``x`` within ``1e-7 (1 + |x|)`` of an eigenvalue ``lam``: shape (K,).
+
+    ``x`` lies on the unit circle (``discrete``) or the imaginary axis, so an eigenvalue
+    can be that near only when ``|1 - |lam||`` resp. ``|Re lam|`` is within the largest
+    tolerance: only those are compared with every point (usually none).
+    """
+    out = np.zeros(x.size, dtype=bool)
+    if not x.size or not lam.size:
+        return out
+    reach = 1.5e-7 * (1.0 + float(np.abs(x).max()))
+    gap = np.abs(1.0 - np.abs(lam)) if discrete else np.abs(lam.real)
+    near = lam[gap <= reach]
+    for lo in range(0, x.size, 4096) if near.size else ():
+        xs = x[lo : lo + 4096]
+        d = xs[:, None] - near[None, :]
+        tol = 1e-7 * (1.0 + np.abs(xs))
+        out[lo : lo + 4096] = (d.real**2 + d.imag**2).min(axis=1) <= tol * tol
+    return out
+
+
+def triangular_blocks(A: FloatArray) -> tuple[NDArray[np.intp], list[tuple[int, int]]]:
+    """A permutation of the states under which A is block lower triangular, and its blocks.
+
+    The blocks are the strongly connected parts of A's graph (state j drives state i where
+    ``A[i, j] != 0``); a block comes after every block that drives it (ordered by how many
+    states reach it). Returns ``perm`` (n,) and the blocks as ``(start, stop)`` in ``perm``.
+
+    >>> A = np.array([[0.5, 0.0], [1.0, 0.0]])    # state 0 drives state 1
+    >>> triangular_blocks(A)
+    (array([0, 1]), [(0, 1), (1, 2)])
+    """
+    n = A.shape[0]
+    reach = (A != 0) | np.eye(n, dtype=bool)  # reach[i, j]: j reaches i
+    while True:
+        nxt = (reach.astype(np.int64) @ reach.astype(np.int64)) > 0
+        if (nxt == reach).all():
+            break
+        reach = nxt
+    block = np.argmax(reach & reach.T, axis=1)  # the first state of each one's block
+    perm = np.lexsort((block, reach.sum(axis=1)))
+    edges = np.flatnonzero(np.diff(block[perm])) + 1
+    starts, stops = np.r_[0, edges], np.r_[edges, n]
+    return perm, [(int(a), int(b)) for a, b in zip(starts, stops, strict=True)]
+
+
+def _resolve(
+    A: FloatArray, rhs: NDArray[np.complex128], x: NDArray[np.complex128]
+) -> NDArray[np.complex128]:
+    """``(x_k I - A)^-1 rhs[:, k]`` for every point: rhs (n, K, m), result the same.
+
+    Through A's eigenvectors when they are well conditioned, else one solve per point.
+    """
+    n = A.shape[0]
+    if n == 1:
+        out: NDArray[np.complex128] = rhs / (x - A[0, 0])[None, :, None]
+        return out
+    lam, V = np.linalg.eig(A)
+    if np.linalg.cond(V) < 1e8:
+        m = np.linalg.solve(V, rhs.reshape(n, -1)).reshape(rhs.shape)
+        m = m / (x[None, :, None] - lam[:, None, None])
+        out = (V @ m.reshape(n, -1)).reshape(rhs.shape)
+        return out
+    M = x[:, None, None] * np.eye(n) - A
+    solved = np.linalg.solve(M, rhs.transpose(1, 0, 2)).transpose(1, 0, 2)
+    return np.asarray(solved, dtype=np.complex128)
 
 
 def balance(M: FloatArray) -> FloatArray:
