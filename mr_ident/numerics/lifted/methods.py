@@ -50,7 +50,7 @@ from ..lifting import (
     unlift_row_variance,
     unlift_variance,
 )
-from ..local.fit import LocalFit, local_fit, merge_fits
+from ..local.fit import local_fit, merge_fits
 from ..local.lpm import warn_rank_deficient
 from ..local.lrm import DenominatorTerm
 from ..local.segments import (
@@ -214,9 +214,12 @@ def _store_half(
             var_half[idx[sel]] = var[sel, l]
 
 
-def _fit_segment(seg: Segments, fit: LocalFit) -> LocalFit:
-    """The engine's fit over ``seg.window`` reduced to the segment's centre bins."""
-    return fit if seg.whole else fit.take(seg.keep)
+def _centres(seg: Segments) -> IntArray | None:
+    """The centres of the engine's fit over ``seg.window`` that are the segment's bins.
+
+    None when all are (one run): the windows that straddle two runs are not fitted.
+    """
+    return None if seg.whole else seg.keep
 
 
 def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
@@ -250,8 +253,8 @@ def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
             seg.n,
             req.degree,
             missing=req.share(F),
-        )  # bins-last
-        fit = _fit_segment(seg, fit)
+            centres=_centres(seg),
+        )  # bins-last, the segment's bins
         P, rdiag, cdiag, extra = indirect_diag(fit, n_row)
         if slow:
             Pk = unlift_row(P.transpose(2, 0, 1), F, kb, N, req.y_phase)
@@ -307,8 +310,9 @@ def _time_lifted(req: FitRequest) -> PlantFit:
             req.degree,
             req.workers,
             req.share(F),
+            _centres(seg),
         )
-        fits.append(_fit_segment(seg, fit))
+        fits.append(fit)
     warn_rank_deficient(sum(f.n_bad for f in fits), n_centres(plan), stacklevel=4)
     if len(fits) == 1 and segs[0].whole:
         fit = fits[0]
@@ -367,10 +371,9 @@ def _structured(req: FitRequest) -> PlantFit:
     def block(seg: Segments) -> int:
         """Both stages and the indirect step on one segment of low-rate bins (own bins only)."""
         Rl, Yl, Ul = (freq_lift_half(X, seg.window, F, N) for X in (Rh, Yh, Uh))
-        fit = structured_block(Rl, Yl, Ul, F, seg.n, req.degree, req.local, req.missing)
-        if not seg.whole:  # bins ordered l * W + j over the W centres; keep the segment's
-            W = seg.window.size - 2 * seg.pad
-            fit = fit.take((np.arange(F)[:, None] * W + seg.keep[None, :]).ravel())
+        fit = structured_block(
+            Rl, Yl, Ul, F, seg.n, req.degree, req.local, req.missing, _centres(seg)
+        )
         P, rdiag, cdiag, extra = indirect_diag(fit, ny)  # bins ordered l * B + j
         B = seg.bins.size
         P = P.reshape(ny, nu, F, B).transpose(3, 2, 0, 1)

@@ -35,9 +35,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..arrays import ComplexArray, FloatArray
+from ..arrays import ComplexArray, FloatArray, IntArray
 from ..local.fit import LocalFit, local_fit
-from ..local.lrm import DenominatorTerm
 
 
 def instrument_degree(degree: int) -> int:
@@ -80,6 +79,7 @@ def structured_block(
     degree: int,
     local: str = "polynomial",
     missing: FloatArray | None = None,
+    centres: IntArray | None = None,
 ) -> LocalFit:
     """Both stages on one block of B consecutive low-rate bins.
 
@@ -98,12 +98,15 @@ def structured_block(
     local : {"polynomial", "rational"}
         The local model of both stages (:mod:`mr_ident.numerics.local.fit`); a rational first
         stage keeps the order R (its denominator follows the loop's modes).
+    centres : ndarray of int, optional
+        The block's bins (increasing, in 0..B-1) to fit in the second stage; default all B.
 
     Returns
     -------
     LocalFit
         The second stage: G ``[J'; S']`` (n_y + n_u, n_u, F * B) of every alias, bins
-        ordered ``l * B + j`` (alias l of bin k0 + j), its noise covariance and inverse
+        ordered ``l * B + j`` (alias l of bin k0 + j; B of ``centres`` when given), its noise
+        covariance and inverse
         Gram matrix (and denominator term); ``n_bad`` counts the bins whose estimate is
         NaN: a rank-deficient regressor in either stage (a bin without excitation gives a
         zero instrument, so its second-stage windows are flagged rather than fed NaN).
@@ -127,13 +130,8 @@ def structured_block(
     Yc = Y_lifted[ext].reshape(W, F, ny).transpose(1, 0, 2)
     Uc = U_lifted[ext].reshape(W, F, nu).transpose(1, 0, 2)
     Oc = np.concatenate([Yc, Uc], axis=2).reshape(F * W, ny + nu)
-    fit = local_fit(local, Zc, Oc, n, degree, missing=missing)
-    keep = (np.arange(F)[:, None] * W + np.arange(B)[None, :]).ravel()
-    G = fit.G[..., keep]
-    den = fit.den
-    if den is not None:
-        den = DenominatorTerm(den.gain[..., keep], den.cov[..., keep])
-    bad = ~np.isfinite(G).all(axis=(0, 1))
-    return LocalFit(
-        G, fit.noise_cov[..., keep], fit.inv_gram[..., keep], int(bad.sum()), fit.dof, den
-    )
+    own = np.arange(B) if centres is None else centres
+    keep = (np.arange(F)[:, None] * W + own[None, :]).ravel()
+    fit = local_fit(local, Zc, Oc, n, degree, missing=missing, centres=keep)
+    bad = ~np.isfinite(fit.G).all(axis=(0, 1))
+    return LocalFit(fit.G, fit.noise_cov, fit.inv_gram, int(bad.sum()), fit.dof, fit.den)

@@ -34,7 +34,8 @@ log-spaced (the FRF's features crowd at low frequencies). Every candidate is fit
 probe only; the criterion of each candidate is interpolated linearly between the probed
 bins; each centre bin takes the width of least criterion; and one fit runs with those
 widths, bin by bin (:mod:`mr_ident.numerics.local.segments`). The cost is the final fit plus
-``J`` fits of the probe (each about ``(2h + 1 + 2 n_j) / (2h + 1)`` times its share).
+``J`` fits of the probe (each its share in the per-bin solves, about
+``(2h + 1 + 2 n_j) / (2h + 1)`` times it in the windowed sums).
 
 *One window per centre bin.* A lifted method fits, at low-rate bin k, one window that
 gives P_h at all F aliases ``k + l M``; its width is one choice for the F of them. The

@@ -95,6 +95,7 @@ def local_fit(
     degree: int,
     workers: int = 1,
     missing: FloatArray | None = None,
+    centres: IntArray | None = None,
 ) -> LocalFit:
     """Fit ``local`` at every centre bin of padded spectra U (K+2n, n_in), Y (K+2n, n_out).
 
@@ -102,7 +103,9 @@ def local_fit(
     fitted in one pass (for ``rational``: with one denominator). ``missing`` (n_out,): the
     share of estimated (filled) samples in each output's signal; the noise covariance
     (and a rational fit's denominator term) is scaled by
-    :func:`~mr_ident.numerics.local.fit.missing_factor` for them.
+    :func:`~mr_ident.numerics.local.fit.missing_factor` for them. ``centres`` (increasing,
+    in 0..K-1): the centre bins to fit, the result's bins (default all K); the polynomial
+    engine solves at those only, the rational one fits all and keeps them.
     """
     n_in, n_out = U.shape[1], Y.shape[1]
     if local == "rational":
@@ -112,9 +115,10 @@ def local_fit(
             f = missing_factor(missing, n, q)
             Cv = Cv * np.sqrt(f[:, None, None] * f[None, :, None])
             den = DenominatorTerm(den.gain, den.cov * float(f.max()))
-        return LocalFit(G, Cv, Ainv, n_bad, q, den)
+        fit = LocalFit(G, Cv, Ainv, n_bad, q, den)
+        return fit if centres is None else fit.take(centres)
     q = lpm.dof(n, degree, n_in)
-    G, Cv, Ainv, n_bad = lpm.lpm_bins_last(U, Y, n, degree, q, workers)
+    G, Cv, Ainv, n_bad = lpm.lpm_bins_last(U, Y, n, degree, q, workers, centres)
     if missing is not None:
         f = missing_factor(missing, n, q)
         Cv = Cv * np.sqrt(f[:, None, None] * f[None, :, None])

@@ -167,18 +167,23 @@ def lpm_bins_last(
     degree: int,
     q: int,
     workers: int = 1,
+    centres: NDArray[np.intp] | None = None,
 ) -> tuple[NDArray[np.complex128], NDArray[np.complex128], NDArray[np.complex128], int]:
     """The engine of :func:`lpm` (options already checked, ``q`` their dof).
 
     For callers that work bins-last: ``Ua`` (K+2n, n_in) and ``Ya`` (K+2n, n_out) padded
     spectra; returns G (n_out, n_in, K), C_v (n_out, n_out, K), inv_gram (n_in, n_in, K) and
-    the number of bins whose regressor is rank deficient (NaN there).
+    the number of bins whose regressor is rank deficient (NaN there). ``centres``
+    (increasing, in 0..K-1): fit those centre bins only (K of them in the outputs); the
+    windowed sums run over the stretch they span in each chunk, the per-bin solve over
+    them alone (a segment's windows that straddle two runs are not fitted).
 
     Chunks of :func:`chunk_bins` bins are independent and run on ``workers`` threads.
     """
     n_in, n_out = Ua.shape[1], Ya.shape[1]
     step = chunk_bins(n_in, n_out, degree)
-    K = Ua.shape[0] - 2 * n
+    K_all = Ua.shape[0] - 2 * n
+    K = K_all if centres is None else int(centres.size)
     R = degree
     T = R + 1  # transient unknowns
     P = T * n_in  # G unknowns, ordered s = R..0 so that G_0 trails
@@ -197,20 +202,36 @@ def lpm_bins_last(
     Cv = np.empty((n_out, n_out, K), dtype=np.complex128)
     Ainv = np.empty((n_in, n_in, K), dtype=np.complex128)
 
-    def chunk(k0: int) -> int:
-        Kc = min(step, K - k0)
-        width = Kc + 2 * n
-        Uc = Ua[k0 : k0 + width].T  # (n_in, width)
-        Yc = Ya[k0 : k0 + width].T  # (n_out, width)
+    def chunk(c0: int) -> int:
+        # centre bins c0 .. c0 + step - 1 of the padded spectra; of them the selected ones,
+        # written to the outputs from position k0
+        pick: NDArray[np.intp] | None = None
+        if centres is None:
+            k0, Kc, a = c0, min(step, K_all - c0), c0
+        else:
+            k0, stop = (int(i) for i in np.searchsorted(centres, (c0, c0 + step)))
+            if stop == k0:
+                return 0
+            a = int(centres[k0])
+            pick = centres[k0:stop] - a
+            Kc = int(pick.size)
+            if int(pick[-1]) + 1 == Kc:  # consecutive: nothing to drop
+                pick = None
+        span = Kc if pick is None else int(pick[-1]) + 1  # centres whose sums are formed
+        width = span + 2 * n
+        Uc = Ua[a : a + width].T  # (n_in, width)
+        Yc = Ya[a : a + width].T  # (n_out, width)
         Ucj = np.conj(Uc)
         # Product signals and their windowed sums (see kernels).
         UU = np.multiply(Ucj[iu], Uc[ju])  # conj(U_i) U_j, i <= j
         UY = np.multiply(Ucj[:, None, :], Yc[None, :, :]).reshape(nio, width)  # conj(U_i) Y_o
-        mUU = window_sums(UU, k_uu, Kc)  # (2R+1, npair, Kc)
-        mUY = window_sums(UY, k_uy, Kc).reshape(R + 1, n_in, n_out, Kc)
-        L_GT = window_sums(Ucj, k_u, Kc).reshape(T, P, Kc)  # L_GT[u, (s, i)]
-        W_T = window_sums(Yc, k_y, Kc)  # (T, n_out, Kc)
-        mYY = moving_sum(np.conj(Yc[ou]) * Yc[ov], n, Kc)  # (npair_o, Kc)
+        mUU = window_sums(UU, k_uu, span)  # (2R+1, npair, Kc)
+        mUY = window_sums(UY, k_uy, span).reshape(R + 1, n_in, n_out, span)
+        L_GT = window_sums(Ucj, k_u, span).reshape(T, P, span)  # L_GT[u, (s, i)]
+        W_T = window_sums(Yc, k_y, span)  # (T, n_out, Kc)
+        mYY = moving_sum(np.conj(Yc[ou]) * Yc[ov], n, span)  # (npair_o, Kc)
+        if pick is not None:
+            mUU, mUY, L_GT, W_T, mYY = (x[..., pick] for x in (mUU, mUY, L_GT, W_T, mYY))
 
         # Cholesky L L^H of the normal matrix [[A_TT, A_TG], [A_GT, A_GG]] and forward
         # solve L W = K^H Y, left-looking, vectorised over bins. The transient columns
@@ -290,7 +311,7 @@ def lpm_bins_last(
             Ainv[:, :, idx] = np.nan
         return int(bad.sum())
 
-    n_bad = sum(thread_map(chunk, range(0, K, step), workers))
+    n_bad = sum(thread_map(chunk, range(0, K_all, step), workers))
     d = np.arange(n_out)
     Cv[d, d] = np.maximum(Cv[d, d].real, 0.0)  # rounding can make tiny variances negative
     return G, Cv, Ainv, n_bad

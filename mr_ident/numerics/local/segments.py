@@ -10,10 +10,10 @@ widths on a sample of bins, then for every bin with its own width. Both are *run
 The engines fit every centre of a contiguous padded spectrum. Runs of one width are
 therefore gathered into :class:`Segments`: each run with ``pad`` bins of context each side
 (``n``, or ``2n`` for the two stages of ``structured``), the pieces laid end to end as one
-spectrum. The engine's output holds every run's centres and, between two runs, ``2 pad``
-centres whose windows straddle both: those are dropped (``keep``). One engine call per
-segment, whatever the number of runs in it, so a sparse sample of bins costs one call per
-width, not one per run.
+spectrum. Between two runs lie ``2 pad`` centres whose windows straddle both: the engine
+is asked for the runs' centres only (``keep``), so it forms its windowed sums over the
+whole stretch but solves at those alone. One engine call per segment, whatever the number
+of runs in it, so a sparse sample of bins costs one call per width, not one per run.
 """
 
 from __future__ import annotations
