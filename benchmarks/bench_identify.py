@@ -170,6 +170,13 @@ def main() -> None:
         default=[5, 10],
         help="larger F to run at the same N (default: 5 10; none: skip)",
     )
+    ap.add_argument(
+        "--lengths",
+        type=float,
+        nargs="*",
+        default=[20.0, 60.0, 200.0, 600.0, 2000.0],
+        help="record lengths in s at which to time n = auto against n = 8 (none: skip)",
+    )
     args = ap.parse_args()
     keep_freed_memory()  # as the mr-ident and mr-ident-node programs do
     model = load_model(ROOT / "config" / "paper_example.yaml")
@@ -281,6 +288,25 @@ def main() -> None:
         )
     for F in args.ratios:
         larger_ratio(model, N, F)
+    auto_by_length(model, sim, args.lengths, args.repeat)
+
+
+def auto_by_length(model, sim, lengths: list[float], repeat: int) -> None:
+    """n = auto against n = 8 on the first ``lengths`` seconds of the record (interleaved)."""
+    for seconds in lengths:
+        N = 3 * int(seconds * model.fs_high / 3)
+        if N > sim.r.shape[0]:
+            continue
+        part = (sim.r[:N], sim.u[:N], sim.y[:N])
+        fns = {
+            n: functools.partial(identify, *part, fs_high=240.0, ratio=3, n=n, keep_lifted=False)
+            for n in ("auto", 8)
+        }
+        t, _ = best_times(fns, max(repeat, 5))  # short: more runs, the first warms up
+        print(
+            f"{seconds:6g} s record      n = auto {1e3 * t['auto']:7.1f} ms, n = 8 "
+            f"{1e3 * t[8]:7.1f} ms: {t['auto'] / t[8]:.2f} x"
+        )
 
 
 def larger_ratio(model, N: int, F: int) -> None:
