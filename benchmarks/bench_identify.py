@@ -61,10 +61,11 @@ def _straightforward_fit(Ua, Yg, n, degree):
     return theta, Yw - Km @ theta, Rr
 
 
-def straightforward_lpm_core(Ua, Ya, n, degree, q, workers=1, *, split=None):
+def straightforward_lpm_core(Ua, Ya, n, degree, q, workers=1, centres=None, *, split=None):
     """Reference engine, bins-last out like ours. ``split``: fit outputs ``[:split]`` (J, r -> y)
     and ``[split:]`` (S, r -> u) as two LPMs, as a straightforward implementation of the
-    indirect method does; None: one QR for both (the structure ours also exploits)."""
+    indirect method does; None: one QR for both (the structure ours also exploits).
+    ``centres``: every centre fitted, those kept (the runs here are whole: never used)."""
     ni = Ua.shape[1]
     groups = [Ya] if split is None else [Ya[:, :split], Ya[:, split:]]
     fits = [_straightforward_fit(Ua, Yg, n, degree) for Yg in groups]
@@ -75,7 +76,10 @@ def straightforward_lpm_core(Ua, Ya, n, degree, q, workers=1, *, split=None):
     Ri = np.linalg.inv(Rr)
     Ainv = (Ri @ np.conj(np.swapaxes(Ri, 1, 2)))[:, :ni, :ni]
     G = np.swapaxes(theta[:, :ni, :], 1, 2)
-    return G.transpose(1, 2, 0), Cv.transpose(1, 2, 0), Ainv.transpose(1, 2, 0), 0
+    out = (G.transpose(1, 2, 0), Cv.transpose(1, 2, 0), Ainv.transpose(1, 2, 0))
+    if centres is not None:
+        out = tuple(a[..., centres] for a in out)
+    return (*out, 0)
 
 
 def best_times(fns: dict, repeat: int) -> tuple[dict, dict]:
