@@ -108,3 +108,26 @@ def test_the_engine_at_selected_centres_equals_every_centre_taken_there():
     assert some[3] == 0
     for a, b in zip(every[:3], some[:3], strict=True):
         np.testing.assert_allclose(b, a[..., centres], rtol=1e-10, atol=1e-13 * np.abs(a).max())
+
+
+@pytest.mark.parametrize("n", [8, "auto"])
+def test_the_benchmarks_straightforward_reference_gives_our_estimate(paper_model, n):
+    """`make bench`'s reference (every window's regressor built, one QR per window, J and S
+    fitted apart) put in the engine's place: the same P_h as our engine within 1e-9
+    relative, at the fixed window and with the automatic one (runs of centres)."""
+    import functools
+    import sys
+    from unittest import mock
+
+    from bench_identify import straightforward_lpm_core
+
+    from mr_ident.numerics.identify import identify
+    from mr_ident.numerics.systems.simulate import simulate
+
+    sim = simulate(paper_model, duration=40.0, rng=np.random.default_rng(2))
+    args = dict(fs_high=240.0, ratio=3, n=n, keep_lifted=False, workers=1)
+    ours = identify(sim.r, sim.u, sim.y, **args).plant.response
+    engine = functools.partial(straightforward_lpm_core, split=3)
+    with mock.patch.object(sys.modules["mr_ident.numerics.local.lpm"], "lpm_bins_last", engine):
+        ref = identify(sim.r, sim.u, sim.y, **args).plant.response
+    np.testing.assert_allclose(ref, ours, rtol=1e-9)
