@@ -65,7 +65,7 @@ SPAN = 4.0
 #: Share of the centre bins on which the candidates are fitted (the probe).
 PROBE_SHARE = 0.02
 #: Probe segments at least, whatever the record's length.
-MIN_PROBES = 24
+MIN_PROBES = 12
 
 
 def candidates(n_min: int, n_max: int) -> tuple[int, ...]:
