@@ -225,12 +225,12 @@ def lpm_bins_last(
         # Product signals and their windowed sums (see kernels).
         UU = np.multiply(Ucj[iu], Uc[ju])  # conj(U_i) U_j, i <= j
         UY = np.multiply(Ucj[:, None, :], Yc[None, :, :]).reshape(nio, width)  # conj(U_i) Y_o
-        mUU = window_sums(UU, k_uu, span)  # (2R+1, npair, Kc)
+        mUU = window_sums(UU, k_uu, span)  # (2R+1, npair, span)
         mUY = window_sums(UY, k_uy, span).reshape(R + 1, n_in, n_out, span)
         L_GT = window_sums(Ucj, k_u, span).reshape(T, P, span)  # L_GT[u, (s, i)]
-        W_T = window_sums(Yc, k_y, span)  # (T, n_out, Kc)
-        mYY = moving_sum(np.conj(Yc[ou]) * Yc[ov], n, span)  # (npair_o, Kc)
-        if pick is not None:
+        W_T = window_sums(Yc, k_y, span)  # (T, n_out, span)
+        mYY = moving_sum(np.conj(Yc[ou]) * Yc[ov], n, span)  # (npair_o, span)
+        if pick is not None:  # the selected centres: (..., Kc) from here on
             mUU, mUY, L_GT, W_T, mYY = (x[..., pick] for x in (mUU, mUY, L_GT, W_T, mYY))
 
         # Cholesky L L^H of the normal matrix [[A_TT, A_TG], [A_GT, A_GG]] and forward
