@@ -14,7 +14,7 @@ from mr_ident.errors import ConfigError
 from mr_ident.numerics.identify import identify
 from mr_ident.numerics.lifted.methods import METHODS, FitRequest
 from mr_ident.numerics.lifted.spectra import Spectra
-from mr_ident.numerics.local.bandwidth import centre_bins, probe_runs
+from mr_ident.numerics.local.bandwidth import PROBE_SHARE, centre_bins, probe_runs
 from mr_ident.numerics.local.lpm import dof
 from mr_ident.numerics.local.segments import check_runs, runs_of, segments
 from mr_ident.numerics.systems.simulate import simulate
@@ -71,10 +71,13 @@ def test_a_fit_in_runs_equals_the_fixed_fits_bin_for_bin(paper_model, method):
 
 
 def test_the_probe_is_a_small_share_of_a_long_record_and_everything_of_a_short_one():
-    assert probe_runs(1000, 27) == ((0, 1000),)
+    # the floor of 6 segments of 55 bins: every bin below 2 x 6 x 55 = 660 bins
+    assert probe_runs(659, 27) == ((0, 659),)
+    assert sum(b - a for a, b in probe_runs(661, 27)) <= 6 * 55
     runs = probe_runs(240_001, 27)
     share = sum(b - a for a, b in runs) / 240_001
-    assert 0.015 < share < 0.03 and runs[0][0] == 0 and runs[-1][1] == 240_001
+    assert 0.75 * PROBE_SHARE < share < 1.5 * PROBE_SHARE
+    assert runs[0][0] == 0 and runs[-1][1] == 240_001
     assert all(b - a >= 55 for a, b in runs)
     assert all(runs[i][1] < runs[i + 1][0] for i in range(len(runs) - 1))
 
