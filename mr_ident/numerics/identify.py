@@ -129,7 +129,7 @@ def identify(
         method: one window for its F aliases), the candidate of least estimated
         mean-squared error among :func:`~mr_ident.numerics.local.bandwidth.candidates` from
         :func:`default_n` up to 4 times that (as the record allows), the candidates fitted
-        on a probe of about 1 % of the bins (at least 6 segments of 2h + 1 bins), then one
+        on a probe of about 2 % of the bins (at least 6 segments of 2h + 1 bins), then one
         fit with the chosen widths; see :mod:`mr_ident.numerics.local.bandwidth`. None:
         :func:`default_n` (8 for a SISO loop up to F = 3). The n used per bin is
         ``Identification.n_used``.

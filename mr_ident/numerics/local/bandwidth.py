@@ -62,13 +62,11 @@ from ..arrays import ComplexArray, FloatArray, IntArray
 GROWTH = 1.5
 #: The largest candidate is at most this many times the smallest.
 SPAN = 4.0
-#: Share of the centre bins on which the candidates are fitted (the probe). 1 % and 2 %
-#: gave the same errors on the paper's loop at 6000 s (10 seeds with noise, paired; the
-#: method page), 1 % at 5 % less time.
-PROBE_SHARE = 0.01
+#: Share of the centre bins on which the candidates are fitted (the probe).
+PROBE_SHARE = 0.02
 #: Probe segments at least, whatever the record's length. 6, 12 and 24 were measured on
-#: `make bench-structured` (short records, where the floor decides): every error figure of
-#: ``n = auto`` was as good or better with 6 than with 12, and with 12 than with 24.
+#: ``make bench-structured`` (records of 120-600 s, where the floor decides): every error
+#: figure of ``n = auto`` was as good or better with 6 than with 12, and with 12 than with 24.
 MIN_PROBES = 6
 
 
@@ -197,7 +195,7 @@ def probe_runs(n_bins: int, n_max: int) -> tuple[tuple[int, int], ...]:
 
     >>> probe_runs(600, 27)          # below 2 x 6 segments of 55 bins: every bin
     ((0, 600),)
-    >>> len(probe_runs(240_001, 27)) > 24     # 1 % of the bins: 44 segments, few merged
+    >>> len(probe_runs(240_001, 27)) > 24
     True
     """
     L = 2 * n_max + 1
