@@ -14,7 +14,12 @@ from mr_ident.errors import ConfigError
 from mr_ident.numerics.identify import identify
 from mr_ident.numerics.lifted.methods import METHODS, FitRequest
 from mr_ident.numerics.lifted.spectra import Spectra
-from mr_ident.numerics.local.bandwidth import PROBE_SHARE, centre_bins, probe_runs
+from mr_ident.numerics.local.bandwidth import (
+    MIN_PROBES,
+    PROBE_SHARE,
+    centre_bins,
+    probe_runs,
+)
 from mr_ident.numerics.local.lpm import dof
 from mr_ident.numerics.local.segments import check_runs, runs_of, segments
 from mr_ident.numerics.systems.simulate import simulate
@@ -71,9 +76,10 @@ def test_a_fit_in_runs_equals_the_fixed_fits_bin_for_bin(paper_model, method):
 
 
 def test_the_probe_is_a_small_share_of_a_long_record_and_everything_of_a_short_one():
-    # the floor of 6 segments of 55 bins: every bin below 2 x 6 x 55 = 660 bins
-    assert probe_runs(659, 27) == ((0, 659),)
-    assert sum(b - a for a, b in probe_runs(661, 27)) <= 6 * 55
+    # the floor of MIN_PROBES segments of 2h + 1 = 55 bins: every bin below twice that
+    short = 2 * MIN_PROBES * 55
+    assert probe_runs(short - 1, 27) == ((0, short - 1),)
+    assert sum(b - a for a, b in probe_runs(short + 1, 27)) <= MIN_PROBES * 55
     runs = probe_runs(240_001, 27)
     share = sum(b - a for a, b in runs) / 240_001
     assert 0.75 * PROBE_SHARE < share < 1.5 * PROBE_SHARE
