@@ -193,7 +193,7 @@ def probe_runs(n_bins: int, n_max: int) -> tuple[tuple[int, int], ...]:
     :data:`PROBE_SHARE` of the bins, half spaced evenly and half log-spaced from bin 0 to the
     last, overlapping ones merged; every bin (one segment) when that would be half of them.
 
-    >>> probe_runs(600, 27)          # below 2 x 6 segments of 55 bins: every bin
+    >>> probe_runs(600, 27)          # below 2 x MIN_PROBES segments of 55 bins: every bin
     ((0, 600),)
     >>> len(probe_runs(240_001, 27)) > 24
     True

@@ -68,7 +68,7 @@ class StateSpace:
             out[~pole] = rest
             out[pole] = np.inf
             return out
-        if np.linalg.cond(V) < 1e8:
+        if diagonalisable(V):
             # C V diag(1 / (x - lam)) V^-1 B: one product of the resolvent's diagonal with
             # the modes' residues W[m, (o, i)] = (C V)[o, m] (V^-1 B)[m, i] per block
             Bm = np.linalg.solve(V, self.B.astype(complex))  # (n, n_in)
@@ -196,6 +196,16 @@ _PADE13 = (
 _THETA13 = 5.371920351148152
 
 
+#: The condition number of A's eigenvector matrix up to which a response or a simulation goes
+#: through the modes; past it A counts as (nearly) defective.
+EIG_COND = 1e8
+
+
+def diagonalisable(V: NDArray[np.complex128]) -> bool:
+    """Whether the eigenvectors ``V`` (columns) are well enough conditioned to work in modes."""
+    return bool(np.linalg.cond(V) < EIG_COND)
+
+
 def _on_pole(
     x: NDArray[np.complex128], lam: NDArray[np.complex128], discrete: bool
 ) -> NDArray[np.bool_]:
@@ -256,7 +266,7 @@ def _resolve(
         out: NDArray[np.complex128] = rhs / (x - A[0, 0])[None, :, None]
         return out
     lam, V = np.linalg.eig(A)
-    if np.linalg.cond(V) < 1e8:
+    if diagonalisable(V):
         m = np.linalg.solve(V, rhs.reshape(n, -1)).reshape(rhs.shape)
         m = m / (x[None, :, None] - lam[:, None, None])
         out = (V @ m.reshape(n, -1)).reshape(rhs.shape)

@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike
 from ...errors import ConfigError, DimensionError
 from ..arrays import ComplexArray, FloatArray, IntArray
 from ..signals import LoopData
-from .lti import StateSpace
+from .lti import StateSpace, diagonalisable
 from .model import Model
 from .realize import balanced
 
@@ -121,7 +121,7 @@ class StateRecursion:
             self._Cm = np.zeros((ss.C.shape[0], 0), dtype=complex)
         else:
             lam, V = np.linalg.eig(ss.A)
-            if np.linalg.cond(V) > 1e8:
+            if not diagonalisable(V):
                 warnings.warn(
                     "simulate: state matrix is (nearly) defective; using the slow direct "
                     "recursion",
