@@ -64,6 +64,7 @@ def test_a_fit_in_runs_equals_the_fixed_fits_bin_for_bin(paper_model, method):
     a, b = n_centres // 3, 2 * n_centres // 3
     mixed = fit(8, ((0, a, 8), (a, b, 12), (b, n_centres, 8)))
     sparse = fit(12, ((5, 40, 12), (a, a + 30, 12)))
+    single = fit(12, ((a, a + 30, 12),))  # one run, not every bin: still placed by bin
     centre = centre_bins(N, m.lift(F))
     for n, sel in ((8, (centre < a) | (centre >= b)), (12, (centre >= a) & (centre < b))):
         ref = fit(n, None)
@@ -73,6 +74,9 @@ def test_a_fit_in_runs_equals_the_fixed_fits_bin_for_bin(paper_model, method):
             on = ((centre >= 5) & (centre < 40)) | ((centre >= a) & (centre < a + 30))
             np.testing.assert_allclose(sparse.P_half[on], ref.P_half[on], rtol=1e-12, atol=0)
             assert np.isnan(sparse.P_half[~on]).all()
+            one = (centre >= a) & (centre < a + 30)
+            np.testing.assert_allclose(single.P_half[one], ref.P_half[one], rtol=1e-12, atol=0)
+            assert np.isnan(single.P_half[~one]).all()
 
 
 def test_the_probe_is_a_small_share_of_a_long_record_and_everything_of_a_short_one():

@@ -314,7 +314,7 @@ def _time_lifted(req: FitRequest) -> PlantFit:
         )
         fits.append(fit)
     warn_rank_deficient(sum(f.n_bad for f in fits), n_centres(plan), stacklevel=4)
-    if len(fits) == 1 and segs[0].whole:
+    if len(fits) == 1 and segs[0].bins.size == Kc + 1:  # one run over every bin
         fit = fits[0]
     else:
         fit = merge_fits([seg.bins for seg in segs], fits, Kc + 1)

@@ -146,8 +146,12 @@ def n_centres(plan: tuple[Run, ...]) -> int:
 
 
 def in_bin_order(segs: list[Segments], parts: list[ComplexArray], n_bins: int) -> ComplexArray:
-    """Bins-first arrays of the segments (each (len(seg.bins), ...)) put in bin order."""
-    if len(parts) == 1:
+    """Bins-first arrays of the segments (each (len(seg.bins), ...)) put in bin order.
+
+    Shape (n_bins, ...); bins no segment fits are left uninitialised (callers keep the
+    lifted maps only when the runs cover every bin).
+    """
+    if len(parts) == 1 and segs[0].bins.size == n_bins:  # one run over every bin
         return parts[0]
     out = np.empty((n_bins,) + parts[0].shape[1:], dtype=parts[0].dtype)
     for seg, part in zip(segs, parts, strict=True):
