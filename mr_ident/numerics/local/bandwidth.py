@@ -66,7 +66,8 @@ SPAN = 4.0
 PROBE_SHARE = 0.02
 #: Probe segments at least, whatever the record's length. 6, 12 and 24 were measured on
 #: ``make bench-structured`` (records of 120-600 s, where the floor matters): every error
-#: figure of ``n = auto`` was as good or better with 6 than with 12, and with 12 than with 24.
+#: figure of ``n = auto`` was as good or better with 6 than with 12, and with 12 than with 24;
+#: with 3 and with 2 the random loops with noise were worse (docs/method.md).
 MIN_PROBES = 6
 
 
