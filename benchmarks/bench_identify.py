@@ -61,24 +61,39 @@ def _straightforward_fit(Ua, Yg, n, degree):
     return theta, Yw - Km @ theta, Rr
 
 
-def straightforward_lpm_core(Ua, Ya, n, degree, q, workers=1, centres=None, *, split=None):
+def straightforward_lpm_core(
+    Ua, Ya, n, degree, q, workers=1, centres=None, offsets=0, *, split=None
+):
     """Reference engine, bins-last out like ours. ``split``: fit outputs ``[:split]`` (J, r -> y)
     and ``[split:]`` (S, r -> u) as two LPMs, as a straightforward implementation of the
     indirect method does; None: one QR for both (the structure ours also exploits).
-    ``centres``: every centre fitted, those kept (the runs here are whole: never used)."""
+    ``centres``: every centre fitted, those kept. ``offsets`` h: each bin takes the window
+    of its group's centre (``mr_ident.numerics.local.strided.groups``), its polynomial
+    evaluated at the bin's offset, as the automatic window's strided fits do."""
     ni = Ua.shape[1]
     groups = [Ya] if split is None else [Ya[:, :split], Ya[:, split:]]
     fits = [_straightforward_fit(Ua, Yg, n, degree) for Yg in groups]
-    theta = np.concatenate([f[0] for f in fits], axis=2)
+    theta = np.concatenate([f[0] for f in fits], axis=2)  # (K, p, no), rows (s, i), then T
     V = np.concatenate([f[1] for f in fits], axis=2)
     Rr = fits[0][2]
     Cv = np.swapaxes(V, 1, 2) @ np.conj(V) / q
     Ri = np.linalg.inv(Rr)
-    Ainv = (Ri @ np.conj(np.swapaxes(Ri, 1, 2)))[:, :ni, :ni]
-    G = np.swapaxes(theta[:, :ni, :], 1, 2)
-    out = (G.transpose(1, 2, 0), Cv.transpose(1, 2, 0), Ainv.transpose(1, 2, 0))
-    if centres is not None:
-        out = tuple(a[..., centres] for a in out)
+    Ai = Ri @ np.conj(np.swapaxes(Ri, 1, 2))  # (K^H K)^-1 of every window
+    req = np.arange(theta.shape[0]) if centres is None else np.asarray(centres)
+    if offsets:
+        from mr_ident.numerics.local.strided import groups as cut
+
+        solved, owner, off = cut(req, offsets)
+        win = solved[owner]
+    else:
+        win, off = req, np.zeros(req.size)
+    Xs = (off / n)[:, None] ** np.arange(degree + 1)[None, :]  # (K, R+1)
+    w = np.zeros((req.size, theta.shape[1], ni))
+    for s_ in range(degree + 1):
+        w[:, s_ * ni : (s_ + 1) * ni, :] = Xs[:, s_, None, None] * np.eye(ni)
+    G = np.swapaxes(np.swapaxes(w, 1, 2) @ theta[win], 1, 2)  # (K, no, ni)
+    Ainv = np.swapaxes(w, 1, 2) @ Ai[win] @ w
+    out = (G.transpose(1, 2, 0), Cv[win].transpose(1, 2, 0), Ainv.transpose(1, 2, 0))
     return (*out, 0)
 
 

@@ -266,8 +266,8 @@ def identify(
         runs = None
         if len(ns) > 1:  # the automatic window: candidates on a probe, then one fit
             centre_of = centre_bins(N, m.lift(F))
-            widths = _choose_widths(ns, centre_of, fit_with, n_workers)
-            runs = runs_of(widths)
+            widths, offsets = _choose_widths(ns, centre_of, fit_with, n_workers)
+            runs = runs_of(widths, offsets)
             n_used = widths[centre_of]
         fit = fit_with(n0, keep_lifted, True, runs, n_workers)
         pfg_data = (
@@ -363,8 +363,8 @@ def _choose_widths(
     centre_of: IntArray,
     fit_with: Callable[[int, bool, bool, tuple[Run, ...] | None, int], PlantFit],
     workers: int,
-) -> IntArray:
-    """The half-width of every centre bin: each candidate fitted on the probe, then the rule.
+) -> tuple[IntArray, IntArray]:
+    """The half-width of every centre bin and its offsets: the candidates on a probe, the rule.
 
     ``centre_of``: the centre bin of every high-rate bin 0..N//2
     (:func:`~mr_ident.numerics.local.bandwidth.centre_bins`).

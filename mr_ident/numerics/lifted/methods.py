@@ -104,6 +104,10 @@ class FitRequest:
     spectra: Spectra | None = field(default=None, compare=False)
     missing: FloatArray | None = None
 
+    def offsets(self, seg: Segments) -> int:
+        """The segment's offsets h for a polynomial fit (a rational one solves every window)."""
+        return seg.offsets if self.local == "polynomial" else 0
+
     def share(self, lift: int, part: str = "yu") -> FloatArray | None:
         """:attr:`missing` of the outputs of a fit: y, u or [y; u], each ``lift`` times.
 
@@ -254,6 +258,7 @@ def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
             req.degree,
             missing=req.share(F),
             centres=_centres(seg),
+            offsets=req.offsets(seg),
         )  # bins-last, the segment's bins
         P, rdiag, cdiag, extra = indirect_diag(fit, n_row)
         if slow:
@@ -311,6 +316,7 @@ def _time_lifted(req: FitRequest) -> PlantFit:
             req.workers,
             req.share(F),
             _centres(seg),
+            req.offsets(seg),
         )
         fits.append(fit)
     warn_rank_deficient(sum(f.n_bad for f in fits), n_centres(plan), stacklevel=4)
@@ -372,8 +378,9 @@ def _structured(req: FitRequest) -> PlantFit:
         """Both stages and the indirect step on one segment of low-rate bins (own bins only)."""
         Rl, Yl, Ul = (freq_lift_half(X, seg.window, F, N) for X in (Rh, Yh, Uh))
         fit = structured_block(
-            Rl, Yl, Ul, F, seg.n, req.degree, req.local, req.missing, _centres(seg)
-        )
+            Rl, Yl, Ul, F, seg.n, req.degree, req.local, req.missing, _centres(seg),
+            req.offsets(seg),
+        )  # fmt: skip
         P, rdiag, cdiag, extra = indirect_diag(fit, ny)  # bins ordered l * B + j
         B = seg.bins.size
         P = P.reshape(ny, nu, F, B).transpose(3, 2, 0, 1)

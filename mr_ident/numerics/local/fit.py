@@ -96,6 +96,7 @@ def local_fit(
     workers: int = 1,
     missing: FloatArray | None = None,
     centres: IntArray | None = None,
+    offsets: int = 0,
 ) -> LocalFit:
     """Fit ``local`` at every centre bin of padded spectra U (K+2n, n_in), Y (K+2n, n_out).
 
@@ -105,7 +106,9 @@ def local_fit(
     (and a rational fit's denominator term) is scaled by
     :func:`~mr_ident.numerics.local.fit.missing_factor` for them. ``centres`` (increasing,
     in 0..K-1): the centre bins to fit, the result's bins (default all K); the polynomial
-    engine solves at those only, the rational one fits all and keeps them.
+    engine solves at those only, the rational one fits all and keeps them. ``offsets`` > 0
+    (polynomial only): every ``2 offsets + 1`` windows one is solved and evaluated at the
+    bins around its centre (:mod:`mr_ident.numerics.local.strided`).
     """
     n_in, n_out = U.shape[1], Y.shape[1]
     if local == "rational":
@@ -118,7 +121,7 @@ def local_fit(
         fit = LocalFit(G, Cv, Ainv, n_bad, q, den)
         return fit if centres is None else fit.take(centres)
     q = lpm.dof(n, degree, n_in)
-    G, Cv, Ainv, n_bad = lpm.lpm_bins_last(U, Y, n, degree, q, workers, centres)
+    G, Cv, Ainv, n_bad = lpm.lpm_bins_last(U, Y, n, degree, q, workers, centres, offsets)
     if missing is not None:
         f = missing_factor(missing, n, q)
         Cv = Cv * np.sqrt(f[:, None, None] * f[None, :, None])

@@ -45,7 +45,8 @@ from ...errors import ConfigError, DataError, DimensionError
 from ..arrays import ComplexArray, readonly
 from ..budget import chunk_bins
 from ..threads import resolve_workers, thread_map
-from .window_sums import kernels, moment_index, moving_sum, window_sums
+from .normal import Layout, chunk_sums, factor, noise_cov
+from .strided import lpm_strided
 
 
 @dataclass(frozen=True)
@@ -168,6 +169,7 @@ def lpm_bins_last(
     q: int,
     workers: int = 1,
     centres: NDArray[np.intp] | None = None,
+    offsets: int = 0,
 ) -> tuple[NDArray[np.complex128], NDArray[np.complex128], NDArray[np.complex128], int]:
     """The engine of :func:`lpm` (options already checked, ``q`` their dof).
 
@@ -179,25 +181,17 @@ def lpm_bins_last(
     them alone (a segment's windows that straddle two runs are not fitted).
 
     Chunks of :func:`chunk_bins` bins are independent and run on ``workers`` threads.
+    ``offsets`` > 0: every ``2 offsets + 1`` windows one is solved, and its local polynomial
+    evaluated at the bins up to ``offsets`` from its centre
+    (:func:`~mr_ident.numerics.local.strided.lpm_strided`).
     """
     n_in, n_out = Ua.shape[1], Ya.shape[1]
+    if offsets:
+        return lpm_strided(Ua, Ya, n, degree, q, workers, centres, offsets)
     step = chunk_bins(n_in, n_out, degree)
     K_all = Ua.shape[0] - 2 * n
     K = K_all if centres is None else int(centres.size)
-    R = degree
-    T = R + 1  # transient unknowns
-    P = T * n_in  # G unknowns, ordered s = R..0 so that G_0 trails
-    Q = T + P  # all unknowns: transient first, its Cholesky factor is constant
-    L_TT, k_uu, k_u, k_uy, k_y = kernels(n, degree)
-    iu, ju, pair = moment_index(n_in)
-    s_of = np.repeat(np.arange(R, -1, -1), n_in)
-    i_of = np.tile(np.arange(n_in), R + 1)
-    mom_ab = s_of[:, None] + s_of[None, :]
-    pair_ab = pair[i_of[:, None], i_of[None, :]]
-    conj_ab = i_of[:, None] > i_of[None, :]
-    ou, ov = np.triu_indices(n_out)
-    nio = n_in * n_out
-
+    lay = Layout.of(n, degree, n_in, n_out)
     G = np.empty((n_out, n_in, K), dtype=np.complex128)
     Cv = np.empty((n_out, n_out, K), dtype=np.complex128)
     Ainv = np.empty((n_in, n_in, K), dtype=np.complex128)
@@ -218,62 +212,10 @@ def lpm_bins_last(
             if int(pick[-1]) + 1 == Kc:  # consecutive: nothing to drop
                 pick = None
         span = Kc if pick is None else int(pick[-1]) + 1  # centres whose sums are formed
-        width = span + 2 * n
-        Uc = Ua[a : a + width].T  # (n_in, width)
-        Yc = Ya[a : a + width].T  # (n_out, width)
-        Ucj = np.conj(Uc)
-        # Product signals and their windowed sums (see kernels).
-        UU = np.multiply(Ucj[iu], Uc[ju])  # conj(U_i) U_j, i <= j
-        UY = np.multiply(Ucj[:, None, :], Yc[None, :, :]).reshape(nio, width)  # conj(U_i) Y_o
-        mUU = window_sums(UU, k_uu, span)  # (2R+1, npair, span)
-        mUY = window_sums(UY, k_uy, span).reshape(R + 1, n_in, n_out, span)
-        L_GT = window_sums(Ucj, k_u, span).reshape(T, P, span)  # L_GT[u, (s, i)]
-        W_T = window_sums(Yc, k_y, span)  # (T, n_out, span)
-        mYY = moving_sum(np.conj(Yc[ou]) * Yc[ov], n, span)  # (npair_o, span)
-        if pick is not None:  # the selected centres: (..., Kc) from here on
-            mUU, mUY, L_GT, W_T, mYY = (x[..., pick] for x in (mUU, mUY, L_GT, W_T, mYY))
-
-        # Cholesky L L^H of the normal matrix [[A_TT, A_TG], [A_GT, A_GG]] and forward
-        # solve L W = K^H Y, left-looking, vectorised over bins. The transient columns
-        # are known: L_TT is constant and L_GT, W_T came out of the window sums, so
-        # eliminating the transient costs only a longer inner product per G column.
-        L = np.empty((Q, Q, Kc), dtype=np.complex128)  # lower triangle used
-        W = np.empty((Q, n_out, Kc), dtype=np.complex128)
-        L[:T, :T] = L_TT[:, :, None]
-        L[T:, :T] = L_GT.transpose(1, 0, 2)
-        W[:T] = W_T
-        bad = np.zeros(Kc, dtype=bool)
-        buf = np.empty((max(Q, n_out), Kc), dtype=np.complex128)  # products, reused
-        for j in range(P):
-            J = T + j
-            col = mUU[mom_ab[j:, j], pair_ab[j:, j]]  # A_GG[j:, j]
-            flip = conj_ab[j:, j]
-            col[flip] = np.conj(col[flip])
-            Lj = L[J, :J]
-            d = (
-                col[0].real
-                - np.einsum("mk,mk->k", Lj.real, Lj.real)
-                - np.einsum("mk,mk->k", Lj.imag, Lj.imag)
-            )
-            tiny = d <= 1e-13 * np.abs(col[0].real)
-            bad |= tiny
-            ljj = np.sqrt(np.where(tiny, 1.0, d))
-            L[J, J] = ljj
-            if J + 1 < Q:
-                Ljc = np.conj(Lj)
-                acc, tmp = L[J + 1 :, J], buf[: Q - J - 1]
-                np.subtract(col[1:], np.multiply(L[J + 1 :, 0], Ljc[0], out=tmp), out=acc)
-                for m in range(1, J):
-                    acc -= np.multiply(L[J + 1 :, m], Ljc[m], out=tmp)
-                acc *= 1.0 / ljj
-            acc, tmp = W[J], buf[:n_out]
-            np.subtract(mUY[s_of[j], i_of[j]], np.multiply(Lj[0], W[0], out=tmp), out=acc)
-            for m in range(1, J):
-                acc -= np.multiply(Lj[m], W[m], out=tmp)
-            acc *= 1.0 / ljj
-
+        sums = chunk_sums(Ua, Ya, a, span, pick, lay)
+        L, W, bad = factor(sums, lay)
         # Back substitution for the trailing (G_0) block only: L_tt^H theta = W_t.
-        t0 = Q - n_in
+        t0 = lay.Q - n_in
         Ltt = L[t0:, t0:]
         theta = G[:, :, k0 : k0 + Kc]
         for j in range(n_in - 1, -1, -1):
@@ -292,18 +234,7 @@ def lpm_bins_last(
             for b in range(a, n_in):
                 AI[a, b] = sum(np.conj(Li[m, a]) * Li[m, b] for m in range(b, n_in))
                 AI[b, a] = np.conj(AI[a, b])
-        # V^H V = Y^H Y - W^H W; C_v = (V^H V)^T / q, upper triangle then mirrored.
-        Wc = np.conj(W)
-        vhv = mYY
-        p0 = 0
-        for a in range(n_out):  # the pairs (a, a..n_out-1) are consecutive in ou, ov
-            v, tmp = vhv[p0 : p0 + n_out - a], buf[: n_out - a]
-            for j in range(Q):
-                v -= np.multiply(W[j, a:], Wc[j, a], out=tmp)
-            p0 += n_out - a
-        C = Cv[:, :, k0 : k0 + Kc]
-        C[ov, ou] = vhv / q
-        C[ou, ov] = np.conj(C[ov, ou])
+        noise_cov(sums[4], W, q, Cv[:, :, k0 : k0 + Kc])
         if bad.any():
             idx = np.nonzero(bad)[0] + k0
             G[:, :, idx] = np.nan

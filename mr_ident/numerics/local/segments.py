@@ -26,8 +26,14 @@ import numpy as np
 from ...errors import ConfigError
 from ..arrays import BoolArray, ComplexArray, IntArray
 
-#: A run of centre bins ``start .. stop-1`` fitted with half-width ``n``.
-Run = tuple[int, int, int]
+#: A run of centre bins ``start .. stop-1`` fitted with half-width ``n``; a fourth element
+#: h > 0: its windows solved every ``2h + 1`` bins (:mod:`mr_ident.numerics.local.strided`).
+Run = tuple[int, ...]
+
+
+def run_offsets(run: Run) -> int:
+    """The offset h of a run (0 when it has none: every window solved at its centre)."""
+    return run[3] if len(run) > 3 else 0
 
 
 @dataclass(frozen=True)
@@ -47,6 +53,8 @@ class Segments:
         Positions in the engine's output (``W - 2 pad`` centres) that are the runs' centres.
     bins : ndarray of int, shape (n_bins,)
         The centre bins at ``keep``, increasing.
+    offsets : int
+        h of the runs (0: every window solved at its centre).
     """
 
     n: int
@@ -54,6 +62,7 @@ class Segments:
     window: IntArray
     keep: IntArray
     bins: IntArray
+    offsets: int = 0
 
     @property
     def whole(self) -> bool:
@@ -73,22 +82,30 @@ def full_run(n_bins: int, n: int) -> tuple[Run, ...]:
     return ((0, n_bins, n),)
 
 
-def runs_of(widths: IntArray) -> tuple[Run, ...]:
-    """Run-length code of a half-width per centre bin: ``(start, stop, n)`` in bin order."""
+def runs_of(widths: IntArray, offsets: IntArray | None = None) -> tuple[Run, ...]:
+    """Run-length code of a half-width per centre bin: ``(start, stop, n)`` in bin order.
+
+    With ``offsets`` (one h per bin), ``(start, stop, n, h)`` where h > 0.
+    """
     w = np.asarray(widths, dtype=np.int64)
     if w.ndim != 1 or w.size == 0:
         raise ConfigError(f"widths must be a non-empty 1-D array, got shape {w.shape}")
-    edges = np.flatnonzero(np.diff(w)) + 1
+    h = np.zeros_like(w) if offsets is None else np.asarray(offsets, dtype=np.int64)
+    edges = np.flatnonzero((np.diff(w) != 0) | (np.diff(h) != 0)) + 1
     starts = np.concatenate([[0], edges])
     stops = np.concatenate([edges, [w.size]])
-    return tuple((int(a), int(b), int(w[a])) for a, b in zip(starts, stops, strict=True))
+    return tuple(
+        (int(a), int(b), int(w[a])) + ((int(h[a]),) if h[a] else ())
+        for a, b in zip(starts, stops, strict=True)
+    )
 
 
 def check_runs(runs: Sequence[Run], n_bins: int) -> None:
     """ConfigError unless the runs are non-empty, inside 0..n_bins-1 and do not overlap."""
     last = 0
-    for a, b, n in sorted(runs):
-        if not (0 <= a < b <= n_bins) or n < 1 or a < last:
+    for run in sorted(runs):
+        a, b, n = run[:3]
+        if not (0 <= a < b <= n_bins) or n < 1 or a < last or run_offsets(run) < 0:
             raise ConfigError(
                 f"runs must be non-overlapping (start, stop, n) with 0 <= start < stop <= "
                 f"{n_bins} and n >= 1; got {tuple(runs)!r}"
@@ -99,23 +116,24 @@ def check_runs(runs: Sequence[Run], n_bins: int) -> None:
 def segments(runs: Sequence[Run], pad_per_n: int, max_bins: int) -> list[Segments]:
     """Group runs by half-width into segments of at most ``max_bins`` centre bins each.
 
-    Runs longer than ``max_bins`` are split; short runs of one width share a segment.
-    ``pad = pad_per_n * n`` context bins each side of every piece.
+    Runs longer than ``max_bins`` are split; short runs of one width (and offset) share a
+    segment. ``pad = pad_per_n * n`` context bins each side of every piece.
     """
     if max_bins < 1:
         raise ConfigError(f"max_bins must be >= 1, got {max_bins}")
-    by_n: dict[int, list[tuple[int, int]]] = {}
-    for a, b, n in sorted(runs):
+    by_n: dict[tuple[int, int], list[tuple[int, int]]] = {}
+    for run in sorted(runs):
+        a, b, n = run[:3]
         for s in range(a, b, max_bins):
-            by_n.setdefault(n, []).append((s, min(s + max_bins, b)))
+            by_n.setdefault((n, run_offsets(run)), []).append((s, min(s + max_bins, b)))
     out: list[Segments] = []
-    for n, pieces in sorted(by_n.items()):
+    for (n, h), pieces in sorted(by_n.items()):
         pad = pad_per_n * n
         group: list[tuple[int, int]] = []
         count = 0
         for a, b in pieces + [(0, 0)]:  # a sentinel flushes the last group
             if group and (b == a or count + (b - a) > max_bins):
-                out.append(_gather(group, n, pad))
+                out.append(_gather(group, n, pad, h))
                 group, count = [], 0
             if b > a:
                 group.append((a, b))
@@ -123,7 +141,7 @@ def segments(runs: Sequence[Run], pad_per_n: int, max_bins: int) -> list[Segment
     return out
 
 
-def _gather(pieces: list[tuple[int, int]], n: int, pad: int) -> Segments:
+def _gather(pieces: list[tuple[int, int]], n: int, pad: int, h: int) -> Segments:
     window = np.concatenate([np.arange(a - pad, b + pad) for a, b in pieces])
     offsets = np.cumsum([0] + [b - a + 2 * pad for a, b in pieces[:-1]])
     keep = np.concatenate(
@@ -132,17 +150,17 @@ def _gather(pieces: list[tuple[int, int]], n: int, pad: int) -> Segments:
     bins = np.concatenate([np.arange(a, b) for a, b in pieces])
     for arr in (window, keep, bins):
         arr.flags.writeable = False
-    return Segments(n, pad, window, keep, bins)
+    return Segments(n, pad, window, keep, bins, h)
 
 
 def covers(plan: tuple[Run, ...], n_bins: int) -> bool:
     """The runs fit every centre bin 0..n_bins-1."""
-    return sum(b - a for a, b, _ in plan) == n_bins
+    return n_centres(plan) == n_bins
 
 
 def n_centres(plan: tuple[Run, ...]) -> int:
     """How many centre bins the runs cover."""
-    return sum(b - a for a, b, _ in plan)
+    return sum(run[1] - run[0] for run in plan)
 
 
 def in_bin_order(segs: list[Segments], parts: list[ComplexArray], n_bins: int) -> ComplexArray:

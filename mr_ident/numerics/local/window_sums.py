@@ -36,26 +36,33 @@ class Kernel:
     taps: NDArray[np.float64]
     n_out: int
     B: int
+    stride: int = 1
 
     @classmethod
-    def of(cls, w: NDArray[np.float64]) -> Kernel:
-        """The kernel of weights ``w`` (n_q, 2n+1)."""
+    def of(cls, w: NDArray[np.float64], stride: int = 1) -> Kernel:
+        """The kernel of weights ``w`` (n_q, 2n+1); outputs every ``stride`` bins.
+
+        With a stride s, output i of a block is the window centred ``s i`` bins after the
+        block's first centre: ``taps[t, (q, i)] = w[q, t - s i]``, shape
+        (s (B - 1) + 2n + 1, n_q * B).
+        """
         nq, L = w.shape
-        n = (L - 1) // 2
         B = BLOCK
-        T = np.zeros((B + 2 * n, nq, B))
+        T = np.zeros((stride * (B - 1) + L, nq, B))
         for i in range(B):
-            T[i : i + L, :, i] = w.T
-        T = T.reshape(B + 2 * n, nq * B)
+            T[stride * i : stride * i + L, :, i] = w.T
+        T = T.reshape(T.shape[0], nq * B)
         T.flags.writeable = False
-        return cls(T, nq, B)
+        return cls(T, nq, B, stride)
 
 
-@functools.lru_cache(maxsize=16)
-def kernels(n: int, degree: int) -> tuple[NDArray[np.float64], Kernel, Kernel, Kernel, Kernel]:
+@functools.lru_cache(maxsize=32)
+def kernels(
+    n: int, degree: int, stride: int = 1
+) -> tuple[NDArray[np.float64], Kernel, Kernel, Kernel, Kernel]:
     """The constant transient factor ``L_TT`` and the window kernels of :func:`lpm_bins_last`.
 
-    For half-width n and degree R.
+    For half-width n and degree R; the sums every ``stride`` centres.
 
     With ``x = r/n`` and ``phi_u`` the polynomials orthonormal on the window
     (``phi = V L_TT^-T``, ``V[r, t] = x^t``, ``L_TT L_TT^T = V^T V``):
@@ -77,34 +84,41 @@ def kernels(n: int, degree: int) -> tuple[NDArray[np.float64], Kernel, Kernel, K
     phi_x = (phi.T[:, None, :] * powers[s_desc][None, :, :]).reshape(T * T, -1)
     return (
         L_TT,
-        Kernel.of(powers),
-        Kernel.of(phi_x),
-        Kernel.of(powers[:T]),
-        Kernel.of(phi.T.copy()),
+        Kernel.of(powers, stride),
+        Kernel.of(phi_x, stride),
+        Kernel.of(powers[:T], stride),
+        Kernel.of(phi.T.copy(), stride),
     )
 
 
-def window_sums(Z: NDArray[np.complex128], kernel: Kernel, K: int) -> NDArray[np.complex128]:
-    """Windowed sums ``S[q, c, k] = sum_{r=-n}^{n} w[q, r] Z[c, k+n+r]``.
+@functools.lru_cache(maxsize=16)
+def plain(n: int, stride: int = 1) -> Kernel:
+    """The kernel of the plain sum over the window (all weights 1)."""
+    return Kernel.of(np.ones((1, 2 * n + 1)), stride)
 
-    Z has shape (C, K+2n); the result (n_q, C, K). The sums are a correlation with
-    2n+1 taps, done as one real matrix product (BLAS) per block of B bins against a
-    banded Toeplitz matrix (:class:`Kernel`): the real and imaginary parts of every
-    signal over the block and the 2n bins after it are rows.
+
+def window_sums(Z: NDArray[np.complex128], kernel: Kernel, K: int) -> NDArray[np.complex128]:
+    """Windowed sums ``S[q, c, k] = sum_{r=-n}^{n} w[q, r] Z[c, s k + n + r]``, k = 0..K-1.
+
+    Z has shape (C, s (K-1) + 2n + 1) (s the kernel's stride, usually 1); the result
+    (n_q, C, K). The sums are a correlation with 2n+1 taps, done as one real matrix
+    product (BLAS) per block of B outputs against a banded Toeplitz matrix
+    (:class:`Kernel`): the real and imaginary parts of every signal over the block's
+    windows are rows.
     """
     C = Z.shape[0]
-    B, nq = kernel.B, kernel.n_out
-    span = kernel.taps.shape[0]  # B + 2n
+    B, nq, st = kernel.B, kernel.n_out, kernel.stride
+    span = kernel.taps.shape[0]  # s (B - 1) + 2n + 1
     nb = -(-K // B)
-    need = (nb - 1) * B + span  # = K + 2n when B divides K (full chunks)
+    need = (nb - 1) * B * st + span
     if Z.shape[1] < need:
         Zp = np.zeros((C, need), dtype=np.complex128)
         Zp[:, : Z.shape[1]] = Z
         Z = Zp
     c_st, k_st = Z.strides
     blocks = np.lib.stride_tricks.as_strided(
-        Z, (C, nb, span), (c_st, B * k_st, k_st), writeable=False
-    )  # overlapping: block b = Z[:, bB : bB + span]
+        Z, (C, nb, span), (c_st, B * st * k_st, k_st), writeable=False
+    )  # overlapping: block b = Z[:, b B s : b B s + span]
     X = np.empty((2, C, nb, span))
     X[0] = blocks.real
     X[1] = blocks.imag
