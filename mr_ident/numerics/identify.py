@@ -266,7 +266,9 @@ def identify(
         runs = None
         if len(ns) > 1:  # the automatic window: candidates on a probe, then one fit
             centre_of = centre_bins(N, m.lift(F))
-            widths, offsets = _choose_widths(ns, centre_of, fit_with, n_workers)
+            widths, offsets = _choose_widths(
+                ns, centre_of, fit_with, n_workers, strided=local == "polynomial"
+            )
             runs = runs_of(widths, offsets)
             n_used = widths[centre_of]
         fit = fit_with(n0, keep_lifted, True, runs, n_workers)
@@ -363,6 +365,7 @@ def _choose_widths(
     centre_of: IntArray,
     fit_with: Callable[[int, bool, bool, tuple[Run, ...] | None, int], PlantFit],
     workers: int,
+    strided: bool,
 ) -> tuple[IntArray, IntArray]:
     """The half-width of every centre bin and its offsets: the candidates on a probe, the rule.
 
@@ -381,13 +384,15 @@ def _choose_widths(
         inside[a:b] = True
     rows = np.flatnonzero(inside[centre_of])  # the high-rate bins the probe fits
 
-    def probed_fit(nj: int) -> tuple[ComplexArray, FloatArray]:
-        fit = fit_with(nj, False, False, tuple((a, b, nj) for a, b in probe), 1)
+    def probed_fit(job: tuple[int, int]) -> tuple[ComplexArray, FloatArray]:
+        nj, h = job
+        fit = fit_with(nj, False, False, tuple((a, b, nj, h) for a, b in probe), 1)
         return fit.P_half[rows], fit.var_half[rows]  # the whole-spectrum arrays freed here
 
+    jobs = [(nj, 0) for nj in ns]
     with warnings.catch_warnings():  # the final fit says it for the bins it keeps
         warnings.filterwarnings("ignore", "LPM: .* rank-deficient", RuntimeWarning)
-        fits = thread_map(probed_fit, ns, workers)
+        fits = thread_map(probed_fit, jobs, workers)
     ok = np.isfinite(fits[0][0]).all(axis=(1, 2))  # NaN: no excitation in the window
     return choose_widths(
         ns,
@@ -396,6 +401,7 @@ def _choose_widths(
         centre_of[rows[ok]],
         n_centres,
         halfwidth=ns[-1],
+        strided=strided,
     )
 
 

@@ -65,14 +65,6 @@ GROWTH = 1.5
 SPAN = 4.0
 #: Share of the centre bins on which the candidates are fitted (the probe).
 PROBE_SHARE = 0.02
-#: The widest candidate, where chosen and its estimated squared bias is below this share of
-#: its variance, is solved every ``2h + 1`` bins (:mod:`mr_ident.numerics.local.strided`).
-#: Off centre, a degree-2 window loses its symmetry's cancellation of the cubic bias term
-#: (noise-free, n = 27 at ``h/n = 1/9``: 1.33x the centred error) while its variance does not
-#: grow; below 0.1 the mean-squared error moves by well under 1 %. Narrower chosen windows
-#: (where the criterion found the bias already matters) stay centred: striding them too
-#: made `make bench-structured`'s noise-free random loops worse (docs/method.md).
-BIAS_SHARE = 0.1
 #: Probe segments at least, whatever the record's length. 6, 12 and 24 were measured on
 #: ``make bench-structured`` (records of 120-600 s, where the floor matters): every error
 #: figure of ``n = auto`` was as good or better with 6 than with 12, and with 12 than with 24;
@@ -253,6 +245,7 @@ def choose_widths(
     *,
     halfwidth: int,
     min_run: int | None = None,
+    strided: bool = False,
 ) -> tuple[IntArray, IntArray]:
     """One half-width per centre bin from candidates fitted on a probe (module docstring).
 
@@ -272,6 +265,10 @@ def choose_widths(
     min_run : int, optional
         Runs of one width shorter than this join the run before (default ``halfwidth``):
         each run costs the engine ``2 n`` extra bins.
+    strided : bool, default False
+        Where the widest candidate is chosen, its windows solved every ``2h + 1`` bins
+        (h = ``offsets_for(ns[-1])``; the engine solves at every centre where the
+        off-centre bias shows: :mod:`mr_ident.numerics.local.strided`).
 
     Returns
     -------
@@ -279,9 +276,7 @@ def choose_widths(
         The half-width of every centre bin.
     offsets : ndarray of int, shape (n_centres,)
         h of :mod:`~mr_ident.numerics.local.strided` for every centre bin: ``offsets_for(n)``
-        where the widest candidate is chosen and its estimated squared bias is below
-        :data:`BIAS_SHARE` of its variance (its windows are then solved every ``2h + 1``
-        bins), else 0.
+        where the widest candidate is chosen (with ``strided``), else 0.
     """
     P = np.asarray(responses)
     V = np.asarray(variances, dtype=float)
@@ -305,11 +300,9 @@ def choose_widths(
         return _segmented_mean(x, probed, halfwidth)
 
     mse = _mse(sub, V[:, probed], mean)
-    var = mean(V[:, probed].sum(axis=(2, 3)))
     scale = mean((V[0, probed] + 1e-24 * np.abs(sub[0]) ** 2).sum(axis=(1, 2))[None])[0]
     with np.errstate(divide="ignore", invalid="ignore"):  # a zero level: no criterion there
         rel = mse / scale
-        bias_share = (mse - var) / var  # <b_j^2> / <v_j>
     ok = np.isfinite(rel).all(axis=0)
     c = centre_of[probed][ok]
     counts = np.bincount(c, minlength=n_centres)
@@ -318,25 +311,22 @@ def choose_widths(
         return widths, none
 
     def spread(x: FloatArray) -> FloatArray:
-        """Per-candidate values on the probed bins: averaged per centre, interpolated."""
+        """Rows of values on the probed bins: averaged per centre, interpolated."""
         return np.stack(
             [
                 np.interp(
                     np.arange(n_centres),
                     seen,
-                    np.bincount(c, weights=x[j, ok], minlength=n_centres)[seen] / counts[seen],
+                    np.bincount(c, weights=row[ok], minlength=n_centres)[seen] / counts[seen],
                 )
-                for j in range(J)
+                for row in x
             ]
         )
 
     j = np.argmin(spread(rel), axis=0)
-    quiet = spread(np.where(np.isfinite(bias_share), bias_share, np.inf))[j, np.arange(n_centres)]
-    width_of = np.asarray(ns, dtype=np.int64)
-    h_of = np.array([offsets_for(n) for n in ns], dtype=np.int64)
-    key = j * 2 + ((quiet < BIAS_SHARE) & (j == J - 1))  # the window; strided or not
-    key = _merge_short(key, halfwidth if min_run is None else min_run)
-    return width_of[key // 2], np.where(key % 2 == 1, h_of[key // 2], 0)
+    h = offsets_for(ns[-1]) if strided else 0
+    key = _merge_short(j * 2 + ((j == J - 1) & (h > 0)), halfwidth if min_run is None else min_run)
+    return np.asarray(ns, dtype=np.int64)[key // 2], np.where(key % 2 == 1, h, 0)
 
 
 def _segmented_mean(x: FloatArray, bins: IntArray, h: int) -> FloatArray:

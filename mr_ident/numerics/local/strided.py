@@ -43,6 +43,19 @@ from .normal import Layout, Sums, chunk_sums, factor, noise_cov
 MAX_OFFSET = 1.0 / 9.0
 
 
+#: A solved window's off-centre bias is checked against its neighbours (:func:`_unsafe`):
+#: where striding would add a squared bias above this share of the variance (at the
+#: largest offset h), the window's group is solved at every centre instead.
+BIAS_SHARE = 0.1
+#: ``E|D|^2 / v`` per bin of distance from pure noise, D the difference of a window's
+#: estimate at a bin off its centre and the centred estimate there: the two weight the same
+#: data differently (a local quadratic on a uniform design, n = 27: 0.036, 0.071, 0.105 at
+#: 1, 2, 3 bins; about linear).
+NOISE_PER_OFFSET = 0.035
+#: Window pairs each side in the moving mean of the check (a window of n = 27 spans 55 bins,
+#: about 8 groups of 7).
+CHECK_PAIRS = 4
+
 #: Runs of at least this many groups have their windowed sums formed along the run, every
 #: ``2h + 1`` bins; the groups of shorter runs (a probe's segments) are gathered, window by
 #: window, into batches (one engine pass for many runs).
@@ -121,6 +134,46 @@ class _Solved:
         noise_cov(sums[4], W, q, self.Cv)
         self.R, self.n = R, lay.n
 
+    def unsafe(self, s: int, h: int, pair: NDArray[np.bool_] | None = None) -> NDArray[np.bool_]:
+        """The windows (of windows every s bins along a run) whose off-centre bias shows.
+
+        ``pair`` (Kc - 1,): whether windows j and j+1 are neighbours (default: all are).
+        For neighbours j, j+1 (centres s apart), D compares window j at offset +s with
+        window j+1 at its centre, and window j+1 at -s with window j at its centre. The
+        cubic bias that striding adds grows about as the offset, so at distance s it is
+        ``(s/h)^2`` times its square at h; the noise of D is about
+        :data:`NOISE_PER_OFFSET` ``s`` of the variance v. A window is unsafe where the
+        moving mean (:data:`CHECK_PAIRS` pairs each side) of ``sum |D|^2 / sum v`` over the
+        entries exceeds ``(s/h)^2`` :data:`BIAS_SHARE` ``+ NOISE_PER_OFFSET s``.
+        """
+        Kc = self.th.shape[-1]
+        out = np.zeros(Kc, dtype=bool)
+        if Kc < 2:
+            return out
+        g, ai = self.around(np.array([-s, 0, s]))  # (n_out, n_in, Kc, 3), (pairs, Kc, 3)
+        diag = np.flatnonzero(self.iu == self.ju)  # the pairs (i, i)
+        v = (
+            np.real(np.diagonal(self.Cv, axis1=0, axis2=1)).T[:, None, :]
+            * np.real(ai[diag, :, 1])[None, :, :]
+        )  # (n_out, n_in, Kc): the centred estimate's variance
+        d = (
+            np.abs(g[:, :, :-1, 2] - g[:, :, 1:, 1]) ** 2
+            + np.abs(g[:, :, 1:, 0] - g[:, :, :-1, 1]) ** 2
+        )
+        ratio = d.sum(axis=(0, 1)) / (v[:, :, :-1] + v[:, :, 1:]).sum(axis=(0, 1))
+        real = np.isfinite(ratio) if pair is None else np.isfinite(ratio) & pair
+        c = np.r_[0.0, np.cumsum(np.where(real, ratio, 0.0))]
+        k = np.r_[0, np.cumsum(real)]
+        m = np.arange(ratio.size)
+        lo, hi = np.maximum(m - CHECK_PAIRS, 0), np.minimum(m + CHECK_PAIRS + 1, ratio.size)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = (c[hi] - c[lo]) / (k[hi] - k[lo])
+        limit = (s / h) ** 2 * BIAS_SHARE + NOISE_PER_OFFSET * s
+        flagged = real & (mean > limit)
+        out[:-1] |= flagged
+        out[1:] |= flagged
+        return out
+
     def around(
         self, offsets: NDArray[np.intp]
     ) -> tuple[NDArray[np.complex128], NDArray[np.complex128]]:
@@ -131,6 +184,13 @@ class _Solved:
         pairs, S, _, Kc = self.A.shape
         Ai = np.matmul(self.A.reshape(pairs, S * S, Kc).transpose(0, 2, 1), XX.T)
         return G, Ai
+
+
+#: The centred engine's signature (:func:`~mr_ident.numerics.local.lpm.lpm_bins_last`).
+Engine = Callable[
+    [NDArray[np.complex128], NDArray[np.complex128], int, int, int, int, NDArray[np.intp], int],
+    tuple[NDArray[np.complex128], NDArray[np.complex128], NDArray[np.complex128], int],
+]
 
 
 def _call(job: Callable[[], int]) -> int:
@@ -146,6 +206,7 @@ def lpm_strided(
     workers: int,
     centres: NDArray[np.intp] | None,
     h: int,
+    centred: Engine,
 ) -> tuple[NDArray[np.complex128], NDArray[np.complex128], NDArray[np.complex128], int]:
     """:func:`~mr_ident.numerics.local.lpm.lpm_bins_last` with offsets up to h.
 
@@ -154,7 +215,9 @@ def lpm_strided(
     values from the solved window of its group (:func:`groups`). The windowed sums are
     formed at the solved centres only: along each run every ``2h + 1`` bins
     (:func:`~mr_ident.numerics.local.window_sums.window_sums` with a stride), the short
-    groups at the runs' ends from their windows gathered end to end.
+    groups at the runs' ends from their windows gathered end to end. Along a run, the groups
+    whose window's off-centre bias shows against its neighbours (:meth:`_Solved.unsafe`)
+    are solved at every centre by ``centred`` (the engine with offsets 0).
     """
     n_in, n_out = Ua.shape[1], Ya.shape[1]
     K_all = Ua.shape[0] - 2 * n
@@ -207,6 +270,11 @@ def lpm_strided(
         i0, c0, count = piece
         sv = _Solved(chunk_sums(Ua, Ya, c0, count, None, lay, stride=s), lay, q)
         put(sv, np.arange(-h, h + 1), slice(i0, i0 + count * s), slice(None))
+        redo = np.flatnonzero(sv.unsafe(s, h) & ~sv.bad)
+        if redo.size:  # these groups at every centre (the engine solving each window)
+            own = (redo[:, None] * s + np.arange(s)[None, :]).ravel()
+            g, cv, ai, _ = centred(Ua, Ya, n, degree, q, 1, c0 - h + own, 0)
+            G[:, :, i0 + own], Cv[:, :, i0 + own], Ainv[:, :, i0 + own] = g, cv, ai
         lost = np.flatnonzero(sv.bad)
         if lost.size == 0:
             return 0
@@ -221,6 +289,14 @@ def lpm_strided(
             offs = np.arange(length) - length // 2
             at = (i0[sel][:, None] + np.arange(length)[None, :]).ravel()
             put(sv, offs, at, sel)  # type: ignore[arg-type]
+        # whole groups next to each other in a run: the same check as along a long run
+        pair = (np.diff(c) == s) & (np.diff(i0) == s) & (t[:-1] == s) & (t[1:] == s)
+        redo = np.flatnonzero(sv.unsafe(s, h, pair) & ~sv.bad)
+        if redo.size:  # these groups at every centre (the engine solving each window)
+            own = np.concatenate([np.arange(t[r]) - t[r] // 2 + c[r] for r in redo])
+            out = np.concatenate([np.arange(i0[r], i0[r] + t[r]) for r in redo])
+            g, cv, ai, _ = centred(Ua, Ya, n, degree, q, 1, own, 0)
+            G[:, :, out], Cv[:, :, out], Ainv[:, :, out] = g, cv, ai
         lost = np.flatnonzero(sv.bad)
         if lost.size == 0:
             return 0
