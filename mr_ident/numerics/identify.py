@@ -267,7 +267,7 @@ def identify(
         if len(ns) > 1:  # the automatic window: candidates on a probe, then one fit
             centre_of = centre_bins(N, m.lift(F))
             widths, offsets = _choose_widths(
-                ns, centre_of, fit_with, n_workers, strided=local == "polynomial"
+                ns, centre_of, fit_with, n_workers, strided=m.strides and local == "polynomial"
             )
             runs = runs_of(widths, offsets)
             n_used = widths[centre_of]

@@ -80,7 +80,6 @@ def structured_block(
     local: str = "polynomial",
     missing: FloatArray | None = None,
     centres: IntArray | None = None,
-    offsets: int = 0,
 ) -> LocalFit:
     """Both stages on one block of B consecutive low-rate bins.
 
@@ -101,9 +100,6 @@ def structured_block(
         stage keeps the order R (its denominator follows the loop's modes).
     centres : ndarray of int, optional
         The block's bins (increasing, in 0..B-1) to fit in the second stage; default all B.
-    offsets : int, default 0
-        Both stages' windows solved every ``2 offsets + 1`` bins
-        (:mod:`mr_ident.numerics.local.strided`).
 
     Returns
     -------
@@ -125,8 +121,7 @@ def structured_block(
     B = R_lifted.shape[0] - 4 * n
     # Stage 1: the lifted S on the block and n bins each side; the instrument there.
     d1 = instrument_degree(degree) if local == "polynomial" else degree
-    first = local_fit(local, R_lifted, U_lifted, n, d1, offsets=offsets)
-    Z = instrument(first.G, R_lifted[n:-n])  # (B+2n, F nu)
+    Z = instrument(local_fit(local, R_lifted, U_lifted, n, d1).G, R_lifted[n:-n])  # (B+2n, F nu)
     # Stage 2: the F aliases one after another along the bins, one LPM for all; the
     # windows that straddle two aliases (2n per alias) are computed and dropped.
     W = B + 2 * n
@@ -137,6 +132,6 @@ def structured_block(
     Oc = np.concatenate([Yc, Uc], axis=2).reshape(F * W, ny + nu)
     own = np.arange(B) if centres is None else centres
     keep = (np.arange(F)[:, None] * W + own[None, :]).ravel()
-    fit = local_fit(local, Zc, Oc, n, degree, missing=missing, centres=keep, offsets=offsets)
+    fit = local_fit(local, Zc, Oc, n, degree, missing=missing, centres=keep)
     bad = ~np.isfinite(fit.G).all(axis=(0, 1))
     return LocalFit(fit.G, fit.noise_cov, fit.inv_gram, int(bad.sum()), fit.dof, fit.den)
