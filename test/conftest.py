@@ -131,6 +131,21 @@ def mimo_model() -> Model:
     )
 
 
+def lpm_regressor(Uw: np.ndarray, n: int, R: int) -> np.ndarray:
+    """The LPM regressor of one window, spelled out: ``U_i (r/n)^s`` then ``(r/n)^s``.
+
+    ``Uw`` (2n+1, n_in) the window's inputs; returns (2n+1, (R+1)(n_in+1)), the columns
+    (s, i) for s = 0..R, then the transient's powers.
+    """
+    r = np.arange(-n, n + 1) / n
+    ni = Uw.shape[1]
+    return np.stack(
+        [Uw[:, i] * r**s for s in range(R + 1) for i in range(ni)]
+        + [r**s + 0j for s in range(R + 1)],
+        axis=1,
+    )
+
+
 def brute_force_loop(
     model: Model, r: np.ndarray, v: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:

@@ -3,6 +3,7 @@
 
 import numpy as np
 import pytest
+from conftest import lpm_regressor
 
 from mr_ident.errors import ConfigError, DataError
 from mr_ident.numerics.local.lpm import lpm
@@ -12,17 +13,12 @@ def per_bin_reference(U, Y, n, R):
     """Straight per-bin LPM with numpy.linalg.lstsq (QR/SVD based)."""
     K = U.shape[0] - 2 * n
     ni, no = U.shape[1], Y.shape[1]
-    r = np.arange(-n, n + 1) / n
     G = np.empty((K, no, ni), complex)
     Cv = np.empty((K, no, no), complex)
     Ai = np.empty((K, ni, ni), complex)
     for k in range(K):
         Uw, Yw = U[k : k + 2 * n + 1], Y[k : k + 2 * n + 1]
-        Km = np.stack(
-            [Uw[:, i] * r**s for s in range(R + 1) for i in range(ni)]
-            + [r**s + 0j for s in range(R + 1)],
-            axis=1,
-        )
+        Km = lpm_regressor(Uw, n, R)
         th, *_ = np.linalg.lstsq(Km, Yw, rcond=None)
         G[k] = th[:ni].T
         V = Yw - Km @ th

@@ -8,6 +8,7 @@ matrix's G block; the grouping against its definition.
 
 import numpy as np
 import pytest
+from conftest import lpm_regressor
 
 from mr_ident.numerics.local.lpm import dof, lpm_bins_last
 from mr_ident.numerics.local.strided import LONG_RUN, groups, offsets_for
@@ -16,13 +17,8 @@ from mr_ident.numerics.local.strided import LONG_RUN, groups, offsets_for
 def window_fit_at(U, Y, c, n, R, x):
     """Least squares on the window of padded centre c, at offset x = r/n: G, C_v, inv_gram."""
     ni = U.shape[1]
-    r = np.arange(-n, n + 1) / n
     Uw, Yw = U[c : c + 2 * n + 1], Y[c : c + 2 * n + 1]
-    Km = np.stack(
-        [Uw[:, i] * r**s for s in range(R + 1) for i in range(ni)]
-        + [r**s + 0j for s in range(R + 1)],
-        axis=1,
-    )
+    Km = lpm_regressor(Uw, n, R)
     th, *_ = np.linalg.lstsq(Km, Yw, rcond=None)
     w = np.zeros((Km.shape[1], ni))
     for s in range(R + 1):
