@@ -22,8 +22,13 @@ block ``(A^-1)_GG = Z^H Z``, ``Z = L_GG^-1`` (the transient comes first, so the 
 How close to the centred fit: for the window's own noise, the variance of ``G_c(x)`` at
 ``|x| <= 1/9`` differs from the centred one by a few per cent at most (for R = 2 it is
 lower off centre: the variance factor of a quadratic on a uniform design is
-``9/4 - 9x^2/2 + 45x^4/4`` of its value per bin); the bias term of degree R + 1 moves
-by the same order. :data:`MAX_OFFSET` bounds ``h/n``.
+``9/4 - 9x^2/2 + 45x^4/4`` of its value per bin). The bias is another matter: off centre
+the symmetric window's cancellation of the cubic term is lost, and near a resonance on a
+short record the added bias can exceed the std. So along a run every solved window is
+checked against its neighbours (:meth:`_Solved.unsafe`), and the groups where the
+off-centre bias shows are solved at every centre. :data:`MAX_OFFSET` bounds ``h/n``.
+The automatic window strides only its widest candidate, where chosen
+(:mod:`mr_ident.numerics.local.bandwidth`); a fixed n solves every window.
 """
 
 from __future__ import annotations
@@ -41,9 +46,7 @@ from .normal import Layout, Sums, chunk_sums, factor, noise_cov
 #: The largest offset from a solved window's centre, as a share of its half-width n:
 #: ``h = floor(n * MAX_OFFSET)`` (n = 8: every window solved; 12: 1; 18: 2; 27: 3).
 MAX_OFFSET = 1.0 / 9.0
-
-
-#: A solved window's off-centre bias is checked against its neighbours (:func:`_unsafe`):
+#: A solved window's off-centre bias is checked against its neighbours (:meth:`_Solved.unsafe`):
 #: where striding would add a squared bias above this share of the variance (at the
 #: largest offset h), the window's group is solved at every centre instead.
 BIAS_SHARE = 0.1
