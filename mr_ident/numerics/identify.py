@@ -384,15 +384,13 @@ def _choose_widths(
         inside[a:b] = True
     rows = np.flatnonzero(inside[centre_of])  # the high-rate bins the probe fits
 
-    def probed_fit(job: tuple[int, int]) -> tuple[ComplexArray, FloatArray]:
-        nj, h = job
-        fit = fit_with(nj, False, False, tuple((a, b, nj, h) for a, b in probe), 1)
+    def probed_fit(nj: int) -> tuple[ComplexArray, FloatArray]:
+        fit = fit_with(nj, False, False, tuple((a, b, nj) for a, b in probe), 1)
         return fit.P_half[rows], fit.var_half[rows]  # the whole-spectrum arrays freed here
 
-    jobs = [(nj, 0) for nj in ns]
     with warnings.catch_warnings():  # the final fit says it for the bins it keeps
         warnings.filterwarnings("ignore", "LPM: .* rank-deficient", RuntimeWarning)
-        fits = thread_map(probed_fit, jobs, workers)
+        fits = thread_map(probed_fit, ns, workers)
     ok = np.isfinite(fits[0][0]).all(axis=(1, 2))  # NaN: no excitation in the window
     return choose_widths(
         ns,

@@ -104,10 +104,6 @@ class FitRequest:
     spectra: Spectra | None = field(default=None, compare=False)
     missing: FloatArray | None = None
 
-    def offsets(self, seg: Segments) -> int:
-        """The segment's offsets h for a polynomial fit (a rational one solves every window)."""
-        return seg.offsets if self.local == "polynomial" else 0
-
     def share(self, lift: int, part: str = "yu") -> FloatArray | None:
         """:attr:`missing` of the outputs of a fit: y, u or [y; u], each ``lift`` times.
 
@@ -265,7 +261,7 @@ def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
             req.degree,
             missing=req.share(F),
             centres=_centres(seg),
-            offsets=req.offsets(seg),
+            offsets=seg.offsets,
         )  # bins-last, the segment's bins
         P, rdiag, cdiag, extra = indirect_diag(fit, n_row)
         if slow:
@@ -323,7 +319,7 @@ def _time_lifted(req: FitRequest) -> PlantFit:
             req.workers,
             req.share(F),
             _centres(seg),
-            req.offsets(seg),
+            seg.offsets,
         )
         fits.append(fit)
     warn_rank_deficient(sum(f.n_bad for f in fits), n_centres(plan), stacklevel=4)

@@ -60,8 +60,8 @@ NOISE_PER_OFFSET = 0.035
 CHECK_PAIRS = 4
 
 #: Runs of at least this many groups have their windowed sums formed along the run, every
-#: ``2h + 1`` bins; the groups of shorter runs (a probe's segments) are gathered, window by
-#: window, into batches (one engine pass for many runs).
+#: ``2h + 1`` bins; the groups of shorter runs (and the short groups at the runs' ends) are
+#: gathered, window by window, into batches (one engine pass for many runs).
 LONG_RUN = 256
 
 
@@ -200,6 +200,17 @@ def _call(job: Callable[[], int]) -> int:
     return job()
 
 
+def _ranges(starts: NDArray[np.intp], lengths: NDArray[np.intp]) -> NDArray[np.intp]:
+    """``starts[i] .. starts[i] + lengths[i] - 1`` for every i, concatenated.
+
+    >>> _ranges(np.array([0, 10]), np.array([2, 3])).tolist()
+    [0, 1, 10, 11, 12]
+    """
+    shift = starts - np.r_[0, np.cumsum(lengths)[:-1]]
+    out: NDArray[np.intp] = np.repeat(shift, lengths) + np.arange(int(lengths.sum()))
+    return out
+
+
 def lpm_strided(
     Ua: NDArray[np.complex128],
     Ya: NDArray[np.complex128],
@@ -269,19 +280,30 @@ def lpm_strided(
         Ainv[:, :, where] = np.nan
         return int(where.size)
 
+    def settle(
+        sv: _Solved,
+        first: NDArray[np.intp],
+        centre: NDArray[np.intp],
+        length: NDArray[np.intp],
+        pair: NDArray[np.bool_] | None = None,
+    ) -> int:
+        # the groups (output indices first.., centre bins, lengths) of the solved windows:
+        # those whose off-centre bias shows solved at every centre, those without a window NaN
+        redo = np.flatnonzero(sv.unsafe(s, h, pair) & ~sv.bad)
+        if redo.size:
+            out = _ranges(first[redo], length[redo])
+            own = _ranges(centre[redo] - length[redo] // 2, length[redo])
+            g, cv, ai, _ = centred(Ua, Ya, n, degree, q, 1, own, 0)
+            G[:, :, out], Cv[:, :, out], Ainv[:, :, out] = g, cv, ai
+        lost = np.flatnonzero(sv.bad)
+        return nan(_ranges(first[lost], length[lost])) if lost.size else 0
+
     def run_grid(piece: tuple[int, int, int]) -> int:
         i0, c0, count = piece
         sv = _Solved(chunk_sums(Ua, Ya, c0, count, None, lay, stride=s), lay, q)
         put(sv, np.arange(-h, h + 1), slice(i0, i0 + count * s), slice(None))
-        redo = np.flatnonzero(sv.unsafe(s, h) & ~sv.bad)
-        if redo.size:  # these groups at every centre (the engine solving each window)
-            own = (redo[:, None] * s + np.arange(s)[None, :]).ravel()
-            g, cv, ai, _ = centred(Ua, Ya, n, degree, q, 1, c0 - h + own, 0)
-            G[:, :, i0 + own], Cv[:, :, i0 + own], Ainv[:, :, i0 + own] = g, cv, ai
-        lost = np.flatnonzero(sv.bad)
-        if lost.size == 0:
-            return 0
-        return nan((i0 + lost[:, None] * s + np.arange(s)[None, :]).ravel())
+        j = np.arange(count) * s
+        return settle(sv, i0 + j, c0 + j, np.full(count, s))
 
     def run_short(batch: list[tuple[int, int, int]]) -> int:
         i0, c, t = (np.array(x, dtype=np.intp) for x in zip(*batch, strict=True))
@@ -294,16 +316,7 @@ def lpm_strided(
             put(sv, offs, at, sel)  # type: ignore[arg-type]
         # whole groups next to each other in a run: the same check as along a long run
         pair = (np.diff(c) == s) & (np.diff(i0) == s) & (t[:-1] == s) & (t[1:] == s)
-        redo = np.flatnonzero(sv.unsafe(s, h, pair) & ~sv.bad)
-        if redo.size:  # these groups at every centre (the engine solving each window)
-            own = np.concatenate([np.arange(t[r]) - t[r] // 2 + c[r] for r in redo])
-            out = np.concatenate([np.arange(i0[r], i0[r] + t[r]) for r in redo])
-            g, cv, ai, _ = centred(Ua, Ya, n, degree, q, 1, own, 0)
-            G[:, :, out], Cv[:, :, out], Ainv[:, :, out] = g, cv, ai
-        lost = np.flatnonzero(sv.bad)
-        if lost.size == 0:
-            return 0
-        return nan(np.concatenate([np.arange(i0[j], i0[j] + t[j]) for j in lost]))
+        return settle(sv, i0, c, t, pair)
 
     jobs: list[Callable[[], int]] = [functools.partial(run_grid, p) for p in grid]
     jobs += [functools.partial(run_short, short[i : i + step]) for i in range(0, len(short), step)]
