@@ -68,6 +68,7 @@ class BatchOptions:
     span: str = DEFAULT_SPAN
     msg_path: tuple[Path, ...] = ()
     threads: int = 1
+    injection: str | None = None
 
     def __post_init__(self) -> None:
         check_span(self.span)
@@ -284,11 +285,12 @@ def _identify(job: Job, opts: BatchOptions, reading: Reading) -> dict[str, str]:
         degree=opts.degree,
         local=opts.local,
         workers=opts.threads,
+        injection=opts.injection,
     )
     got = identify_recording(req)
     assert isinstance(got, Identified)  # no period: no BLA
     ident = got.identification
-    write_result(job.result, ident)
+    write_result(job.result, ident, got.structure)
     row = _row(job, opts, got.first, got.n_samples, got.fs_high, got.ratio)
     row["notes"] = _warnings(got.notices)
     pl, pd = ident.plant, ident.pfg_data

@@ -152,7 +152,9 @@ def brute_force_loop(
     """Simulate the multirate loop sample by sample, straight from its definition.
 
     u_h[n] = r_h[n] - u_c[m] held from sample mF + phase + delay; the controller
-    samples y_h + v at mF + phase. Only for plants without feedthrough (D = 0).
+    samples y_h + v at mF + phase. With the model's injection "setpoint" r is instead the
+    controller's reference: u_c[m] = K (y_h + v - r_h) at mF + phase, u_h[n] = -u_c[m].
+    Only for plants without feedthrough (D = 0).
     """
     P = model.plant_discrete()
     assert np.allclose(P.D, 0)
@@ -162,6 +164,7 @@ def brute_force_loop(
     Kc = model.controller_ss() if model.controller is not None else None
     x = np.zeros(P.A.shape[0])
     xk = np.zeros(Kc.A.shape[0]) if Kc is not None else None
+    setpoint = model.injection == "setpoint"
     pending: dict[int, np.ndarray] = {}
     held = np.zeros(nu)
     u = np.zeros((N, nu))
@@ -169,12 +172,13 @@ def brute_force_loop(
     for n in range(N):
         y[n] = P.C @ x + v[n]
         if Kc is not None and n % F == model.sample_phase:
-            uc = Kc.C @ xk + Kc.D @ y[n]
-            xk = Kc.A @ xk + Kc.B @ y[n]
+            e = y[n] - r[n] if setpoint else y[n]
+            uc = Kc.C @ xk + Kc.D @ e
+            xk = Kc.A @ xk + Kc.B @ e
             pending[n + model.control_delay] = uc
         if n in pending:
             held = pending.pop(n)
-        u[n] = r[n] - held
+        u[n] = -held if setpoint else r[n] - held
         x = P.A @ x + P.B @ u[n]
     return u, y
 

@@ -89,10 +89,10 @@ def _read(
     if req.rates == "file":
         data = read_for_diagnosis(reading, model, req.period, specs, notify)
     else:
-        raw, fs, F = read_settled(
+        raw, fs, settled = read_settled(
             reading, specs, req.fs_high, req.ratio, model, notify, complete=req.period is not None
         )
-        data = replace(raw, fs_high=fs, ratio=F, period=req.period)
+        data = replace(raw, fs_high=fs, ratio=settled.ratio, period=req.period)
     data, note = diagnosable(data, model, req.n, req.degree)  # holes beyond the limits: cut
     if note:
         notify(Notice("warning", f"{reading.path}: {note}"))

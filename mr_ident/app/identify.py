@@ -27,7 +27,8 @@ class Identified:
     """P_h and the PFG of a recording, and what was read.
 
     ``first``, ``n_samples``: the record identified (its first sample index, its length);
-    ``model``: the model given (loaded), for the plots' reference.
+    ``model``: the model given (loaded), for the plots' reference; ``structure``: what the
+    data showed of the loop (the hold, F, where r enters), in words.
     """
 
     identification: Identification
@@ -38,6 +39,7 @@ class Identified:
     method: str
     model: Model | None
     notices: tuple[Notice, ...] = ()
+    structure: str = ""
 
 
 def identify_recording(
@@ -67,8 +69,10 @@ def identify_recording(
 
     model = load(req.model)
     specs = req.reading.specs()
-    data, fs, F = read_settled(req.reading, specs, req.fs_high, req.ratio, model, heard)
-    N = data.n_samples
+    data, fs, settled = read_settled(
+        req.reading, specs, req.fs_high, req.ratio, model, heard, injection=req.injection
+    )
+    F, N = settled.ratio, data.n_samples
     y_phase = 0
     if req.y_rate == "low" and data.y_step == 1:  # a bag's low-rate y, held on the grid
         from ..live.estimate import low_rate_output
@@ -102,6 +106,9 @@ def identify_recording(
                 f"{data.y.shape[1]} output and {data.u.shape[1]} input channel(s)"
             )
         loop = model.identify_arguments(N)
+    if settled.injection == "setpoint":
+        q = settled.phase if settled.phase is not None else loop.get("phase", 0)
+        loop = loop | {"phase": q}
     ident = identify(
         data.r,
         data.u,
@@ -115,6 +122,28 @@ def identify_recording(
         keep_lifted=False,
         workers=req.workers,
         y_phase=y_phase,
+        injection=settled.injection,
         **loop,
     )  # the result holds P_h and the PFG
-    return Identified(ident, fs, F, data.first, N, req.method, model, tuple(heard.notices))
+    for note in settled.notes:
+        heard(Notice("warning", note))
+    if ident.undetermined is not None:
+        heard(
+            Notice(
+                "note",
+                f"{settled.found.describe()}; {int(ident.undetermined.sum())} bins near the "
+                f"hold's zeros (multiples of {fs / F:g} Hz) are not determined",
+                "result",
+            )
+        )
+    return Identified(
+        ident,
+        fs,
+        F,
+        data.first,
+        N,
+        ident.plant.method,
+        model,
+        tuple(heard.notices),
+        settled.found.describe(),
+    )

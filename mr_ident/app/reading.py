@@ -16,6 +16,7 @@ from .requests import Notice, Notify, Reading, Specs
 
 if TYPE_CHECKING:
     from ..numerics.signals import LoopData
+    from ..numerics.structure import Settled
     from ..numerics.systems.model import Model
 
 
@@ -90,11 +91,15 @@ def read_settled(
     model: Model | None,
     notify: Notify,
     complete: bool = False,
-) -> tuple[LoopData, float, int]:
-    """r, u, y and (fs_high, F) that the flags, the file, the model and the stamps agree on.
+    injection: str | None = None,
+) -> tuple[LoopData, float, Settled]:
+    """r, u, y, fs_high and the loop's structure: the data's, agreed by every given.
 
-    A bag is read at the flags' rates, else the model's
-    (:func:`~mr_ident.live.recordings.settle_rates` then checks they all agree).
+    A bag is read at the flags' rates, else the model's; then
+    :func:`~mr_ident.live.recordings.settle_rates` checks that the flags, the file, the
+    model and the stamps agree with what the data show (F, where r enters, a setpoint's
+    phase). What the structure leaves to a default is in ``Settled.notes``, for the caller to
+    say once its result stands.
     """
     from ..live.recordings import settle_rates
 
@@ -106,5 +111,7 @@ def read_settled(
         notify,
         complete=complete,
     )
-    fs, F = settle_rates(data, fs_high=fs_high, ratio=ratio, model=model)
-    return data, fs, F
+    fs, settled = settle_rates(
+        data, fs_high=fs_high, ratio=ratio, model=model, injection=injection
+    )
+    return data, fs, settled

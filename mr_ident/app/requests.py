@@ -112,7 +112,8 @@ class IdentifyRequest:
     messages): ``fs_high``/``ratio`` None: from the file, the model or the stamps;
     ``y_rate`` "low"/"high"/None; ``period`` an int N, "auto" or None;
     ``excitation_index`` the labels' topic of a bag; ``workers`` identification threads
-    (None: every CPU this process may use).
+    (None: every CPU this process may use); ``injection`` where r entered
+    (``plant_input``/``setpoint``; None: as the data show it).
     """
 
     reading: Reading
@@ -128,6 +129,7 @@ class IdentifyRequest:
     transient_periods: int = 1
     excitation_index: str | None = None
     workers: int | None = None
+    injection: str | None = None
 
 
 @dataclass(frozen=True)

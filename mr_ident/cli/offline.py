@@ -51,6 +51,7 @@ def identify_request(args: argparse.Namespace) -> IdentifyRequest:
         period=args.period,
         transient_periods=args.transient_periods,
         excitation_index=args.excitation_index,
+        injection=args.injection,
     )
 
 
@@ -81,7 +82,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
             f"note: {int(missing[:ny].sum())} samples of y and {int(missing[ny:].sum())} of u "
             f"missing (NaN) of {outcome.n_samples}: estimated as unknowns of the fit"
         )
-    write_result(args.out, ident)
+    write_result(args.out, ident, outcome.structure)
     print(f"wrote {args.out} ({ident.plant.frequency.size} bins, method {outcome.method})")
     for line in describe_pfgs(ident):
         print(line)
@@ -143,6 +144,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         degree=args.degree,
         local=args.local,
         period=args.period,
+        injection=args.injection,
         **reading(args),
         threads=1 if args.scheduler else batch.threads_per_job(workers),
     )

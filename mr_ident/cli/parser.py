@@ -91,6 +91,17 @@ def _lpm_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _injection(p: argparse.ArgumentParser) -> None:
+    """--injection: where r entered, where the data cannot tell (docs: "Where r enters")."""
+    p.add_argument(
+        "--injection",
+        choices=("plant_input", "setpoint"),
+        help="where r entered the loop: added to the plant input, or as the controller's "
+        "setpoint (sampled with y). Default: as the data show it (the held u or u - r); "
+        "refused where it contradicts them",
+    )
+
+
 def _local_option(p: argparse.ArgumentParser) -> None:
     """--local: the local model of the LPM methods' windows (README, "Local rational models")."""
     p.add_argument(
@@ -138,6 +149,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="model YAML: gives the controller for the PFG and the reference curve",
     )
     i.add_argument("--method", choices=METHOD_NAMES, default="freq-lifted")
+    _injection(i)
     _lpm_options(i)
     _local_option(i)
     _sources(i)
@@ -309,6 +321,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--fs-high", type=positive_float, help="high sample rate in Hz")
     b.add_argument("--ratio", type=int_at_least(1), help="F")
     b.add_argument("--method", choices=METHOD_NAMES, default="freq-lifted")
+    _injection(b)
     _lpm_options(b)
     _local_option(b)
     b.add_argument("--period", type=int_at_least(2), help="diagnose: samples per period")

@@ -30,6 +30,7 @@ import yaml
 from ..errors import ConfigError, yaml_problem
 from ..numerics.identify import AUTO, METHODS, check_options, default_n
 from ..numerics.identify import min_samples as record_minimum
+from ..numerics.structure import INJECTIONS
 from ..numerics.systems.lti import TransferMatrix
 from .paths import parse_source
 
@@ -70,6 +71,11 @@ PARAMETERS: dict[str, Param] = {
     ),
     "control_delay": Param(
         "high-rate samples between the controller sampling and its held output", 0, 1000
+    ),
+    "injection": Param(
+        'where r enters the loop: "auto" (as the data show it: the held u - r, r added at '
+        'the plant input, or the held u, r the controller\'s setpoint), "plant_input" or '
+        '"setpoint"; a value the data contradict fails the estimate, saying why'
     ),
     "controller_num": Param(
         "low-rate controller K_l numerator, descending powers of z; MIMO: the entries' "
@@ -162,6 +168,7 @@ class IdentConfig:
     update_period_s: float = 2.0
     lifting_phase: str = "auto"
     control_delay: int = 0
+    injection: str = "auto"
     controller_num: tuple[float, ...] = ()
     controller_den: tuple[float, ...] = ()
     controller_rows: int = 1
@@ -230,6 +237,11 @@ class IdentConfig:
         if self.y_rate == "low" and self.method != "freq-lifted":
             raise ConfigError(
                 f'y_rate "low" is identified by freq-lifted only; got method {self.method!r}'
+            )
+        if self.injection not in ("auto", *INJECTIONS):
+            raise ConfigError(
+                f'injection must be "auto", {", ".join(map(repr, INJECTIONS))}, got '
+                f"{self.injection!r}"
             )
         if self.lifting_phase != "auto":
             try:

@@ -23,7 +23,10 @@ NPZ (result, written by ``mr-ident identify``)
     PFG of P_h under that controller; plus ``method``, ``fs_high``, ``ratio`` and ``n`` (K,),
     the LPM window half-width used per bin (0: none; files written before it read the same;
     stored as int16 when it fits);
-    ``n_missing`` (n_y + n_u,), the missing samples of every channel of y then u, when any.
+    ``n_missing`` (n_y + n_u,), the missing samples of every channel of y then u, when any;
+    ``injection`` where r entered (``plant_input`` or ``setpoint``), ``structure`` what the
+    data showed of the loop (a sentence: the hold, F, where r enters), and with r at the
+    setpoint ``undetermined`` (K,) bool, the bins whose window reaches a zero of the hold.
 
 Writers go through a temporary file and a rename: a failed write leaves nothing.
 """
@@ -356,8 +359,11 @@ def write_data(
         raise DataError(f"unsupported output {str(p)!r}: expected a .csv or .npz suffix")
 
 
-def write_result(path: str | Path, ident: Identification) -> None:
-    """Write an identification result NPZ (see the module docstring)."""
+def write_result(path: str | Path, ident: Identification, structure: str = "") -> None:
+    """Write an identification result NPZ (see the module docstring).
+
+    ``structure``: what the data showed of the loop's structure, in words.
+    """
     p = Path(path)
     if p.suffix.lower() != ".npz":
         raise DataError(f"the result file must end in .npz, got {str(p)!r}")
@@ -374,7 +380,11 @@ def write_result(path: str | Path, ident: Identification) -> None:
         ),
         "fs_high": ident.fs_high,
         "ratio": ident.ratio,
+        "injection": np.array(ident.injection),
+        "structure": np.array(structure),
     }
+    if ident.undetermined is not None:
+        arrays["undetermined"] = ident.undetermined
     if ident.n_missing is not None and ident.n_missing.any():
         arrays["n_missing"] = ident.n_missing
     for key, g in (("pfg", ident.pfg), ("pfg_data", ident.pfg_data)):
@@ -429,4 +439,6 @@ def read_identification(path: str | Path) -> Identification:
         n_used=z["n"] if "n" in z else None,
         pfg_data=pfgs["pfg_data"],
         n_missing=z["n_missing"] if "n_missing" in z else None,
+        injection=str(z["injection"]) if "injection" in z else "plant_input",
+        undetermined=z["undetermined"] if "undetermined" in z else None,
     )

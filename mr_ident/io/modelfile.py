@@ -16,6 +16,7 @@ import numpy as np
 import yaml
 
 from ..errors import ModelError, yaml_problem
+from ..numerics.structure import INJECTIONS
 from ..numerics.systems.lti import TransferMatrix
 from ..numerics.systems.modal import ModalPlant
 from ..numerics.systems.model import CORRECTION_KINDS, Model
@@ -31,6 +32,7 @@ _KEYS = {
     "reference_std",
     "sample_phase",
     "control_delay",
+    "injection",
     "plant_gain",
     "input_delay_s",
     "additive_modes",
@@ -144,6 +146,11 @@ def model_from_dict(d: Any, *, source: str = "model") -> Model:
         raise ModelError(
             f"{source}: sample_phase must be in 0..{F - 1}, got {ints['sample_phase']}"
         )
+    injection = d.get("injection")
+    if injection is not None and injection not in INJECTIONS:
+        raise ModelError(
+            f"{source}: injection must be one of {', '.join(INJECTIONS)}, got {injection!r}"
+        )
     floats = {}
     for key, default in (("noise_std", 0.0), ("reference_std", 1.0)):
         v = d.get(key, default)
@@ -189,6 +196,7 @@ def model_from_dict(d: Any, *, source: str = "model") -> Model:
         floats["reference_std"],
         ints["sample_phase"],
         ints["control_delay"],
+        injection=injection,
         **ext,
     )
     rho = float(np.max(np.abs(loop_poles(model)), initial=0.0))
@@ -450,6 +458,8 @@ def model_to_dict(model: Model) -> dict[str, Any]:
         sample_phase=int(model.sample_phase),
         control_delay=int(model.control_delay),
     )
+    if model.injection is not None:
+        d["injection"] = model.injection
     if model.plant_gain != 1.0:
         d["plant_gain"] = float(model.plant_gain)
     if model.input_delay:

@@ -28,6 +28,7 @@ from ..numerics.excitation.bla import BLA
 from ..numerics.identify import identify
 from ..numerics.results import Identification
 from ..numerics.signals import LoopData
+from ..numerics.structure import Settled, read_structure, settle_structure
 from ..numerics.systems.lti import TransferMatrix
 from .periodic import bla_identification, cut_by_labels, periodic_bla
 
@@ -133,6 +134,8 @@ class Estimate:
         window was identified as any other.
     period : int
         Samples per period of the BLA (0 without one).
+    structure : str
+        What the window showed of the loop (the hold, F, where r enters), in words.
     """
 
     first: int
@@ -144,6 +147,7 @@ class Estimate:
     bla: BLA | None = None
     periodic: str = ""
     period: int = 0
+    structure: str = ""
 
 
 def _phase(window: LoopData, config: IdentConfig) -> tuple[int, str]:
@@ -156,11 +160,36 @@ def _phase(window: LoopData, config: IdentConfig) -> tuple[int, str]:
     return 0, "auto (undetermined: 0 assumed)"
 
 
+def loop_structure(window: LoopData, config: IdentConfig) -> Settled:
+    """Where r enters the window's loop and, for a setpoint, the controller's phase.
+
+    Read from the window (:func:`~mr_ident.numerics.structure.read_structure`) and checked
+    against the parameters ``ratio``, ``injection`` and ``lifting_phase``
+    (:func:`~mr_ident.numerics.structure.settle_structure`: ConfigError where the data
+    contradict one). The phase is the window's (relative to its first sample).
+    """
+    F = config.ratio
+    phases = [] if config.phase is None else [("lifting_phase", (config.phase - window.first) % F)]
+    return settle_structure(
+        read_structure(window.r, window.u),
+        ratios=[("the ratio parameter", F)],
+        injections=[] if config.injection == "auto" else [("injection", config.injection)],
+        phases=phases,
+    )
+
+
 def estimate(window: LoopData, config: IdentConfig) -> Estimate:
     """Identify P_h (and the PFG) from one aligned window; see the module docstring."""
     t0 = time.perf_counter()
     F = config.ratio
-    phase, source = _phase(window, config)
+    loop = loop_structure(window, config)
+    if loop.injection == "setpoint":
+        hold = loop.found.hold_start
+        q = loop.phase if loop.phase is not None else ((hold or 0) - config.control_delay) % F
+        phase = (q + window.first) % F
+        source = "parameter" if config.phase is not None else "auto"
+    else:
+        phase, source = _phase(window, config)
     periodic = ""
     if window.labels is not None:
         try:
@@ -190,15 +219,19 @@ def estimate(window: LoopData, config: IdentConfig) -> Estimate:
         degree=config.degree,
         local=config.local,
         controller_low=K_low,
-        phase=phase,
+        phase=(phase - window.first) % F,
         delay=config.control_delay,
         keep_lifted=False,
         workers=config.workers,
         y_phase=y_phase,
+        injection=loop.injection,
     )
     # The result does not depend on the number of threads (bit-identical).
     dt = time.perf_counter() - t0
-    return Estimate(window.first, window.n_samples, ident, phase, source, dt, None, periodic)
+    return Estimate(
+        window.first, window.n_samples, ident, phase, source, dt, None, periodic,
+        structure=loop.found.describe(),
+    )  # fmt: skip
 
 
 @functools.lru_cache(maxsize=2)

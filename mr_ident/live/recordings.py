@@ -15,13 +15,14 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from ..errors import ConfigError
 from ..numerics.signals import LoopData
 from .spans import DEFAULT_SPAN, check_span
 
 if TYPE_CHECKING:
+    from ..numerics.structure import Settled
     from ..numerics.systems.model import Model
 
 #: Suffixes of the files read as loop data (bags are directories or these suffixes).
@@ -43,12 +44,23 @@ def is_bag(path: Path) -> bool:
 
 
 def settle_rates(
-    data: LoopData, *, fs_high: float | None, ratio: int | None, model: Model | None
-) -> tuple[float, int]:
-    """fs_high and F from the command line, the data file and the model, which must agree.
+    data: LoopData,
+    *,
+    fs_high: float | None,
+    ratio: int | None,
+    model: Model | None,
+    injection: str | None = None,
+) -> tuple[float, Settled]:
+    """fs_high, and F and where r enters as the data show them, which the givens must agree with.
 
-    ConfigError naming the sources when none gives a rate or two disagree.
+    fs_high from the command line, the data file and the model; F and the injection point
+    read from the data (:func:`~mr_ident.numerics.structure.read_structure`) and checked
+    against the command line's, the data file's and the model's
+    (:func:`~mr_ident.numerics.structure.settle_structure`). ConfigError naming the sources
+    when none gives a rate or two disagree.
     """
+    from ..numerics.structure import read_structure, settle_structure
+
     fs_sources = [
         (n, v)
         for n, v in (
@@ -58,32 +70,33 @@ def settle_rates(
         )
         if v is not None
     ]
-    r_sources = [
-        (n, v)
-        for n, v in (
-            ("--ratio", ratio),
-            ("the data file", data.ratio),
-            ("the model", model.ratio if model else None),
-        )
-        if v is not None
-    ]
     if not fs_sources:
         raise ConfigError(
             "fs_high unknown: pass --fs-high or --model, or use an NPZ/CSV that gives it"
         )
-    if not r_sources:
-        raise ConfigError("ratio F unknown: pass --ratio or --model, or use an NPZ that gives it")
     fs = fs_sources[0][1]
     for name, v in fs_sources[1:]:
         if abs(v - fs) > 1e-6 * fs:
             raise ConfigError(
                 f"fs_high disagrees: {fs_sources[0][0]} says {fs:g} Hz, {name} says {v:g} Hz"
             )
-    F = r_sources[0][1]
-    for name, v in r_sources[1:]:
-        if v != F:
-            raise ConfigError(f"ratio disagrees: {r_sources[0][0]} says {F}, {name} says {v}")
-    return float(fs), int(F)
+
+    def given(*pairs: tuple[str, Any]) -> list[tuple[str, Any]]:
+        return [(n, v) for n, v in pairs if v is not None]
+
+    settled = settle_structure(
+        read_structure(data.r, data.u),
+        ratios=given(
+            ("--ratio", ratio),
+            ("the data file", data.ratio),
+            ("the model", model.ratio if model else None),
+        ),
+        injections=given(
+            ("--injection", injection), ("the model", model.injection if model else None)
+        ),
+        phases=given(("the model", model.sample_phase if model else None)),
+    )
+    return float(fs), settled
 
 
 def load_recording(

@@ -24,12 +24,21 @@ from .lifted.missing import check_share, estimate_missing
 from .lifted.options import check_options, default_n, method_of, min_samples, missing_rules
 from .lifted.pfg import pfg_from_plant
 from .lifted.pfg_data import fit_data_pfg
+from .lifted.setpoint import hold_zero_bins, hold_zone, sampled_setpoint
 from .lifted.spectra import Spectra
 from .lifting import check_ratio
-from .local.bandwidth import candidates, centre_bins, choose_widths, probe_runs
+from .local.bandwidth import (
+    SPAN,
+    SPAN_SETPOINT,
+    candidates,
+    centre_bins,
+    choose_widths,
+    probe_runs,
+)
 from .local.segments import Run, runs_of
 from .results import FRF, PFG, Identification
 from .signals import y_at_low_rate
+from .structure import INJECTIONS
 from .threads import one_blas_thread, resolve_workers, thread_map
 
 __all__ = [
@@ -45,9 +54,21 @@ __all__ = [
 #: The value of ``n`` that chooses the window per frequency from the data.
 AUTO = "auto"
 
+#: The methods a setpoint-excited loop takes (one estimator there: the high-rate local fit).
+SETPOINT_METHODS = ("freq-lifted", "lpm")
+
+
+def _check_phase(phase: object, ratio: int) -> None:
+    if (
+        isinstance(phase, bool)
+        or not isinstance(phase, (int, np.integer))
+        or not (0 <= phase < ratio)
+    ):
+        raise ConfigError(f"phase must be an integer in 0..F-1 = 0..{ratio - 1}, got {phase!r}")
+
 
 def _check_signals(
-    r: ArrayLike, u: ArrayLike, y: ArrayLike, ratio: int
+    r: ArrayLike, u: ArrayLike, y: ArrayLike, ratio: int, setpoint: bool = False
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     arrays = []
     for name, x in (("r", r), ("u", u), ("y", y)):
@@ -70,6 +91,24 @@ def _check_signals(
             raise DataError(f"{name} contains {what}; first at sample {bad[0]}, channel {bad[1]}")
         arrays.append(a)
     ra, ua, ya = arrays
+    if setpoint:  # r is the controller's reference: one per output, at either rate
+        if ra.shape[0] not in (ua.shape[0], ua.shape[0] // ratio) or ua.shape[0] % ratio:
+            raise DimensionError(
+                f"the setpoint r must have N = {ua.shape[0]} samples (as u) or N/F, got "
+                f"{ra.shape[0]}"
+            )
+        if ya.shape[0] != ua.shape[0]:
+            raise DimensionError(
+                f"a setpoint-excited loop needs y at the high rate (N = {ua.shape[0]} "
+                f"samples), got {ya.shape[0]}"
+            )
+        if not ra.shape[1] == ya.shape[1] == ua.shape[1]:
+            raise DimensionError(
+                "a setpoint-excited loop needs as many setpoints, outputs and inputs (the "
+                f"indirect step inverts r -> u), got r {ra.shape[1]}, y {ya.shape[1]}, u "
+                f"{ua.shape[1]} channel(s)"
+            )
+        return ra, ua, ya
     if ra.shape[0] != ua.shape[0]:
         raise DimensionError(
             f"r and u must have equal lengths (the high rate), got {ra.shape[0]}, {ua.shape[0]}"
@@ -105,6 +144,7 @@ def identify(
     keep_lifted: bool = True,
     workers: int | None = None,
     y_phase: int = 0,
+    injection: str = "plant_input",
 ) -> Identification:
     """Identify the high-rate plant P_h (and the PFG) from closed-loop data.
 
@@ -156,6 +196,16 @@ def identify(
     y_phase : int, default 0
         q: the high-rate sample (0..F-1) of each low-rate period at which a low-rate ``y``
         was taken.
+    injection : {"plant_input", "setpoint"}, default "plant_input"
+        Where r entered: added to the plant input (the seed paper's loop), or as the
+        controller's setpoint, sampled with y at ``phase``
+        (:mod:`~mr_ident.numerics.lifted.setpoint`). A setpoint r has one channel per
+        output, N samples or N/F (the controller's rate); the loop is square and y at the
+        high rate. Its estimator is the high-rate local fit of the sampled setpoint to
+        [y; u] and the indirect step (``method`` "freq-lifted", the default, or "lpm": one
+        estimator here); ``Identification.undetermined`` flags the bins whose window
+        reaches a zero of the hold (multiples of fs_high/F), where P_h is not determined
+        (NaN at the zeros themselves); no PFG from data.
 
     Returns
     -------
@@ -197,9 +247,23 @@ def identify(
         isinstance(fs_high, (int, float, np.floating)) and np.isfinite(fs_high) and fs_high > 0
     ):
         raise ConfigError(f"fs_high must be a positive number of Hz, got {fs_high!r}")
+    if injection not in INJECTIONS:
+        raise ConfigError(f"injection must be one of {', '.join(INJECTIONS)}, got {injection!r}")
+    setpoint = injection == "setpoint"
     m = method_of(method)
     n_workers = resolve_workers(workers)
-    ra, ua, ya = _check_signals(r, u, y, F)
+    ra, ua, ya = _check_signals(r, u, y, F, setpoint)
+    if setpoint:
+        if method not in SETPOINT_METHODS:
+            raise ConfigError(
+                f"a setpoint-excited loop is identified by the high-rate local fit of the "
+                f"sampled setpoint (method {' or '.join(SETPOINT_METHODS)}: one estimator "
+                f"there), got method {method!r}"
+            )
+        _check_phase(phase, F)
+        ra = sampled_setpoint(ra, F, int(phase), ua.shape[0])
+        method, m = "lpm", method_of("lpm")
+    F_fit = 1 if setpoint else F  # the setpoint's fit is LTI at the high rate
     N = ra.shape[0]
     ny, nu = ya.shape[1], ua.shape[1]
     slow = ya.shape[0] != N  # y at the low rate
@@ -214,39 +278,40 @@ def identify(
         or not (0 <= y_phase < F)
     ):
         raise ConfigError(f"y_phase must be an integer in 0..F-1 = 0..{F - 1}, got {y_phase!r}")
-    n_min = default_n(method, degree, F, ra.shape[1], max(ny, nu), local)
+    n_min = default_n(method, degree, F_fit, ra.shape[1], max(ny, nu), local)
     auto = isinstance(n, str)
     if auto and n != AUTO:
         raise ConfigError(f'n must be an integer >= 1, None or "{AUTO}", got {n!r}')
     n0 = n_min if n is None or isinstance(n, str) else n
-    check_options(method, n0, degree, F, ra.shape[1], max(ny, nu), local)
-    if m.uses_lpm and N < m.min_samples(n0, F):
+    check_options(method, n0, degree, F_fit, ra.shape[1], max(ny, nu), local)
+    if m.uses_lpm and N < m.min_samples(n0, F_fit):
         raise DataError(
             f"too few samples for the LPM window: {method} needs {2 * (2 * n0 + 1)} independent "
             "bins "
-            f"(2 x (2n+1), n={n0}) per period, i.e. N >= {m.min_samples(n0, F)} samples; "
+            f"(2 x (2n+1), n={n0}) per period, i.e. N >= {m.min_samples(n0, F_fit)} samples; "
             f"got N = {N}"
         )
     ns: tuple[int, ...] = (n0,)
     if auto and m.uses_lpm:
-        ns = candidates(n0, (N // (2 * m.lift(F)) - 1) // 2)
+        span = SPAN_SETPOINT if setpoint else SPAN
+        ns = candidates(n0, (N // (2 * m.lift(F_fit)) - 1) // 2, span)
 
     n_missing = np.concatenate([np.isnan(ya).sum(axis=0), np.isnan(ua).sum(axis=0)])
     share = None
     if n_missing.any():
-        ua, ya, share = _fill(ra, ua, ya, method, F, n0, degree, local, n_missing, len(ns) > 1)
+        ua, ya, share = _fill(ra, ua, ya, method, F_fit, n0, degree, local, n_missing, len(ns) > 1)
     spectra = Spectra(ra, ua, ya, n_workers)
 
     def fit_with(
         nj: int, keep: bool, data_pfg: bool, runs: tuple[Run, ...] | None, workers: int
     ) -> PlantFit:
-        qj = check_options(method, nj, degree, F, ra.shape[1], max(ny, nu), local)
+        qj = check_options(method, nj, degree, F_fit, ra.shape[1], max(ny, nu), local)
         return m.fit(
             FitRequest(
                 ra,
                 ua,
                 ya,
-                F,
+                F_fit,
                 nj,
                 degree,
                 qj,
@@ -265,7 +330,7 @@ def identify(
     with one_blas_thread():
         runs = None
         if len(ns) > 1:  # the automatic window: candidates on a probe, then one fit
-            centre_of = centre_bins(N, m.lift(F))
+            centre_of = centre_bins(N, m.lift(F_fit))
             widths, offsets = _choose_widths(
                 ns, centre_of, fit_with, n_workers, strided=m.strides and local == "polynomial"
             )
@@ -274,9 +339,14 @@ def identify(
         fit = fit_with(n0, keep_lifted, True, runs, n_workers)
         pfg_data = (
             None
-            if slow
+            if slow or setpoint
             else _data_pfg(fit, ra, ua, ya, F, n0, degree, local, n_workers, float(fs_high), share)
         )
+    undetermined = None
+    if setpoint:  # P_h is not determined at the hold's zeros: NaN there
+        undetermined = hold_zone(N, F, n_used[1:])
+        fit.P_half[hold_zero_bins(N, F)] = np.nan
+        fit.var_half[hold_zero_bins(N, F)] = np.nan
     std_half = np.sqrt(np.maximum(fit.var_half, 0.0))
     freq = np.arange(1, N // 2 + 1) * fs_high / N
     for a in (freq, fit.P_half, std_half):  # handed over to the result: not copied
@@ -312,6 +382,8 @@ def identify(
         local=local,
         pfg_data=pfg_data,
         n_missing=n_missing,
+        injection=injection,
+        undetermined=undetermined,
     )
 
 

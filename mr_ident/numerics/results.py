@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import DimensionError
-from .arrays import ComplexArray, FloatArray, IntArray, frozen, readonly
+from .arrays import BoolArray, ComplexArray, FloatArray, IntArray, frozen, readonly
 
 
 @dataclass(frozen=True)
@@ -208,6 +208,12 @@ class Identification:
     n_missing : ndarray of int, shape (n_y + n_u,)
         Missing samples (NaN in the input) of every channel of y, then of u; each was
         estimated as an unknown of the fit (zeros when the record was complete).
+    injection : str
+        Where r entered: ``"plant_input"`` or ``"setpoint"``.
+    undetermined : ndarray of bool, shape (n_freq,), or None
+        Plant frequencies where P_h is not determined by the data: with r at the setpoint,
+        the bins whose window reaches a zero of the hold (multiples of fs_high/F; NaN at
+        the zeros). None: every frequency is.
     """
 
     plant: FRF
@@ -220,6 +226,8 @@ class Identification:
     local: str = "polynomial"
     pfg_data: PFG | None = None
     n_missing: IntArray | None = None
+    injection: str = "plant_input"
+    undetermined: BoolArray | None = None
 
     def __post_init__(self) -> None:
         n_ch = sum(self.plant.response.shape[1:])
@@ -241,6 +249,13 @@ class Identification:
                 raise DimensionError(
                     f"n_used must be (n_freq={self.plant.frequency.size},), got "
                     f"{self.n_used.shape}"
+                )
+        if self.undetermined is not None:
+            object.__setattr__(self, "undetermined", readonly(self.undetermined, np.bool_))
+            if self.undetermined.shape != self.plant.frequency.shape:
+                raise DimensionError(
+                    f"undetermined must be (n_freq={self.plant.frequency.size},), got "
+                    f"{self.undetermined.shape}"
                 )
         if (self.lifted_J is None) != (self.lifted_S is None):
             raise DimensionError("lifted_J and lifted_S come together (both or neither)")

@@ -17,6 +17,10 @@ required)::
     reference_std: 1.0        #   white-noise excitation std (simulation)
     sample_phase: 0           #   high-rate sample (0..F-1) at which the controller samples y
     control_delay: 0          #   high-rate samples before the held output is applied
+    injection: plant_input    #   where r enters: plant_input (u = r - H K S y, the seed
+                              #   paper's loop) or setpoint (u = H K S (r - y): r is the
+                              #   controller's reference, sampled with y); omitted: not
+                              #   stated (simulated at the plant input)
 
 Optional extensions (written by ``mr-ident diagnose --out-model``; all default to none;
 their physical meaning is in the README's cause table)::
@@ -64,6 +68,7 @@ import numpy as np
 from ...errors import ModelError
 from ..arrays import ComplexArray, FloatArray
 from ..results import FRF
+from ..structure import INJECTIONS
 from .lti import StateSpace, TransferMatrix
 from .modal import ModalPlant
 from .realize import (
@@ -101,6 +106,11 @@ class Model:
         Discrete at ``ratio/fs_high``; n_u x n_y. None: open loop.
     noise_std, reference_std : float
     sample_phase, control_delay : int
+    injection : {"plant_input", "setpoint"} or None
+        Where the excitation r enters: added to the plant input at the high rate
+        (``u_h = r_h - H_u K_l S_d y_h``; r has n_u channels) or as the controller's
+        setpoint, sampled with y (``u_h = H_u K_l S_d (r_h - y_h)``; r has n_y channels).
+        None: not stated (simulated at the plant input; the data tell it to identify).
     plant_gain : float
         Multiplies the plant.
     input_delay : float
@@ -145,6 +155,15 @@ class Model:
     controller_notches: tuple[tuple[float, float, float], ...] = ()
     disturbances: tuple[tuple[float, float, float, int], ...] = ()
     plant_corrections: tuple[tuple[str, ModalPlant], ...] = ()
+    injection: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.injection is not None and self.injection not in INJECTIONS:
+            raise ModelError(
+                f"injection must be one of {', '.join(INJECTIONS)}, got {self.injection!r}"
+            )
+        if self.injection == "setpoint" and self.controller is None:
+            raise ModelError("injection setpoint needs a controller (the setpoint is its input)")
 
     @property
     def n_y(self) -> int:
@@ -155,6 +174,11 @@ class Model:
     def n_u(self) -> int:
         """Plant inputs."""
         return self.plant.shape[1]
+
+    @property
+    def n_r(self) -> int:
+        """Channels of the excitation r: n_u at the plant input, n_y at the setpoint."""
+        return self.n_y if self.injection == "setpoint" else self.n_u
 
     @property
     def fs_low(self) -> float:

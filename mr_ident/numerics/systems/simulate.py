@@ -29,9 +29,11 @@ from .realize import balanced
 def lifted_loop(model: Model) -> StateSpace:
     """The loop over one low-rate period as an LTI system at the low rate.
 
-    Inputs ``[r(mF..mF+F-1); v(mF..mF+F-1)]`` (F*n_u + F*n_y, sample-major),
+    Inputs ``[r(mF..mF+F-1); v(mF..mF+F-1)]`` (F*n_r + F*n_y, sample-major),
     outputs ``[y_meas(...); u(...)]`` (F*n_y + F*n_u), where ``y_meas = P_h u + v``
-    is what the controller and the logger see.
+    is what the controller and the logger see. r enters where ``model.injection`` says:
+    added to the plant input (n_r = n_u) or as the controller's setpoint, sampled with y
+    at the sampling phase (n_r = n_y; the other F - 1 samples of r do not act).
     """
     Pd = model.plant_discrete()
     F, ny, nu = model.ratio, model.n_y, model.n_u
@@ -46,16 +48,22 @@ def lifted_loop(model: Model) -> StateSpace:
         Ck = np.zeros((nu, 0))
         Dk = np.zeros((nu, ny))
     nk = Ak.shape[0]
+    setpoint = model.injection == "setpoint"
+    nr = model.n_r
     phase, hold = model.sample_phase, model.sample_phase + model.control_delay
     nh = -((0 - hold) // F) if model.controller is not None else 0  # ceil(hold / F)
     ns = nx + nk + nh * nu
-    nz = ns + F * nu + F * ny
+    nz = ns + F * nr + F * ny
     eye = np.eye(nz)
     X = eye[:nx]
     XK = eye[nx : nx + nk]
     H = [eye[nx + nk + j * nu : nx + nk + (j + 1) * nu] for j in range(nh)]  # H[j] = u_c[m-1-j]
-    r = [eye[ns + i * nu : ns + (i + 1) * nu] for i in range(F)]
-    v = [eye[ns + F * nu + i * ny : ns + F * nu + (i + 1) * ny] for i in range(F)]
+    r = [eye[ns + i * nr : ns + (i + 1) * nr] for i in range(F)]
+    v = [eye[ns + F * nr + i * ny : ns + F * nr + (i + 1) * ny] for i in range(F)]
+    zero_u = np.zeros((nu, nz))
+    # r at the plant input (ru) or subtracted from y where the controller samples it (rs)
+    ru = [zero_u] * F if setpoint else r
+    rs = r[phase] if setpoint else np.zeros((ny, nz))
     UC = None
     XK_next = XK
     Ys, Us = [], []
@@ -65,20 +73,20 @@ def lifted_loop(model: Model) -> StateSpace:
         if closed and i == phase:
             if j == 0:  # output applied at the sampling instant: algebraic loop
                 Q = np.linalg.inv(np.eye(nu) + Dk @ D)
-                UC = Q @ (Ck @ XK + Dk @ (C @ X + D @ r[i] + v[i]))
+                UC = Q @ (Ck @ XK + Dk @ (C @ X + D @ ru[i] + v[i] - rs))
             else:
-                yi = C @ X + D @ (r[i] - H[j - 1]) + v[i]
-                UC = Ck @ XK + Dk @ yi
+                yi = C @ X + D @ (ru[i] - H[j - 1]) + v[i]
+                UC = Ck @ XK + Dk @ (yi - rs)
         if not closed:
-            ui = r[i]
+            ui = r[i] if not setpoint else zero_u
         elif j == 0:
             assert UC is not None
-            ui = r[i] - UC
+            ui = ru[i] - UC
         else:
-            ui = r[i] - H[j - 1]
+            ui = ru[i] - H[j - 1]
         yi = C @ X + D @ ui + v[i]
         if closed and i == phase:
-            XK_next = Ak @ XK + Bk @ yi
+            XK_next = Ak @ XK + Bk @ (yi - rs)
         Ys.append(yi)
         Us.append(ui)
         X = A @ X + B @ ui
@@ -192,7 +200,9 @@ def simulate(
     rng : numpy.random.Generator, optional
         Source of the white-noise reference (std ``model.reference_std``) and of the
         output noise (std ``model.noise_std``); required unless both are given.
-    reference : array_like, shape (N, n_u), optional
+    reference : array_like, shape (N, n_r), optional
+        The excitation r: n_r = n_u at the plant input, n_y at the setpoint
+        (``model.injection``); drawn white when not given.
     noise : array_like, shape (N, n_y), optional
         Output noise added to y (also seen by the controller). The model's
         ``disturbances`` are added on top.
@@ -214,13 +224,15 @@ def simulate(
     >>> sim.r.shape, sim.u.shape, sim.y.shape, sim.fs_high, sim.ratio
     ((100, 1), (100, 1), (100, 1), 100.0, 2)
     """
-    F, ny, nu = model.ratio, model.n_y, model.n_u
+    F, ny, nr = model.ratio, model.n_y, model.n_r
     if reference is not None:
         ra = np.asarray(reference, dtype=float)
         ra = ra[:, None] if ra.ndim == 1 else ra
-        if ra.ndim != 2 or ra.shape[1] != nu:
+        if ra.ndim != 2 or ra.shape[1] != nr:
+            where = "setpoint: n_y" if model.injection == "setpoint" else "plant input: n_u"
             raise DimensionError(
-                f"reference must have shape (N, n_u={nu}), got {np.shape(reference)}"
+                f"reference must have shape (N, n_r={nr}) (r at the {where}), got "
+                f"{np.shape(reference)}"
             )
         N = ra.shape[0]
     elif n_samples is not None:
@@ -240,7 +252,7 @@ def simulate(
         )
     if reference is None:
         assert rng is not None
-        ra = model.reference_std * rng.standard_normal((N, nu))
+        ra = model.reference_std * rng.standard_normal((N, nr))
     if noise is not None:
         va = np.asarray(noise, dtype=float)
         va = va[:, None] if va.ndim == 1 else va
@@ -388,9 +400,9 @@ class LoopStream:
     def next(
         self, reference: ArrayLike, noise: ArrayLike | None = None
     ) -> tuple[FloatArray, FloatArray]:
-        """Plant input and output (u, y) for ``reference`` (N, n_u), N a multiple of F."""
-        F, ny, nu = self.model.ratio, self.model.n_y, self.model.n_u
-        ra = np.asarray(reference, dtype=float).reshape(-1, nu)
+        """Plant input and output (u, y) for ``reference`` (N, n_r), N a multiple of F."""
+        F, ny, nu, nr = self.model.ratio, self.model.n_y, self.model.n_u, self.model.n_r
+        ra = np.asarray(reference, dtype=float).reshape(-1, nr)
         N = ra.shape[0]
         if N % F:
             raise DimensionError(f"reference length {N} must be a multiple of ratio F={F}")
@@ -399,6 +411,6 @@ class LoopStream:
             va = va + self.model.disturbance(self._n, N)
         self._n += N
         M = N // F
-        w = np.concatenate([ra.reshape(M, F * nu), va.reshape(M, F * ny)], axis=1)
+        w = np.concatenate([ra.reshape(M, F * nr), va.reshape(M, F * ny)], axis=1)
         out = self._loop.run(w)
         return out[:, F * ny :].reshape(N, nu), out[:, : F * ny].reshape(N, ny)

@@ -70,11 +70,11 @@ class LoopSpectrum:
             raise ValueError("the lifted loop is defective: no modal form")
         lam, Bm, Cm, D = self._modal
         m = self.model
-        F, ny, nu = m.ratio, m.n_y, m.n_u
+        F, ny, nr = m.ratio, m.n_y, m.n_r
         L = n_periods
         n = L * F
         W = r_lifted
-        Bw, Dw = Bm[:, : F * nu], D[: F * ny, : F * nu]
+        Bw, Dw = Bm[:, : F * nr], D[: F * ny, : F * nr]
         if m.disturbances:  # the disturbance enters where the noise does: v
             W = np.concatenate([W, lifted_dft(m.disturbance(start, n), F)], axis=1)
             Bw, Dw = Bm, D[: F * ny]

@@ -1,0 +1,265 @@
+# SPDX-License-Identifier: Apache-2.0
+"""The loop's structure read from its data: F, where r enters, the controller's phase.
+
+The controller's output is held over F high-rate samples, and that hold is in the data:
+
+* ``u_h - r_h`` held over blocks of F samples (and u itself not): r was added to the plant
+  input, ``u_h = r_h - H_u K_l S_d y_h`` (the seed paper's loop);
+* ``u_h`` held (and ``u_h - r_h`` not): r is the controller's setpoint,
+  ``u_h = H_u K_l S_d (r_h - y_h)`` (what a ros2_control PID offers); a setpoint given at
+  the controller's rate (N/F samples) says so by its length;
+* both held on the same blocks (r itself held there): the hold cannot tell where r enters;
+* neither: u was measured after the actuator (noise, its dynamics) and shows no hold: F
+  and the injection point come from the user.
+
+A signal is held when its sample-to-sample changes, beyond round-off of its own scale
+(:data:`HELD_RTOL`), fall on one residue s of the sample index modulo F for the largest
+such F (:data:`HELD_SHARE` of them, so that a few glitches do not hide it). s, the sample
+of each block at which the held value changes, is ``(phase + delay) mod F`` of the model's
+controller, counted from the record's first sample.
+
+With r at the setpoint, the controller takes one sample of r per block, at its sampling
+phase q. For a white (or wide-band) r the held u is coherent with ``r[m F + q]`` and not
+with the other samples of the block: :func:`read_structure` takes the q of the largest mean
+coherence when it stands out (:data:`PHASE_MARGIN`), else says that r does not tell it
+(a setpoint held or smooth over a block: then the phase does not matter much either).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from ..errors import ConfigError
+from .arrays import FloatArray
+
+#: Changes of a held signal are below this share of its largest magnitude: round-off of
+#: ``u - r`` from a held controller output and r (about 1e-16 of it in float64, 1e-7 when
+#: logged as float32 or as text of 7 digits).
+HELD_RTOL = 1e-6
+#: A hold of F is seen when at least this share of the changes fall on one residue mod F.
+HELD_SHARE = 0.99
+#: Blocks at least, with a change, before a hold is believed (fewer: not enough data).
+MIN_CHANGES = 16
+#: The largest F looked for.
+MAX_RATIO = 64
+#: The phase's mean coherence must exceed the next best by this much to be read.
+PHASE_MARGIN = 0.2
+
+#: Where r enters the loop: added to the plant input, or as the controller's setpoint
+#: (:attr:`LoopStructure.injection`, the models' ``injection``, identify's ``injection``).
+PLANT_INPUT, SETPOINT = "plant_input", "setpoint"
+INJECTIONS = (PLANT_INPUT, SETPOINT)
+
+
+@dataclass(frozen=True)
+class LoopStructure:
+    """What the data show of the loop's structure.
+
+    Attributes
+    ----------
+    held : {"u - r", "u", "u and u - r", "none"}
+        Which signal is held over blocks of F samples.
+    ratio : int or None
+        F read from the hold (None: no hold seen).
+    hold_start : int or None
+        s in 0..F-1: the sample of each block (counted from the record's first sample) at
+        which the held value changes; the controller's ``(phase + delay) mod F``.
+    injection : {"plant_input", "setpoint"} or None
+        Where r enters, where the data tell it.
+    phase : int or None
+        With r at the setpoint: the sample of each block the controller takes r at, where
+        r tells it.
+    r_low : bool
+        r has N/F samples: a setpoint given at the controller's rate.
+    """
+
+    held: str
+    ratio: int | None
+    hold_start: int | None
+    injection: str | None
+    phase: int | None = None
+    r_low: bool = False
+
+    def describe(self) -> str:
+        """One sentence of what the data show."""
+        if self.ratio is None:
+            return "u shows no hold (measured after the actuator?): F and where r enters unknown"
+        where = {
+            PLANT_INPUT: "r enters at the plant input",
+            SETPOINT: "r is the controller's setpoint",
+            None: "where r enters is not told by the data",
+        }[self.injection]
+        phase = "" if self.phase is None else f", the controller samples r at sample {self.phase}"
+        return (
+            f"{self.held} changes every {self.ratio} samples (at sample {self.hold_start} of "
+            f"each block): F = {self.ratio}, {where}{phase}"
+        )
+
+
+def hold_of(x: FloatArray, max_ratio: int = MAX_RATIO) -> tuple[int, int] | None:
+    """``(F, s)`` of a signal held over blocks of F samples changing at residue s; else None.
+
+    ``x`` (N, channels); NaN samples are skipped. None also when fewer than
+    :data:`MIN_CHANGES` changes are seen (a constant signal tells nothing). F = 1 (no hold)
+    is returned as None.
+    """
+    scale = float(np.nanmax(np.abs(x), initial=0.0)) if x.size else 0.0
+    if not scale > 0:
+        return None
+    d = np.abs(np.diff(x, axis=0))
+    changed = np.flatnonzero(np.any(d > HELD_RTOL * scale, axis=1)) + 1  # the new value's index
+    if changed.size < MIN_CHANGES:
+        return None
+    best: tuple[int, int] | None = None
+    for F in range(2, min(max_ratio, x.shape[0] // MIN_CHANGES) + 1):
+        counts = np.bincount(changed % F, minlength=F)
+        s = int(np.argmax(counts))
+        if counts[s] >= HELD_SHARE * changed.size:
+            best = (F, s)  # the largest such F: a hold of 6 also falls on one residue mod 3
+    return best
+
+
+def _phase(r: FloatArray, u: FloatArray, F: int, s: int) -> int | None:
+    """The sample q of each block whose r the held u follows, where it stands out."""
+    from scipy.signal import coherence
+
+    M = u.shape[0] // F
+    if M < 64:
+        return None
+    v = u[s : s + (M - 1) * F : F]  # the held value of each block
+    scores = []
+    for q in range(F):
+        rq = r[q : q + (M - 1) * F : F]
+        c = [
+            np.nanmean(coherence(rq[:, i], v[:, j], nperseg=min(256, M // 4))[1])
+            for i in range(r.shape[1])
+            for j in range(v.shape[1])
+        ]
+        scores.append(float(np.nanmax(c)))
+    order = np.argsort(scores)[::-1]
+    if scores[order[0]] - scores[order[1]] < PHASE_MARGIN:
+        return None
+    return int(order[0])
+
+
+def read_structure(r: ArrayLike, u: ArrayLike) -> LoopStructure:
+    """The loop's structure as r and u show it (:class:`LoopStructure`).
+
+    Parameters
+    ----------
+    r : array_like, shape (N, n_r) or (N/F, n_r)
+        The excitation as logged; N/F samples: a setpoint at the controller's rate.
+    u : array_like, shape (N, n_u)
+        The plant input as logged (NaN: missing samples, skipped).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(0)
+    >>> r = rng.standard_normal((3000, 1))
+    >>> held = np.repeat(rng.standard_normal((1000, 1)), 3, axis=0)
+    >>> read_structure(r, r - held).describe()
+    'u - r changes every 3 samples (at sample 0 of each block): F = 3, r enters at the plant input'
+    """
+    ra = np.asarray(r, dtype=float)
+    ua = np.asarray(u, dtype=float)
+    ra = ra[:, None] if ra.ndim == 1 else ra
+    ua = ua[:, None] if ua.ndim == 1 else ua
+    N = ua.shape[0]
+    hu = hold_of(ua)
+    if ra.shape[0] != N:  # a setpoint at the controller's rate
+        F_len = N // ra.shape[0] if ra.shape[0] and N % ra.shape[0] == 0 else None
+        if hu is None:
+            return LoopStructure("none", F_len, None, SETPOINT if F_len else None, r_low=True)
+        return LoopStructure("u", hu[0], hu[1], SETPOINT, r_low=True)
+    hd = hold_of(ua - ra) if ra.shape[1] == ua.shape[1] else None
+    if hu is None and hd is None:
+        return LoopStructure("none", None, None, None)
+    if hd is not None and hu is None:
+        return LoopStructure("u - r", hd[0], hd[1], PLANT_INPUT)
+    assert hu is not None
+    if hd is not None and hd == hu:
+        return LoopStructure("u and u - r", hu[0], hu[1], None)
+    F, s = hu
+    return LoopStructure("u", F, s, SETPOINT, _phase(ra, ua, F, s))
+
+
+@dataclass(frozen=True)
+class Settled:
+    """The loop's structure the data and the user agree on.
+
+    ``ratio``: F; ``injection``: where r enters; ``phase``: the controller's sampling phase
+    for a setpoint (None: the caller's, e.g. the model's); ``found``: what the data show;
+    ``notes``: what the user should know (a value taken because the data do not tell it).
+    """
+
+    ratio: int
+    injection: str
+    phase: int | None
+    found: LoopStructure
+    notes: tuple[str, ...] = ()
+
+
+def settle_structure(
+    found: LoopStructure,
+    *,
+    ratios: list[tuple[str, int]],
+    injections: list[tuple[str, str]],
+    phases: list[tuple[str, int]],
+) -> Settled:
+    """F, the injection point and a setpoint's phase: the data's, and the given must agree.
+
+    Each list holds ``(who says it, value)`` as the user gave it (a flag, the data file,
+    the model), first the one that counts. Where the data show a value, a given one that
+    differs is refused (ConfigError naming both); where they do not, the first given is
+    taken (F: ConfigError when none is; the injection point: the plant input, with a note).
+    """
+    notes: list[str] = []
+    if found.ratio is not None:
+        for who, F in ratios:
+            if F != found.ratio:
+                raise ConfigError(
+                    f"{found.held} changes every {found.ratio} samples: F = {found.ratio}, "
+                    f"not {F} ({who})"
+                )
+        ratio = found.ratio
+    elif ratios:
+        first, ratio = ratios[0]
+        for who, F in ratios[1:]:
+            if F != ratio:
+                raise ConfigError(f"ratio disagrees: {first} says {ratio}, {who} says {F}")
+    else:
+        raise ConfigError(
+            "ratio F unknown: u shows no hold to read it from; pass --ratio or --model"
+        )
+    if found.injection is not None:
+        for who, inj in injections:
+            if inj != found.injection:
+                raise ConfigError(f"{found.describe()}; {who} says injection {inj}")
+        injection = found.injection
+    elif injections:
+        injection = injections[0][1]
+    else:
+        injection = PLANT_INPUT
+        if found.ratio is not None or found.held == "none":
+            notes.append(
+                f"{found.describe()}; r taken as added at the plant input (state the "
+                "injection point, e.g. --injection setpoint, where it is the setpoint)"
+            )
+    phase = None
+    if injection == SETPOINT:
+        if found.phase is not None:
+            for who, q in phases:
+                if q != found.phase:
+                    raise ConfigError(
+                        f"the held u follows r sampled at sample {found.phase} of each "
+                        f"block, not at {q} ({who})"
+                    )
+            phase = found.phase
+        elif phases:
+            phase = phases[0][1]
+            notes.append(f"r does not tell the controller's phase: {phase} taken ({phases[0][0]})")
+    return Settled(ratio, injection, phase, found, tuple(notes))

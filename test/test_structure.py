@@ -1,0 +1,146 @@
+"""The loop's structure read from its data, and what contradicts it refused."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from mr_ident.app.identify import identify_recording
+from mr_ident.app.requests import IdentifyRequest, Reading
+from mr_ident.errors import ConfigError
+from mr_ident.io.datafile import read_identification, write_data, write_result
+from mr_ident.io.modelfile import model_from_dict
+from mr_ident.numerics.structure import hold_of, read_structure, settle_structure
+from mr_ident.numerics.systems.simulate import simulate
+
+
+def _loop(F: int, phase: int, delay: int, injection: str, seed: int = 0):
+    """A drawn first-order loop at F with a gentle P controller (stable for every delay)."""
+    rng = np.random.default_rng(seed)
+    pole = float(rng.uniform(2.0, 20.0))
+    model = model_from_dict(
+        {
+            "fs_high": 100.0 * F,
+            "ratio": F,
+            "plant": {"num": [pole], "den": [1.0, pole]},
+            "controller": {"num": [float(rng.uniform(0.05, 0.3))], "den": [1.0]},
+            "sample_phase": phase,
+            "control_delay": delay,
+            "injection": injection,
+            "noise_std": 0.01,
+        }
+    )
+    return model, simulate(model, duration=20.0, rng=rng)
+
+
+@pytest.mark.parametrize("injection", ["plant_input", "setpoint"])
+@pytest.mark.parametrize("F,phase,delay", [(2, 0, 0), (3, 2, 0), (4, 1, 2), (5, 3, 7), (8, 7, 1)])
+def test_f_the_hold_and_where_r_enters_are_read_from_the_data(injection, F, phase, delay):
+    model, sim = _loop(F, phase, delay, injection, seed=F + phase)
+    found = read_structure(sim.r, sim.u)
+    assert (found.ratio, found.hold_start, found.injection) == (F, (phase + delay) % F, injection)
+    if injection == "setpoint":
+        assert found.phase == phase  # white r: the held u follows r at the sampling phase
+    assert f"F = {F}" in found.describe()
+
+
+def test_a_measured_u_shows_no_hold_and_a_held_r_leaves_the_injection_open():
+    _, sim = _loop(3, 0, 0, "plant_input")
+    noisy = sim.u + 1e-3 * np.random.default_rng(1).standard_normal(sim.u.shape)
+    found = read_structure(sim.r, noisy)
+    assert (found.held, found.ratio, found.injection) == ("none", None, None)
+    held_r = np.repeat(sim.r[::3], 3, axis=0)
+    both = read_structure(held_r, held_r - np.repeat(sim.u[::3] - sim.r[::3], 3, axis=0))
+    assert (both.held, both.ratio, both.injection) == ("u and u - r", 3, None)
+    assert hold_of(np.ones((300, 1))) is None  # constant: nothing to read
+
+
+def test_a_hold_is_read_through_round_off_and_missing_samples():
+    rng = np.random.default_rng(2)
+    held = np.repeat(rng.standard_normal((400, 1)), 4, axis=0)
+    r = rng.standard_normal((1600, 1))
+    u = (r - held).astype(np.float32).astype(float)  # logged as float32
+    u[rng.choice(1600, 16, replace=False)] = np.nan
+    assert hold_of(u - r) == (4, 0)
+
+
+def test_what_contradicts_the_data_is_refused_naming_both():
+    _, sim = _loop(3, 1, 0, "setpoint")
+    found = read_structure(sim.r, sim.u)
+    with pytest.raises(ConfigError, match=r"u changes every 3 samples: F = 3, not 4 \(--ratio\)"):
+        settle_structure(found, ratios=[("--ratio", 4)], injections=[], phases=[])
+    with pytest.raises(ConfigError, match="the model says injection plant_input"):
+        settle_structure(found, ratios=[], injections=[("the model", "plant_input")], phases=[])
+    with pytest.raises(ConfigError, match="sampled at sample 1 of each block, not at 0"):
+        settle_structure(found, ratios=[], injections=[], phases=[("the model", 0)])
+    got = settle_structure(found, ratios=[("the model", 3)], injections=[], phases=[])
+    assert (got.ratio, got.injection, got.phase, got.notes) == (3, "setpoint", 1, ())
+
+
+def test_where_the_data_do_not_tell_the_given_is_taken_and_said():
+    _, sim = _loop(3, 0, 0, "plant_input")
+    noisy = sim.u + 1e-3 * np.random.default_rng(1).standard_normal(sim.u.shape)
+    found = read_structure(sim.r, noisy)
+    with pytest.raises(ConfigError, match="ratio F unknown: u shows no hold"):
+        settle_structure(found, ratios=[], injections=[], phases=[])
+    got = settle_structure(found, ratios=[("--ratio", 3)], injections=[], phases=[])
+    assert got.injection == "plant_input" and "--injection setpoint" in got.notes[0]
+    got = settle_structure(
+        found, ratios=[("--ratio", 3)], injections=[("--injection", "setpoint")], phases=[]
+    )
+    assert got.injection == "setpoint" and got.notes == ()
+
+
+def test_identify_reads_a_setpoint_loop_without_being_told(paper_model, tmp_path):
+    """No ratio anywhere, no injection: F, the setpoint and its phase from the data."""
+    model = replace(paper_model, injection="setpoint", sample_phase=2)
+    sim = simulate(model, duration=60.0, rng=np.random.default_rng(3))
+    path = tmp_path / "setpoint.npz"
+    np.savez(path, r=sim.r, u=sim.u, y=sim.y, fs_high=240.0)  # no ratio in the file
+    heard = []
+    got = identify_recording(IdentifyRequest(Reading(path), n=8), heard.append)
+    ident = got.identification
+    assert (got.ratio, ident.injection) == (3, "setpoint")
+    assert "samples r at sample 2" in got.structure
+    assert any("not determined" in n.text for n in heard)
+    P = paper_model.plant_frf(sim.n_samples)[1:]
+    err = np.abs(ident.plant.response - P) / np.abs(P)
+    assert np.median(err[~ident.undetermined]) < 1e-6
+    out = tmp_path / "result.npz"
+    write_result(out, ident, got.structure)
+    back = read_identification(out)
+    assert back.injection == "setpoint"
+    np.testing.assert_array_equal(back.undetermined, ident.undetermined)
+    assert str(np.load(out)["structure"]) == got.structure
+
+
+def test_identify_refuses_a_ratio_or_a_model_the_data_contradict(paper_model, tmp_path):
+    sim = simulate(paper_model, duration=20.0, rng=np.random.default_rng(4))
+    path = tmp_path / "plant_input.npz"
+    write_data(path, sim.r, sim.u, sim.y, fs_high=240.0, ratio=3)
+    with pytest.raises(ConfigError, match="u - r changes every 3 samples: F = 3, not 4"):
+        identify_recording(IdentifyRequest(Reading(path), ratio=4))
+    wrong = replace(paper_model, injection="setpoint")
+    with pytest.raises(ConfigError, match="r enters at the plant input; the model says"):
+        identify_recording(IdentifyRequest(Reading(path), model=wrong))
+
+
+def test_the_live_estimate_reads_a_setpoint_window_and_refuses_a_contradicting_parameter(
+    paper_model,
+):
+    from mr_ident.io.config import IdentConfig
+    from mr_ident.live.estimate import estimate
+
+    model = replace(paper_model, injection="setpoint", sample_phase=1)
+    sim = simulate(model, duration=30.0, rng=np.random.default_rng(5))
+    window = replace(sim, first=300)  # an absolute index on the F grid, as the aligner cuts
+    est = estimate(window, IdentConfig(fs_high=240.0, ratio=3, n=8))
+    ident = est.identification
+    assert ident.injection == "setpoint" and est.phase == 1 and "setpoint" in est.structure
+    P = paper_model.plant_frf(sim.n_samples)[1:]
+    err = np.abs(ident.plant.response - P) / np.abs(P)
+    assert np.median(err[~ident.undetermined]) < 1e-4  # the LPM's bias at 30 s: about 4e-6
+    with pytest.raises(ConfigError, match="injection says injection plant_input"):
+        estimate(window, IdentConfig(fs_high=240.0, ratio=3, n=8, injection="plant_input"))
+    with pytest.raises(ConfigError, match="F = 3, not 4"):
+        estimate(window, IdentConfig(fs_high=240.0, ratio=4, n=12))
