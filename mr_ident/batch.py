@@ -321,6 +321,7 @@ def _diagnose(job: Job, opts: BatchOptions, reading: Reading) -> dict[str, str]:
         ratio=opts.ratio,
         rates="agree",
         names=(job.recording, ""),
+        injection=opts.injection,
     )
     got = diagnose_recording(req)
     d, data = got.diagnosis, got.data

@@ -201,3 +201,27 @@ def test_the_models_injection_is_read_written_and_checked(paper_model):
         model_from_dict(d | {"injection": "reference"})
     with pytest.raises(ModelError, match="needs a controller"):
         model_from_dict({k: v for k, v in d.items() if k != "controller"})
+
+
+def test_diagnose_simulates_the_model_with_r_at_the_setpoint_and_finds_the_plants_gain(
+    paper_model, tmp_path
+):
+    """The model file says nothing of where r enters: the data do (the held u)."""
+    from mr_ident.app.diagnose import diagnose_recording
+    from mr_ident.app.requests import DiagnoseRequest, Reading
+    from mr_ident.io.datafile import write_data
+
+    true = replace(paper_model, injection="setpoint", noise_std=0.02, plant_gain=1.2)
+    paths = []
+    for seed in (1, 2):
+        sim = simulate(true, duration=60.0, rng=np.random.default_rng(seed))
+        paths.append(tmp_path / f"run{seed}.npz")
+        write_data(paths[-1], sim.r, sim.u, sim.y, fs_high=240.0, ratio=3)
+    got = diagnose_recording(
+        DiagnoseRequest(Reading(paths[0]), paper_model, validate=paths[1], max_causes=1)
+    )
+    d = got.diagnosis
+    assert got.model.injection == "setpoint"
+    assert [a.cause for a in d.applied] == ["gain_error"]
+    assert abs(d.applied[0].parameters["gain"] - 1.2) < 0.01
+    assert d.relation is not None and d.relation.exact  # u is K (r - y), to round-off

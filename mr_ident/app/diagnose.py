@@ -54,6 +54,7 @@ def diagnose_recording(req: DiagnoseRequest, notify: Notify = ignore) -> Diagnos
     assert model is not None
     specs = req.reading.specs()
     data = _read(req, req.reading, model, specs, heard)
+    model = _with_injection(model, data, req.injection)
     val = None
     if req.validate is not None:
         val = _read(req, replace(req.reading, path=req.validate), model, specs, heard)
@@ -72,6 +73,29 @@ def diagnose_recording(req: DiagnoseRequest, notify: Notify = ignore) -> Diagnos
         more=more,
     )
     return Diagnosed(d, model, data, tuple(heard.notices))
+
+
+def _with_injection(model: Model, data: LoopData, injection: str | None) -> Model:
+    """``model`` with r entering where the data show it (and the request and model agree).
+
+    F and where r enters are read from the record
+    (:func:`~mr_ident.numerics.structure.settle_structure`; ConfigError where the data
+    contradict the model's ratio, its ``injection`` or ``injection``); the controller's phase
+    is not checked here: a sampling offset is one of the causes diagnose looks for.
+    """
+    from ..numerics.structure import read_structure, settle_structure
+
+    settled = settle_structure(
+        read_structure(data.r, data.u),
+        ratios=[("the model", model.ratio)],
+        injections=[
+            (who, v)
+            for who, v in (("--injection", injection), ("the model", model.injection))
+            if v is not None
+        ],
+        phases=[],
+    )
+    return replace(model, injection=settled.injection)
 
 
 def _read(

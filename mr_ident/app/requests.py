@@ -141,7 +141,8 @@ class DiagnoseRequest:
     (nonlinear distortion across records); ``names``: how the report names the first two
     (default: their paths). ``rates``: "file" takes a data file's own
     rates where it gives them, else the model's (``diagnose``); "agree": ``fs_high``,
-    ``ratio``, the file and the model must agree (``batch``).
+    ``ratio``, the file and the model must agree (``batch``). ``injection``: where r
+    entered (None: as the data show it).
     """
 
     reading: Reading
@@ -157,6 +158,7 @@ class DiagnoseRequest:
     rates: Literal["file", "agree"] = "file"
     names: tuple[str, str] | None = None
     more: tuple[Path, ...] = ()
+    injection: str | None = None
 
 
 @dataclass(frozen=True)

@@ -36,6 +36,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         alpha=args.alpha,
         max_causes=args.max_causes,
         more=tuple(args.validate[1:]) if args.validate else (),
+        injection=args.injection,
     )
     outcome = diagnose_recording(req, show)
     d = outcome.diagnosis

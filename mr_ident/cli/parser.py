@@ -293,6 +293,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=3,
         help="most causes applied in turn (default 3)",
     )
+    _injection(g)
 
     b = sub.add_parser(
         "batch",

@@ -2,7 +2,8 @@
 """The controller's own equation: whether the logged u follows from the logged y and r.
 
 In closed loop the record holds both sides of the controller: the y it sampled and the u
-it applied, ``u_h = r_h - H_u K_l S_d y_h``. Given the measured r and y, the model's
+it applied, ``u_h = r_h - H_u K_l S_d y_h`` (r at the plant input) or ``u_h = H_u K_l S_d
+(r_h - y_h)`` (r the setpoint: the model's ``injection``). Given the measured r and y, the model's
 controller (its K_l, notches, sampling phase and control delay) predicts u with no noise
 at all: the plant and its noise enter only through y, which is measured. So the
 controller's side of the loop is checked on this equation alone, exactly, before any
@@ -167,16 +168,20 @@ class Equation:
 
     def __init__(self, rec: LoopData, nominal: Model):
         self.u_missing, self.y_missing = np.isnan(rec.u), np.isnan(rec.y)
-        self.r = rec.r
         self.u = np.where(self.u_missing, 0.0, rec.u)
         self.y = np.where(self.y_missing, 0.0, rec.y)
+        # the controller's output as the logged u gives it, and what the controller samples:
+        # u = r - u_c and y (r at the plant input), or u = -u_c and y - r (r the setpoint)
+        setpoint = nominal.injection == "setpoint"
+        self.logged = -self.u if setpoint else rec.r - self.u
+        self.sampled = self.y - rec.r if setpoint else self.y
         self.F = nominal.ratio
         self.M = rec.n_samples // self.F
         hold = nominal.sample_phase + nominal.control_delay
         self.start = self.F * (hold // self.F + 6)
         idx = np.arange(self.start, self.F * self.M)
         self.keep = ~self.u_missing[idx].ravel()  # the equations of a missing u: left out
-        out = (self.r[idx] - self.u[idx]).ravel()[self.keep]
+        out = self.logged[idx].ravel()[self.keep]
         ones: FloatArray = np.tile(np.eye(self.u.shape[1]), (idx.size, 1))
         self._const = ones  # (n * n_u, n_u): a constant per channel
         self.scale = float(np.sqrt(np.mean(project_out(ones[self.keep], out) ** 2))) or 1.0
@@ -218,7 +223,7 @@ class Equation:
         Shapes (M, n_u) and (M, n_u, nk), one row per low-rate period.
         """
         K = model.controller_ss()
-        ys = self.y[model.sample_phase :: self.F][: self.M]
+        ys = self.sampled[model.sample_phase :: self.F][: self.M]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # a defective controller: the direct recursion
             return StateRecursion(K).run(ys), _free_responses(K, self.M)
@@ -234,7 +239,7 @@ class Equation:
         src = m - j
         if src.size and src[0] < 0:  # a hold longer than the candidates' (never in relate)
             return np.full(idx.size * self.u.shape[1], math.inf)
-        e = self.u[idx] - self.r[idx] + uc[src]
+        e = uc[src] - self.logged[idx]
         res = e.ravel()[self.keep] / self.scale
         unknown = np.concatenate([free, self.holes(model)], axis=2)  # state, missing y
         nk = unknown.shape[-1]
@@ -340,7 +345,7 @@ def notch_start(eq: Equation, base: Model) -> Choice | None:
 
     def uc(lag: int) -> FloatArray:
         n = (k - lag + jl) * F + F - 1
-        return np.asarray(eq.r[n] - eq.u[n], float)
+        return np.asarray(eq.logged[n], float)
 
     cols = [-uc(1), -uc(2), z[k], z[k - 1], z[k - 2]]
     cols += [free[k - lag][:, :, i] for i in range(free.shape[-1]) for lag in range(3)]

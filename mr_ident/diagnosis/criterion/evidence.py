@@ -138,10 +138,17 @@ def periodic_plant(rec: LoopData) -> tuple[NDArray, NDArray, NDArray, NDArray, i
     return lines, P[:, :, None], np.sqrt(np.maximum(var_P, 0.0))[:, :, None], Rm, n_per - 1
 
 
+def _rowmax(z: FloatArray) -> FloatArray:
+    """The largest finite entry of each bin, (K,); NaN where a bin has none (not determined)."""
+    flat = z.reshape(z.shape[0], -1)
+    ok = np.isfinite(flat).any(axis=1)
+    return np.where(ok, np.max(np.where(np.isfinite(flat), flat, -np.inf), axis=1), np.nan)
+
+
 def identify_record(
     rec: LoopData, model: Model, *, n: int = 8, degree: int = 2
 ) -> Identification | None:
-    """``freq-lifted`` identification of a record.
+    """``freq-lifted`` identification of a record, r where the model's ``injection`` says.
 
     Lifted maps kept (None for periodic data, which is estimated from its periods instead).
     One run serves :func:`frf_evidence` for any model with the same controller structure and
@@ -161,6 +168,7 @@ def identify_record(
         n=n,
         degree=degree,
         keep_lifted=True,
+        injection=model.injection or "plant_input",
         **model.identify_arguments(rec.n_samples),
     )
 
@@ -202,6 +210,7 @@ def frf_evidence(
             model.controller is not None
             and ident.lifted_J is not None
             and ident.lifted_S is not None
+            and ident.lifted_J.ratio == model.ratio  # a setpoint's maps are not lifted
         ):
             J, S = ident.lifted_J, ident.lifted_S
             P_full = half_to_full(model.plant_frf(N), N)
@@ -230,7 +239,7 @@ def frf_evidence(
         reaches_dc(f, rec.rates()[0] / N, n) if rec.period is None else np.zeros(f.size, bool)
     )
     zP = np.where(np.isfinite(zP), zP, np.nan)
-    z = np.nanmax(zP.reshape(zP.shape[0], -1), axis=1) if zP.size else np.zeros(0)
+    z = _rowmax(zP)
     thr = threshold(alpha, int(np.isfinite(zP[~untested]).sum()), dof)
     return Evidence(
         f,

@@ -150,7 +150,7 @@ def output_error(model: Model, rec: LoopData) -> LoopData | None:
     drive = driving_input(rec, model)
     with warnings.catch_warnings():  # an integrator's Jordan block: the direct recursion
         warnings.filterwarnings("ignore", "simulate: state matrix", RuntimeWarning)
-        _, y_plant = LoopStream(replace(model, controller=None)).next(drive)
+        _, y_plant = LoopStream(replace(model, controller=None, injection=None)).next(drive)
     step = rec.n_samples // y.shape[0]
     obs = free_response(P, rec.n_samples)
     if model.controller is None:  # open loop: what u's mean, taken out, did (a ramp, 1/s)

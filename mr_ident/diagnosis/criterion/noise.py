@@ -110,7 +110,7 @@ def noise_spectrum(
         assert ident is not None
         J = ident.lifted_J
         assert J is not None
-        F, N, ny = rec.rates()[1], rec.n_samples, y.shape[1]
+        F, N, ny = J.ratio, rec.n_samples, y.shape[1]  # F = 1: a setpoint's high-rate fit
         M = N // F
         cv = np.real(np.diagonal(J.row_cov, axis1=1, axis2=2)).reshape(-1, F, ny)  # (K, F, n_y)
         S = np.full((N // 2 + 1, ny), np.nan)

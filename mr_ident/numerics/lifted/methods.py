@@ -241,7 +241,8 @@ def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
     slow = req.y.shape[0] != N  # y at the low rate: r -> y is one lifted block row
     n_row = ny if slow else F * ny  # rows of the r -> y part of the fit
     plan = req.plan(Kc + 1)
-    keep = req.keep_lifted and ratio is None and not slow and covers(plan, Kc + 1)
+    # the maps of the request's loop: lifted by its F (lpm's of a setpoint loop: F = 1)
+    keep = req.keep_lifted and F == req.ratio and not slow and covers(plan, Kc + 1)
     pfg = empty_pfg(N) if req.data_pfg and ratio is None and not slow else None
 
     step = block_bins(F, req.r.shape[1], max(ny, nu))
