@@ -39,10 +39,12 @@ def bode_figure(
     models: Sequence[tuple[str, FRF, Mapping[str, Any]]] = (),
     nyquist_low: float | None = None,
     title: str | None = None,
+    undetermined: NDArray[np.bool_] | None = None,
 ) -> Figure:
     """Bode magnitude and phase of an estimate with a +-2 sigma band, and reference curves.
 
-    ``models`` holds ``(label, frf, line style)`` triples drawn over the estimate.
+    ``models`` holds ``(label, frf, line style)`` triples drawn over the estimate;
+    ``undetermined`` (n_freq,) marks the bins the data do not determine (shaded).
     """
     ny, nu = frf.n_out, frf.n_in
     fig = Figure(figsize=(5.5 * nu + 1, 6.5 * ny))
@@ -67,6 +69,10 @@ def bode_figure(
             for ax in (am, ap):
                 if nyquist_low:
                     ax.axvline(nyquist_low, color="0.5", ls=":", lw=1)
+                for k, (a, b) in enumerate(_runs(f, undetermined)):
+                    zero = "not determined (hold zero)" if ax is am and k == 0 else None
+                    ax.axvspan(a, b, color="C3", alpha=0.15, lw=0)
+                    ax.axvline((a + b) / 2, color="C3", ls="--", lw=0.8, label=zero)
                 ax.grid(True, which="both", alpha=0.3)
             am.set_ylabel(f"|P[{o},{i}]| [dB]")
             ap.set_ylabel("phase [deg]")
@@ -87,6 +93,15 @@ def bode_figure(
     return fig
 
 
+def _runs(f: NDArray, mask: NDArray[np.bool_] | None) -> list[tuple[float, float]]:
+    """The frequency spans of the runs of True in ``mask`` (none when None)."""
+    if mask is None or not mask.any():
+        return []
+    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    return [(float(f[a]), float(f[b])) for a, b in zip(starts, stops, strict=True)]
+
+
 def plot_bode(
     frf: FRF,
     path: str | Path,
@@ -94,10 +109,14 @@ def plot_bode(
     model: FRF | None = None,
     nyquist_low: float | None = None,
     title: str | None = None,
+    undetermined: NDArray[np.bool_] | None = None,
 ) -> Path:
     """:func:`bode_figure` with the model (dashed black) when given, saved to ``path``."""
     models = [("model", model, {"color": "k", "ls": "--"})] if model is not None else []
-    return _save(bode_figure(frf, models=models, nyquist_low=nyquist_low, title=title), path)
+    fig = bode_figure(
+        frf, models=models, nyquist_low=nyquist_low, title=title, undetermined=undetermined
+    )
+    return _save(fig, path)
 
 
 def plot_pfg(

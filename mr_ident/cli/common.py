@@ -67,7 +67,10 @@ def write_plots(
 
     nyq = fs / F / 2 if F > 1 else None
     mfrf = model.plant_result(N) if model is not None else None
-    print(f"wrote {plot_bode(ident.plant, path, model=mfrf, nyquist_low=nyq)}")
+    bode = plot_bode(
+        ident.plant, path, model=mfrf, nyquist_low=nyq, undetermined=ident.undetermined
+    )
+    print(f"wrote {bode}")
     shown = [g for g in (ident.pfg_data, ident.pfg) if g is not None]
     if shown:
         ref = (

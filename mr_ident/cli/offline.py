@@ -26,6 +26,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from ..numerics.systems.simulate import simulate
 
     model = load_model(args.model)
+    if args.injection:
+        from dataclasses import replace
+
+        model = replace(model, injection=args.injection)
     sim = simulate(model, duration=args.duration, rng=np.random.default_rng(args.seed))
     write_data(args.out, sim.r, sim.u, sim.y, fs_high=model.fs_high, ratio=model.ratio)
     print(

@@ -129,6 +129,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="seconds (rounded to whole low-rate periods)",
     )
     s.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    s.add_argument(
+        "--injection",
+        choices=("plant_input", "setpoint"),
+        help="where the white r enters: added to the plant input, or as the controller's "
+        "setpoint (default: the model's injection, else the plant input)",
+    )
     s.add_argument("--out", type=Path, required=True, help="data file, .csv or .npz")
 
     i = sub.add_parser("identify", help="identify P_h (and the PFG) from r, u, y data")

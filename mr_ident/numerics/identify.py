@@ -370,7 +370,10 @@ def identify(
             fs_high=float(fs_high),
             workers=n_workers,
         )
-        pfg = PFG(g.frequency[1:], g.gain[1:], g.std[1:], f"plant:{method}")
+        gain, std = g.gain[1:], g.std[1:]
+        if undetermined is not None:  # every alias of such a bin is near a zero too
+            gain, std = (np.where(undetermined, np.nan, x) for x in (gain, std))
+        pfg = PFG(g.frequency[1:], gain, std, f"plant:{method}")
     return Identification(
         plant=plant,
         pfg=pfg,

@@ -65,9 +65,10 @@ GROWTH = 1.5
 SPAN = 4.0
 #: The same with r at the setpoint: above the controller's band the plant input is only the
 #: hold's images of the controller's output, weak, and the plant smooth there; wider windows
-#: win (paper's loop, 600 s, noise 0.02: median error 4.7 % with 4, 1.5 % with 32, where
-#: Welch's best segment length gives 1.7 %; docs/setpoint.md).
-SPAN_SETPOINT = 32.0
+#: win (paper's loop, 600 s, noise 0.02, 80-120 Hz: median error 17 % with 32, 12 % with
+#: 64, 9.7 % with 128; the time 0.8x, 1.1x, 1.5x a plant-input identification's; make
+#: bench-setpoint).
+SPAN_SETPOINT = 64.0
 #: Share of the centre bins on which the candidates are fitted (the probe).
 PROBE_SHARE = 0.02
 #: Probe segments at least, whatever the record's length. 6, 12 and 24 were measured on
@@ -83,7 +84,7 @@ def candidates(n_min: int, n_max: int, span: float = SPAN) -> tuple[int, ...]:
     >>> candidates(8, 1000)
     (8, 12, 18, 27)
     >>> candidates(8, 1000, span=SPAN_SETPOINT)
-    (8, 12, 18, 27, 41, 62, 93, 140, 210)
+    (8, 12, 18, 27, 41, 62, 93, 140, 210, 315, 473)
     >>> candidates(8, 10)
     (8,)
     """
