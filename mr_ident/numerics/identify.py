@@ -29,11 +29,11 @@ from .lifted.spectra import Spectra
 from .lifting import check_ratio
 from .local.bandwidth import (
     SPAN,
-    SPAN_SETPOINT,
     candidates,
     centre_bins,
     choose_widths,
     probe_runs,
+    setpoint_span,
 )
 from .local.segments import Run, runs_of
 from .results import FRF, PFG, Identification
@@ -293,7 +293,7 @@ def identify(
         )
     ns: tuple[int, ...] = (n0,)
     if auto and m.uses_lpm:
-        span = SPAN_SETPOINT if setpoint else SPAN
+        span = setpoint_span(n0, N / float(fs_high)) if setpoint else SPAN
         ns = candidates(n0, (N // (2 * m.lift(F_fit)) - 1) // 2, span)
 
     n_missing = np.concatenate([np.isnan(ya).sum(axis=0), np.isnan(ua).sum(axis=0)])

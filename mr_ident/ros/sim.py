@@ -34,15 +34,15 @@ from .program import Stop, handle_signals, ros_context, spin_until_stopped
 
 
 def excitation_signal(path: str, model: Model) -> FloatArray:
-    """Every realization of an excitation file one after another, shape (M·P·N, n_u).
+    """Every realization of an excitation file one after another, shape (M·P·N, n_r).
 
     MrIdentError when the file's rate or inputs are not the model's.
     """
     r, fs, _ = read_excitation(path)
     if fs != model.fs_high:
         raise MrIdentError(f"{path} is at fs_high = {fs:g} Hz, the model at {model.fs_high:g} Hz")
-    if r.shape[2] != model.n_u:
-        raise MrIdentError(f"{path} has {r.shape[2]} input(s), the model {model.n_u}")
+    if r.shape[2] != model.n_r:
+        raise MrIdentError(f"{path} has {r.shape[2]} input(s), the model's r {model.n_r}")
     return r.reshape(-1, r.shape[2])
 
 

@@ -22,14 +22,14 @@ from ..systems.simulate import LoopStream
 
 
 def multisine(model: Model, period_s: float, rng: np.random.Generator) -> FloatArray:
-    """One period (P, n_u) of a random-phase multisine, flat on bins 1..P/2-1.
+    """One period (P, n_r) of a random-phase multisine, flat on bins 1..P/2-1.
 
     Its RMS is the model's ``reference_std``.
     """
     F = model.ratio
     P = F * max(2, int(round(period_s * model.fs_high / F)))
-    spec = np.zeros((P // 2 + 1, model.n_u), dtype=complex)
-    spec[1 : P // 2] = np.exp(2j * np.pi * rng.random((P // 2 - 1, model.n_u)))
+    spec = np.zeros((P // 2 + 1, model.n_r), dtype=complex)
+    spec[1 : P // 2] = np.exp(2j * np.pi * rng.random((P // 2 - 1, model.n_r)))
     x = np.fft.irfft(spec, n=P, axis=0)
     out: FloatArray = model.reference_std * x / np.sqrt(np.mean(x**2, axis=0))
     return out
@@ -38,7 +38,7 @@ def multisine(model: Model, period_s: float, rng: np.random.Generator) -> FloatA
 class Excitation:
     """Endless reference: white noise, a multisine period after period, or a signal looped.
 
-    ``kind`` "signal": the given ``signal`` (n, n_u) played in a loop (a designed
+    ``kind`` "signal": the given ``signal`` (n, n_r) played in a loop (a designed
     excitation, e.g. every realization of ``mr-ident excite`` one after another).
     """
 
@@ -53,18 +53,18 @@ class Excitation:
         self.model, self.kind, self.rng = model, kind, rng
         self._period = multisine(model, period_s, rng) if kind == "multisine" else None
         if kind == "signal":
-            if signal is None or signal.ndim != 2 or signal.shape[1] != model.n_u:
+            if signal is None or signal.ndim != 2 or signal.shape[1] != model.n_r:
                 got = None if signal is None else signal.shape
                 raise ConfigError(
-                    f"an excitation signal must have shape (n, n_u={model.n_u}), got {got}"
+                    f"an excitation signal must have shape (n, n_r={model.n_r}), got {got}"
                 )
             self._period = np.asarray(signal, float)
 
     def take(self, first: int, n: int) -> FloatArray:
-        """Samples ``first .. first + n - 1`` of the reference, shape (n, n_u)."""
+        """Samples ``first .. first + n - 1`` of the reference, shape (n, n_r)."""
         if self._period is None:
             white: FloatArray = self.model.reference_std * self.rng.standard_normal(
-                (n, self.model.n_u)
+                (n, self.model.n_r)
             )
             return white
         P = self._period.shape[0]
@@ -91,7 +91,7 @@ class SimSource:
         self.exc = Excitation(model, excitation, self.rng, period_s, signal)
         self.loop = LoopStream(model)
         self.next_index = start_index
-        self._buf = np.zeros((0, model.n_u + model.n_u + model.n_y))
+        self._buf = np.zeros((0, model.n_r + model.n_u + model.n_y))
 
     def next(self) -> tuple[int, FloatArray, FloatArray, FloatArray]:
         """The next block: ``(first, r, u, y)``, each (block, channels)."""
@@ -106,14 +106,14 @@ class SimSource:
         out, self._buf = self._buf[:b], self._buf[b:]
         first = self.next_index
         self.next_index += b
-        nu = m.n_u
-        return first, out[:, :nu], out[:, nu : 2 * nu], out[:, 2 * nu :]
+        nr, nu = m.n_r, m.n_u
+        return first, out[:, :nr], out[:, nr : nr + nu], out[:, nr + nu :]
 
 
 class Follower:
     """The loop driven by reference blocks: each index simulated once, u and y published.
 
-    ``offer(first, r)`` takes a block of r (n, n_u) at index ``first`` and returns the
+    ``offer(first, r)`` takes a block of r (n, n_r) at index ``first`` and returns the
     (first, u, y) that became ready (whole multiples of F; the rest waits for the next
     block). Pure numpy; ``mr-ident-sim --reference-topic`` feeds it from a
     subscription.
@@ -125,7 +125,7 @@ class Follower:
         self.rng = np.random.default_rng(seed)
         self.next: int | None = None  # the first index not yet simulated
         self.start: int | None = None  # the first index simulated
-        self._pending = np.zeros((0, model.n_u))
+        self._pending = np.zeros((0, model.n_r))
         self.gap_samples = 0
         self.repeated_samples = 0
 
@@ -137,7 +137,7 @@ class Follower:
     def offer(self, first: int, r: FloatArray) -> tuple[int, FloatArray, FloatArray] | None:
         """Simulate what ``r`` at ``first`` completes; None when nothing is ready yet."""
         m, F = self.model, self.model.ratio
-        r = np.asarray(r, float).reshape(-1, m.n_u)
+        r = np.asarray(r, float).reshape(-1, m.n_r)
         if self.next is None:
             start = -(-first // F) * F  # the loop starts on a multiple of F
             r, first = r[start - first :], start
@@ -153,7 +153,7 @@ class Follower:
             r, first = r[end - first :], end
         if first > end:  # never came: the loop ran on with r = 0
             self.gap_samples += first - end
-            r = np.concatenate([np.zeros((first - end, m.n_u)), r])
+            r = np.concatenate([np.zeros((first - end, m.n_r)), r])
         r = np.concatenate([self._pending, r])
         n = r.shape[0] // F * F
         r, self._pending = r[:n], r[n:]

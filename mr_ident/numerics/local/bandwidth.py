@@ -63,12 +63,27 @@ from .strided import offsets_for
 GROWTH = 1.5
 #: The largest candidate is at most this many times the smallest.
 SPAN = 4.0
-#: The same with r at the setpoint: above the controller's band the plant input is only the
-#: hold's images of the controller's output, weak, and the plant smooth there; wider windows
-#: win (paper's loop, 600 s, noise 0.02, 80-120 Hz: median error 17 % with 32, 12 % with
-#: 64, 9.7 % with 128; the time 0.8x, 1.1x, 1.5x a plant-input identification's; make
-#: bench-setpoint).
-SPAN_SETPOINT = 64.0
+#: The same with r at the setpoint, at most: above the controller's band the plant input is
+#: only the hold's images of the controller's output, weak, and the plant smooth there:
+#: wider windows win (paper's loop, 600 s, noise 0.02, 80-120 Hz: median error 17 % with 32,
+#: 12 % with 64, 9.7 % with 128), at a cost that grows with the widest window's sums (the
+#: time 0.8x, 2.5x and more a plant-input identification's); make bench-setpoint.
+SPAN_SETPOINT = 32.0
+#: With r at the setpoint the widest candidate spans this many Hz on either side (at least
+#: SPAN, at most SPAN_SETPOINT times the narrowest): the plant's smoothness is in Hz, so a
+#: short record needs fewer bins for it and keeps a plant-input identification's time.
+WIDEST_SETPOINT_HZ = 0.35
+
+
+def setpoint_span(n_min: int, duration_s: float) -> float:
+    """The span of the candidates of a setpoint-excited record of ``duration_s`` seconds.
+
+    >>> setpoint_span(8, 600.0), setpoint_span(8, 120.0), setpoint_span(8, 30.0)
+    (26.25, 5.25, 4.0)
+    """
+    return float(np.clip(WIDEST_SETPOINT_HZ * duration_s / n_min, SPAN, SPAN_SETPOINT))
+
+
 #: Share of the centre bins on which the candidates are fitted (the probe).
 PROBE_SHARE = 0.02
 #: Probe segments at least, whatever the record's length. 6, 12 and 24 were measured on
@@ -84,7 +99,7 @@ def candidates(n_min: int, n_max: int, span: float = SPAN) -> tuple[int, ...]:
     >>> candidates(8, 1000)
     (8, 12, 18, 27)
     >>> candidates(8, 1000, span=SPAN_SETPOINT)
-    (8, 12, 18, 27, 41, 62, 93, 140, 210, 315, 473)
+    (8, 12, 18, 27, 41, 62, 93, 140, 210)
     >>> candidates(8, 10)
     (8,)
     """
