@@ -133,7 +133,13 @@ def test_diagnose_applies_what_the_equation_settled_and_rules_out_the_rest():
     )
     assert abs(d.parameters["depth"] - h["depth"]) < 1e-6
     ruled = {c.cause for c in d.ranking if not c.applicable and "equation" in c.description}
-    assert ruled == {"controller_notch", "control_delay", "sampling_offset"}
+    assert ruled == {
+        "controller_gain",
+        "controller_notch",
+        "controller_retuned",
+        "control_delay",
+        "sampling_offset",
+    }
 
 
 def test_a_two_by_two_loop_with_a_notch_on_both_channels_and_an_offset(mimo_model):

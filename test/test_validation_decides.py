@@ -82,7 +82,7 @@ def test_a_dead_zone_under_every_odd_line_gets_no_extension_the_validation_refus
     d = diagnose(model, _record(dead_zone, 0), _record(dead_zone, 1))
     v = d.decision
     assert v is not None and v.candidates, "the estimation data accept causes"
-    assert not v.validated and d.applied == [] and d.cause == "none"
+    assert not v.validated and d.applied == [] and d.cause == "nonlinear_distortion"
     assert d.extended == model and d.fit_after.y == d.fit_before.y
     assert v.fit_candidates.y < d.fit_before.y  # the candidates validate worse
     assert all(not k.validated and k.gain.z <= v.z_critical for k in v.checks)

@@ -95,6 +95,8 @@ def _with_injection(model: Model, data: LoopData, injection: str | None) -> Mode
         ],
         phases=[],
     )
+    if settled.injection == "plant_input" and model.injection is None:
+        return model  # as simulated without saying so: the model file stays as it was
     return replace(model, injection=settled.injection)
 
 

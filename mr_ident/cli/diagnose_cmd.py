@@ -79,6 +79,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         f"{', '.join(a.cause for a in d.applied) or 'none'}; fit y {d.fit_before.y:.1f} % -> "
         f"{d.fit_after.y:.1f} %{fu}"
     )
+    if d.headline is not None:
+        print(f"  verdict: {d.headline.text}")
     for a in d.applied:
         spread = ", ".join(
             f"{k} ± {v:.2g}" for k, v in a.std.items() if v > 0 and k in a.parameters

@@ -34,7 +34,6 @@ rates) and a nominal :class:`~mr_ident.numerics.systems.model.Model`, :func:`dia
 from __future__ import annotations
 
 import functools
-import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, ParamSpec
@@ -43,7 +42,7 @@ import numpy as np
 
 from ..errors import ConfigError, DataError
 from ..numerics.excitation.bla import BandLevels
-from ..numerics.identify import default_n, min_samples
+from ..numerics.identify import default_n
 from ..numerics.lifted.pfg_check import ControllerCheck, check_controller
 from ..numerics.signals import LoopData
 from ..numerics.systems.model import Model
@@ -54,79 +53,21 @@ from .controller.relation import ControllerRelation, relate
 from .criterion.distortion import NL_THRESHOLD_DB as NL_THRESHOLD_DB  # re-exported
 from .criterion.distortion import blind_text, distortion, lines_nonlinear, lines_text
 from .criterion.evidence import Evidence, frf_evidence, identify_record
-from .criterion.holes import check_missing
 from .criterion.noise import noise_spectrum
+from .criterion.nonlinearity import summarize
 from .criterion.objective import Objective, settle_samples
 from .criterion.prediction import TimeFit, centred, predict, time_fit
 from .criterion.realizations import SpreadLevels, records_spread, spread_nonlinear, spread_text
+from .criterion.records import check_record as check_record  # re-exported
+from .criterion.records import min_record as min_record  # re-exported
+from .criterion.records import split as split  # re-exported
 from .criterion.timevarying import Segments, within
+from .criterion.unexplained import Unexplained, criterion_noise, unexplained
 from .selection.correction import Correction, correction
 from .selection.equivalence import with_equivalents
 from .selection.forward import SCREEN_SAMPLES, select
+from .selection.headline import Headline, headline
 from .selection.validation import Validation, decide
-
-
-def min_record(n: int, ratio: int) -> int:
-    """The shortest record diagnose takes.
-
-    Twice what ``freq-lifted`` identification needs
-    (:func:`~mr_ident.numerics.identify.min_samples`), i.e. 4 (2n+1) F, so that the noise
-    spectrum, smoothed over 33 bins, rests on enough bins.
-    """
-    return 2 * min_samples("freq-lifted", n, ratio)
-
-
-def check_record(model: Model, rec: LoopData, *, n: int = 8, what: str = "data") -> None:
-    """Model and data must agree on rates and channels, and the data must be long enough.
-
-    Raises
-    ------
-    DataError
-    """
-    if rec.fs_high is None or rec.ratio is None:
-        raise DataError(
-            f"{what}: fs_high and ratio must be known (got {rec.fs_high}, {rec.ratio})"
-        )
-    if not math.isclose(rec.fs_high, model.fs_high, rel_tol=1e-9):
-        raise DataError(
-            f"{what}: fs_high is {rec.fs_high:g} Hz but the model says {model.fs_high:g} Hz"
-        )
-    if rec.ratio != model.ratio:
-        raise DataError(f"{what}: the ratio F is {rec.ratio} but the model says {model.ratio}")
-    if rec.y_step != 1:
-        raise DataError(
-            f"{what}: y has {rec.y.shape[0]} samples, the low rate; diagnose simulates y at the "
-            f"high rate and needs all N = {rec.n_samples} (identify takes a low-rate y)"
-        )
-    check_missing(rec, n, what)  # holes of u and y: within the limits (criterion.holes)
-    if rec.u.shape[1] != model.n_u or rec.y.shape[1] != model.n_y:
-        raise DataError(
-            f"{what} has {rec.u.shape[1]} input and {rec.y.shape[1]} output channels; "
-            f"the model has n_u={model.n_u}, n_y={model.n_y}"
-        )
-    if rec.period is not None:
-        if rec.period < 2 or rec.n_samples % rec.period or rec.n_samples // rec.period < 4:
-            raise DataError(
-                f"{what}: period {rec.period} must divide N = {rec.n_samples} into at least "
-                f"4 periods (the first is dropped as transient)"
-            )
-        return
-    need = min_record(n, model.ratio)
-    if rec.n_samples < need:
-        raise DataError(
-            f"{what} is too short for the LPM window: N = {rec.n_samples} samples, "
-            f"need at least {need} (4 x (2n+1) x F with n = {n})"
-        )
-
-
-def split(rec: LoopData, fraction: float = 0.7) -> int:
-    """Sample index where the estimation part ends and the held-out part begins.
-
-    The first ``fraction`` of the record, rounded down to whole periods (periodic data)
-    or to a multiple of F.
-    """
-    unit = rec.period or rec.ratio or 1
-    return int(rec.n_samples * fraction) // unit * unit
 
 
 @dataclass(frozen=True)
@@ -136,9 +77,10 @@ class Diagnosis:
     Attributes
     ----------
     cause : str
-        The first accepted cause, or ``"none"``.
+        The verdict's cause (:attr:`headline`): the first applied cause,
+        ``"nonlinear_distortion"``, ``"plant_correction"``, ``"unexplained"`` or ``"none"``.
     parameters : dict
-        Its fitted parameters.
+        Its fitted parameters (or the finding's figures).
     ranking : list of CauseFit
         All causes fitted against the nominal model, best first.
     applied : list of CauseFit
@@ -187,6 +129,13 @@ class Diagnosis:
     segments : Segments or None
         The plant estimates of consecutive segments of ``data`` against their noise
         (:mod:`~mr_ident.diagnosis.criterion.timevarying`); None when too short.
+    unexplained : Unexplained or None
+        The extended model's residual on the validation data against the noise: what
+        part of y it leaves beyond the noise
+        (:mod:`~mr_ident.diagnosis.criterion.unexplained`).
+    headline : Headline or None
+        The verdict: :attr:`cause` and :attr:`parameters` are its
+        (:mod:`~mr_ident.diagnosis.selection.headline`).
     """
 
     cause: str
@@ -211,6 +160,8 @@ class Diagnosis:
     records: int = 1
     correction: Correction | None = None
     segments: Segments | None = None
+    unexplained: Unexplained | None = None
+    headline: Headline | None = None
 
     @property
     def time_varying(self) -> bool:
@@ -412,6 +363,7 @@ def diagnose(
     def fit_of(m: Model) -> TimeFit:
         return time_fit(m, val, val_start)
 
+    @functools.cache
     def val_objective() -> Objective:
         noise_val = noise_spectrum(val_part, model, n=n, degree=degree, ident=ident_val)
         return Objective(val_part, model, noise_val)
@@ -439,10 +391,22 @@ def diagnose(
         "y_after": pred_a.y,
         "fs_high": val.fs_high,
     }
-    first = applied[0] if applied else None
+    spread = records_spread(
+        [data, *([] if validation is None else [validation]), *more],
+        model,
+        n,
+        degree,
+        (ident,) if validation is None else (ident, ident_val),
+    )
+    lines = distortion(est)
+    # periodic: the residual's spread over periods (a periodic distortion left out)
+    noise_var = None if val_part.period is not None else criterion_noise(val_objective())
+    left = unexplained(current, val, val_start, pred_a, noise_var)
+    corrected = corr is not None and corr.accepted
+    verdict = headline(applied, corrected, summarize(lines, spread[0]), left)
     return Diagnosis(
-        first.cause if first else "none",
-        dict(first.parameters) if first else {},
+        verdict.cause,
+        verdict.parameters,
         ranking,
         applied,
         current,
@@ -454,20 +418,16 @@ def diagnose(
         est_desc,
         val_desc,
         traces,
-        distortion(est),
+        lines,
         None if ident is None else check_controller(ident, n),
         full,
         relation,
         check,
-        *records_spread(
-            [data, *([] if validation is None else [validation]), *more],
-            model,
-            n,
-            degree,
-            (ident,) if validation is None else (ident, ident_val),
-        ),
+        *spread,
         corr,
         within(data, model, n=n, degree=degree),
+        left,
+        verdict,
     )
 
 

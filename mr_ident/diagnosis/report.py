@@ -86,6 +86,7 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
     return {
         "cause": d.cause,
         "parameters": d.parameters,
+        "headline": d.headline.text if d.headline is not None else None,
         "causes": causes,
         "applied": [
             {
@@ -234,5 +235,13 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
         "unexplained": {
             "significant_bands": [list(b) for b in d.evidence_after.bands()],
             "fit_gap_percent": _finite(100.0 - d.fit_after.y),
-        },
+        }
+        | (
+            {}
+            if d.unexplained is None
+            else {
+                k: _finite(v) if not isinstance(v, bool) else v
+                for k, v in d.unexplained.summary().items()
+            }
+        ),
     }

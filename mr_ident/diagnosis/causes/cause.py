@@ -195,6 +195,10 @@ class Cause:
         """``model`` extended by this cause with the values of ``choice``."""
         raise NotImplementedError
 
+    def value_names(self, choice: Choice) -> tuple[str, ...]:
+        """The names of ``choice.x`` (:attr:`parameters`, unless their number varies)."""
+        return self.parameters
+
     def named(self, choice: Choice, nominal: Model) -> Params:
         """The parameters by name (the report's and the model file's quantities)."""
         return {k: float(v) for k, v in zip(self.parameters, choice.x, strict=True)}

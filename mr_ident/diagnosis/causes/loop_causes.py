@@ -14,9 +14,10 @@ from dataclasses import replace
 import numpy as np
 
 from ...numerics.arrays import FloatArray
+from ...numerics.systems.lti import TransferMatrix
 from ...numerics.systems.model import Model
 from ..criterion.prediction import predict
-from .cause import Cause, Choice, Context, Params, hz
+from .cause import Cause, Choice, Context, Params, hz, percent
 
 
 class _LoopCause(Cause):
@@ -150,6 +151,137 @@ class ControllerNotch(_LoopCause):
         )
 
 
+class ControllerGain(_LoopCause):
+    """The controller's gain differs from the model's by a factor."""
+
+    controller_side = True
+    name = "controller_gain"
+    parameters = ("gain",)
+    meaning = (
+        "the controller's gain differs from the model's: a retuned proportional gain, a scaled "
+        "sensor or actuator constant inside the controller"
+    )
+    extends = "controller"
+
+    def applies(self, nominal: Model) -> bool:
+        """With a controller."""
+        return nominal.controller is not None
+
+    def proposals(self, ctx: Context) -> list[Choice]:
+        """Lower and higher."""
+        return [Choice(self.name, (g,)) for g in (0.8, 1.25)]
+
+    def bounds(self, nominal: Model, choice: Choice) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """A factor 0.05..20."""
+        return np.array([0.05]), np.array([20.0]), np.array([0.05])
+
+    def apply(self, model: Model, choice: Choice) -> Model:
+        """The controller's numerators scaled."""
+        K = model.controller
+        assert K is not None
+        g = float(choice.x[0])
+        num = tuple(tuple(tuple(g * c for c in p) for p in row) for row in K.num)
+        return replace(model, controller=TransferMatrix(num, K.den, K.dt))
+
+    def describe(self, params: Params) -> str:
+        """In words."""
+        g = params["gain"]
+        return f"the controller's gain is {g:.4g} times the model's ({percent(g)})"
+
+
+class ControllerRetuned(_LoopCause):
+    """The controller's coefficients differ: a retuned controller, or one of higher order.
+
+    ``Choice.x``: the numerator's coefficients (descending powers of z, ``order + 1``) and
+    the denominator's after its leading 1 (``order``); ``Choice.fixed``: ``(order,)``. Only
+    the controller's own equation determines it
+    (:func:`~mr_ident.diagnosis.controller.relation.retune_start`): no proposal on y.
+    """
+
+    controller_side = True
+    name = "controller_retuned"
+    parameters = ("coefficients",)
+    meaning = (
+        "the controller on the machine is not the model's: its coefficients identified from "
+        "the logged u and y (a retuned PID, an added filter); the model's controller replaced"
+    )
+    extends = "controller"
+
+    def applies(self, nominal: Model) -> bool:
+        """One input and one output, a controller and no controller notch."""
+        return (
+            nominal.controller is not None
+            and nominal.n_u == nominal.n_y == 1
+            and not nominal.controller_notches
+        )
+
+    @property
+    def n_free(self) -> int:
+        """A second-order controller's five (counted so for the choice among closing sets)."""
+        return 5
+
+    def proposals(self, ctx: Context) -> list[Choice]:
+        """None: the equation fits it."""
+        return []
+
+    def value_names(self, choice: Choice) -> tuple[str, ...]:
+        """b0..b_order, a1..a_order."""
+        n = int(choice.fixed[0])
+        return tuple(f"b{i}" for i in range(n + 1)) + tuple(f"a{i}" for i in range(1, n + 1))
+
+    def bounds(self, nominal: Model, choice: Choice) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Unbounded."""
+        x = np.asarray(choice.x, float)
+        return np.full(x.size, -np.inf), np.full(x.size, np.inf), np.maximum(np.abs(x), 1e-3)
+
+    def apply(self, model: Model, choice: Choice) -> Model:
+        """The controller replaced."""
+        n = int(choice.fixed[0])
+        K = model.controller
+        assert K is not None
+        b, a = choice.x[: n + 1], (1.0, *choice.x[n + 1 :])
+        return replace(model, controller=TransferMatrix(((tuple(b),),), ((a,),), K.dt))
+
+    def named(self, choice: Choice, nominal: Model) -> Params:
+        """The coefficients, the order, and how far the response moved.
+
+        ``max_relative_change``: the largest ``|K'/K - 1|`` over 1e-3..0.49 fs_low, ``at_hz``
+        where.
+        """
+        out = dict(zip(self.value_names(choice), map(float, choice.x), strict=True))
+        K0 = nominal.controller
+        assert K0 is not None
+        K1 = self.apply(nominal, choice).controller
+        assert K1 is not None
+        f = np.geomspace(1e-3, 0.49, 200) * nominal.fs_low
+        z = np.exp(2j * np.pi * f / nominal.fs_low)
+        with np.errstate(all="ignore"):
+            rel = np.abs(K1(z)[:, 0, 0] / K0(z)[:, 0, 0] - 1.0)
+        rel = np.where(np.isfinite(rel), rel, 0.0)
+        j = int(np.argmax(rel))
+        n0 = max(len(K0.den[0][0]) - 1, 0)
+        return out | {
+            "order": float(choice.fixed[0]),
+            "model_order": float(n0),
+            "max_relative_change": float(rel[j]),
+            "at_hz": float(f[j]),
+        }
+
+    def describe(self, params: Params) -> str:
+        """In words."""
+        n, n0 = int(params["order"]), int(params["model_order"])
+        what = (
+            f"a retuned controller of the model's order ({n})"
+            if n == n0
+            else f"a controller of order {n} (the model's is {n0}): a filter the model lacks"
+        )
+        return (
+            f"the controller on the machine is {what}, identified from the logged u and y; its "
+            f"response differs from the model's by up to {100 * params['max_relative_change']:.0f}"
+            f" % (at {hz(params['at_hz'])})"
+        )
+
+
 #: Family-wise false-alarm level of a residual peak: below it no disturbance is proposed.
 PEAK_ALPHA = 1e-3
 #: Bins of the running median a residual peak is held against.
@@ -256,7 +388,9 @@ class PeriodicDisturbance(_LoopCause):
 
 
 LOOP_CAUSES: tuple[Cause, ...] = (
+    ControllerGain(),
     ControllerNotch(),
+    ControllerRetuned(),
     ControlDelay(),
     SamplingOffset(),
     PeriodicDisturbance(),

@@ -51,8 +51,13 @@ def lines_text(bands: list[BandLevels]) -> str:
     worst = max(bands, key=lambda b: np.nanmax([b.odd_db, b.even_db]))
     odd = max((b.odd_db for b in bands if np.isfinite(b.odd_db)), default=np.nan)
     even = max((b.even_db for b in bands if np.isfinite(b.even_db)), default=np.nan)
+    levels = " and ".join(  # a parity the design leaves no line of is not named
+        f"{v:.0f} dB ({name} lines)"
+        for v, name in ((odd, "odd"), (even, "even"))
+        if np.isfinite(v)
+    )
     return (
-        f"nonlinear distortion up to {odd:.0f} dB (odd lines) and {even:.0f} dB (even lines) "
+        f"nonlinear distortion up to {levels} "
         f"above the noise, most at {worst.band[0]:.3g}-{worst.band[1]:.3g} Hz (counted as "
         "noise in the criterion; any linear cause describes the best linear approximation)"
     )

@@ -1,0 +1,115 @@
+# SPDX-License-Identifier: Apache-2.0
+"""The verdict (diagnosis.selection.headline) and what a model leaves beyond the noise.
+
+``unexplained`` against analytic truth: an open-loop plant driven by white u with white
+output noise of known σ; the exact model's residual power over nσ² is 1 within 4 std
+of its sample spread (``sqrt(2/n)``), a sinusoid of amplitude A left in y raises it by
+``A²/(2σ²)`` (to 4 std) and its share of y's rms is ``√(A²/2)/std(y)`` (to 2 % of
+itself). The headline's rules on constructed findings: nonlinear distortion named where
+no linear extension closes the gap, the BLA named as such, the unexplained part said,
+never "none" with a significant gap.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from mr_ident.diagnosis.causes.cause import CauseFit
+from mr_ident.diagnosis.criterion.nonlinearity import Nonlinearity, summarize
+from mr_ident.diagnosis.criterion.prediction import predict
+from mr_ident.diagnosis.criterion.realizations import SpreadLevels
+from mr_ident.diagnosis.criterion.unexplained import Unexplained, period_noise, unexplained
+from mr_ident.diagnosis.selection.headline import headline
+from mr_ident.io.modelfile import model_from_dict
+from mr_ident.numerics.excitation.bla import BandLevels
+from mr_ident.numerics.signals import LoopData
+from mr_ident.numerics.systems.simulate import simulate
+
+N, SIGMA = 24000, 0.05
+
+
+def _open_loop(extra: float = 0.0):
+    model = model_from_dict(
+        {"fs_high": 200.0, "ratio": 1, "plant": {"num": [30.0], "den": [1.0, 30.0]}}
+    )
+    rng = np.random.default_rng(5)
+    u = rng.standard_normal((N, 1))
+    clean = simulate(model, reference=u, noise=np.zeros((N, 1))).y
+    t = np.arange(N) / model.fs_high
+    y = clean + SIGMA * rng.standard_normal((N, 1)) + extra * np.sin(2 * np.pi * 7.3 * t)[:, None]
+    rec = LoopData(u.copy(), u, y, fs_high=model.fs_high, ratio=1)
+    return model, rec
+
+
+def test_the_exact_model_leaves_nothing_beyond_the_noise():
+    model, rec = _open_loop()
+    got = unexplained(model, rec, 0, predict(model, rec), np.array([SIGMA**2]))
+    assert abs(got.ratio - 1.0) < 4 * math.sqrt(2 / N)
+    assert not got.significant and got.share < 2.0
+    assert got.fit == pytest.approx(got.allowed, abs=0.2)
+
+
+def test_a_sinusoid_left_in_y_is_unexplained_by_its_share_of_y():
+    A = 0.2
+    model, rec = _open_loop(A)
+    got = unexplained(model, rec, 0, predict(model, rec), np.array([SIGMA**2]))
+    assert got.ratio == pytest.approx(1 + A**2 / (2 * SIGMA**2), abs=4 * math.sqrt(2 / N) * 9)
+    y = rec.y[:, 0] - rec.y[:, 0].mean()
+    assert got.share == pytest.approx(100 * math.sqrt(A**2 / 2) / y.std(), rel=0.02)
+    assert got.significant and got.fit < got.allowed
+
+
+def test_the_spread_over_periods_is_the_noise_variance():
+    rng = np.random.default_rng(3)
+    periodic = np.tile(rng.standard_normal(500), 40)[:, None]  # no part of the spread
+    e = periodic + SIGMA * rng.standard_normal((20000, 1))
+    assert period_noise(e, 500)[0] == pytest.approx(SIGMA**2, rel=0.03)  # 19500 dof: 1 %
+
+
+def _fit(cause: str, text: str) -> CauseFit:
+    model = model_from_dict({"fs_high": 100.0, "ratio": 1, "plant": {"num": [1.0], "den": [1.0]}})
+    return CauseFit(cause, {"gain": 0.7}, 0.0, {}, model, True, text)
+
+
+NL = Nonlinearity(29.0, [(1.0, 4.0)], "odd", ("across the records",))
+GAP = Unexplained(90.6, 96.3, 8.7, 6.6, 0.01)
+NO_GAP = dataclasses.replace(GAP, fit=96.2, share=0.3, ratio=1.02)
+
+
+def test_distortion_with_a_gap_is_the_verdict_and_the_linear_cause_its_bla():
+    h = headline([_fit("gain_error", "plant gain 0.7 x nominal")], False, NL, GAP)
+    assert h.cause == "nonlinear_distortion"
+    assert "best linear approximation" in h.text and "plant gain 0.7" in h.text
+    assert "8.7 % of y (rms) unexplained beyond the noise" in h.text
+    assert h.parameters == {"level_db": 29.0, "unexplained_percent": 8.7}
+
+
+def test_distortion_with_nothing_validated_is_named_not_none():
+    h = headline([], False, NL, NO_GAP)
+    assert h.cause == "nonlinear_distortion" and "the nominal model" in h.text
+
+
+def test_a_linear_cause_that_closes_the_gap_is_the_verdict():
+    h = headline([_fit("gain_error", "plant gain 0.7 x nominal")], False, NL, NO_GAP)
+    assert h.cause == "gain_error" and h.parameters == {"gain": 0.7}
+
+
+def test_a_gap_no_cause_explains_is_said_with_how_much():
+    assert headline([], False, None, GAP).cause == "unexplained"
+    assert headline([], True, None, NO_GAP).cause == "plant_correction"
+    assert headline([], False, None, NO_GAP).cause == "none"
+    h = headline([_fit("gain_error", "plant gain")], False, None, GAP)
+    assert h.cause == "gain_error" and "unexplained beyond the noise" in h.text
+
+
+def test_the_summary_takes_kind_from_the_lines_and_level_from_every_test():
+    lines = [BandLevels((1.0, 3.0), 40.0, 25.0, 2.0, 5.0, 5.0)]
+    spread = [SpreadLevels((1.0, 3.0), 31.0, 4.0, 0.1, 0.01, 20)]
+    got = summarize(lines, spread)
+    assert got is not None and got.kind == "odd" and got.level_db == 31.0
+    assert got.bands == [(1.0, 3.0)] and len(got.by) == 2
+    assert summarize([BandLevels((1.0, 3.0), 40.0, 2.0, 2.0, 5.0, 5.0)], []) is None
