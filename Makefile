@@ -9,7 +9,7 @@ STAMP  := $(VENV)/.msgs_installed
 export ROS_LOG_DIR ?= $(CURDIR)/out/ros_log
 export MPLBACKEND := Agg
 
-.PHONY: demo paper test lint docs colcon bench lrm-figure bench-structured bench-fit bench-missing bench-alias-range bench-setpoint bench-bag bench-live bench-diagnose bench-monitor soak motor-bench venv clean
+.PHONY: demo paper test test-numerics test-apt venv-apt lint docs colcon bench lrm-figure bench-structured bench-fit bench-missing bench-alias-range bench-setpoint bench-bag bench-live bench-diagnose bench-monitor soak motor-bench venv clean
 
 venv: $(STAMP)
 
@@ -52,6 +52,32 @@ TEST_WORKERS ?= $(shell echo $$(( $$(nproc) + 1 )))
 test: $(STAMP)
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup --durations=15 -m "not realtime" $(TEST_ARGS)
 	$(PY) -m pytest -q -m realtime $(or $(TEST_ARGS),test) || [ $$? = 5 ]
+
+# the numerics part of the suite (-m "not ros": every test but the ROS group's, which need DDS
+# or a browser) on one worker per core, under the BLAS kernels the CPU selects or those
+# OPENBLAS_CORETYPE names (.ci/run: Haswell and Zen); the first line names the kernels
+NUMERICS_WORKERS ?= $(shell nproc)
+NUMERICS := -q -n $(NUMERICS_WORKERS) -m "not ros and not realtime"
+test-numerics: $(STAMP)
+	$(PY) scripts/blas_kernels.py
+	$(PY) -m pytest $(NUMERICS) $(TEST_ARGS)
+
+# the numerics part in .venv-apt: the versions a ROS 2 Jazzy robot has from Ubuntu 24.04's
+# apt (numpy 1.26.4, scipy 1.11.4, matplotlib 3.6.3; requirements-apt.txt) and no ROS 2, so
+# the package's ROS layer is not collected and tests needing ROS's interfaces skip
+APT_VENV  := .venv-apt
+APT_STAMP := $(APT_VENV)/.installed
+$(APT_STAMP): requirements-apt.txt setup.py setup.cfg
+	test -x $(APT_VENV)/bin/python || python3 -m venv $(APT_VENV)
+	$(APT_VENV)/bin/python -m pip install --quiet --disable-pip-version-check -r requirements-apt.txt
+	$(APT_VENV)/bin/python -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation --use-pep517 -e .
+	touch $(APT_STAMP)
+
+venv-apt: $(APT_STAMP)
+
+test-apt: $(APT_STAMP)
+	$(APT_VENV)/bin/python scripts/blas_kernels.py
+	$(APT_VENV)/bin/python -m pytest $(NUMERICS) --ignore=mr_ident/ros $(TEST_ARGS)
 
 # ruff (lint, format) and mypy (strict on numerics and I/O); .ci/run runs it before the tests
 lint: $(STAMP)

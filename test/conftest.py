@@ -91,6 +91,20 @@ FIRST = (
 ROS_GROUP = ("test_msgs.py", "test_signals.py", "test_view.py")
 
 
+def require_interfaces(*type_names: str) -> None:
+    """Skip the test unless the ROS 2 interfaces ``type_names`` (``pkg/msg/Type``) are
+    installed: the ROS 2 wheels of requirements.txt bring them, an environment without ROS
+    (``make test-apt``) has none."""
+    from mr_ident.errors import MrIdentError
+    from mr_ident.io.msgdef import message_definition
+
+    for name in type_names:
+        try:
+            message_definition(name)
+        except MrIdentError as err:
+            pytest.skip(f"ROS 2 interfaces not installed: {err}")
+
+
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line("markers", "xdist_group(name): tests one xdist worker runs")
     config.addinivalue_line(
@@ -98,17 +112,24 @@ def pytest_configure(config: pytest.Config) -> None:
         "realtime: a claim about timing that a loaded machine cannot judge (the test skips "
         "there, saying why); make test runs these after the rest, alone",
     )
+    config.addinivalue_line(
+        "markers",
+        "ros: runs ROS 2 nodes or programs over DDS, or the browser (the modules of the ROS "
+        "group, set by the suite itself); -m 'not ros' is the numerics part, which "
+        "make test-numerics and make test-apt run",
+    )
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """The modules of :data:`FIRST` first, in its order; the rest as collected. The ROS
-    modules (``test_ros_*`` and :data:`ROS_GROUP`) in one xdist group."""
+    modules (``test_ros_*`` and :data:`ROS_GROUP`) in one xdist group, marked ``ros``."""
     rank = {name: i for i, name in enumerate(FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(FIRST)))
     for item in items:
         name = item.path.name
         if name.startswith("test_ros_") or name in ROS_GROUP:
             item.add_marker(pytest.mark.xdist_group("ros"))
+            item.add_marker(pytest.mark.ros)
 
 
 @pytest.fixture(scope="session")

@@ -51,7 +51,12 @@ def _lifted_J_of_the_simulation(model, N, bins):
 @pytest.mark.parametrize("seed", [1, 7])
 def test_the_models_alias_range_equals_that_of_the_simulated_loop(seed):
     """pfg_alias_range (the Woodbury lifted maps) against the simulation's lifted state space,
-    with a window across the lifted bin 0 (the bins below it continue the window)."""
+    with a window across the lifted bin 0 (the bins below it continue the window).
+
+    Within n bins of a multiple of fs_low the window holds the lifted bin 0, where a loop
+    with an integrator has its pole: there the maps are infinite or, with the pole missed by
+    round-off, finite and arbitrary (seed 1's controller: 4.6e13 with numpy 2.3, inf with
+    numpy 1.26). Every other bin is finite and equal."""
     loop = draw_loop(np.random.default_rng(seed), duration=20.0, fs_choices=(240.0, 500.0))
     model, N, n = replace(loop.nominal, noise_std=0.0), loop.reference.shape[0], 8
     F, M = model.ratio, loop.reference.shape[0] // model.ratio
@@ -62,9 +67,11 @@ def test_the_models_alias_range_equals_that_of_the_simulated_loop(seed):
     idx = np.where(kappa > N // 2, N - kappa, kappa).ravel()
     want = np.full(N // 2 + 1, np.nan)
     want[idx] = ref.ravel()
-    ok = np.isfinite(got)
-    assert ok.mean() > 0.99
-    np.testing.assert_allclose(got[ok], want[1:][ok], rtol=1e-6)
+    kappa = np.arange(1, N // 2 + 1)
+    pole = np.minimum(kappa % M, M - kappa % M) <= n  # the window holds a multiple of M
+    assert 0 < pole.sum() <= (2 * n + 1) * (F // 2 + 1)
+    assert np.isfinite(got[~pole]).all()
+    np.testing.assert_allclose(got[~pole], want[1:][~pole], rtol=1e-6)
 
 
 def test_the_row_alias_range_of_a_siso_plant_is_the_largest_alias_over_the_own():

@@ -69,7 +69,12 @@ def test_a_fit_in_runs_equals_the_fixed_fits_bin_for_bin(paper_model, method):
     for n, sel in ((8, (centre < a) | (centre >= b)), (12, (centre >= a) & (centre < b))):
         ref = fit(n, None)
         np.testing.assert_allclose(mixed.P_half[sel], ref.P_half[sel], rtol=1e-12, atol=0)
-        np.testing.assert_allclose(mixed.var_half[sel], ref.var_half[sel], rtol=1e-10)
+        # noise-free, a std is the local polynomial's residual, down to 1e-10 |P|max, and
+        # the summation order (BLAS kernels) moves it by up to 4e-13 |P|max: equal to the
+        # round-off of the scale of P, not relative bin by bin
+        std, std_ref = np.sqrt(mixed.var_half[sel]), np.sqrt(ref.var_half[sel])
+        atol = 1e-11 * np.abs(ref.P_half).max()
+        np.testing.assert_allclose(std, std_ref, rtol=1e-10, atol=atol)
         if n == 12:
             on = ((centre >= 5) & (centre < 40)) | ((centre >= a) & (centre < a + 30))
             np.testing.assert_allclose(sparse.P_half[on], ref.P_half[on], rtol=1e-12, atol=0)

@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 import yaml
 from bagmaker import BagWriter, joint_state_bag, paper_loop, plant_error, stamps
+from conftest import require_interfaces
 from rosbags.rosbag2 import StoragePlugin
 from test_bags import R, U, Y
 
@@ -83,6 +84,7 @@ def test_rows_joined_in_sqlite_and_rows_fetched_one_by_one_give_the_same(
 
 
 def test_an_sqlite_bag_without_definitions_takes_the_installed_types(loop, tmp_path):
+    require_interfaces("sensor_msgs/msg/JointState")
     model, sim = loop
     bag = joint_state_bag(tmp_path / "js", sim, stamps(sim.n_samples, 240.0), storage=SQLITE)
     _drop_definitions(bag)
@@ -108,6 +110,7 @@ def test_a_type_found_nowhere_is_an_error_naming_it_and_msg_path_reads_it(loop, 
     """control_msgs is not installed and the bag (Humble layout) does not define it."""
     from bagmaker import MULTI_DOF_STATE_STAMPED, SINGLE_DOF_STATE
 
+    require_interfaces("std_msgs/msg/Header")  # control_msgs' types use it
     model, sim = loop
     bag = _pid_bag(tmp_path / "pid", sim, storage=SQLITE)
     _drop_definitions(bag)

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import require_interfaces
 
 from mr_ident.errors import ConfigError, DataError
 from mr_ident.io.blocks import Block, BlockError, decode_block, encode_fields
@@ -229,6 +230,7 @@ def test_node_params_file_loads_and_bad_values_name_the_parameter(tmp_path):
 
 def test_truncated_recording_reports_what_it_recovered(tmp_path):
     pytest.importorskip("mcap_ros2")
+    require_interfaces("std_msgs/msg/Float64MultiArray")
     rec = _make_recording(tmp_path / "full.mcap")
     data = rec.read_bytes()
     from mr_ident.io.recording import read_blocks

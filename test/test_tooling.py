@@ -16,6 +16,8 @@ def test_the_foxglove_layout_reads_the_estimate_and_the_summary():
     """Every plotted path is a field of ~/summary or of the layout's own user script, whose
     input is ~/estimate and which reads only fields the Estimate message has."""
     msg = pytest.importorskip("mr_ident_msgs.msg")
+    if not hasattr(msg, "Estimate"):  # the source folder, seen from the repository's root
+        pytest.skip("mr_ident_msgs is not built (make venv builds it)")
     layout = json.loads((ROOT / "config" / "foxglove_layout.json").read_text())
     (script,) = layout["userNodes"].values()
     code = script["sourceCode"]
