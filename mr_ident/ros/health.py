@@ -131,6 +131,8 @@ def identification_status(h: Health, name: str, hardware_id: str) -> DiagnosticS
                 "lifting_phase_source": est.phase_source,
                 "estimate_first_index": est.first,
                 "estimate_samples": est.n_samples,
+                "injection": est.identification.injection,
+                "loop_structure": est.structure,
             }
         )
         values.update(bla_values(est))
