@@ -226,3 +226,13 @@ def test_diagnose_simulates_the_model_with_r_at_the_setpoint_and_finds_the_plant
     assert [a.cause for a in d.applied] == ["gain_error"]
     assert abs(d.applied[0].parameters["gain"] - 1.2) < 0.01
     assert d.relation is not None and d.relation.exact  # u is K (r - y), to round-off
+
+
+def test_a_live_windows_diagnosis_takes_r_where_the_window_shows_it(paper_model):
+    from mr_ident.diagnosis.monitoring.monitor import diagnose_window
+
+    true = replace(paper_model, injection="setpoint", noise_std=0.02, plant_gain=1.2)
+    sim = simulate(true, duration=60.0, rng=np.random.default_rng(11))
+    d = diagnose_window(paper_model, replace(sim, first=3000))
+    assert d.applied and d.applied[0].cause == "gain_error"
+    assert abs(d.applied[0].parameters["gain"] - 1.2) < 0.01

@@ -46,6 +46,7 @@ def diagnose_recording(req: DiagnoseRequest, notify: Notify = ignore) -> Diagnos
         What the readers and :func:`~mr_ident.diagnosis.diagnose` raise.
     """
     from ..diagnosis import diagnose
+    from ..diagnosis.criterion.records import with_injection
 
     if not 0.0 < req.alpha < 1.0:
         raise ConfigError(f"--alpha must be in (0, 1), got {req.alpha}")
@@ -54,7 +55,7 @@ def diagnose_recording(req: DiagnoseRequest, notify: Notify = ignore) -> Diagnos
     assert model is not None
     specs = req.reading.specs()
     data = _read(req, req.reading, model, specs, heard)
-    model = _with_injection(model, data, req.injection)
+    model = with_injection(model, data, req.injection)
     val = None
     if req.validate is not None:
         val = _read(req, replace(req.reading, path=req.validate), model, specs, heard)
@@ -73,31 +74,6 @@ def diagnose_recording(req: DiagnoseRequest, notify: Notify = ignore) -> Diagnos
         more=more,
     )
     return Diagnosed(d, model, data, tuple(heard.notices))
-
-
-def _with_injection(model: Model, data: LoopData, injection: str | None) -> Model:
-    """``model`` with r entering where the data show it (and the request and model agree).
-
-    F and where r enters are read from the record
-    (:func:`~mr_ident.numerics.structure.settle_structure`; ConfigError where the data
-    contradict the model's ratio, its ``injection`` or ``injection``); the controller's phase
-    is not checked here: a sampling offset is one of the causes diagnose looks for.
-    """
-    from ..numerics.structure import read_structure, settle_structure
-
-    settled = settle_structure(
-        read_structure(data.r, data.u),
-        ratios=[("the model", model.ratio)],
-        injections=[
-            (who, v)
-            for who, v in (("--injection", injection), ("the model", model.injection))
-            if v is not None
-        ],
-        phases=[],
-    )
-    if settled.injection == "plant_input" and model.injection is None:
-        return model  # as simulated without saying so: the model file stays as it was
-    return replace(model, injection=settled.injection)
 
 
 def _read(

@@ -61,6 +61,7 @@ from .criterion.realizations import SpreadLevels, records_spread, spread_nonline
 from .criterion.records import check_record as check_record  # re-exported
 from .criterion.records import min_record as min_record  # re-exported
 from .criterion.records import split as split  # re-exported
+from .criterion.records import with_injection
 from .criterion.timevarying import Segments, within
 from .criterion.unexplained import Unexplained, criterion_noise, unexplained
 from .selection.correction import Correction, correction
@@ -294,8 +295,10 @@ def diagnose(
     if not 0.05 <= holdout <= 0.5:
         raise ConfigError(f"holdout must be in [0.05, 0.5], got {holdout!r}")
     check_record(model, data, n=n, what=names[0])
+    model = with_injection(model, data, None)  # r where the data show it entered
     if validation is not None:
         check_record(model, validation, n=n, what=names[1])
+        with_injection(model, validation, None)  # the same loop there (else refused)
         est, val, val_start = data, validation, 0
         est_desc = f"all of DATA ({data.n_samples} samples)"
         val_desc = f"the validation data ({validation.n_samples} samples)"

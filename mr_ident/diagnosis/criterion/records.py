@@ -4,10 +4,12 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 from ...errors import DataError
 from ...numerics.identify import min_samples
 from ...numerics.signals import LoopData
+from ...numerics.structure import read_structure, settle_structure
 from ...numerics.systems.model import Model
 from .holes import check_missing
 
@@ -20,6 +22,31 @@ def min_record(n: int, ratio: int) -> int:
     spectrum, smoothed over 33 bins, rests on enough bins.
     """
     return 2 * min_samples("freq-lifted", n, ratio)
+
+
+def with_injection(model: Model, data: LoopData, injection: str | None) -> Model:
+    """``model`` with r entering where the data show it (and ``injection`` and the model agree).
+
+    F and where r enters are read from the record
+    (:func:`~mr_ident.numerics.structure.settle_structure`: ConfigError where the data
+    contradict the model's ratio, its ``injection`` or the given ``injection``); the
+    controller's phase is not checked here: a sampling offset is one of the causes diagnose
+    looks for. Every diagnosis of data goes through it (a recording's, a live window's).
+    A model that states nothing keeps stating nothing for r at the plant input.
+    """
+    settled = settle_structure(
+        read_structure(data.r, data.u),
+        ratios=[("the model", model.ratio)],
+        injections=[
+            (who, v)
+            for who, v in (("--injection", injection), ("the model", model.injection))
+            if v is not None
+        ],
+        phases=[],
+    )
+    if settled.injection == "plant_input" and model.injection is None:
+        return model
+    return replace(model, injection=settled.injection)
 
 
 def check_record(model: Model, rec: LoopData, *, n: int = 8, what: str = "data") -> None:

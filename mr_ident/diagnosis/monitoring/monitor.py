@@ -251,7 +251,9 @@ class PlantWatch:
 def diagnose_window(model: Model, window: LoopData) -> Diagnosis:
     """The diagnosis of ``model`` on one live window (its ``first`` an absolute index).
 
-    The model's sampling phase is taken relative to the window's first sample.
+    The model's sampling phase is taken relative to the window's first sample; r enters
+    where the window shows it entered (:func:`~mr_ident.diagnosis.diagnose.diagnose` reads
+    it).
     """
     from ..diagnose import diagnose  # the heavy part, only when a window is diagnosed
 
