@@ -236,3 +236,20 @@ def test_a_live_windows_diagnosis_takes_r_where_the_window_shows_it(paper_model)
     d = diagnose_window(paper_model, replace(sim, first=3000))
     assert d.applied and d.applied[0].cause == "gain_error"
     assert abs(d.applied[0].parameters["gain"] - 1.2) < 0.01
+
+
+@pytest.mark.parametrize(("gain", "level"), [(1.0, "ok"), (1.2, "error")])
+def test_the_plant_monitoring_watches_a_setpoint_loop(paper_model, gain, level):
+    """Against the model: no alarm where the plant is the model's, an error where it is
+    20 % stronger (|20 log10 1.2| = 1.6 dB is below the 6 dB error size: error_db 1)."""
+    from mr_ident.diagnosis.monitoring.drift import Reference
+    from mr_ident.diagnosis.monitoring.monitor import PlantWatch
+    from mr_ident.io.config import IdentConfig
+    from mr_ident.live.estimate import estimate
+
+    true = replace(paper_model, injection="setpoint", noise_std=0.02, plant_gain=gain)
+    cfg = IdentConfig(fs_high=240.0, ratio=3, monitor_hold=1, monitor_error_db=1.0)
+    watch = PlantWatch(Reference.of_model(paper_model), paper_model, cfg)
+    sim = simulate(true, duration=60.0, rng=np.random.default_rng(12))
+    state = watch.observe(estimate(sim, cfg))
+    assert state.level == level

@@ -193,7 +193,8 @@ class PlantWatch:
             if ident.n_used is not None  # n = auto: the window chosen per bin
             else np.full(plant.frequency.size, cfg.lpm_n(n_u, n_y), float)
         )
-        method = method_of(cfg.method)
+        # a setpoint's fit is the high-rate lpm's, whatever the configured method
+        method = method_of("lpm" if ident.injection == "setpoint" else cfg.method)
         q = np.ones_like(n)  # no noise model (etfe): its std is nan, nothing is tested
         if method.uses_lpm:  # the dof of each window width used (a handful of widths)
             widths, where = np.unique(n, return_inverse=True)
