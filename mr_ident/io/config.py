@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -404,17 +405,27 @@ class IdentConfig:
         }
 
 
+def share_dirs() -> list[Path]:
+    """Where an installed mr_ident keeps its shipped files: ``<prefix>/share/mr_ident``.
+
+    The prefix this package is installed under (a colcon install space), the interpreter's
+    (a venv), then those of ``AMENT_PREFIX_PATH`` (a sourced workspace).
+    """
+    site = Path(__file__).resolve().parents[2]  # the directory holding the package
+    prefixes = [site.parents[2]] if site.name in ("site-packages", "dist-packages") else []
+    prefixes.append(Path(sys.prefix))
+    prefixes += [Path(p) for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    return list(dict.fromkeys(p / "share" / "mr_ident" for p in prefixes))
+
+
 def share_file(rel: str, hint: str = "") -> Path:
-    """A shipped file (``config/...``): from the source tree, else ``<prefix>/share/mr_ident``."""
-    for cand in (
-        Path(__file__).resolve().parents[2] / rel,
-        Path(sys.prefix) / "share" / "mr_ident" / rel,
-    ):
+    """A shipped file (``config/...``): from the source tree, else :func:`share_dirs`."""
+    dirs = share_dirs()
+    for cand in [Path(__file__).resolve().parents[2] / rel, *(d / rel for d in dirs)]:
         if cand.is_file():
             return cand
-    raise ConfigError(
-        f"{rel} not found (looked in the source tree and {sys.prefix}/share/mr_ident){hint}"
-    )
+    where = ", ".join(str(d) for d in dirs)
+    raise ConfigError(f"{rel} not found (looked in the source tree and {where}){hint}")
 
 
 def load_params(path: str | Path, node_name: str = "mr_ident") -> IdentConfig:
