@@ -65,7 +65,12 @@ PARAMETERS: dict[str, Param] = {
     "min_window_s": Param(
         "first estimate once the aligned window holds this many seconds", 1e-3, 1e7
     ),
-    "update_period_s": Param("re-identify every this many seconds (wall clock)", 1e-3, 1e5),
+    "update_period_s": Param(
+        "re-identify every this many seconds of the ROS clock (/clock with use_sim_time), "
+        "when new data came",
+        1e-3,
+        1e5,
+    ),
     "lifting_phase": Param(
         'high-rate index (mod F) at which the controller samples y: "auto" or 0..F-1'
     ),
@@ -87,15 +92,17 @@ PARAMETERS: dict[str, Param] = {
         "at most this many log-spaced bins published per estimate", 2, 1_000_000
     ),
     "record_path": Param(
-        "MCAP file the node records its input topics (and the labels' topic) to; empty: off"
+        "MCAP file the node records its input topics (and the labels' topic) to, or a new "
+        "name beside it when it exists (never overwritten); while recording, the file being "
+        "written; empty: off"
     ),
     "reorder_blocks": Param(
         "blocks held per stream waiting for a missing one before it is a gap", 0, 10_000
     ),
     "stall_timeout_s": Param("a stream silent this long is reported as stalled", 1e-3, 1e5),
     "r_source": Param(
-        "sources of r: topic + field path each (one channel each; README 'Use it on your "
-        "robot'); all three empty: the block topics reference, input, output"
+        "sources of r: topic + field path each (one channel each; docs: Sources and "
+        "bags); all three empty: the block topics reference, input, output"
     ),
     "u_source": Param("sources of u (plant input), as r_source"),
     "y_source": Param("sources of y (plant output), as r_source"),
