@@ -9,7 +9,7 @@ STAMP  := $(VENV)/.msgs_installed
 export ROS_LOG_DIR ?= $(CURDIR)/out/ros_log
 export MPLBACKEND := Agg
 
-.PHONY: demo paper test lint docs colcon bench lrm-figure bench-structured bench-fit bench-missing bench-alias-range bench-bag bench-live bench-diagnose bench-monitor soak motor-bench venv clean
+.PHONY: demo paper test lint docs colcon test-apt-numpy bench lrm-figure bench-structured bench-fit bench-missing bench-alias-range bench-bag bench-live bench-diagnose bench-monitor soak motor-bench venv clean
 
 venv: $(STAMP)
 
@@ -84,6 +84,20 @@ $(UNDERLAY_STAMP): requirements.txt requirements-colcon.txt
 
 colcon: $(UNDERLAY_STAMP)
 	.ci/workspace $(UNDERLAY) $(COLCON_WS) '^($(COLCON_TESTS))$$'
+
+# The node's DDS tests with the numpy and scipy a Jazzy robot gets from apt (Ubuntu noble's
+# python3-numpy 1.26.4 and python3-scipy 1.11.4, what rosdep installs for the package.xml
+# keys), put ahead of .venv's newer ones on PYTHONPATH (the tests' programs inherit it).
+# .ci/run runs this target.
+APT_NUMPY := out/apt_numpy
+APT_TESTS := test/test_ros_node.py test/test_ros_lifecycle.py test/test_ros_managed.py \
+             test/test_ros_honest.py test/test_ros_record_keeps.py
+test-apt-numpy: $(STAMP)
+	test -d $(APT_NUMPY)/scipy || $(PY) -m pip install --quiet --disable-pip-version-check \
+	  --no-deps --target $(APT_NUMPY) numpy==1.26.4 scipy==1.11.4
+	PYTHONPATH=$(abspath $(APT_NUMPY)) $(PY) -c "import numpy, scipy; \
+	  assert (numpy.__version__, scipy.__version__) == ('1.26.4', '1.11.4')"
+	PYTHONPATH=$(abspath $(APT_NUMPY)) $(PY) -m pytest -q -p no:cacheprovider $(APT_TESTS)
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_identify.py
