@@ -9,7 +9,7 @@ STAMP  := $(VENV)/.msgs_installed
 export ROS_LOG_DIR ?= $(CURDIR)/out/ros_log
 export MPLBACKEND := Agg
 
-.PHONY: demo paper test test-numerics test-apt venv-apt lint docs colcon bench lrm-figure bench-structured bench-fit bench-missing bench-alias-range bench-setpoint bench-bag bench-live bench-diagnose bench-monitor soak motor-bench venv clean
+.PHONY: demo paper test test-numerics test-apt venv-apt test-apt-numpy lint docs colcon bench lrm-figure bench-structured bench-fit bench-missing bench-alias-range bench-setpoint bench-bag bench-live bench-diagnose bench-monitor soak motor-bench venv clean
 
 venv: $(STAMP)
 
@@ -89,34 +89,41 @@ lint: $(STAMP)
 docs: $(STAMP)
 	$(VENV)/bin/mkdocs build --strict --site-dir out/site
 
-# colcon build + colcon test, as a ROS 2 engineer would, in a workspace made from a copy of
-# the tracked files (out/colcon_ws/src/mr_ident; `git add` new files first), with colcon from
-# requirements-colcon.txt and the ROS 2 wheels of .venv as the underlay. The repository root
-# is a package (mr_ident, ament_python) and colcon does not crawl into a package, so the
-# interface package is named as a second base path. colcon test runs a fast subset of the
-# suite (COLCON_TESTS: the interface package, the packaging checks, layers and imports, the
-# CLI, the node's and the recorder's console scripts from colcon's lib/mr_ident; ~1.5 min);
-# `make test` runs it all. .ci/run runs this target.
-COLCON_STAMP := $(VENV)/.colcon_installed
-COLCON_WS    := out/colcon_ws
-COLCON_TESTS := test/test_msgs.py test/test_packaging.py test/test_layers.py \
-                test/test_core_imports_no_ros.py test/test_cli.py test/test_ros_record.py
-COLCON       := $(ROS_PREFIX) $(abspath $(VENV))/bin/colcon
-COLCON_PATHS := --base-paths src/mr_ident src/mr_ident/mr_ident_msgs
-$(COLCON_STAMP): $(STAMP) requirements-colcon.txt
-	$(PY) -m pip install --quiet --disable-pip-version-check -r requirements-colcon.txt
-	touch $(COLCON_STAMP)
+# The workspace flow of a robot, with no flags (.ci/workspace): the tracked files as
+# out/colcon_ws/src/mr_ident (`git add` new files first), catkin_pkg's crawl, rosdep install
+# (simulated, against the rosdistro snapshot in test/data), colcon build, source
+# install/setup.bash, the console scripts from the install space, colcon test of a fast
+# subset (COLCON_TESTS, module names: the interfaces, the packaging checks, layers and
+# imports, the CLI, the node's lifecycle and recording, the managed node without its
+# interfaces, ~3 min), colcon test-result. The
+# underlay (out/underlay) is a venv of the ROS 2 wheels and the pinned requirements holding
+# neither mr_ident nor mr_ident_msgs, as /opt/ros/jazzy would. .ci/run runs this target.
+UNDERLAY       := out/underlay
+UNDERLAY_STAMP := $(UNDERLAY)/.installed
+COLCON_WS      := out/colcon_ws
+COLCON_TESTS   := test_msgs|test_packaging|test_layers|test_core_imports_no_ros|test_cli|test_ros_record|test_ros_lifecycle|test_ros_managed
+$(UNDERLAY_STAMP): requirements.txt requirements-colcon.txt
+	test -x $(UNDERLAY)/bin/python || python3 -m venv $(UNDERLAY)
+	$(UNDERLAY)/bin/python -m pip install --quiet --disable-pip-version-check \
+	  -r requirements.txt -r requirements-colcon.txt
+	touch $(UNDERLAY_STAMP)
 
-colcon: $(COLCON_STAMP)
-	rm -rf $(COLCON_WS)
-	mkdir -p $(COLCON_WS)/src/mr_ident
-	git ls-files -z | tar --null --ignore-failed-read -T - -cf - | tar -xf - -C $(COLCON_WS)/src/mr_ident
-	cd $(COLCON_WS) && $(COLCON) build --merge-install $(COLCON_PATHS) \
-	  --event-handlers console_direct- --cmake-args -DPython3_EXECUTABLE=$(abspath $(PY))
-	cd $(COLCON_WS) && $(COLCON) test --merge-install $(COLCON_PATHS) \
-	  --event-handlers console_direct+ --return-code-on-test-failure \
-	  --pytest-args $(COLCON_TESTS)
-	cd $(COLCON_WS) && $(COLCON) test-result --verbose
+colcon: $(UNDERLAY_STAMP)
+	.ci/workspace $(UNDERLAY) $(COLCON_WS) '^($(COLCON_TESTS))$$'
+
+# The node's DDS tests with the numpy and scipy a Jazzy robot gets from apt (Ubuntu noble's
+# python3-numpy 1.26.4 and python3-scipy 1.11.4, what rosdep installs for the package.xml
+# keys), put ahead of .venv's newer ones on PYTHONPATH (the tests' programs inherit it).
+# .ci/run runs this target.
+APT_NUMPY := out/apt_numpy
+APT_TESTS := test/test_ros_node.py test/test_ros_lifecycle.py test/test_ros_managed.py \
+             test/test_ros_honest.py test/test_ros_record_keeps.py
+test-apt-numpy: $(STAMP)
+	test -d $(APT_NUMPY)/scipy || $(PY) -m pip install --quiet --disable-pip-version-check \
+	  --no-deps --target $(APT_NUMPY) numpy==1.26.4 scipy==1.11.4
+	PYTHONPATH=$(abspath $(APT_NUMPY)) $(PY) -c "import numpy, scipy; \
+	  assert (numpy.__version__, scipy.__version__) == ('1.26.4', '1.11.4')"
+	PYTHONPATH=$(abspath $(APT_NUMPY)) $(PY) -m pytest -q -p no:cacheprovider $(APT_TESTS)
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_identify.py

@@ -138,6 +138,8 @@ def _node(env: dict, update: float, *extra: str) -> subprocess.Popen:
             str(Path(sys.executable).parent / "mr-ident-node"),
             "--ros-args",
             "-p",
+            "autostart:=true",
+            "-p",
             f"fs_high:={FS}",
             "-p",
             f"window_s:={WINDOW / FS}",
@@ -319,6 +321,8 @@ def main() -> None:
                 [
                     str(Path(sys.executable).parent / "mr-ident-node"),
                     "--ros-args",
+                    "-p",
+                    "autostart:=true",
                     "-p",
                     f"fs_high:={JS_FS}",
                     "-p",

@@ -57,9 +57,9 @@ class Monitor:
     def __init__(self) -> None:
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
-        from std_msgs.msg import Float64MultiArray
 
         from mr_ident.ros.messages import RESULT_QOS
+        from mr_ident_msgs.msg import Estimate
 
         self.rclpy = rclpy
         rclpy.init()
@@ -69,9 +69,9 @@ class Monitor:
         self.level = 0
         self.levels: dict[int, int] = {}
         self.reasons: dict[str, int] = {}
-        self.node.create_subscription(
-            Float64MultiArray,
-            "/mr_ident/plant_frf",
+        self.node.create_subscription(  # the node's one message per estimate
+            Estimate,
+            "/mr_ident/estimate",
             lambda m: self.estimates.append(time.monotonic()),
             RESULT_QOS,
         )
@@ -155,6 +155,8 @@ def main() -> int:
             [
                 str(BIN / "mr-ident-node"),
                 "--ros-args",
+                "-p",
+                "autostart:=true",
                 "--params-file",
                 str(ROOT / "config" / "node.yaml"),
                 "-p",

@@ -41,7 +41,7 @@ def generate_launch_description():
                 executable="mr-ident-node",
                 name="mr_ident",
                 output="screen",
-                parameters=[LaunchConfiguration("params")],
+                parameters=[LaunchConfiguration("params"), {"autostart": True}],
             ),
         ]
     )

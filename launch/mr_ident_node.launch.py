@@ -7,8 +7,9 @@ Arguments:
   topics, services and /diagnostics statuses carry that name;
 * ``params_file`` (default: the installed ``config/node.yaml``, keyed ``/**``);
 * ``use_sim_time`` (``false``): estimates follow /clock;
-* ``autostart`` (``true``): configure and activate at once; ``false``: the node waits for
-  lifecycle transitions (``ros2 lifecycle set <node> configure``, a lifecycle manager);
+* ``autostart`` (``true``): this launch file brings the node up (configured and active at
+  once); ``false``: it waits unconfigured, as the node alone does, for lifecycle transitions
+  (a lifecycle manager, ``ros2 lifecycle set <node> configure``);
 * ``log_level`` (``info``);
 * ``reference``, ``input``, ``output``: remaps of the block topics, and of source topics
   given relative in the params file (``r_source: ["reference.data"]``).
@@ -31,7 +32,7 @@ ARGUMENTS = {
     "namespace": ("", "namespace of the node"),
     "node_name": ("mr_ident", "name of the node"),
     "use_sim_time": ("false", "use /clock (estimates follow it)"),
-    "autostart": ("true", "configure and activate at start"),
+    "autostart": ("true", "bring the node up: configure and activate at start"),
     "log_level": ("info", "debug, info, warn, error or fatal"),
     "reference": ("reference", "topic of r (block contract), or a remap of a source's topic"),
     "input": ("input", "topic of u (block contract), or a remap of a source's topic"),

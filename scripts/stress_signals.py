@@ -113,6 +113,8 @@ def _command(program: str, work: Path) -> tuple[list[str], Path | None]:
             str(BIN / "mr-ident-node"),
             "--ros-args",
             "-p",
+            "autostart:=true",
+            "-p",
             f"record_path:={out}",
             "-p",
             "window_s:=5.0",

@@ -93,7 +93,9 @@ class Graph:
         return self.add(rclpy.create_node(name, context=self.ctx))
 
     def ident(self, params, **kwargs):
-        """An IdentNode, configured and activated as mr-ident-node does (``autostart``)."""
+        """An IdentNode, configured and activated as mr-ident-node does with ``autostart``
+        (given first: ``params`` may set it false)."""
+        params = [Parameter("autostart", value=True), *params]
         node = self.add(IdentNode(context=self.ctx, parameter_overrides=params, **kwargs))
         assert node.autostart(), node.configure_error
         return node

@@ -125,17 +125,44 @@ def _snapshot():
 
 @pytest.mark.parametrize("package", sorted(PACKAGES))
 def test_every_dependency_is_a_jazzy_package_or_a_rosdep_key_that_resolves(package):
-    own, rules, jazzy = set(PACKAGES), rosdep_rules(), jazzy_packages()
+    rules, jazzy = rosdep_rules(), jazzy_packages()
     bad = [
         f"<{tag}>{key}</{tag}>"
         for tag, key in dependencies(package)
-        if key not in own and key not in jazzy and not resolves(rules.get(key))
+        if key not in jazzy and not resolves(rules.get(key))
     ]
     assert not bad, (
         f"{package}/package.xml: {bad} are neither Jazzy packages nor rosdep keys that "
         f"resolve on {OS_NAME} {OS_VERSION}; declare the pip-only ones in the "
         "'pip-only:' comment instead"
     )
+
+
+def test_a_workspace_crawl_finds_the_root_package_alone_and_it_declares_the_interfaces_needs():
+    """colcon and rosdep (catkin_pkg) stop crawling at the root's package.xml: in a workspace
+    the root package is all they see, so it builds the interfaces (CMakeLists.txt) and
+    declares everything mr_ident_msgs/package.xml asks for."""
+    packages = pytest.importorskip("catkin_pkg.packages")
+    found = {path: pkg.name for path, pkg in packages.find_packages(str(ROOT)).items()}
+    assert found == {".": "mr_ident"}, found
+    root = ET.parse(ROOT / "package.xml").getroot()
+    assert root.findtext("export/build_type") == "ament_cmake"
+    declared = {key for _, key in dependencies("mr_ident")}
+    needed = {key for _, key in dependencies("mr_ident_msgs")}
+    assert needed <= declared, f"package.xml lacks {sorted(needed - declared)}"
+    assert "mr_ident_msgs" not in declared  # no package of that name in a workspace
+    cmake = (ROOT / "CMakeLists.txt").read_text()
+    assert re.search(r"ExternalProject_Add\(mr_ident_msgs\s", cmake)
+
+
+def test_colcon_installs_the_console_scripts_setup_py_names():
+    """CMakeLists.txt writes the scripts of a colcon build; setup.py's entry_points, pip's."""
+    cmake = (ROOT / "CMakeLists.txt").read_text()
+    block = re.search(r"set\(MR_IDENT_CONSOLE_SCRIPTS(.*?)\)", cmake, flags=re.DOTALL)
+    assert block is not None
+    listed = re.findall(r'"([^"]+)"', block.group(1))
+    want = [e.replace(" ", "") for e in setup_keyword("entry_points")["console_scripts"]]
+    assert listed == want
 
 
 def test_the_resolver_knows_a_key_from_a_name():

@@ -23,7 +23,7 @@ from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rosgraph import PAPER, await_subscribers, fast_params, publishers, wait_for  # noqa: E402
 from rosgraph import graph as graph  # noqa: E402  (the fixture)
-from std_msgs.msg import Float64MultiArray, String  # noqa: E402
+from std_msgs.msg import String  # noqa: E402
 
 from mr_ident.diagnosis.monitoring.monitor import load_watch, watch_windows  # noqa: E402
 from mr_ident.io.datafile import read_data  # noqa: E402
@@ -32,6 +32,7 @@ from mr_ident.live.replay import bag_windows  # noqa: E402
 from mr_ident.numerics.excitation.sources import SimSource  # noqa: E402
 from mr_ident.numerics.systems.simulate import simulate  # noqa: E402
 from mr_ident.ros.messages import RESULT_QOS, block_msg  # noqa: E402
+from mr_ident.ros.outputs import DriftMsg  # noqa: E402
 
 
 class PlantListener:
@@ -40,7 +41,7 @@ class PlantListener:
     def __init__(self, graph):
         n = graph.node("plant_listener")
         self.plant: list[tuple[int, str, dict[str, str]]] = []
-        self.drift: list[Float64MultiArray] = []
+        self.drift: list = []  # mr_ident_msgs/Drift
         self.found: list[dict] = []
 
         def on_diag(m):
@@ -50,7 +51,7 @@ class PlantListener:
                     self.plant.append((level, s.message, {kv.key: kv.value for kv in s.values}))
 
         n.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 10)
-        n.create_subscription(Float64MultiArray, "/mr_ident/drift", self.drift.append, RESULT_QOS)
+        n.create_subscription(DriftMsg, "/mr_ident/drift", self.drift.append, RESULT_QOS)
         n.create_subscription(
             String, "/mr_ident/diagnosis", lambda m: self.found.append(json.loads(m.data)), 10
         )
@@ -115,7 +116,9 @@ def test_node_reports_ok_then_the_drift_and_its_cause(graph, tmp_path: Path):
     fresh = [p for p in checked if p[0] != 3]
     assert fresh and all(level == 0 for level, _, _ in fresh), fresh[-1]
     assert fresh[-1][1] == "matches the reference"
-    assert lis.drift and [d.label for d in lis.drift[-1].layout.dim] == ["quantity", "frequency"]
+    d = lis.drift[-1]  # stamped as the estimate it compares, one value per published bin
+    assert d.header.stamp.sec > 0 and d.window_last > 0
+    assert len(d.frequency) == len(d.deviation) == len(d.sigma_error) == len(d.threshold) > 0
 
     drifted = SimSource(replace(nominal, plant_gain=1.3), block=240, seed=6)
     drifted.next_index = src.next_index  # the same stream goes on

@@ -69,6 +69,8 @@ def test_two_nodes_in_two_namespaces_each_on_its_own_loop(graph, tmp_path):
             graph,
             "mr-ident-node",
             *b_args,
+            "-p",
+            "autostart:=true",
             "-r",
             "__node:=ident",
             "--params-file",
@@ -116,6 +118,7 @@ def test_relative_sources_follow_the_namespace_and_remaps_and_the_helper_is_its_
     source = 'js.position{name=="j1"}'
     args = [
         *("--ros-args", "-r", "__ns:=/c", "-r", "__node:=ident", "-r", "js:=joint_states"),
+        *("-p", "autostart:=true"),
         *("-p", f"r_source:=['{source}']", "-p", f"u_source:=['{source}']"),
         *("-p", f"y_source:=['{source}']"),
     ]

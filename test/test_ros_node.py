@@ -322,7 +322,8 @@ def test_live_and_replay_take_the_same_path_for_every_block_bad_ones_included(gr
             for k, v in cfg.as_dict().items()
             if k in ("window_s", "min_window_s")
         ]
-        + CONTROLLER,
+        + CONTROLLER
+        + [Parameter("autostart", value=True)],
     )
     try:
         assert node.autostart()

@@ -196,6 +196,8 @@ def test_node_console_script_takes_params_file_and_remaps(graph, tmp_path):
         graph,
         "mr-ident-node",
         "--ros-args",
+        "-p",
+        "autostart:=true",
         "--params-file",
         str(params),
         "-r",
@@ -238,6 +240,8 @@ def test_node_recording_on_a_full_disk_is_an_error_on_diagnostics_and_estimation
         graph,
         "mr-ident-node",
         "--ros-args",
+        "-p",
+        "autostart:=true",
         "-p",
         "window_s:=20.0",
         "-p",
@@ -319,7 +323,14 @@ def test_node_rejects_a_bad_params_file(tmp_path):
     params.write_text("mr_ident:\n  ros__parameters:\n    ratio: 3\n    lifting_phase: '4'\n")
     with domain_id() as dom:
         proc = subprocess.run(
-            [venv_bin("mr-ident-node"), "--ros-args", "--params-file", str(params)],
+            [
+                venv_bin("mr-ident-node"),
+                "--ros-args",
+                "-p",
+                "autostart:=true",
+                "--params-file",
+                str(params),
+            ],
             env=domain_env(dom),
             capture_output=True,
             text=True,

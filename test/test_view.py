@@ -167,7 +167,8 @@ def test_the_page_in_a_real_browser_plots_the_nodes_estimate(tmp_path):
     with domain_id() as dom:
         env = domain_env(dom)
         params = [
-            "--ros-args", "-p", "window_s:=60.0", "-p", "min_window_s:=10.0",
+            "--ros-args", "-p", "autostart:=true",
+            "-p", "window_s:=60.0", "-p", "min_window_s:=10.0",
             "-p", "update_period_s:=1.0", "-p", "controller_num:=[6000.0, -5400.0]",
             "-p", "controller_den:=[1.0, -0.3]",
         ]  # fmt: skip

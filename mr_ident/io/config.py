@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -65,7 +66,12 @@ PARAMETERS: dict[str, Param] = {
     "min_window_s": Param(
         "first estimate once the aligned window holds this many seconds", 1e-3, 1e7
     ),
-    "update_period_s": Param("re-identify every this many seconds (wall clock)", 1e-3, 1e5),
+    "update_period_s": Param(
+        "re-identify every this many seconds of the ROS clock (/clock with use_sim_time), "
+        "when new data came",
+        1e-3,
+        1e5,
+    ),
     "lifting_phase": Param(
         'high-rate index (mod F) at which the controller samples y: "auto" or 0..F-1'
     ),
@@ -92,15 +98,17 @@ PARAMETERS: dict[str, Param] = {
         "at most this many log-spaced bins published per estimate", 2, 1_000_000
     ),
     "record_path": Param(
-        "MCAP file the node records its input topics (and the labels' topic) to; empty: off"
+        "MCAP file the node records its input topics (and the labels' topic) to, or a new "
+        "name beside it when it exists (never overwritten); while recording, the file being "
+        "written; empty: off"
     ),
     "reorder_blocks": Param(
         "blocks held per stream waiting for a missing one before it is a gap", 0, 10_000
     ),
     "stall_timeout_s": Param("a stream silent this long is reported as stalled", 1e-3, 1e5),
     "r_source": Param(
-        "sources of r: topic + field path each (one channel each; README 'Use it on your "
-        "robot'); all three empty: the block topics reference, input, output"
+        "sources of r: topic + field path each (one channel each; docs: Sources and "
+        "bags); all three empty: the block topics reference, input, output"
     ),
     "u_source": Param("sources of u (plant input), as r_source"),
     "y_source": Param("sources of y (plant output), as r_source"),
@@ -416,17 +424,27 @@ class IdentConfig:
         }
 
 
+def share_dirs() -> list[Path]:
+    """Where an installed mr_ident keeps its shipped files: ``<prefix>/share/mr_ident``.
+
+    The prefix this package is installed under (a colcon install space), the interpreter's
+    (a venv), then those of ``AMENT_PREFIX_PATH`` (a sourced workspace).
+    """
+    site = Path(__file__).resolve().parents[2]  # the directory holding the package
+    prefixes = [site.parents[2]] if site.name in ("site-packages", "dist-packages") else []
+    prefixes.append(Path(sys.prefix))
+    prefixes += [Path(p) for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    return list(dict.fromkeys(p / "share" / "mr_ident" for p in prefixes))
+
+
 def share_file(rel: str, hint: str = "") -> Path:
-    """A shipped file (``config/...``): from the source tree, else ``<prefix>/share/mr_ident``."""
-    for cand in (
-        Path(__file__).resolve().parents[2] / rel,
-        Path(sys.prefix) / "share" / "mr_ident" / rel,
-    ):
+    """A shipped file (``config/...``): from the source tree, else :func:`share_dirs`."""
+    dirs = share_dirs()
+    for cand in [Path(__file__).resolve().parents[2] / rel, *(d / rel for d in dirs)]:
         if cand.is_file():
             return cand
-    raise ConfigError(
-        f"{rel} not found (looked in the source tree and {sys.prefix}/share/mr_ident){hint}"
-    )
+    where = ", ".join(str(d) for d in dirs)
+    raise ConfigError(f"{rel} not found (looked in the source tree and {where}){hint}")
 
 
 def load_params(path: str | Path, node_name: str = "mr_ident") -> IdentConfig:

@@ -8,8 +8,11 @@ profile ``ros2``; one schema per type, encoding ``ros2msg``, holding the type's
 and ``MSG: pkg/Type``; message encoding ``cdr``; channel metadata
 ``offered_qos_profiles`` (YAML list of the publishers' QoS) and
 ``topic_type_hash`` (RIHS01). Log and publish times are in ns. Chunks are
-zstd-compressed and closed every ``chunk_size`` bytes, so a file cut short is
-readable up to its last finished chunk.
+zstd-compressed and closed every ``chunk_size`` bytes or, with ``chunk_s``, once their
+first message is that old (wall clock), and the file is flushed to the operating system
+at every chunk: a file cut short (a crash, SIGKILL) is readable up to its last finished
+chunk. With ``exclusive`` an existing file is never opened (:func:`fresh_path` names a
+new one).
 
 Reading (:func:`read_blocks`) decodes MCAP files with the independent ``mcap_ros2``
 decoder and tolerates a truncated file (it reports how much was recovered); SQLite3 and
@@ -21,6 +24,7 @@ it reads through the node's own steps.
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -72,20 +76,43 @@ def qos_yaml(profiles: Sequence[Mapping[str, Any]]) -> str:
     return "\n".join(lines) if lines else "[]"
 
 
+def fresh_path(path: str | Path) -> Path:
+    """``path`` if no file is there, else the first free ``<stem>_<k><suffix>`` (k = 1, 2...)."""
+    p = Path(path)
+    k = 0
+    while (cand := p if k == 0 else p.with_name(f"{p.stem}_{k}{p.suffix}")).exists():
+        k += 1
+    return cand
+
+
 class McapRecorder:
     """Thread-safe rosbag2-compatible MCAP writer (see the module docstring).
 
     Use as a context manager, or call :meth:`close`; ``close`` is idempotent and
     finalises the file (summary, footer), so call it from signal handlers' paths.
+    ``exclusive``: raise FileExistsError rather than truncate an existing file.
+    ``chunk_s``: a chunk is closed once its first message is this many seconds old, at
+    the next :meth:`write` or :meth:`tick` (None: by size only).
     """
 
-    def __init__(self, path: str | Path, *, chunk_size: int = 1 << 20, library: str | None = None):
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        chunk_size: int = 1 << 20,
+        chunk_s: float | None = None,
+        exclusive: bool = False,
+        library: str | None = None,
+    ):
         from mcap.writer import CompressionType, Writer
 
         from ..version import __version__
 
         self.path = Path(path)
-        self._fh: IO[bytes] | None = open(self.path, "wb")
+        self._fh: IO[bytes] | None = open(self.path, "xb" if exclusive else "wb")
+        self._chunk_s = chunk_s
+        self._chunk_started: float | None = None  # monotonic time of the open chunk's first
+        self._chunks = 0
         self._writer = Writer(self._fh, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         self._writer.start(profile="ros2", library=library or f"mr_ident {__version__}")
         self._lock = threading.Lock()
@@ -134,12 +161,39 @@ class McapRecorder:
                     publish_time=log_time_ns if publish_time_ns is None else publish_time_ns,
                     sequence=self._seq[channel],
                 )
+                self._after_message()
             except OSError as err:  # e.g. disk full: keep what the finished chunks hold
                 self.error = err
                 return False
             self._seq[channel] += 1
             self.messages += 1
             return True
+
+    def _after_message(self) -> None:
+        if self._chunk_started is None:
+            self._chunk_started = time.monotonic()
+        self._chunk_due()
+
+    def _chunk_due(self) -> None:
+        """An open chunk past ``chunk_s`` closed; a chunk written goes to the OS at once."""
+        assert self._fh is not None
+        old = self._chunk_started is not None and time.monotonic() - self._chunk_started
+        if self._chunk_s is not None and old is not False and old >= self._chunk_s:
+            self._writer._Writer__finalize_chunk()  # type: ignore[attr-defined]
+        count = self._writer._Writer__statistics.chunk_count  # type: ignore[attr-defined]
+        if count != self._chunks:  # a chunk was written (by size or age): flush it now
+            self._chunks, self._chunk_started = count, None
+            self._fh.flush()
+
+    def tick(self) -> None:
+        """Close the open chunk when it is past ``chunk_s`` (a timer's call, between messages)."""
+        with self._lock:
+            if self._fh is None or self.error is not None:
+                return
+            try:
+                self._chunk_due()
+            except OSError as err:
+                self.error = err
 
     @property
     def failure(self) -> str:

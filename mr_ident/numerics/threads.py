@@ -9,21 +9,36 @@ threads run: the two kinds of threads would otherwise compete for the cores
 
 from __future__ import annotations
 
+import contextlib
 import os
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, TypeVar
 
 import numpy  # noqa: F401  (loads OpenBLAS before the controller below looks for it)
-from threadpoolctl import ThreadpoolController
 
 from ..errors import ConfigError
+
+try:  # optional: no rosdep key (pip install threadpoolctl); without it BLAS is not limited
+    from threadpoolctl import ThreadpoolController
+except ImportError:  # pragma: no cover - the tests run with it
+    ThreadpoolController = None
 
 #: The BLAS libraries, found once at import. Finding them walks the loaded libraries
 #: (``dl_iterate_phdr``, a Python callback under the loader's lock); done per call, it
 #: deadlocked when another thread loaded an extension module meanwhile (the node's worker
 #: identifying while the main thread imported a message type).
-_BLAS = ThreadpoolController()
+_BLAS = ThreadpoolController() if ThreadpoolController is not None else None
+
+#: Why BLAS threads are not limited while bins run on threads ("" when they are): said
+#: once by the programs that run identifications (the node's log, the CLI's notes).
+BLAS_UNLIMITED = (
+    ""
+    if _BLAS is not None
+    else "threadpoolctl is not installed (pip install threadpoolctl): OpenBLAS threads are "
+    "not limited while bins run on threads, which can make identifications several times "
+    "slower on a machine with many cores"
+)
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -47,6 +62,8 @@ def one_blas_thread() -> Any:
     Its threads on the small batched products of the LPM made one fit up to 30x slower on
     the shared 2-core machine.
     """
+    if _BLAS is None:
+        return contextlib.nullcontext()
     return _BLAS.limit(limits=1, user_api="blas")
 
 

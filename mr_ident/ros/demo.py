@@ -81,6 +81,8 @@ def run_demo(
                 [
                     str(bindir / "mr-ident-node"),
                     "--ros-args",
+                    "-p",
+                    "autostart:=true",
                     "--params-file",
                     str(params_path),
                     "-p",

@@ -14,7 +14,7 @@ from .program import handle_signals
 def node_main() -> int:
     """``mr-ident-node``."""
     handle_signals()
-    from .node import main
+    from .node_main import main
 
     return main()
 

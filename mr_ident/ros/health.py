@@ -54,6 +54,7 @@ class Health:
     clock: str = ""  # why the ROS clock stands still ("" when it runs)
     active: bool = True
     missing: int = 0  # indices of the window where u or y is missing (bridged holes)
+    qos_problems: dict[str, str] | None = None  # stream -> an incompatible QoS policy seen
 
 
 def _level(h: Health) -> tuple[Any, str, list[str]]:
@@ -88,7 +89,10 @@ def _level(h: Health) -> tuple[Any, str, list[str]]:
         more = f" (+{len(recent) - 1} more: recent_anomalies)" if len(recent) > 1 else ""
         return DiagnosticStatus.WARN, h.notes[-1][1] + more, recent
     if silent and now - h.started > cfg.stall_timeout_s:
-        return DiagnosticStatus.WARN, f"no data yet on {', '.join(silent)}", recent
+        qos = h.qos_problems or {}
+        why = [f"{s} (a publisher's QoS is incompatible: {qos[s]})" if s in qos else s
+               for s in silent]  # fmt: skip
+        return DiagnosticStatus.WARN, f"no data yet on {', '.join(why)}", recent
     if h.estimate is None:
         return (
             DiagnosticStatus.OK,
@@ -140,6 +144,8 @@ def identification_status(h: Health, name: str, hardware_id: str) -> DiagnosticS
         values["lifting_phase"] = cfg.lifting_phase
     for stream, st in h.stats.items():
         values.update({f"{stream}.{k}": v for k, v in st.as_dict().items()})
+    for stream, policy in (h.qos_problems or {}).items():
+        values[f"{stream}.incompatible_qos"] = policy
     status = DiagnosticStatus(
         level=level, name=f"{name}: identification", message=reason, hardware_id=hardware_id
     )
@@ -147,11 +153,22 @@ def identification_status(h: Health, name: str, hardware_id: str) -> DiagnosticS
     return status
 
 
-def unconfigured_status(fqn: str, error: str) -> DiagnosticStatus:
-    """The status of a node not configured (yet), with why its configure failed."""
-    return DiagnosticStatus(
-        level=DiagnosticStatus.WARN,
-        name=f"{fqn}: identification",
-        message="unconfigured" + (f": {error}" if error else ""),
-        hardware_id=fqn,
+def unconfigured_status(fqn: str, error: str, state: str = "unconfigured") -> DiagnosticStatus:
+    """The status of a node not configured: it waits for configure, or why configure failed.
+
+    OK while it waits (a managed node starts so, until its launch file or lifecycle manager
+    configures it); ERROR when its last configure failed, with the reason.
+    """
+    if error:
+        level, message = DiagnosticStatus.ERROR, f"{state}: configure failed: {error}"
+    else:
+        message = (
+            f"{state}: waiting for configure (a launch file or lifecycle manager; "
+            f"ros2 lifecycle set {fqn} configure)"
+        )
+        level = DiagnosticStatus.OK
+    status = DiagnosticStatus(
+        level=level, name=f"{fqn}: identification", message=message, hardware_id=fqn
     )
+    status.values = [KeyValue(key="lifecycle", value=state)]
+    return status

@@ -12,6 +12,11 @@ still running, are not published.
 Timers here run on the steady clock: the sources are drained and reordered blocks given
 up on whatever the ROS clock does (with ``use_sim_time`` and no /clock the memory stays
 bounded).
+
+QoS of the block topics: reliable (keep-last 1000) unless a publisher on the topic offers
+best effort (a sensor-data publisher) when the node subscribes; a best-effort publisher
+that comes later is reported incompatible by DDS: the node names it (the policy, on
+/diagnostics) and subscribes that stream again best effort, which matches every publisher.
 """
 
 from __future__ import annotations
@@ -21,6 +26,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.qos import QoSPolicyKind, QoSProfile, ReliabilityPolicy, qos_policy_name_from_kind
 from std_msgs.msg import Float64MultiArray
 
 from ..io.blocks import STREAMS, Block
@@ -31,7 +38,7 @@ from ..live.gaps import config_bridging
 from ..live.ingest import Ingest
 from ..live.sampling import grid_stamps
 from ..numerics.signals import LoopData
-from .messages import BLOCK_QOS, BLOCK_TYPE, decode_raw
+from .messages import BLOCK_QOS, BLOCK_TYPE, decode_raw, subscription_qos
 from .recorder import NodeRecorder
 from .sources import BATCH_S, SourceSubscriber
 
@@ -58,6 +65,8 @@ class Inputs:
         self.note = note
         self.steady = steady
         self.subs: list[Any] = []
+        self.qos_problems: dict[str, str] = {}  # stream -> the incompatible QoS policy seen
+        self._best_effort: set[int] = set()  # streams to subscribe again best effort
         self.sources: SourceSubscriber | None = None
         self.samples_in = 0
         self.generation = 0
@@ -135,15 +144,7 @@ class Inputs:
         if cfg.sources is None:  # the block contract on reference, input, output
             labels = cfg.excitation_index_topic  # and the excitation's labels
             for s, topic in enumerate(STREAMS + ((labels,) if labels else ())):
-                self.subs.append(
-                    self.node.create_subscription(
-                        Float64MultiArray,
-                        topic,
-                        functools.partial(self.on_block, s),
-                        BLOCK_QOS,
-                        raw=True,
-                    )
-                )
+                self.subs.append(self._block_subscription(s, topic))
             return
         # per-sample sources: subscribed once their topics are on the graph
         self.sources = SourceSubscriber(
@@ -159,6 +160,52 @@ class Inputs:
             self.node.create_timer(0.5, self.sources.poll, clock=self.steady),
             self.node.create_timer(BATCH_S, self.on_sources, clock=self.steady),
         ]
+
+    def _block_subscription(self, stream: int, topic: str, best_effort: bool = False) -> Any:
+        """The subscription of a block stream: reliable unless a publisher offers less."""
+        node = self.node
+        infos = node.get_publishers_info_by_topic(node.resolve_topic_name(topic))
+        qos = (
+            subscription_qos(infos, depth=BLOCK_QOS.depth)
+            if infos
+            else QoSProfile(
+                history=BLOCK_QOS.history,
+                depth=BLOCK_QOS.depth,
+                reliability=BLOCK_QOS.reliability,
+                durability=BLOCK_QOS.durability,
+            )
+        )  # a profile of its own: BLOCK_QOS is everyone's
+        if best_effort:
+            qos.reliability = ReliabilityPolicy.BEST_EFFORT
+        return node.create_subscription(
+            Float64MultiArray,
+            topic,
+            functools.partial(self.on_block, stream),
+            qos,
+            raw=True,
+            event_callbacks=SubscriptionEventCallbacks(
+                incompatible_qos=functools.partial(self.on_incompatible, stream)
+            ),
+        )
+
+    def on_incompatible(self, stream: int, event: Any) -> None:
+        """A publisher the subscription cannot match: named, and best effort if it can help."""
+        name = self.aligner.names[stream]
+        policy = qos_policy_name_from_kind(event.last_policy_kind)
+        sub = self.subs[stream] if stream < len(self.subs) else None
+        if sub is None:  # unsubscribed meanwhile
+            return
+        reliable = sub.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+        if event.last_policy_kind == QoSPolicyKind.RELIABILITY and reliable:
+            self._best_effort.add(stream)  # the steady timer subscribes again
+            self.note(
+                f"{name}: a publisher on {sub.topic_name} offers best effort (incompatible "
+                f"QoS: {policy}): subscribed again best effort"
+            )
+            return
+        self.qos_problems[name] = policy
+        topic = sub.topic_name
+        self.note(f"{name}: a publisher on {topic} offers an incompatible QoS ({policy})")
 
     def unsubscribe(self) -> None:
         """Drop the subscriptions (deactivate)."""
@@ -217,6 +264,15 @@ class Inputs:
                     self.samples_in += st.samples - b
 
     def expire(self) -> None:
-        """Give up on blocks that waited too long for a missing one (a steady timer)."""
+        """Give up on blocks that waited too long for a missing one (a steady timer).
+
+        And subscribe again best effort the streams a best-effort publisher asked for.
+        """
+        for stream in sorted(self._best_effort):
+            if stream < len(self.subs):
+                old = self.subs[stream]
+                self.subs[stream] = self._block_subscription(stream, old.topic_name, True)
+                self.node.destroy_subscription(old)
+        self._best_effort.clear()
         for note in self.ingest.expire(time.monotonic(), REORDER_WAIT_S):
             self.note(note)

@@ -8,9 +8,9 @@ and at most one runs at a time. With ``record_path`` set, the diagnosed window i
 beside the recording as ``<record_path stem>.event-<k>.npz`` (r, u, y, fs_high, F), which
 ``mr-ident diagnose --data`` reads.
 
-``~/drift`` (Float64MultiArray, dims ``quantity`` x ``frequency``): rows frequency (Hz),
-relative deviation ``|P̂ - P_ref| / |P_ref|``, σ-error, its threshold, on the published
-bins. ``~/diagnosis`` (std_msgs/String): the latest diagnosis as JSON
+``~/drift`` (``mr_ident_msgs/Drift``, stamped as the estimate it compares): frequency
+(Hz), relative deviation ``|P̂ - P_ref| / |P_ref|``, σ-error and its threshold, on the
+published bins. ``~/diagnosis`` (std_msgs/String): the latest diagnosis as JSON
 (:meth:`~mr_ident.diagnosis.monitoring.monitor.WindowDiagnosis.as_dict`, plus ``event_file``).
 """
 
@@ -22,10 +22,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rclpy.node import Node
-from std_msgs.msg import Float64MultiArray, String
+from std_msgs.msg import String
 
 from ..diagnosis.monitoring.monitor import MonitorState, PlantWatch, WindowDiagnosis, load_watch
 from ..errors import MrIdentError
@@ -34,7 +33,8 @@ from ..io.datafile import write_data
 from ..live.estimate import Estimate, publish_grid
 from ..numerics.signals import LoopData
 from ..numerics.systems.model import Model
-from .messages import RESULT_QOS, multiarray
+from .messages import RESULT_QOS
+from .outputs import DriftMsg, floats, stamp
 
 #: :meth:`PlantMonitoring.load`: the watch in use stays.
 KEEP = object()
@@ -54,7 +54,7 @@ class PlantMonitoring:
         self._lock = threading.Lock()
         self._watch = load_watch(cfg)
         self._config = cfg
-        self._pub_drift = node.create_publisher(Float64MultiArray, "~/drift", RESULT_QOS)
+        self._pub_drift = node.create_publisher(DriftMsg, "~/drift", RESULT_QOS)
         self._pub_diag = node.create_publisher(String, "~/diagnosis", RESULT_QOS)
         self._state: MonitorState | None = None
         self._state_wall = 0.0
@@ -103,10 +103,12 @@ class PlantMonitoring:
         self._node.destroy_publisher(self._pub_diag)
 
     # -- the estimating thread ----------------------------------------------------------
-    def observe(self, est: Estimate, window: LoopData, cfg: IdentConfig) -> MonitorState | None:
+    def observe(
+        self, est: Estimate, window: LoopData, cfg: IdentConfig, stamp_ns: int = 0
+    ) -> MonitorState | None:
         """Hold ``est`` against the reference; publish; start a diagnosis when one is due.
 
-        The monitor's state (None without a reference).
+        The monitor's state (None without a reference). ``stamp_ns``: the estimate's stamp.
         """
         watch = self._watch
         if watch is None:
@@ -116,9 +118,12 @@ class PlantMonitoring:
             self._state, self._state_wall = state, time.monotonic()
         d = state.drift
         k = publish_grid(d.frequency.size, cfg.publish_points)
-        rows = np.stack([d.frequency[k], d.deviation[k], d.sigma_error[k], d.threshold[k]])
-        dims = [("quantity", 4, rows.size), ("frequency", k.size, k.size)]
-        self._pub_drift.publish(multiarray(dims, rows))
+        msg = DriftMsg()
+        stamp(msg, stamp_ns)
+        msg.window_last = int(est.first + est.n_samples - 1)
+        for field in ("frequency", "deviation", "sigma_error", "threshold"):
+            setattr(msg, field, floats(getattr(d, field)[k]))
+        self._pub_drift.publish(msg)
         busy = self._thread is not None and self._thread.is_alive()
         if state.diagnose and watch.model is not None and not busy:
             self._thread = threading.Thread(

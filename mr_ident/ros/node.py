@@ -17,62 +17,52 @@ Lifecycle (``rclpy.lifecycle``; ros2/demos' ``lifecycle_py`` talker is the model
 * ``cleanup``: back to unconfigured; ``shutdown``: the recording finalised first, then a
   running identification awaited at most :data:`JOIN_S`.
 
-``mr-ident-node`` configures and activates itself (parameter ``autostart``, default true).
+``mr-ident-node`` waits unconfigured for a launch file or lifecycle manager, as a managed
+node does; with ``autostart:=true`` it configures and activates itself. A request for a
+transition the state has not is refused (success false, the reason logged), never fatal
+(:mod:`mr_ident.ros.lifecycle`). Without its interfaces (mr_ident_msgs) configure fails,
+saying how to build them.
 """
 
 from __future__ import annotations
 
-import contextlib
-import functools
-import sys
 import threading
 import time
-import traceback
-from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 
-from ..allocator import keep_freed_memory
 from ..errors import ConfigError, MrIdentError
 from ..io.config import IdentConfig
 from ..live.estimate import Estimate, estimate, warm_up
 from ..numerics.signals import LoopData
+from ..numerics.threads import BLAS_UNLIMITED
 from . import params
 from .health import NO_CLOCK, Health, identification_status, unconfigured_status
 from .inputs import Inputs
+from .lifecycle import answer_every_request, logged, state_label
 from .monitoring import PlantMonitoring
-from .outputs import Outputs
-from .program import handle_signals, ros_context, spin_until_stopped
+from .outputs import EstimateMsg, Outputs
 from .recorder import NodeRecorder
 from .services import NodeServices
 
 JOIN_S = 1.0  # at shutdown, a running identification is awaited this long (after the MCAP)
+#: Why configure fails without the interface package, and how to get it.
+MISSING_INTERFACES = (
+    "the interface package mr_ident_msgs (~/estimate, ~/summary and the services) is not "
+    "installed: build it with this package (`colcon build` in the workspace that holds the "
+    "mr_ident repository, then `source install/setup.bash`; or `make venv` in the repository)"
+)
 
 SUCCESS = TransitionCallbackReturn.SUCCESS
 FAILURE = TransitionCallbackReturn.FAILURE
 ERROR = TransitionCallbackReturn.ERROR
-
-
-def _logged(transition: Callable[..., Any]) -> Callable[..., Any]:
-    """A transition whose exception is logged with its traceback (rclpy only says ERROR)."""
-
-    @functools.wraps(transition)
-    def run(node: IdentNode, state: LifecycleState) -> TransitionCallbackReturn:
-        try:
-            return transition(node, state)
-        except Exception:
-            node.get_logger().error(f"{transition.__name__} raised:\n{traceback.format_exc()}")
-            return ERROR
-
-    return run
 
 
 @dataclass(frozen=True)
@@ -90,6 +80,7 @@ class IdentNode(LifecycleNode):
 
     def __init__(self, name: str = "mr_ident", **kwargs: Any):
         super().__init__(name, **kwargs)
+        answer_every_request(self)  # a transition the state has not: success false, logged
         params.declare(self)  # values are checked at configure
         self.add_on_set_parameters_callback(self._on_set)
         self.add_post_set_parameters_callback(self._after_set)
@@ -112,25 +103,35 @@ class IdentNode(LifecycleNode):
         self._busy = False
         self._worker_thread: threading.Thread | None = None
         self._recording = NodeRecorder(self)
+        self._naming = False
         self._node_timers: list[Any] = []
         self.inputs: Inputs | None = None  # subscriptions and window, made at configure
         self._outputs: Outputs | None = None
         self._monitoring: PlantMonitoring | None = None
         self._srv: NodeServices | None = None
-        self._pub_diag: Any = None
+        # /diagnostics from the start (an unconfigured node says that it waits) to finalized
+        self._pub_diag: Any = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._diag_timer: Any = self.create_timer(
+            1.0, self._publish_diagnostics, clock=self._steady
+        )
 
     # -- lifecycle ----------------------------------------------------------------------
     def autostart(self) -> bool:
         """Configure and activate when the parameter ``autostart`` says so; whether it worked."""
         if not params.flag(self, "autostart"):
-            self.get_logger().info("autostart is false: waiting for lifecycle transitions")
+            self.get_logger().info(
+                "unconfigured: waiting for lifecycle transitions (a launch file or lifecycle "
+                "manager; autostart:=true configures and activates at start)"
+            )
             return True
         return self.trigger_configure() == SUCCESS and self.trigger_activate() == SUCCESS
 
-    @_logged
+    @logged
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Check the parameters, load the reference, make the outputs, start the warm-up."""
         try:
+            if EstimateMsg is None:
+                raise ConfigError(MISSING_INTERFACES)
             cfg = params.read(self)
             monitoring = PlantMonitoring(self, cfg)  # loads the reference
         except MrIdentError as err:
@@ -138,17 +139,15 @@ class IdentNode(LifecycleNode):
             self.get_logger().error(f"configure failed: {err}")
             return FAILURE
         self.configure_error = ""
+        if BLAS_UNLIMITED:  # optional (no rosdep key): the node runs without it, slower
+            self.get_logger().warning(BLAS_UNLIMITED, once=True)
         self.config, self._monitoring = cfg, monitoring
         self._stopping = self._joined = False
         self.inputs = Inputs(self, cfg, self._recording, self._note, self._steady)
         self._outputs = Outputs(self, params.flag(self, "legacy_array_topics"))
-        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._srv = NodeServices(self)
         self._update_timer = self.create_timer(cfg.update_period_s, self._on_update)  # ROS clock
-        self._node_timers = [
-            self._update_timer,
-            self.create_timer(1.0, self._publish_diagnostics, clock=self._steady),
-        ]
+        self._node_timers = [self._update_timer]
         # One identification of a synthetic full-size window, so that the first real one
         # does not pay the one-time costs (see live.warm_up); estimates wait for it.
         self._busy, self._warm_up = True, ""
@@ -158,19 +157,19 @@ class IdentNode(LifecycleNode):
         self._worker_thread.start()
         return super().on_configure(state)
 
-    @_logged
+    @logged
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Subscribe to the inputs, open ``record_path``, publish estimates."""
         cfg = self.config
         assert cfg is not None
         assert self.inputs is not None
         self.inputs.subscribe()
-        if cfg.record_path:
-            self._recording.open(cfg.record_path)
+        if cfg.record_path:  # a new file named after the path asked for, never an old one
+            self.start_recording(self._recording.last or cfg.record_path)
         self._active = True
         return super().on_activate(state)
 
-    @_logged
+    @logged
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Unsubscribe, finalise the recording, drop the window."""
         self._active = False
@@ -180,16 +179,24 @@ class IdentNode(LifecycleNode):
         self._recording.close()
         return super().on_deactivate(state)
 
-    @_logged
+    @logged
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Undo the configure (back to unconfigured)."""
         self._release()
         return super().on_cleanup(state)
 
-    @_logged
+    @logged
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Finalise the recording, then wait a bounded time for the workers."""
+        """Finalise the recording, wait a bounded time for the workers, release everything.
+
+        Finalized, the node keeps only what rclpy gives every node (the lifecycle and
+        parameter services): no subscription, service, timer or publisher of its own.
+        """
         self.shutdown()
+        self._release()
+        self.destroy_timer(self._diag_timer)
+        self.destroy_publisher(self._pub_diag)
+        self._pub_diag = None
         return super().on_shutdown(state)
 
     def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -220,9 +227,6 @@ class IdentNode(LifecycleNode):
         if self._monitoring is not None:
             self._monitoring.destroy()
             self._monitoring = None
-        if self._pub_diag is not None:
-            self.destroy_publisher(self._pub_diag)
-            self._pub_diag = None
         self.config = None
 
     # -- parameters: checked in _on_set, applied in _after_set -----------------------------
@@ -245,6 +249,9 @@ class IdentNode(LifecycleNode):
         return SetParametersResult(successful=True)
 
     def _after_set(self, changed: list[Parameter]) -> None:
+        for p in changed:  # a path asked for (not the file's name): new files are named after it
+            if p.name == "record_path" and not self._naming:
+                self._recording.last = str(p.value or "")
         pending, self._pending = self._pending, None
         old = self.config
         if pending is None or old is None:  # unconfigured: read at configure
@@ -268,11 +275,40 @@ class IdentNode(LifecycleNode):
             self.destroy_timer(self._update_timer)
             self._update_timer = self.create_timer(new.update_period_s, self._on_update)
             self._node_timers[0] = self._update_timer
+        current = self._recording.path
         if new.record_path != old.record_path and self._active:
-            self._recording.close()
-            self._recording.error = ""
-            if new.record_path:
-                self._recording.open(new.record_path)
+            if new.record_path != (str(current) if current is not None else ""):
+                self._recording.close()
+                self._recording.error = ""
+                if new.record_path:
+                    self.start_recording(new.record_path)
+
+    # -- the recording ------------------------------------------------------------------------
+    def start_recording(self, path: str) -> Path | None:
+        """Record the inputs to a new file, ``path`` or a new name beside it; its path.
+
+        ``record_path`` is set to the file being written (None and :attr:`recording`'s error
+        when it cannot be opened).
+        """
+        target = self._recording.open(path)
+        if target is not None:
+            self._name_recording(str(target))
+        return target
+
+    def stop_recording(self) -> Path | None:
+        """Finalise the recording; ``record_path`` empty. The file finalised, or None."""
+        path = self._recording.path
+        self._recording.close()
+        self._name_recording("")
+        return path
+
+    def _name_recording(self, value: str) -> None:
+        if self.get_parameter("record_path").value != value:
+            self._naming = True  # the file's name, not a new path asked for
+            try:
+                self.set_parameters([Parameter("record_path", value=value)])
+            finally:
+                self._naming = False
 
     # -- the window -------------------------------------------------------------------------
     def reset_window(self) -> None:
@@ -304,13 +340,21 @@ class IdentNode(LifecycleNode):
         self._busy = True
         self._worker_thread = threading.Thread(
             target=self._work,
-            args=(window, cfg, inputs.stamp(window.end - 1), inputs.generation),
+            args=(
+                window,
+                cfg,
+                inputs.stamp(window.end - 1),
+                inputs.generation,
+                inputs.aligner.missing(window.first, window.end),
+            ),
             daemon=True,
             name="mr_ident-estimate",
         )
         self._worker_thread.start()
 
-    def _work(self, window: LoopData, cfg: IdentConfig, stamp: int, generation: int) -> None:
+    def _work(
+        self, window: LoopData, cfg: IdentConfig, stamp: int, generation: int, missing: int
+    ) -> None:
         try:
             est = estimate(window, cfg)
             inputs = self.inputs
@@ -321,8 +365,8 @@ class IdentNode(LifecycleNode):
                 and generation == inputs.generation
             )
             if current and self._outputs is not None and self._monitoring is not None:
-                state = self._monitoring.observe(est, window, cfg)
-                msg = self._outputs.publish(est, cfg, stamp, state)
+                state = self._monitoring.observe(est, window, cfg, stamp)
+                msg = self._outputs.publish(est, cfg, stamp, state, missing)
                 with self._lock:
                     self._published = Published(est, stamp, window, msg)
                     self._last_estimate_wall = time.monotonic()
@@ -383,7 +427,7 @@ class IdentNode(LifecycleNode):
         fqn = self.get_fully_qualified_name()
         cfg, inputs = self.config, self.inputs
         if cfg is None or inputs is None:
-            return unconfigured_status(fqn, self.configure_error)
+            return unconfigured_status(fqn, self.configure_error, state_label(self))
         with self._lock:
             pub, err, err_t = self._published, self._last_error, self._last_error_time
             n_est, est_t = self._estimates, self._last_estimate_wall
@@ -412,15 +456,19 @@ class IdentNode(LifecycleNode):
             if self.get_parameter("use_sim_time").value and self.get_clock().now().nanoseconds == 0
             else "",
             active=self._active,
+            qos_problems=dict(inputs.qos_problems),
         )
         return identification_status(health, fqn, fqn)
 
     def _publish_diagnostics(self) -> None:
-        if self._pub_diag is None or self.config is None or self._monitoring is None:
+        if self._pub_diag is None:
             return
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = [self.diagnostic_status()]
+        if self.config is None or self._monitoring is None:
+            self._pub_diag.publish(msg)
+            return
         stale = max(3.0 * self.config.update_period_s, self.config.stall_timeout_s)
         fqn = self.get_fully_qualified_name()
         plant = self._monitoring.status(fqn, fqn, stale)
@@ -449,48 +497,3 @@ class IdentNode(LifecycleNode):
         if self._srv is not None:
             self._srv.shutdown(timeout)
         self._joined = True
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Console script ``mr-ident-node`` (accepts ``--ros-args ...``).
-
-    SIGINT and SIGTERM stop it at any moment through one path
-    (:mod:`mr_ident.ros.program`): the recording finalised, a running identification awaited
-    at most a second, then rclpy shut down; exit 0. With ``autostart`` (default) a
-    configure that fails (a bad params file, an unreadable reference) exits 2.
-    """
-    stop = handle_signals()
-    args = list(sys.argv if argv is None else argv)
-    keep_freed_memory()
-    try:
-        with ros_context(args):
-            node = None
-            try:
-                node = IdentNode()
-                if not node.autostart():
-                    raise ConfigError(node.configure_error or "the node did not start")
-                # Not rclpy.experimental.EventsExecutor: in rclpy 7.1.6 its spin() starves other
-                # Python threads (measured: the identification thread and publishers from other
-                # threads stall), and the identification must run off the executor thread.
-                executor = SingleThreadedExecutor()
-                executor.add_node(node)
-                spin_until_stopped(executor, node, stop)
-                executor.shutdown()
-            finally:
-                if node is not None:
-                    with contextlib.suppress(Exception):  # finalized already
-                        node.trigger_shutdown()  # the lifecycle's own shutdown transition
-                    node.shutdown()
-                    node.destroy_node()
-    except (
-        MrIdentError,
-        rclpy.exceptions.InvalidParameterTypeException,
-        rclpy.exceptions.InvalidParameterValueException,
-    ) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

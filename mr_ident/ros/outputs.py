@@ -28,52 +28,59 @@ from ..live.summary import summary
 from .messages import RESULT_QOS, ResultPublishers
 
 
-def _interfaces() -> tuple[Any, Any]:
-    """(Estimate, Summary) of mr_ident_msgs, built by ``make`` into .venv; else Nones."""
+def _interfaces() -> tuple[Any, Any, Any]:
+    """(Estimate, Summary, Drift) of mr_ident_msgs; Nones without it (no configure then)."""
     try:
         msg = importlib.import_module("mr_ident_msgs.msg")
-    except ImportError:  # an environment without it: the legacy arrays
-        return None, None
-    return msg.Estimate, msg.Summary
+    except ImportError:  # the node's configure says how to build it
+        return None, None, None
+    return msg.Estimate, msg.Summary, msg.Drift
 
 
-EstimateMsg, SummaryMsg = _interfaces()
+EstimateMsg, SummaryMsg, DriftMsg = _interfaces()
 
 
-def _floats(x: Any) -> array.array:
+def floats(x: Any) -> array.array:
+    """A float64 array field's value (``array.array``: fast to assign)."""
     return array.array("d", np.ascontiguousarray(x, dtype=np.float64).tobytes())
 
 
-def _stamp(msg: Any, ns: int) -> None:
+def stamp(msg: Any, ns: int) -> None:
+    """``msg.header.stamp`` set to ``ns`` (ROS time, ns)."""
     msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(ns), 1_000_000_000)
 
 
-def estimate_message(est: Estimate, picks: NDArray[np.intp], stamp_ns: int) -> Any:
-    """The Estimate message of ``est`` on the bins ``picks`` (flat, row-major arrays)."""
+def estimate_message(
+    est: Estimate, picks: NDArray[np.intp], stamp_ns: int, missing: int = 0
+) -> Any:
+    """The Estimate message of ``est`` on the bins ``picks`` (flat, row-major arrays).
+
+    ``missing``: samples of the window where u or y was missing (estimated as unknowns).
+    """
     ident = est.identification
     plant = ident.plant
     P = plant.response[picks]
     m = EstimateMsg()
-    _stamp(m, stamp_ns)
+    stamp(m, stamp_ns)
     m.window_first = int(est.first)
     m.window_last = int(est.first + est.n_samples - 1)
-    m.missing_samples = 0  # a window is gap-free by construction (live.align)
+    m.missing_samples = int(missing)
     m.fs_high = float(ident.fs_high)
     m.ratio = int(ident.ratio)
     m.method = str(plant.method)
     m.local_model = str(ident.local)
     m.n_out, m.n_in = int(P.shape[1]), int(P.shape[2])
-    m.frequency = _floats(plant.frequency[picks])
-    m.response_real = _floats(P.real)
-    m.response_imag = _floats(P.imag)
-    m.response_std = _floats(plant.std[picks])
+    m.frequency = floats(plant.frequency[picks])
+    m.response_real = floats(P.real)
+    m.response_imag = floats(P.imag)
+    m.response_std = floats(plant.std[picks])
     n = ident.n_used[picks] if ident.n_used is not None else np.zeros(picks.size)
     m.halfwidth = array.array("I", np.asarray(n, dtype=np.uint32).tobytes())
     for key in ("pfg", "pfg_data"):
         g = getattr(ident, key)
         if g is not None:
-            setattr(m, key, _floats(g.gain[picks]))
-            setattr(m, f"{key}_std", _floats(g.std[picks]))
+            setattr(m, key, floats(g.gain[picks]))
+            setattr(m, f"{key}_std", floats(g.std[picks]))
     return m
 
 
@@ -135,7 +142,7 @@ def summary_message(est: Estimate, stamp_ns: int, state: Any) -> Any:
         d.sigma_error if d is not None else None,
     )
     m = SummaryMsg()
-    _stamp(m, stamp_ns)
+    stamp(m, stamp_ns)
     m.window_last = int(est.first + est.n_samples - 1)
     for field in (
         "pfg_peak",
@@ -156,32 +163,26 @@ class Outputs:
     def __init__(self, node: Any, legacy: bool) -> None:
         self._node = node
         self._pubs: list[Any] = []
-        self._estimate = self._summary = None
-        if EstimateMsg is not None:
-            self._estimate = self._make(EstimateMsg, "~/estimate")
-            self._summary = self._make(SummaryMsg, "~/summary")
-        elif not legacy:
-            node.get_logger().warning(
-                "mr_ident_msgs is not installed (make venv builds it): publishing the legacy "
-                "Float64MultiArray topics instead of ~/estimate"
-            )
-        self._legacy = (
-            ResultPublishers(node, self._make) if legacy or EstimateMsg is None else None
-        )
+        self._estimate = self._make(EstimateMsg, "~/estimate")
+        self._summary = self._make(SummaryMsg, "~/summary")
+        self._legacy = ResultPublishers(node, self._make) if legacy else None
 
     def _make(self, kind: Any, topic: str) -> Any:
         pub = self._node.create_lifecycle_publisher(kind, topic, RESULT_QOS)
         self._pubs.append(pub)
         return pub
 
-    def publish(self, est: Estimate, cfg: IdentConfig, stamp_ns: int, state: Any) -> Any:
-        """One estimate out on every result topic; its Estimate message (None without)."""
+    def publish(
+        self, est: Estimate, cfg: IdentConfig, stamp_ns: int, state: Any, missing: int = 0
+    ) -> Any:
+        """One estimate out on every result topic; its Estimate message.
+
+        ``missing``: the window's missing samples (u or y), as ``Estimate.missing_samples``.
+        """
         picks = publish_grid(est.identification.plant.frequency.size, cfg.publish_points)
-        msg = None
-        if self._estimate is not None and self._summary is not None:
-            msg = estimate_message(est, picks, stamp_ns)
-            self._estimate.publish(msg)
-            self._summary.publish(summary_message(est, stamp_ns, state))
+        msg = estimate_message(est, picks, stamp_ns, missing)
+        self._estimate.publish(msg)
+        self._summary.publish(summary_message(est, stamp_ns, state))
         if self._legacy is not None:
             self._legacy.publish(est.identification, picks)
         return msg

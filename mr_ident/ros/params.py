@@ -26,14 +26,15 @@ from ..io.config import PARAMETERS, IdentConfig
 #: The node's own parameters (not identification settings): name -> (default, description).
 NODE_PARAMETERS: dict[str, tuple[bool, str]] = {
     "autostart": (
-        True,
-        "configure and activate at start (false: wait in the unconfigured state for lifecycle "
-        "transitions, e.g. from a lifecycle manager)",
+        False,
+        "configure and activate at start; false (default, as a managed node): wait "
+        "unconfigured for lifecycle transitions (the launch file's autostart, a lifecycle "
+        "manager, ros2 lifecycle set)",
     ),
     "legacy_array_topics": (
         False,
         "also publish each estimate as the Float64MultiArray topics of earlier versions "
-        "(~/frequencies, ~/plant_frf, ...; ~/drift) beside ~/estimate",
+        "(~/frequencies, ~/plant_frf, ...) beside ~/estimate",
     ),
 }
 
@@ -72,19 +73,30 @@ def descriptor(name: str, default: Any) -> ParameterDescriptor:
 def declare(node: Node) -> None:
     """Declare every field of IdentConfig and the node's own parameters on ``node``.
 
-    Values are not validated here (see :func:`read`): a node with a bad params file still
-    comes up, unconfigured, and says why its configure fails.
+    Every parameter has a value (``ros2 param dump`` and GetParameters list them all): an
+    array is declared with its type, and when no override gave it a value it is set empty,
+    then made read-only where it is. Values are not validated here (see :func:`read`): a
+    node with a bad params file still comes up, unconfigured, and says why its configure
+    fails.
     """
     for key, default in IdentConfig().as_dict().items():
-        if isinstance(default, list):
-            kind = (
-                Parameter.Type.STRING_ARRAY
-                if key.endswith("_source")
-                else Parameter.Type.DOUBLE_ARRAY
-            )
-            node.declare_parameter(key, kind, descriptor(key, default))
-        else:
+        if not isinstance(default, list):
             node.declare_parameter(key, default, descriptor(key, default))
+            continue
+        kind = (
+            Parameter.Type.STRING_ARRAY if key.endswith("_source") else Parameter.Type.DOUBLE_ARRAY
+        )
+        final = descriptor(key, default)
+        writable = ParameterDescriptor()
+        writable.name, writable.type, writable.description = (
+            final.name,
+            final.type,
+            final.description,
+        )
+        node.declare_parameter(key, kind, writable)
+        if node.get_parameter_or(key).type_ == Parameter.Type.NOT_SET:
+            node.set_parameters([Parameter(key, kind, [])])
+        node.set_descriptor(key, final)
     for key, (default, _) in NODE_PARAMETERS.items():
         node.declare_parameter(key, default, descriptor(key, default))
 

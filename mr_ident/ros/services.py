@@ -46,7 +46,7 @@ def _interfaces() -> tuple[Any, Any, Any]:
     """(Diagnose, Record, SaveEstimate) of mr_ident_msgs; Nones without the package."""
     try:
         srv = importlib.import_module("mr_ident_msgs.srv")
-    except ImportError:  # without the interface package: the Trigger services only
+    except ImportError:  # the node's configure says how to build it
         return None, None, None
     return srv.Diagnose, srv.Record, srv.SaveEstimate
 
@@ -68,30 +68,21 @@ class NodeServices:
         self.node = node
         self._diagnosis: threading.Thread | None = None
         self._wake = node.create_guard_condition(lambda: None)
-        made = [
+        self._made = [
             node.create_service(Trigger, "~/reset", self._reset),
             node.create_service(Trigger, "~/stop_recording", self._stop_recording),
+            node.create_service(SaveEstimate, "~/snapshot", self._snapshot),
+            node.create_service(SaveEstimate, "~/capture_reference", self._capture),
+            # its own group: while the coroutine awaits the worker, the node's default
+            # (mutually exclusive) group - timers, subscriptions - goes on
+            node.create_service(
+                Diagnose,
+                "~/diagnose",
+                self._diagnose,
+                callback_group=MutuallyExclusiveCallbackGroup(),
+            ),
+            node.create_service(Record, "~/start_recording", self._start_recording),
         ]
-        if SaveEstimate is not None:
-            made += [
-                node.create_service(SaveEstimate, "~/snapshot", self._snapshot),
-                node.create_service(SaveEstimate, "~/capture_reference", self._capture),
-                # its own group: while the coroutine awaits the worker, the node's default
-                # (mutually exclusive) group - timers, subscriptions - goes on
-                node.create_service(
-                    Diagnose,
-                    "~/diagnose",
-                    self._diagnose,
-                    callback_group=MutuallyExclusiveCallbackGroup(),
-                ),
-                node.create_service(Record, "~/start_recording", self._start_recording),
-            ]
-        else:
-            node.get_logger().warning(
-                "mr_ident_msgs is not installed: no ~/snapshot, ~/capture_reference, "
-                "~/diagnose, ~/start_recording"
-            )
-        self._made = made
 
     def destroy(self) -> None:
         """The services destroyed (the node's cleanup)."""
@@ -192,22 +183,26 @@ class NodeServices:
     # -- recording ----------------------------------------------------------------------------
     def _start_recording(self, req: Any, res: Any) -> Any:
         node = self.node
-        path = req.path or (node.config.record_path if node.config is not None else "")
+        cfg = node.config
+        path = req.path or node.recording.last or (cfg.record_path if cfg is not None else "")
         if not node.active:
             res.success, res.message = False, "the node is not active"
         elif not path:
             res.success, res.message = False, "no path: give one, or set record_path"
         else:
-            node.recording.open(path)
-            err = node.recording.error
-            res.success, res.message = not err, err or "recording"
-            res.path = str(Path(path).resolve()) if not err else ""
+            target = node.start_recording(path)
+            res.success = target is not None
+            res.path = str(target.resolve()) if target is not None else ""
+            res.message = (
+                node.recording.error
+                if target is None
+                else f"recording to {res.path}"
+                + (f" ({path} exists: never overwritten)" if target != Path(path) else "")
+            )
         return res
 
     def _stop_recording(self, _req: Any, res: Any) -> Any:
-        rec = self.node.recording
-        path = rec.path
-        rec.close()
+        path = self.node.stop_recording()
         res.success = True
         res.message = f"finalised {path}" if path is not None else "was not recording"
         return res

@@ -27,13 +27,15 @@ def node_name(name: str) -> str:
 
 def _listen(rclpy: Any, name: str, state: ViewState) -> Any:
     from diagnostic_msgs.msg import DiagnosticArray
-    from std_msgs.msg import Float64MultiArray
 
     from .messages import RESULT_QOS, status_values
-    from .outputs import EstimateMsg, estimate_arrays
+    from .outputs import DriftMsg, EstimateMsg, estimate_arrays
 
     if EstimateMsg is None:
-        raise MrIdentError("mr_ident_msgs is not installed (make venv builds it)")
+        raise MrIdentError(
+            "the interface package mr_ident_msgs is not installed: build it with this package "
+            "(colcon build, then source install/setup.bash; or make venv)"
+        )
     n = rclpy.create_node("mr_ident_view")
     base = node_name(name)
 
@@ -64,13 +66,13 @@ def _listen(rclpy: Any, name: str, state: ViewState) -> Any:
             else:
                 state.set_health(values)
 
-    def drift(m: Float64MultiArray) -> None:
-        rows = np.frombuffer(m.data, dtype=float).reshape(4, -1)  # f, deviation, z, threshold
+    def drift(m: Any) -> None:  # mr_ident_msgs/Drift
+        z, limit = np.asarray(m.sigma_error, float), np.asarray(m.threshold, float)
         with np.errstate(invalid="ignore"):
-            state.set_drift(rows[0], rows[2] > rows[3])
+            state.set_drift(np.asarray(m.frequency, float), z > limit)
 
     n.create_subscription(EstimateMsg, f"{base}/estimate", on_estimate, RESULT_QOS)
-    n.create_subscription(Float64MultiArray, f"{base}/drift", drift, RESULT_QOS)
+    n.create_subscription(DriftMsg, f"{base}/drift", drift, RESULT_QOS)
     n.create_subscription(DiagnosticArray, "/diagnostics", diag, 10)
     return n
 
