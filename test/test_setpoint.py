@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """A loop excited at its setpoint: simulation, the derivation, identification, its std.
 
 The derivation (``mr_ident.numerics.lifted.setpoint``): with r the controller's setpoint,

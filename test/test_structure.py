@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The loop's structure read from its data, and what contradicts it refused."""
 
 from dataclasses import replace
