@@ -381,3 +381,7 @@ def test_a_setpoint_excited_loop_is_read_as_such_and_identified(graph):
         )
 
     wait_for(said, 10, "/diagnostics naming the setpoint")
+    e = lis.estimate
+    assert e.injection == "setpoint" and "F = 3" in e.loop_structure
+    assert e.undetermined is not None and e.undetermined.size == e.frequency.size
+    assert np.isnan(e.response[e.undetermined]).sum() <= e.undetermined.sum()

@@ -69,6 +69,8 @@ def estimate_message(
     m.ratio = int(ident.ratio)
     m.method = str(plant.method)
     m.local_model = str(ident.local)
+    m.injection = str(ident.injection)
+    m.loop_structure = str(est.structure)
     m.n_out, m.n_in = int(P.shape[1]), int(P.shape[2])
     m.frequency = floats(plant.frequency[picks])
     m.response_real = floats(P.real)
@@ -76,6 +78,8 @@ def estimate_message(
     m.response_std = floats(plant.std[picks])
     n = ident.n_used[picks] if ident.n_used is not None else np.zeros(picks.size)
     m.halfwidth = array.array("I", np.asarray(n, dtype=np.uint32).tobytes())
+    if ident.undetermined is not None:
+        m.undetermined = [bool(b) for b in ident.undetermined[picks]]
     for key in ("pfg", "pfg_data"):
         g = getattr(ident, key)
         if g is not None:
@@ -95,6 +99,8 @@ class EstimateArrays:
     ratio: int
     method: str
     local_model: str
+    injection: str
+    loop_structure: str
     frequency: NDArray[np.float64]
     response: NDArray[np.complex128]
     std: NDArray[np.float64]
@@ -103,6 +109,7 @@ class EstimateArrays:
     pfg_std: NDArray[np.float64] | None
     pfg_data: NDArray[np.float64] | None
     pfg_data_std: NDArray[np.float64] | None
+    undetermined: NDArray[np.bool_] | None
 
 
 def estimate_arrays(m: Any) -> EstimateArrays:
@@ -122,6 +129,8 @@ def estimate_arrays(m: Any) -> EstimateArrays:
         ratio=int(m.ratio),
         method=str(m.method),
         local_model=str(m.local_model),
+        injection=str(m.injection),
+        loop_structure=str(m.loop_structure),
         frequency=np.array(m.frequency, dtype=np.float64),
         response=P.reshape(shape),
         std=np.array(m.response_std, dtype=np.float64).reshape(shape),
@@ -130,6 +139,7 @@ def estimate_arrays(m: Any) -> EstimateArrays:
         pfg_std=vec(m.pfg_std),
         pfg_data=vec(m.pfg_data),
         pfg_data_std=vec(m.pfg_data_std),
+        undetermined=np.array(m.undetermined, dtype=bool) if len(m.undetermined) else None,
     )
 
 
