@@ -24,7 +24,12 @@ from .lifted.missing import check_share, estimate_missing
 from .lifted.options import check_options, default_n, method_of, min_samples, missing_rules
 from .lifted.pfg import pfg_from_plant
 from .lifted.pfg_data import fit_data_pfg
-from .lifted.setpoint import hold_zero_bins, hold_zone, sampled_setpoint
+from .lifted.setpoint import (
+    check_setpoint_shapes,
+    hold_zero_bins,
+    hold_zone,
+    setpoint_regressor,
+)
 from .lifted.spectra import Spectra
 from .lifting import check_ratio
 from .local.bandwidth import (
@@ -54,18 +59,6 @@ __all__ = [
 #: The value of ``n`` that chooses the window per frequency from the data.
 AUTO = "auto"
 
-#: The methods a setpoint-excited loop takes (one estimator there: the high-rate local fit).
-SETPOINT_METHODS = ("freq-lifted", "lpm")
-
-
-def _check_phase(phase: object, ratio: int) -> None:
-    if (
-        isinstance(phase, bool)
-        or not isinstance(phase, (int, np.integer))
-        or not (0 <= phase < ratio)
-    ):
-        raise ConfigError(f"phase must be an integer in 0..F-1 = 0..{ratio - 1}, got {phase!r}")
-
 
 def _check_signals(
     r: ArrayLike, u: ArrayLike, y: ArrayLike, ratio: int, setpoint: bool = False
@@ -92,22 +85,7 @@ def _check_signals(
         arrays.append(a)
     ra, ua, ya = arrays
     if setpoint:  # r is the controller's reference: one per output, at either rate
-        if ra.shape[0] not in (ua.shape[0], ua.shape[0] // ratio) or ua.shape[0] % ratio:
-            raise DimensionError(
-                f"the setpoint r must have N = {ua.shape[0]} samples (as u) or N/F, got "
-                f"{ra.shape[0]}"
-            )
-        if ya.shape[0] != ua.shape[0]:
-            raise DimensionError(
-                f"a setpoint-excited loop needs y at the high rate (N = {ua.shape[0]} "
-                f"samples), got {ya.shape[0]}"
-            )
-        if not ra.shape[1] == ya.shape[1] == ua.shape[1]:
-            raise DimensionError(
-                "a setpoint-excited loop needs as many setpoints, outputs and inputs (the "
-                f"indirect step inverts r -> u), got r {ra.shape[1]}, y {ya.shape[1]}, u "
-                f"{ua.shape[1]} channel(s)"
-            )
+        check_setpoint_shapes(ra, ua, ya, ratio)
         return ra, ua, ya
     if ra.shape[0] != ua.shape[0]:
         raise DimensionError(
@@ -253,15 +231,8 @@ def identify(
     m = method_of(method)
     n_workers = resolve_workers(workers)
     ra, ua, ya = _check_signals(r, u, y, F, setpoint)
-    if setpoint:
-        if method not in SETPOINT_METHODS:
-            raise ConfigError(
-                f"a setpoint-excited loop is identified by the high-rate local fit of the "
-                f"sampled setpoint (method {' or '.join(SETPOINT_METHODS)}: one estimator "
-                f"there), got method {method!r}"
-            )
-        _check_phase(phase, F)
-        ra = sampled_setpoint(ra, F, int(phase), ua.shape[0])
+    if setpoint:  # the sampled setpoint r↑, and its estimator
+        ra = setpoint_regressor(ra, F, phase, method, ua.shape[0])
         method, m = "lpm", method_of("lpm")
     F_fit = 1 if setpoint else F  # the setpoint's fit is LTI at the high rate
     N = ra.shape[0]

@@ -34,8 +34,57 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...errors import DimensionError
+from ...errors import ConfigError, DimensionError
 from ..arrays import BoolArray, FloatArray, IntArray
+
+#: The methods a setpoint-excited loop takes (one estimator there: the high-rate local fit).
+SETPOINT_METHODS = ("freq-lifted", "lpm")
+
+
+def check_setpoint_shapes(r: FloatArray, u: FloatArray, y: FloatArray, ratio: int) -> None:
+    """A setpoint's record: r at N or N/F samples, y at N, as many setpoints as y and u.
+
+    DimensionError naming the lengths or channels otherwise (the indirect step inverts
+    r -> u: a square loop).
+    """
+    N = u.shape[0]
+    if r.shape[0] not in (N, N // ratio) or N % ratio:
+        raise DimensionError(
+            f"the setpoint r must have N = {N} samples (as u) or N/F, got {r.shape[0]}"
+        )
+    if y.shape[0] != N:
+        raise DimensionError(
+            f"a setpoint-excited loop needs y at the high rate (N = {N} samples), got {y.shape[0]}"
+        )
+    if not r.shape[1] == y.shape[1] == u.shape[1]:
+        raise DimensionError(
+            "a setpoint-excited loop needs as many setpoints, outputs and inputs (the "
+            f"indirect step inverts r -> u), got r {r.shape[1]}, y {y.shape[1]}, u "
+            f"{u.shape[1]} channel(s)"
+        )
+
+
+def setpoint_regressor(
+    r: FloatArray, ratio: int, phase: object, method: str, n_samples: int
+) -> FloatArray:
+    """The regressor of a setpoint's fit, ``r_↑`` (:func:`sampled_setpoint`), its options checked.
+
+    ConfigError for a ``method`` other than :data:`SETPOINT_METHODS` or a ``phase`` outside
+    0..F-1.
+    """
+    if method not in SETPOINT_METHODS:
+        raise ConfigError(
+            "a setpoint-excited loop is identified by the high-rate local fit of the sampled "
+            f"setpoint (method {' or '.join(SETPOINT_METHODS)}: one estimator there), got "
+            f"method {method!r}"
+        )
+    if (
+        isinstance(phase, bool)
+        or not isinstance(phase, (int, np.integer))
+        or not (0 <= phase < ratio)
+    ):
+        raise ConfigError(f"phase must be an integer in 0..F-1 = 0..{ratio - 1}, got {phase!r}")
+    return sampled_setpoint(r, ratio, int(phase), n_samples)
 
 
 def sampled_setpoint(r: FloatArray, ratio: int, phase: int, n_samples: int) -> FloatArray:
