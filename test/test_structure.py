@@ -54,6 +54,10 @@ def test_a_measured_u_shows_no_hold_and_a_held_r_leaves_the_injection_open():
     both = read_structure(held_r, held_r - np.repeat(sim.u[::3] - sim.r[::3], 3, axis=0))
     assert (both.held, both.ratio, both.injection) == ("u and u - r", 3, None)
     assert hold_of(np.ones((300, 1))) is None  # constant: nothing to read
+    open_loop = read_structure(sim.r, sim.r.copy())
+    assert (open_loop.held, open_loop.ratio, open_loop.injection) == ("u = r", None, "plant_input")
+    got = settle_structure(open_loop, ratios=[("--ratio", 3)], injections=[], phases=[])
+    assert got.notes == ()  # nothing to warn of: r is u
 
 
 def test_a_hold_is_read_through_round_off_and_missing_samples():

@@ -60,8 +60,8 @@ class LoopStructure:
 
     Attributes
     ----------
-    held : {"u - r", "u", "u and u - r", "none"}
-        Which signal is held over blocks of F samples.
+    held : {"u - r", "u", "u and u - r", "u = r", "none"}
+        Which signal is held over blocks of F samples ("u = r": none, an open loop).
     ratio : int or None
         F read from the hold (None: no hold seen).
     hold_start : int or None
@@ -85,6 +85,8 @@ class LoopStructure:
 
     def describe(self) -> str:
         """One sentence of what the data show."""
+        if self.held == "u = r":
+            return "u equals r: an open-loop experiment (r at the plant input), F not shown"
         if self.ratio is None:
             return "u shows no hold (measured after the actuator?): F and where r enters unknown"
         where = {
@@ -120,6 +122,13 @@ def hold_of(x: FloatArray, max_ratio: int = MAX_RATIO) -> tuple[int, int] | None
         if counts[s] >= HELD_SHARE * changed.size:
             best = (F, s)  # the largest such F: a hold of 6 also falls on one residue mod 3
     return best
+
+
+def _equal(r: FloatArray, u: FloatArray) -> bool:
+    """u equals r to round-off of its scale (NaN samples skipped): an open loop."""
+    d = np.abs(u - r)
+    scale = float(np.nanmax(np.abs(u), initial=0.0))
+    return bool(scale > 0 and float(np.nanmax(d, initial=0.0)) <= HELD_RTOL * scale)
 
 
 def _phase(r: FloatArray, u: FloatArray, F: int, s: int) -> int | None:
@@ -175,7 +184,10 @@ def read_structure(r: ArrayLike, u: ArrayLike) -> LoopStructure:
         if hu is None:
             return LoopStructure("none", F_len, None, SETPOINT if F_len else None, r_low=True)
         return LoopStructure("u", hu[0], hu[1], SETPOINT, r_low=True)
-    hd = hold_of(ua - ra) if ra.shape[1] == ua.shape[1] else None
+    same = ra.shape[1] == ua.shape[1]
+    if same and _equal(ra, ua):  # nothing between r and u: no controller acts
+        return LoopStructure("u = r", None, None, PLANT_INPUT)
+    hd = hold_of(ua - ra) if same else None
     if hu is None and hd is None:
         return LoopStructure("none", None, None, None)
     if hd is not None and hu is None:
