@@ -125,7 +125,7 @@ def hold_of(x: FloatArray, max_ratio: int = MAX_RATIO) -> tuple[int, int] | None
 
 
 def _equal(r: FloatArray, u: FloatArray) -> bool:
-    """u equals r to round-off of its scale (NaN samples skipped): an open loop."""
+    """Whether u equals r to round-off of its scale (NaN samples skipped): an open loop."""
     d = np.abs(u - r)
     scale = float(np.nanmax(np.abs(u), initial=0.0))
     return bool(scale > 0 and float(np.nanmax(d, initial=0.0)) <= HELD_RTOL * scale)
