@@ -149,3 +149,24 @@ def test_the_live_estimate_reads_a_setpoint_window_and_refuses_a_contradicting_p
         estimate(window, IdentConfig(fs_high=240.0, ratio=3, n=8, injection="plant_input"))
     with pytest.raises(ConfigError, match="F = 3, not 4"):
         estimate(window, IdentConfig(fs_high=240.0, ratio=4, n=12))
+
+
+@pytest.mark.parametrize("injection", ["plant_input", "setpoint"])
+@pytest.mark.parametrize("delay", [0, 1])
+def test_a_held_r_leaves_where_it_enters_to_the_controllers_equation(
+    paper_model, injection, delay
+):
+    """r at the controller's rate, held (a PID's logged reference): with no control delay r
+    and u are held alike, and the controller's equation with the logged y tells where r
+    entered (noise 0.02); with one, the hold does."""
+    model = replace(paper_model, injection=injection, noise_std=0.02, control_delay=delay)
+    rng = np.random.default_rng(7)
+    held = np.repeat(rng.standard_normal(4800), 3)[:, None] * (
+        1e3 if injection == "plant_input" else 1
+    )
+    sim = simulate(model, reference=held, rng=rng)
+    found = read_structure(sim.r, sim.u, sim.y)
+    assert (found.ratio, found.injection) == (3, injection)
+    if delay == 0:  # r and u change on the same samples: the hold alone cannot tell
+        assert found.held == "u and u - r"
+        assert read_structure(sim.r, sim.u).injection is None  # without y: not told

@@ -171,7 +171,7 @@ def loop_structure(window: LoopData, config: IdentConfig) -> Settled:
     F = config.ratio
     phases = [] if config.phase is None else [("lifting_phase", (config.phase - window.first) % F)]
     return settle_structure(
-        read_structure(window.r, window.u),
+        read_structure(window.r, window.u, window.y),
         ratios=[("the ratio parameter", F)],
         injections=[] if config.injection == "auto" else [("injection", config.injection)],
         phases=phases,

@@ -85,7 +85,7 @@ def settle_rates(
         return [(n, v) for n, v in pairs if v is not None]
 
     settled = settle_structure(
-        read_structure(data.r, data.u),
+        read_structure(data.r, data.u, data.y),
         ratios=given(
             ("--ratio", ratio),
             ("the data file", data.ratio),

@@ -47,6 +47,12 @@ MIN_CHANGES = 16
 MAX_RATIO = 64
 #: The phase's mean coherence must exceed the next best by this much to be read.
 PHASE_MARGIN = 0.2
+#: The controller's equation holds when its least-squares residual is below this share of
+#: the target's spread (round-off: 1e-13 to 1e-16 on simulated loops; a u logged as float32,
+#: 1e-7; r entering elsewhere: 7e-4 to 9e-2 on the paper's loop).
+EQUATION_RTOL = 1e-6
+#: The controller orders tried (a PID with a filtered derivative: 2).
+EQUATION_ORDERS = (1, 2, 3, 4)
 
 #: Where r enters the loop: added to the plant input, or as the controller's setpoint
 #: (:attr:`LoopStructure.injection`, the models' ``injection``, identify's ``injection``).
@@ -154,7 +160,60 @@ def _phase(r: FloatArray, u: FloatArray, F: int, s: int) -> int | None:
     return int(order[0])
 
 
-def read_structure(r: ArrayLike, u: ArrayLike) -> LoopStructure:
+def _equation_holds(target: FloatArray, inputs: list[FloatArray], order: int) -> bool:
+    """Whether ``target[b]`` is an exact low-order LTI function of its past and ``inputs``.
+
+    ``target[b] = sum_i a_i target[b-i] + sum_j sum_l g_jl inputs_j[b-l] + c`` (i = 1..order,
+    l = 0..order+1), by least squares over the blocks without NaN; exact: the residual below
+    :data:`EQUATION_RTOL` of the target's spread.
+    """
+    M, L = target.shape[0], order + 2
+    if M < 8 * L * (len(inputs) + 1):
+        return False
+    cols = [target[L - i : M - i] for i in range(1, order + 1)]
+    for x in inputs:
+        cols += [x[L - i : M - i] for i in range(L)]
+    A = np.column_stack([*cols, np.ones(M - L)])
+    t = target[L:]
+    ok = np.isfinite(A).all(axis=1) & np.isfinite(t)
+    if ok.sum() < 4 * A.shape[1]:
+        return False
+    A, t = A[ok], t[ok]
+    spread = float(np.linalg.norm(t - t.mean()))
+    if not spread > 0:
+        return False
+    scale = np.linalg.norm(A, axis=0)
+    scale[scale == 0] = 1.0
+    sol = np.linalg.lstsq(A / scale, t, rcond=None)[0]
+    return bool(np.linalg.norm(t - (A / scale) @ sol) <= EQUATION_RTOL * spread)
+
+
+def _injection_by_equation(
+    r: FloatArray, u: FloatArray, y: FloatArray, F: int, s: int
+) -> str | None:
+    """Where r enters when r and u are held alike: the controller's equation tells it.
+
+    With r at the plant input, the controller's output ``r - u`` is a function of the
+    sampled y alone (``-K_l S_d y``); with r at the setpoint, u is one of ``r - y`` and not
+    ``r - u`` of y alone. Each is an exact low-order LTI relation between the block values
+    (u as held from sample s of each block; y at the controller's sampling phase, every
+    phase tried) where the logged y is what the controller sampled. None where neither
+    holds exactly (a y other than the controller's, a nonlinear controller).
+    """
+    M = min(u.shape[0] // F, r.shape[0] // F) - 1
+    ub, rb = u[s::F][:M, 0], r[s::F][:M, 0]
+    sampled = [y[q::F][:M, 0] for q in range(F)]
+    # the plant input's equation first: it is the setpoint's with u - r for u, which also
+    # holds where r enters at the plant input
+    for target, with_r, where in ((rb - ub, False, PLANT_INPUT), (ub, True, SETPOINT)):
+        for ys in sampled:
+            inputs = [ys, rb] if with_r else [ys]
+            if any(_equation_holds(target, inputs, order) for order in EQUATION_ORDERS):
+                return where
+    return None
+
+
+def read_structure(r: ArrayLike, u: ArrayLike, y: ArrayLike | None = None) -> LoopStructure:
     """The loop's structure as r and u show it (:class:`LoopStructure`).
 
     Parameters
@@ -163,6 +222,10 @@ def read_structure(r: ArrayLike, u: ArrayLike) -> LoopStructure:
         The excitation as logged; N/F samples: a setpoint at the controller's rate.
     u : array_like, shape (N, n_u)
         The plant input as logged (NaN: missing samples, skipped).
+    y : array_like, shape (N, n_y), optional
+        The plant output as logged: where r and u are held alike (r given at the
+        controller's rate, held), the controller's equation tells where r enters
+        (:func:`_injection_by_equation`).
 
     Examples
     --------
@@ -194,7 +257,11 @@ def read_structure(r: ArrayLike, u: ArrayLike) -> LoopStructure:
         return LoopStructure("u - r", hd[0], hd[1], PLANT_INPUT)
     assert hu is not None
     if hd is not None and hd == hu:
-        return LoopStructure("u and u - r", hu[0], hu[1], None)
+        ya = None if y is None else np.asarray(y, dtype=float).reshape(N, -1)
+        told = None
+        if ya is not None and ya.shape[0] == N and ra.shape[1] == ua.shape[1] == 1:
+            told = _injection_by_equation(ra, ua, ya, hu[0], hu[1])
+        return LoopStructure("u and u - r", hu[0], hu[1], told)
     F, s = hu
     return LoopStructure("u", F, s, SETPOINT, _phase(ra, ua, F, s))
 

@@ -35,7 +35,7 @@ def with_injection(model: Model, data: LoopData, injection: str | None) -> Model
     A model that states nothing keeps stating nothing for r at the plant input.
     """
     settled = settle_structure(
-        read_structure(data.r, data.u),
+        read_structure(data.r, data.u, data.y),
         ratios=[("the model", model.ratio)],
         injections=[
             (who, v)
