@@ -28,6 +28,22 @@ def _ros_program(argv: Sequence[str]) -> bool:
     )
 
 
+# the arguments that name a file a command writes (any command that has them)
+OUTPUTS = ("out", "plot", "json", "report", "out_model")
+
+
+def check_outputs(args: object) -> None:
+    """Refuse, before anything is computed, an output whose folder does not exist."""
+    from pathlib import Path
+
+    from ..io.atomic import missing_folder
+
+    for name in OUTPUTS:
+        path = getattr(args, name, None)
+        if isinstance(path, Path) and (missing := missing_folder(path)) is not None:
+            raise missing
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Console script ``mr-ident``; user errors print ``error: ...`` and return 2."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -56,6 +72,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("default")
             warnings.simplefilter("ignore", DeprecationWarning)  # third-party import noise (lark)
+            check_outputs(args)
             return commands[args.command](args)
     except MrIdentError as err:
         print(f"error: {err}", file=sys.stderr)
