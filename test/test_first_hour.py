@@ -122,6 +122,7 @@ DIAGNOSE = ["diagnose", str(PAPER), "{data}"]
     [
         [*IDENTIFY, "--out", "r.npz", "--plot", "no/p.png"],
         [*IDENTIFY, "--out", "no/r.npz", "--plot", "p.png"],
+        [*IDENTIFY, "--out", "r.npz", "--plot", "no/p.xyz"],
         [*DIAGNOSE, "--report", "r.html", "--json", "no/r.json"],
         [*DIAGNOSE, "--json", "r.json", "--out-model", "no/m.yaml"],
     ],
@@ -131,9 +132,20 @@ def test_a_command_that_cannot_write_an_output_writes_none_of_them(
 ):
     monkeypatch.chdir(tmp_path)
     code, out, err = run(capsys, *[a.replace("{data}", str(data)) for a in argv])
-    assert code == 2 and "the folder 'no' does not exist" in err
+    assert code == 2 and "the folder 'no' does not exist" in err, err
     assert out == ""  # refused before anything was computed
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_plot_in_an_unknown_format_is_refused_before_anything_is_written(
+    monkeypatch, data, tmp_path, capsys
+):
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run(
+        capsys, *IDENTIFY[:1], data, *IDENTIFY[2:], "--out", "r.npz", "--plot", "p.xyz"
+    )
+    assert code == 2 and err.startswith("error: --plot must be an image file (.png, "), err
+    assert out == "" and list(tmp_path.iterdir()) == []
 
 
 def test_atomic_write_names_the_users_path_never_its_temporary_file(tmp_path):

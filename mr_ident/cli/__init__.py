@@ -30,18 +30,30 @@ def _ros_program(argv: Sequence[str]) -> bool:
 
 # the arguments that name a file a command writes (any command that has them)
 OUTPUTS = ("out", "plot", "json", "report", "out_model")
+# the image formats a --plot may name (matplotlib's, without its raw buffers)
+PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".svgz", ".jpg", ".jpeg", ".tif", ".tiff", ".webp")
 
 
 def check_outputs(args: object) -> None:
-    """Refuse, before anything is computed, an output whose folder does not exist."""
+    """Refuse bad outputs before anything is computed.
+
+    An output whose folder does not exist, or a plot whose format is unknown: a command
+    that fails writes none of its outputs.
+    """
     from pathlib import Path
 
+    from ..errors import ConfigError
     from ..io.atomic import missing_folder
 
     for name in OUTPUTS:
         path = getattr(args, name, None)
         if isinstance(path, Path) and (missing := missing_folder(path)) is not None:
             raise missing
+    plot = getattr(args, "plot", None)
+    if isinstance(plot, Path) and plot.suffix.lower() not in PLOT_SUFFIXES:
+        raise ConfigError(
+            f"--plot must be an image file ({', '.join(PLOT_SUFFIXES)}), got {str(plot)!r}"
+        )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
