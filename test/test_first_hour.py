@@ -148,6 +148,20 @@ def test_a_plot_in_an_unknown_format_is_refused_before_anything_is_written(
     assert out == "" and list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("command", ["fit", "diagnose"])
+def test_a_model_file_that_is_not_yaml_is_refused_before_anything_is_computed(
+    monkeypatch, data, tmp_path, capsys, command
+):
+    monkeypatch.chdir(tmp_path)
+    argv = {
+        "fit": ["fit", data, "--out", "m.txt"],
+        "diagnose": ["diagnose", PAPER, data, "--out-model", "m.txt"],
+    }[command]
+    code, out, err = run(capsys, *argv)
+    assert code == 2 and "must be a model file (.yaml or .yml), got 'm.txt'" in err, err
+    assert out == "" and list(tmp_path.iterdir()) == []
+
+
 def test_atomic_write_names_the_users_path_never_its_temporary_file(tmp_path):
     target = tmp_path / "nodir" / "x.npz"
     with pytest.raises(FileNotFoundError, match="the folder .* does not exist") as info:

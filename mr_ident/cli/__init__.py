@@ -31,6 +31,7 @@ def _ros_program(argv: Sequence[str]) -> bool:
 # the arguments that name a file a command writes (any command that has them)
 OUTPUTS = ("out", "plot", "json", "report", "out_model")
 # the image formats a --plot may name (matplotlib's, without its raw buffers)
+YAML = (".yaml", ".yml")
 PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".svgz", ".jpg", ".jpeg", ".tif", ".tiff", ".webp")
 
 
@@ -49,6 +50,13 @@ def check_outputs(args: object) -> None:
         path = getattr(args, name, None)
         if isinstance(path, Path) and (missing := missing_folder(path)) is not None:
             raise missing
+    command = getattr(args, "command", None)
+    for name in ("out", "out_model"):
+        path = getattr(args, name, None)
+        model_file = (command, name) in (("fit", "out"), ("diagnose", "out_model"))
+        if model_file and isinstance(path, Path) and path.suffix.lower() not in YAML:
+            option = "--" + name.replace("_", "-")
+            raise ConfigError(f"{option} must be a model file (.yaml or .yml), got {str(path)!r}")
     plot = getattr(args, "plot", None)
     if isinstance(plot, Path) and plot.suffix.lower() not in PLOT_SUFFIXES:
         raise ConfigError(
