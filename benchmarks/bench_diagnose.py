@@ -27,7 +27,7 @@ loops without a false cause, zero tracebacks.
     .venv/bin/python benchmarks/bench_diagnose.py --case gain_error+control_delay:1900003
     .venv/bin/python benchmarks/bench_diagnose.py --report A.json B.json C.json  # merged
 
-The whole plan (1200 cases) takes about 45 min on 2 cores (44 on 2026-11-25);
+The whole plan (1200 cases) takes about 45 min on 2 cores;
 ``make bench-diagnose`` runs it in three parts (``PART=A``: nothing hidden and the first
 five causes, ``B``: the other five, ``C``: the pairs), each its own JSON, and prints them
 merged.

@@ -1,5 +1,5 @@
 # SPDX-License-Identifier: Apache-2.0
-"""Speed of one diagnosis at the issue's size: 300 s of 240 Hz data (72 000 samples).
+"""Speed of one diagnosis of a 5-minute record: 300 s of 240 Hz data (72 000 samples).
 
 The paper's plant (config/paper_example.yaml) under a softer lead controller (half gain),
 F = 3, white r, output noise 2 % of y's std, and one case per effect: nothing hidden, a gain

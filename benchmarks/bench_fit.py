@@ -30,7 +30,7 @@ search; otherwise the missing modes change the cost by less than the band, and t
 cannot tell them), stability, time. ``--tail X`` lists the poles whose error exceeds X
 CRB (which mode, its CRB relative to |p|, whether that fit is a local minimum).
 
-Then the size the issue sets (``--speed-bins``, default 1e5): one drawn 3x3 plant of 20
+Then a large case (``--speed-bins``, default 1e5): one drawn 3x3 plant of 20
 modes (order 40), the order and delay given, wall and CPU time of ``fit_frf`` on every
 CPU (threads over the entries), the cost against its band, the load average beside it.
 

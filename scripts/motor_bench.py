@@ -1,13 +1,13 @@
 # SPDX-License-Identifier: Apache-2.0
-"""The motor bench case (issue: model validation on real data), reproducible in one command.
+"""The motor bench case (model validation on measured data), reproducible in one command.
 
 Reads ../shared/data/motor_bench/MultisineType{A,B}.mat (MATLAB files from the FdiTools
 project, see the README there), writes them as NPZ data files (r = iq_refx, the current
 reference; u = iq_adx, the measured motor current; y = omega_max, the motor-side velocity;
 fs_high = 2500 Hz, ratio 1), checks the shipped state-space model Pv_11 against the data,
 and runs ``mr-ident diagnose config/motor_bench.yaml`` with Type A as estimation data and
-Type B as validation data (periodic: 2500 samples per period). Then a model from the data
-(issue 40): Type A's periodic BLA (``identify --period``), ``mr-ident fit`` at the automatic
+Type B as validation data (periodic: 2500 samples per period). Then a model from the data:
+Type A's periodic BLA (``identify --period``), ``mr-ident fit`` at the automatic
 order and at order 4, each fitted model held against the same data by ``diagnose`` (one
 cause at most), and the validation fit of y on Type B printed beside the hand-written
 model's.

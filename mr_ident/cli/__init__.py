@@ -28,6 +28,42 @@ def _ros_program(argv: Sequence[str]) -> bool:
     )
 
 
+# the arguments that name a file a command writes (any command that has them)
+OUTPUTS = ("out", "plot", "json", "report", "out_model")
+# the image formats a --plot may name (matplotlib's, without its raw buffers)
+YAML = (".yaml", ".yml")
+PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".svgz", ".jpg", ".jpeg", ".tif", ".tiff", ".webp")
+
+
+def check_outputs(args: object) -> None:
+    """Refuse bad outputs before anything is computed.
+
+    An output whose folder does not exist, or a plot whose format is unknown: a command
+    that fails writes none of its outputs.
+    """
+    from pathlib import Path
+
+    from ..errors import ConfigError
+    from ..io.atomic import missing_folder
+
+    for name in OUTPUTS:
+        path = getattr(args, name, None)
+        if isinstance(path, Path) and (missing := missing_folder(path)) is not None:
+            raise missing
+    command = getattr(args, "command", None)
+    for name in ("out", "out_model"):
+        path = getattr(args, name, None)
+        model_file = (command, name) in (("fit", "out"), ("diagnose", "out_model"))
+        if model_file and isinstance(path, Path) and path.suffix.lower() not in YAML:
+            option = "--" + name.replace("_", "-")
+            raise ConfigError(f"{option} must be a model file (.yaml or .yml), got {str(path)!r}")
+    plot = getattr(args, "plot", None)
+    if isinstance(plot, Path) and plot.suffix.lower() not in PLOT_SUFFIXES:
+        raise ConfigError(
+            f"--plot must be an image file ({', '.join(PLOT_SUFFIXES)}), got {str(plot)!r}"
+        )
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Console script ``mr-ident``; user errors print ``error: ...`` and return 2."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -56,6 +92,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("default")
             warnings.simplefilter("ignore", DeprecationWarning)  # third-party import noise (lark)
+            check_outputs(args)
             return commands[args.command](args)
     except MrIdentError as err:
         print(f"error: {err}", file=sys.stderr)

@@ -22,7 +22,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from ..io.atomic import atomic_write
     from ..io.modelfile import model_to_dict
 
-    if args.json.suffix.lower() != ".json":
+    if args.json is not None and args.json.suffix.lower() != ".json":
         raise ConfigError(f"--json must be a .json file, got {str(args.json)!r}")
     if args.report is not None and args.report.suffix.lower() not in (".html", ".htm"):
         raise ConfigError(f"--report must be an .html file, got {str(args.report)!r}")
@@ -59,7 +59,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
             f"# Applied: {applied or nothing}\n"
         )
         atomic_write(args.out_model, lambda fh: fh.write(header + text), binary=False)
-    atomic_write(args.json, lambda fh: json.dump(summary, fh, indent=2), binary=False)
+    if args.json:
+        atomic_write(args.json, lambda fh: json.dump(summary, fh, indent=2), binary=False)
     if args.report:
         ext = None
         if d.applied or d.corrected:

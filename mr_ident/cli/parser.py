@@ -274,7 +274,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _sources(g)
     _reading(g)
-    g.add_argument("--json", type=Path, required=True, help="report .json")
+    g.add_argument(
+        "--json", type=Path, help="also write the report as .json (the verdict is printed)"
+    )
     g.add_argument("--report", type=Path, help="report .html (self-contained, figures embedded)")
     g.add_argument("--out-model", type=Path, help="extended model YAML")
     g.add_argument(

@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..errors import ConfigError
+from ..errors import ConfigError, DataError
 from ..numerics.signals import LoopData
 from .spans import DEFAULT_SPAN, check_span
 
@@ -130,6 +130,11 @@ def load_recording(
     """
     check_span(span)
     p = Path(path)
+    if not p.exists():
+        raise DataError(
+            f"{str(p)!r} does not exist (a data file .csv or .npz, a rosbag2 directory, or a "
+            ".mcap, .db3 or .mcap.zstd bag)"
+        )
     if not is_bag(p):
         if labels:
             raise ConfigError(
