@@ -31,7 +31,7 @@ from .lifted.setpoint import (
     setpoint_regressor,
 )
 from .lifted.spectra import Spectra
-from .lifting import check_ratio
+from .lifting import check_ratio, check_sample_of_period
 from .local.bandwidth import (
     SPAN,
     candidates,
@@ -243,12 +243,7 @@ def identify(
             f"y at the low rate ({ya.shape[0]} = N/F samples) is identified by freq-lifted "
             f"only; got method {method!r}"
         )
-    if (
-        isinstance(y_phase, bool)
-        or not isinstance(y_phase, (int, np.integer))
-        or not (0 <= y_phase < F)
-    ):
-        raise ConfigError(f"y_phase must be an integer in 0..F-1 = 0..{F - 1}, got {y_phase!r}")
+    check_sample_of_period("y_phase", y_phase, F)
     n_min = default_n(method, degree, F_fit, ra.shape[1], max(ny, nu), local)
     auto = isinstance(n, str)
     if auto and n != AUTO:

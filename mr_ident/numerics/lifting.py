@@ -38,6 +38,17 @@ def check_ratio(ratio: object) -> int:
     return int(ratio)
 
 
+def check_sample_of_period(name: str, value: object, ratio: int) -> int:
+    """A sample of the low-rate period (0..F-1) as an int; ConfigError naming ``name``."""
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, np.integer))
+        or not (0 <= value < ratio)
+    ):
+        raise ConfigError(f"{name} must be an integer in 0..F-1 = 0..{ratio - 1}, got {value!r}")
+    return int(value)
+
+
 def check_multiple(n: int, ratio: int, name: str) -> int:
     """``n // ratio``; DimensionError (never a silent cut) when ``n`` is not a multiple."""
     if n % ratio:

@@ -27,7 +27,9 @@ coherence when it stands out (:data:`PHASE_MARGIN`), else says that r does not t
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -53,6 +55,8 @@ PHASE_MARGIN = 0.2
 EQUATION_RTOL = 1e-6
 #: The controller orders tried (a PID with a filtered derivative: 2).
 EQUATION_ORDERS = (1, 2, 3, 4)
+
+T = TypeVar("T")
 
 #: Where r enters the loop: added to the plant input, or as the controller's setpoint
 #: (:attr:`LoopStructure.injection`, the models' ``injection``, identify's ``injection``).
@@ -266,6 +270,28 @@ def read_structure(r: ArrayLike, u: ArrayLike, y: ArrayLike | None = None) -> Lo
     return LoopStructure("u", F, s, SETPOINT, _phase(ra, ua, F, s))
 
 
+def _agreed(
+    name: str, shown: T | None, given: list[tuple[str, T]], refusal: Callable[[str, T], str]
+) -> T | None:
+    """The data's value where they show one, else the first given; None without either.
+
+    A given that differs from the data's value: ConfigError ``refusal(who, value)``; givens
+    that differ from each other (the data showing none): ConfigError naming ``name``.
+    """
+    if shown is not None:
+        for who, v in given:
+            if v != shown:
+                raise ConfigError(refusal(who, v))
+        return shown
+    if not given:
+        return None
+    first, value = given[0]
+    for who, v in given[1:]:
+        if v != value:
+            raise ConfigError(f"{name} disagrees: {first} says {value}, {who} says {v}")
+    return value
+
+
 @dataclass(frozen=True)
 class Settled:
     """The loop's structure the data and the user agree on.
@@ -297,31 +323,25 @@ def settle_structure(
     taken (F: ConfigError when none is; the injection point: the plant input, with a note).
     """
     notes: list[str] = []
-    if found.ratio is not None:
-        for who, F in ratios:
-            if F != found.ratio:
-                raise ConfigError(
-                    f"{found.held} changes every {found.ratio} samples: F = {found.ratio}, "
-                    f"not {F} ({who})"
-                )
-        ratio = found.ratio
-    elif ratios:
-        first, ratio = ratios[0]
-        for who, F in ratios[1:]:
-            if F != ratio:
-                raise ConfigError(f"ratio disagrees: {first} says {ratio}, {who} says {F}")
-    else:
+    ratio = _agreed(
+        "ratio",
+        found.ratio,
+        ratios,
+        lambda who, F: (
+            f"{found.held} changes every {found.ratio} samples: F = {found.ratio}, not {F} ({who})"
+        ),
+    )
+    if ratio is None:
         raise ConfigError(
             "ratio F unknown: u shows no hold to read it from; pass --ratio or --model"
         )
-    if found.injection is not None:
-        for who, inj in injections:
-            if inj != found.injection:
-                raise ConfigError(f"{found.describe()}; {who} says injection {inj}")
-        injection = found.injection
-    elif injections:
-        injection = injections[0][1]
-    else:
+    injection = _agreed(
+        "injection",
+        found.injection,
+        injections,
+        lambda who, v: f"{found.describe()}; {who} says injection {v}",
+    )
+    if injection is None:
         injection = PLANT_INPUT
         if found.ratio is not None or found.held == "none":
             notes.append(
@@ -330,15 +350,15 @@ def settle_structure(
             )
     phase = None
     if injection == SETPOINT:
-        if found.phase is not None:
-            for who, q in phases:
-                if q != found.phase:
-                    raise ConfigError(
-                        f"the held u follows r sampled at sample {found.phase} of each "
-                        f"block, not at {q} ({who})"
-                    )
-            phase = found.phase
-        elif phases:
-            phase = phases[0][1]
+        phase = _agreed(
+            "phase",
+            found.phase,
+            phases,
+            lambda who, q: (
+                f"the held u follows r sampled at sample {found.phase} of each "
+                f"block, not at {q} ({who})"
+            ),
+        )
+        if found.phase is None and phase is not None:
             notes.append(f"r does not tell the controller's phase: {phase} taken ({phases[0][0]})")
     return Settled(ratio, injection, phase, found, tuple(notes))

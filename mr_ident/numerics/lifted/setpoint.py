@@ -36,6 +36,7 @@ import numpy as np
 
 from ...errors import ConfigError, DimensionError
 from ..arrays import BoolArray, FloatArray, IntArray
+from ..lifting import check_sample_of_period
 
 #: The methods a setpoint-excited loop takes (one estimator there: the high-rate local fit).
 SETPOINT_METHODS = ("freq-lifted", "lpm")
@@ -78,13 +79,8 @@ def setpoint_regressor(
             f"setpoint (method {' or '.join(SETPOINT_METHODS)}: one estimator there), got "
             f"method {method!r}"
         )
-    if (
-        isinstance(phase, bool)
-        or not isinstance(phase, (int, np.integer))
-        or not (0 <= phase < ratio)
-    ):
-        raise ConfigError(f"phase must be an integer in 0..F-1 = 0..{ratio - 1}, got {phase!r}")
-    return sampled_setpoint(r, ratio, int(phase), n_samples)
+    q = check_sample_of_period("phase", phase, ratio)
+    return sampled_setpoint(r, ratio, q, n_samples)
 
 
 def sampled_setpoint(r: FloatArray, ratio: int, phase: int, n_samples: int) -> FloatArray:
