@@ -147,3 +147,16 @@ def unexplained(
         ratio = float(np.max(e2 / v2))
     std = float(np.mean(np.sqrt(np.asarray(noise_var, float))))
     return Unexplained(fit, allowed, share, ratio, std)
+
+
+def loop_shaped(var: float, model: Model, n_samples: int) -> float:
+    """The variance in y of white output noise of variance ``var``, as the loop shapes it.
+
+    ``var`` times the mean of the loop's power gain over the spectrum
+    (:func:`~.noise.loop_noise_gain`; 1 in open loop).
+    """
+    from .noise import loop_noise_gain
+
+    g = loop_noise_gain(model, n_samples - n_samples % model.ratio)[:, 0]
+    n = 2 * (g.size - 1)
+    return float(var * (2.0 * g.sum() - g[0] - g[-1]) / max(n, 1))
