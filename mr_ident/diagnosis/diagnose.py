@@ -63,7 +63,13 @@ from .criterion.records import check_record as check_record  # re-exported
 from .criterion.records import min_record as min_record  # re-exported
 from .criterion.records import split as split  # re-exported
 from .criterion.timevarying import Segments, within
-from .criterion.unexplained import Unexplained, criterion_noise, loop_shaped, unexplained
+from .criterion.unexplained import (
+    Unexplained,
+    criterion_noise,
+    loop_shaped,
+    unexplained,
+    with_distortion,
+)
 from .selection.correction import Correction, correction
 from .selection.equivalence import with_equivalents
 from .selection.forward import SCREEN_SAMPLES, select
@@ -436,11 +442,13 @@ def diagnose(
         shaped = loop_shaped(hos.rest_var, model, val.n_samples - val_start)
         noise_var = np.minimum(noise_var, shaped)
     left = unexplained(current, val, val_start, pred_a, noise_var)
+    if hos is not None and hos.detected:
+        left = with_distortion(left, hos.fitted_var, hos.rest_var)
     corrected = corr is not None and corr.accepted
     # random records: their LPM noise holds the distortion, the spread across them names
     # it only by chance (a finding, not the verdict); the correlations do instead
     across = spread[0] if data.period is not None else []
-    found = summarize(lines, across, hos.kind if hos is not None and hos.detected else None)
+    found = summarize(lines, across, hos)
     verdict = headline(applied, corrected, found, left)
     tell("testing for a plant that changes in time")
     segments = within(data, model, n=n, degree=degree)

@@ -98,6 +98,9 @@ class Correlation:
         bound of the output noise's where the distortion is found (the LPM's noise level
         holds a random excitation's distortion, so :mod:`.unexplained` takes the smaller,
         shaped by the loop as the noise in y is: :func:`~.unexplained.loop_shaped`).
+    fitted_var : float
+        The fitted part's variance per sample: a lower bound of the distortion's (what
+        the regressors do not span of it stays in the rest).
     """
 
     statistic: float
@@ -111,6 +114,7 @@ class Correlation:
     level_db: float
     samples: int
     rest_var: float = math.nan
+    fitted_var: float = math.nan
 
     @property
     def detected(self) -> bool:
@@ -274,4 +278,5 @@ def correlation(
         level,
         N - s,
         rest / e.size,
+        float(np.sum(fitted**2)) / e.size,
     )
