@@ -4,7 +4,8 @@
 The paper's plant (config/paper_example.yaml) under a softer lead controller (half gain),
 F = 3, white r, output noise 2 % of y's std, and one case per effect: nothing hidden, a gain
 change, an additive mode, a moved mode, a sensor low-pass, a controller notch, a control
-delay, and a gain change with an input delay at once. Prints the seconds per diagnosis
+delay, a gain change with an input delay at once, and the controller's gain 1.25 times
+the model's. Prints the seconds per diagnosis
 (whole ``diagnose``: identification, evidence, selection, validation) and what was found.
 
     .venv/bin/python benchmarks/bench_diagnose_speed.py [--duration 300] [--repeat 1]
@@ -43,6 +44,9 @@ def main() -> int:
         "controller_notch": replace(m, controller_notches=((20.0, 0.3, 0.1),)),
         "control_delay": replace(m, control_delay=2),
         "gain_error + input_delay": replace(m, plant_gain=1.2, input_delay=0.7 / 240),
+        "controller_gain": replace(
+            m, controller=TransferMatrix.siso([3750.0, -3375.0], [1.0, -0.3], 3 / 240.0)
+        ),
     }
     y_std = simulate(m, duration=args.duration, rng=np.random.default_rng(0)).y.std()
     print(f"| hidden ({args.duration:g} s at 240 Hz, F = 3) | s per diagnosis | found |")

@@ -22,7 +22,12 @@ from mr_ident.diagnosis.causes.cause import CauseFit
 from mr_ident.diagnosis.criterion.nonlinearity import Nonlinearity, summarize
 from mr_ident.diagnosis.criterion.prediction import predict
 from mr_ident.diagnosis.criterion.realizations import SpreadLevels
-from mr_ident.diagnosis.criterion.unexplained import Unexplained, period_noise, unexplained
+from mr_ident.diagnosis.criterion.unexplained import (
+    Unexplained,
+    period_noise,
+    unexplained,
+    with_distortion,
+)
 from mr_ident.diagnosis.selection.headline import headline
 from mr_ident.io.modelfile import model_from_dict
 from mr_ident.numerics.excitation.bla import BandLevels
@@ -113,3 +118,13 @@ def test_the_summary_takes_kind_from_the_lines_and_level_from_every_test():
     assert got is not None and got.kind == "odd" and got.level_db == 31.0
     assert got.bands == [(1.0, 3.0)] and len(got.by) == 2
     assert summarize([BandLevels((1.0, 3.0), 40.0, 2.0, 2.0, 5.0, 5.0)], []) is None
+
+
+def test_a_distortion_the_noise_level_holds_counts_as_unexplained():
+    """Fitted distortion 3 against a rest of 1: the ratio at least 4, the share the
+    distortion's rms fraction of the residual's, sqrt(3/4) of 100 - fit."""
+    left = Unexplained(70.0, 65.0, 0.0, 0.7, 0.1, 1.0)
+    got = with_distortion(left, 3.0, 1.0)
+    assert got.ratio == pytest.approx(4.0) and got.significant and got.distorted
+    assert got.share == pytest.approx(30.0 * math.sqrt(0.75))
+    assert "holds the distortion" in got.text()

@@ -163,13 +163,20 @@ def _actuator(effect: str, p: dict[str, float], fs: float) -> Callable[[], Actua
     raise ConfigError(f"effect must be one of {', '.join(NONLINEAR + UNLISTED)}; got {effect!r}")
 
 
-def simulate_actuated(model: Model, r: FloatArray, v: FloatArray, act: Actuator) -> LoopData:
+def simulate_actuated(
+    model: Model,
+    r: FloatArray,
+    v: FloatArray,
+    act: Actuator,
+    sensor: Callable[[float], float] | None = None,
+) -> LoopData:
     """The SISO loop of ``model`` with ``act`` between the commanded u and the plant.
 
     Sample by sample: y[n] = C x[n] + v[n] (D = 0: a held strictly proper plant); at the
     sampling phase the controller takes y[n]; its output is held from sample
     ``phase + control_delay`` of the period on; u[n] = r[n] - held; the plant takes
-    ``act(u[n], y_clean[n] - y_clean[n-1])``. Equals
+    ``act(u[n], y_clean[n] - y_clean[n-1])``; ``sensor`` maps what is measured (y[n], as the
+    controller and the log see it). Equals
     :func:`~mr_ident.numerics.systems.simulate.simulate` for the identity map (to rounding).
     """
     P, K = model.plant_discrete(), model.controller_ss()
@@ -186,7 +193,7 @@ def simulate_actuated(model: Model, r: FloatArray, v: FloatArray, act: Actuator)
     rr, vv = r[:, 0].tolist(), v[:, 0].tolist()
     for n in range(N):
         clean = float(C @ x)
-        y[n] = clean + vv[n]
+        y[n] = clean + vv[n] if sensor is None else sensor(clean + vv[n])
         if n % F == phase:
             pending.append((n + delay, float(Ck @ xk) + Dk * y[n]))
             xk = Ak @ xk + Bk * y[n]
@@ -381,3 +388,50 @@ def draw_beyond(
         return Beyond(loop, effect, p, recs[0], recs[1], None, math.nan, "white",
                       effect_db(m, clean, r), clean)  # fmt: skip
     raise ConfigError(f"no loop in {max_loops} draws takes {effect!r}")
+
+
+#: Nonlinear effects under white r (no periodic excitation): the actuator's and a sensor's.
+RANDOM_NONLINEAR: tuple[str, ...] = ("saturation", "dead_zone", "clipping_sensor")
+#: Share of the samples a clipping sensor clips.
+CLIPPED = 0.05
+
+
+def draw_random_nonlinear(
+    effect: str, rng: np.random.Generator, *, level: float = 1.0, duration: float = 20.0
+) -> Beyond:
+    """A random SISO loop with a nonlinear ``effect`` of :data:`RANDOM_NONLINEAR`, white r.
+
+    The actuator's (``level`` as :func:`draw_effect`'s) or a sensor that clips y at the
+    level |y| exceeds in :data:`CLIPPED` of the linear loop's samples. Two records of white
+    r (std 1) with the loop's output noise; ``distortion_db`` nan (no periodic truth).
+    """
+    for _ in range(50):
+        loop = draw_loop(rng, duration=duration)
+        m = loop.nominal
+        if m.n_u != 1 or m.plant_discrete().D.any():
+            continue
+        sensor: Callable[[float], float] | None = None
+        if effect == "clipping_sensor":
+            lin = simulate(m, reference=loop.reference, noise=np.zeros_like(loop.y_clean))
+            c = float(np.quantile(np.abs(lin.y - lin.y.mean()), 1.0 - CLIPPED))
+            mid = float(lin.y.mean())
+            p = {"clip": c, "share": CLIPPED}
+
+            def clip(y: float, c: float = c, mid: float = mid) -> float:
+                return min(max(y, mid - c), mid + c)
+
+            def make() -> Actuator:
+                return lambda u, dy: u
+
+            sensor = clip
+        else:
+            p = draw_effect(effect, loop, rng, level, duration)
+            make = _actuator(effect, p, m.fs_high)
+        recs = []
+        for _ in range(2):
+            n = loop.reference.shape[0]
+            r = rng.standard_normal((n, 1))
+            v = m.noise_std * rng.standard_normal((n, 1))
+            recs.append(simulate_actuated(m, r, v, make(), sensor))
+        return Beyond(loop, effect, p, recs[0], recs[1], None, math.nan, "white")
+    raise ConfigError(f"no loop in 50 draws takes {effect!r}")

@@ -9,6 +9,7 @@ the calls: ``identify`` never loads it (start-up, ``test_cli``).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -33,10 +34,15 @@ class Diagnosed:
     notices: tuple[Notice, ...] = ()
 
 
-def diagnose_recording(req: DiagnoseRequest, notify: Notify = ignore) -> Diagnosed:
+def diagnose_recording(
+    req: DiagnoseRequest,
+    notify: Notify = ignore,
+    progress: Callable[[str], None] | None = None,
+) -> Diagnosed:
     """The diagnosis a request asks for (the report files are the caller's to write).
 
-    ``notify`` hears each notice when it happens (the outcome keeps them all).
+    ``notify`` hears each notice when it happens (the outcome keeps them all);
+    ``progress`` each step of the diagnosis as it begins (:func:`~mr_ident.diagnose`).
 
     Raises
     ------
@@ -72,6 +78,7 @@ def diagnose_recording(req: DiagnoseRequest, notify: Notify = ignore) -> Diagnos
         max_causes=req.max_causes,
         names=req.names or (str(req.reading.path), str(req.validate)),
         more=more,
+        progress=progress,
     )
     return Diagnosed(d, model, data, tuple(heard.notices))
 

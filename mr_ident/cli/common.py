@@ -105,3 +105,51 @@ def describe_pfgs(ident: Identification) -> list[str]:
             "of the band (log axis)" + ("; " + check.text().split(":")[0] if check.differs else "")
         )
     return lines
+
+
+class Progress:
+    """Steps of a long computation told on stderr, each only once it has run 2 s.
+
+    A timer per step: a step that ends within :attr:`after` seconds prints nothing; one that
+    runs longer prints ``mr-ident: <step> ... (<t> s in)`` once. Silent where stderr is not a
+    terminal or ``quiet`` (as such tools do). Use as a context manager; call it with each
+    step's name as the step begins.
+    """
+
+    after = 2.0
+
+    def __init__(self, *, quiet: bool = False):
+        import threading
+        import time
+
+        self._on = not quiet and sys.stderr.isatty()
+        self._t0 = time.monotonic()
+        self._timer: threading.Timer | None = None
+        self._lock = threading.Lock()
+
+    def __call__(self, step: str) -> None:
+        """``step`` begins (the one before it ends)."""
+        if not self._on:
+            return
+        import threading
+
+        with self._lock:
+            if self._timer is not None:
+                self._timer.cancel()
+            self._timer = threading.Timer(self.after, self._show, (step,))
+            self._timer.daemon = True
+            self._timer.start()
+
+    def _show(self, step: str) -> None:
+        import time
+
+        print(f"mr-ident: {step} ... ({time.monotonic() - self._t0:.0f} s in)", file=sys.stderr)
+
+    def __enter__(self) -> Progress:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        with self._lock:
+            if self._timer is not None:
+                self._timer.cancel()
+                self._timer = None

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 
 from ..errors import ConfigError
-from .common import recording, show
+from .common import Progress, recording, show
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
@@ -38,7 +38,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         more=tuple(args.validate[1:]) if args.validate else (),
         injection=args.injection,
     )
-    outcome = diagnose_recording(req, show)
+    with Progress(quiet=args.quiet) as progress:
+        outcome = diagnose_recording(req, show, progress)
     d = outcome.diagnosis
     summary = report_dict(
         d, extended_model=str(args.out_model) if args.out_model else None, alpha=args.alpha

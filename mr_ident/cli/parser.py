@@ -302,6 +302,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="most causes applied in turn (default 3)",
     )
     _injection(g)
+    g.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no progress on stderr (shown only where stderr is a terminal, for steps over 2 s)",
+    )
 
     b = sub.add_parser(
         "batch",

@@ -50,6 +50,7 @@ from ..numerics.threads import one_blas_thread
 from .causes.cause import CauseFit, PlantData
 from .causes.registry import CAUSES, build
 from .controller.relation import ControllerRelation, relate
+from .criterion.correlation import HOS_ALPHA, Correlation, correlation
 from .criterion.distortion import NL_THRESHOLD_DB as NL_THRESHOLD_DB  # re-exported
 from .criterion.distortion import blind_text, distortion, lines_nonlinear, lines_text
 from .criterion.evidence import Evidence, frf_evidence, identify_record
@@ -63,7 +64,13 @@ from .criterion.records import min_record as min_record  # re-exported
 from .criterion.records import split as split  # re-exported
 from .criterion.records import with_injection
 from .criterion.timevarying import Segments, within
-from .criterion.unexplained import Unexplained, criterion_noise, unexplained
+from .criterion.unexplained import (
+    Unexplained,
+    criterion_noise,
+    loop_shaped,
+    unexplained,
+    with_distortion,
+)
 from .selection.correction import Correction, correction
 from .selection.equivalence import with_equivalents
 from .selection.forward import SCREEN_SAMPLES, select
@@ -137,6 +144,11 @@ class Diagnosis:
     headline : Headline or None
         The verdict: :attr:`cause` and :attr:`parameters` are its
         (:mod:`~mr_ident.diagnosis.selection.headline`).
+    correlation : Correlation or None
+        The validated residual's higher-order correlations with the model's signals
+        (nonlinear distortion under any excitation,
+        :mod:`~mr_ident.diagnosis.criterion.correlation`); None for periodic or
+        multichannel records.
     """
 
     cause: str
@@ -163,11 +175,17 @@ class Diagnosis:
     segments: Segments | None = None
     unexplained: Unexplained | None = None
     headline: Headline | None = None
+    correlation: Correlation | None = None
 
     @property
     def time_varying(self) -> bool:
-        """The plant changes within the record: its segments differ beyond their noise."""
-        return self.segments is not None and self.segments.varying
+        """The plant changes within the record: its segments differ beyond their noise.
+
+        Not where the residual's higher-order correlations show nonlinear distortion: a
+        nonlinear loop's segments differ with their amplitude, not in time.
+        """
+        hos = self.correlation is not None and self.correlation.detected
+        return self.segments is not None and self.segments.varying and not hos
 
     @property
     def corrected(self) -> bool:
@@ -181,13 +199,16 @@ class Diagnosis:
         On one periodic record's unexcited lines (:func:`distortion`): a band's odd or even
         level counts above :data:`NL_THRESHOLD_DB` and above what noise alone reaches on as
         few lines with probability 1e-3 (its ``*_threshold_db``); across records of other
-        realizations (:attr:`spread`), a band's spread the same way.
+        realizations (:attr:`spread`), a band's spread the same way; under any excitation,
+        the validated residual's higher-order correlations (:attr:`correlation`).
         """
-        return lines_nonlinear(self.distortion) or spread_nonlinear(self.spread)
+        hos = self.correlation is not None and self.correlation.detected
+        return lines_nonlinear(self.distortion) or spread_nonlinear(self.spread) or hos
 
     def distortion_text(self) -> str:
         """The finding in words, or "" when there is none."""
         parts = [lines_text(self.distortion), spread_text(self.spread, self.records)]
+        parts += [self.correlation.text()] if self.correlation is not None else []
         return "; ".join(p for p in parts if p)
 
     def blind_text(self) -> str:
@@ -234,6 +255,7 @@ def diagnose(
     holdout: float = 0.3,
     names: tuple[str, str] = ("data", "validation data"),
     more: Sequence[LoopData] = (),
+    progress: Callable[[str], None] | None = None,
 ) -> Diagnosis:
     """Where and why ``model`` disagrees with ``data``, the extended model, and its gain.
 
@@ -261,6 +283,8 @@ def diagnose(
     more : sequence of LoopData
         Further records of other excitation realizations: with ``data`` and
         ``validation`` they are compared as realizations (:attr:`Diagnosis.spread`).
+    progress : callable, optional
+        Told the name of each step as it begins (the command line shows the slow ones).
 
     Raises
     ------
@@ -286,6 +310,11 @@ def diagnose(
     >>> d.cause, round(d.parameters["gain"], 2), d.extended.plant_gain == d.parameters["gain"]
     ('gain_error', 1.3, True)
     """
+
+    def tell(step: str) -> None:
+        if progress is not None:
+            progress(step)
+
     if not 0.0 < alpha < 1.0:
         raise ConfigError(f"alpha must be in (0, 1), got {alpha!r}")
     if isinstance(n, str) and n != "auto":
@@ -326,9 +355,11 @@ def diagnose(
             f"the held-out part of {names[0]} ({val.n_samples - val_start} samples) "
             "is too short for the LPM window"
         )
+    tell("identifying the plant on the estimation data")
     ident = identify_record(est, model, n=n, degree=degree)
     ev_before = frf_evidence(model, est, n=n, degree=degree, alpha=alpha, ident=ident)
     noise = noise_spectrum(est, model, n=n, degree=degree, ident=ident)
+    tell("checking the controller's own equation")
     # the controller's own equation first: it settles the controller's path exactly
     relation = relate(model, est)
     shifts = relation.choices if relation is not None and relation.exact else []
@@ -352,6 +383,7 @@ def diagnose(
     screen = full if n_screen == est.n_samples else Objective(est.part(0, n_screen), base, noise)
     plant = PlantData(ev_before.frequency, ev_before.P_hat, ev_before.P_std)
     why = f"settled by the controller's own equation: {settled.text()}" if settled else None
+    tell("fitting and selecting the causes")
     sel = select(full, screen, base, plant, max_causes=max_causes, ruled_out=why)
     ranking = sel.ranking
     applied = _settled(full, model, relation) + with_equivalents(
@@ -371,6 +403,7 @@ def diagnose(
         noise_val = noise_spectrum(val_part, model, n=n, degree=degree, ident=ident_val)
         return Objective(val_part, model, noise_val)
 
+    tell("validating the causes on the validation data")
     check = decide(val_objective, model, applied, fit_of, alpha=alpha, start=cut_at)
     applied = [  # each with the validated ones before it in its model
         replace(c, model=build(model, [a.choice for a in check.applied[: j + 1] if a.choice]))
@@ -379,8 +412,10 @@ def diagnose(
     current = applied[-1].model if applied else model
     # where the listed causes end: a correction on the validated model, applied only when it
     # validates
+    tell("trying a correction of the plant")
     corr = correction(model, current, est, ident, val, cut_at, n=n, degree=degree, alpha=alpha)
     current = corr.model if corr is not None and corr.model is not None else current
+    tell("measuring the gain on the validation data")
     pred_b, pred_a = predict(model, val), predict(current, val)
     fit_before = time_fit(model, val, val_start, pred_b)
     fit_after = time_fit(current, val, val_start, pred_a)
@@ -394,6 +429,7 @@ def diagnose(
         "y_after": pred_a.y,
         "fs_high": val.fs_high,
     }
+    tell("testing for nonlinear distortion")
     spread = records_spread(
         [data, *([] if validation is None else [validation]), *more],
         model,
@@ -404,9 +440,21 @@ def diagnose(
     lines = distortion(est)
     # periodic: the residual's spread over periods (a periodic distortion left out)
     noise_var = None if val_part.period is not None else criterion_noise(val_objective())
+    hos = correlation(current, val, val_start, pred_a, alpha=HOS_ALPHA)
+    if noise_var is not None and hos is not None and hos.detected:  # the LPM's holds it
+        shaped = loop_shaped(hos.rest_var, model, val.n_samples - val_start)
+        noise_var = np.minimum(noise_var, shaped)
     left = unexplained(current, val, val_start, pred_a, noise_var)
+    if hos is not None and hos.detected:
+        left = with_distortion(left, hos.fitted_var, hos.rest_var)
     corrected = corr is not None and corr.accepted
-    verdict = headline(applied, corrected, summarize(lines, spread[0]), left)
+    # random records: their LPM noise holds the distortion, the spread across them names
+    # it only by chance (a finding, not the verdict); the correlations do instead
+    across = spread[0] if data.period is not None else []
+    found = summarize(lines, across, hos)
+    verdict = headline(applied, corrected, found, left)
+    tell("testing for a plant that changes in time")
+    segments = within(data, model, n=n, degree=degree)
     return Diagnosis(
         verdict.cause,
         verdict.parameters,
@@ -428,9 +476,10 @@ def diagnose(
         check,
         *spread,
         corr,
-        within(data, model, n=n, degree=degree),
+        segments,
         left,
         verdict,
+        hos,
     )
 
 

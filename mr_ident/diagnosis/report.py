@@ -109,6 +109,15 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
         ],
         "findings": ([d.distortion_text()] if d.nonlinear else [])
         + ([d.segments.text()] if d.segments is not None and d.time_varying else [])
+        + (
+            [
+                "the record's segments differ beyond their noise, but the residual's "
+                "higher-order correlations show nonlinear distortion, whose segments differ "
+                "with their amplitude: not named a plant that changes in time"
+            ]
+            if d.segments is not None and d.segments.varying and not d.time_varying
+            else []
+        )
         + ([d.blind_text()] if d.blind_text() else [])
         + (
             [d.relation.text()]
@@ -147,11 +156,13 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
                 for b in d.spread
             ],
             "blind": d.blind_text() or None,
+            "correlation": None if d.correlation is None else d.correlation.summary(),
         },
         "time_varying": None
         if d.segments is None
         else {
             "detected": d.time_varying,
+            "segments_differ": d.segments.varying,
             "segments": d.segments.parts,
             "level_db": _finite(d.segments.level_db),
             "threshold_db": VARYING_DB,

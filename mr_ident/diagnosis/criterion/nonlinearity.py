@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...numerics.excitation.bla import BandLevels
+from .correlation import Correlation
 from .distortion import NL_THRESHOLD_DB
 from .realizations import SpreadLevels
 
@@ -70,13 +71,12 @@ def _above(level: float, threshold: float) -> bool:
 def summarize(
     lines: list[BandLevels],
     spread: list[SpreadLevels],
-    correlation_kind: str | None = None,
+    correlation: Correlation | None = None,
 ) -> Nonlinearity | None:
     """The tests' findings as one :class:`Nonlinearity`; None where no test found any.
 
-    ``correlation_kind``: what the residual's higher-order correlations found ("odd",
-    "even", "odd and even", "" for a nonlinearity of no told kind), None where they found
-    none or were not run.
+    ``correlation``: the residual's higher-order correlations (their kind, side and level
+    count where they found distortion).
     """
     levels: list[float] = []
     bands: list[tuple[float, float]] = []
@@ -95,9 +95,11 @@ def summarize(
         by.append("across the records")
         levels += [b.level_db for b in hit]
         bands += [b.band for b in hit if b.band not in bands]
-    if correlation_kind is not None:
-        by.append("in the residual's higher-order correlations with the input")
-        kinds |= set(correlation_kind.split(" and ")) - {""}
+    if correlation is not None and correlation.detected:
+        side = f", {correlation.side} side" if correlation.side else ""
+        by.append(f"in the residual's higher-order correlations{side}")
+        kinds |= set(correlation.kind.split(" and ")) - {""}
+        levels.append(correlation.level_db)
     if not by:
         return None
     kind = " and ".join(k for k in ("odd", "even") if k in kinds)

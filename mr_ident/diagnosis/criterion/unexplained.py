@@ -22,7 +22,7 @@ that a random excitation makes (the best linear approximation's noise).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -55,6 +55,11 @@ class Unexplained:
         Residual power over the noise's, ``‖e‖² / (n σ²)`` (1: within the noise).
     noise_std : float
         The noise's rms per sample of y (as the loop shapes it), averaged over outputs.
+    y_rms : float
+        The rms of y about its mean, averaged over outputs.
+    distorted : bool
+        The noise level holds a distortion the residual's correlations found
+        (:func:`with_distortion`): :attr:`allowed` is then no bound.
     """
 
     fit: float
@@ -62,6 +67,8 @@ class Unexplained:
     share: float
     ratio: float
     noise_std: float
+    y_rms: float = math.nan
+    distorted: bool = False
 
     @property
     def significant(self) -> bool:
@@ -70,9 +77,14 @@ class Unexplained:
 
     def text(self) -> str:
         """The finding in words."""
+        bound = (
+            "the noise level of these data holds the distortion"
+            if self.distorted
+            else f"the noise allows {self.allowed:.1f} %"
+        )
         return (
             f"{self.share:.1f} % of y (rms) unexplained beyond the noise (fit y "
-            f"{self.fit:.1f} %, the noise allows {self.allowed:.1f} %)"
+            f"{self.fit:.1f} %, {bound})"
         )
 
     def summary(self) -> dict[str, float | bool]:
@@ -84,6 +96,7 @@ class Unexplained:
             "noise_std": self.noise_std,
             "threshold_ratio": UNEXPLAINED_RATIO,
             "significant": self.significant,
+            "noise_holds_distortion": self.distorted,
         }
 
 
@@ -146,4 +159,34 @@ def unexplained(
         share = float(np.mean(100.0 * np.sqrt(np.maximum(e2 - v2, 0.0) / d2)))
         ratio = float(np.max(e2 / v2))
     std = float(np.mean(np.sqrt(np.asarray(noise_var, float))))
-    return Unexplained(fit, allowed, share, ratio, std)
+    return Unexplained(fit, allowed, share, ratio, std, float(np.mean(np.sqrt(d2 / n))))
+
+
+def with_distortion(left: Unexplained, fitted_var: float, rest_var: float) -> Unexplained:
+    """``left`` with a distortion found in the residual counted as unexplained.
+
+    Where the LPM's noise level holds the distortion (random r), ``left`` reads the
+    distortion as noise. The residual's higher-order correlations fit a part of it,
+    ``fitted_var`` against the rest ``rest_var`` (per sample, in the output error's units;
+    only their ratio is used): what the regressors do not span stays in the rest, so the
+    ratio is at least ``1 + fitted / rest``, and the share of y left beyond the noise at
+    least that power fraction of the residual's: ``(100 - fit) sqrt(fitted / (fitted +
+    rest))`` per cent of y's rms.
+    """
+    f, r = max(fitted_var, 0.0), max(rest_var, 1e-300)
+    ratio = max(left.ratio, 1.0 + f / r)
+    share = max(left.share, (100.0 - left.fit) * math.sqrt(f / (f + r)))
+    return replace(left, ratio=ratio, share=share, distorted=True)
+
+
+def loop_shaped(var: float, model: Model, n_samples: int) -> float:
+    """The variance in y of white output noise of variance ``var``, as the loop shapes it.
+
+    ``var`` times the mean of the loop's power gain over the spectrum
+    (:func:`~.noise.loop_noise_gain`; 1 in open loop).
+    """
+    from .noise import loop_noise_gain
+
+    g = loop_noise_gain(model, n_samples - n_samples % model.ratio)[:, 0]
+    n = 2 * (g.size - 1)
+    return float(var * (2.0 * g.sum() - g[0] - g[-1]) / max(n, 1))
