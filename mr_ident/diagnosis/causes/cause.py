@@ -175,6 +175,10 @@ class Cause:
         """Free parameters counted by the information criterion."""
         return len(self.parameters)
 
+    def free_in(self, choice: Choice) -> int:
+        """The free values of ``choice`` (a cause whose size varies counts its own)."""
+        return self.n_free
+
     def applies(self, nominal: Model) -> bool:
         """Whether the cause can occur in the loop of ``nominal``."""
         return True

@@ -220,6 +220,14 @@ class ControllerRetuned(_LoopCause):
         """A second-order controller's five (counted so for the choice among closing sets)."""
         return 5
 
+    def free_in(self, choice: Choice) -> int:
+        """Its coefficients, 2 n + 1 at order n.
+
+        Of two orders that both close the controller's equation (a pole cancelling a zero),
+        the lower is chosen, not the one round-off favours.
+        """
+        return 2 * int(choice.fixed[0]) + 1
+
     def proposals(self, ctx: Context) -> list[Choice]:
         """None: the equation fits it."""
         return []

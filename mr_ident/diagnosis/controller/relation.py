@@ -209,7 +209,7 @@ def relate(nominal: Model, rec: LoopData) -> ControllerRelation | None:
     exact = [(err, ch) for err, ch in found if err <= EXACT]
     if not exact:  # no set of them closes the gap: nothing of it is used
         return ControllerRelation(e0, e0, [], [], eq.samples)
-    err, chosen = min(exact, key=lambda t: (sum(CAUSES[c.cause].n_free for c in t[1]), t[0]))
+    err, chosen = min(exact, key=lambda t: (sum(CAUSES[c.cause].free_in(c) for c in t[1]), t[0]))
     if any(not CAUSES[c.cause].discrete for c in chosen):  # to the precision of the numbers
         err, chosen = _refit(eq, nominal, chosen)
     return ControllerRelation(e0, err, chosen, _std(eq, nominal, chosen), eq.samples)
