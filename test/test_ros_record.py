@@ -350,3 +350,16 @@ def test_launch_file_imports_where_launch_exists(name):
 
     ld = runpy.run_path(str(ROOT / "launch" / name))["generate_launch_description"]
     assert ld is not None
+
+
+def test_record_refuses_an_existing_file_and_leaves_it_as_it_was(graph, tmp_path):
+    out = tmp_path / "rec.mcap"
+    out.write_bytes(b"an earlier recording")
+    with child(
+        graph, "mr-ident", "record", str(out), "--duration", "1",
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    ) as proc:  # fmt: skip
+        _, stderr = proc.communicate(timeout=30)
+    assert proc.returncode == 2 and "a recording is never overwritten" in stderr, stderr
+    assert "Traceback" not in stderr
+    assert out.read_bytes() == b"an earlier recording"

@@ -23,7 +23,7 @@ from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
-from ..errors import DataError, RecordingError
+from ..errors import ConfigError, DataError, RecordingError
 from ..io.blocks import STREAMS
 from ..io.recording import McapRecorder
 from .messages import qos_dict, subscription_qos
@@ -52,7 +52,13 @@ class Recorder:
     ):
         self.node = node
         self.topics = [_absolute(t) for t in topics]
-        self.rec = McapRecorder(path)
+        try:  # an existing file is never truncated (as rosbag2 refuses an existing bag)
+            self.rec = McapRecorder(path, exclusive=True)
+        except FileExistsError:
+            raise ConfigError(
+                f"{path} exists: a recording is never overwritten (remove it or choose "
+                "another name)"
+            ) from None
         self._on_failure = on_failure
         self._subs: dict[str, Any] = {}
         self.counts: dict[str, int] = {t: 0 for t in self.topics}
