@@ -203,6 +203,9 @@ def test_the_models_injection_is_read_written_and_checked(paper_model):
         model_from_dict(d | {"injection": "reference"})
     with pytest.raises(ModelError, match="needs a controller"):
         model_from_dict({k: v for k, v in d.items() if k != "controller"})
+    # the plant alone (a diagnosis simulates it so): r is its input whatever the loop's is
+    alone = replace(paper_model, injection="setpoint", controller=None)
+    assert not alone.setpoint and alone.n_r == alone.n_u
 
 
 def test_diagnose_simulates_the_model_with_r_at_the_setpoint_and_finds_the_plants_gain(

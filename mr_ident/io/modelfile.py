@@ -151,6 +151,10 @@ def model_from_dict(d: Any, *, source: str = "model") -> Model:
         raise ModelError(
             f"{source}: injection must be one of {', '.join(INJECTIONS)}, got {injection!r}"
         )
+    if injection == "setpoint" and d.get("controller") is None:
+        raise ModelError(
+            f"{source}: injection setpoint needs a controller (the setpoint is its input)"
+        )
     floats = {}
     for key, default in (("noise_std", 0.0), ("reference_std", 1.0)):
         v = d.get(key, default)

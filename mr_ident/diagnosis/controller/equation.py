@@ -38,7 +38,7 @@ class Equation:
         self.y = np.where(self.y_missing, 0.0, rec.y)
         # the controller's output as the logged u gives it, and what the controller samples:
         # u = r - u_c and y (r at the plant input), or u = -u_c and y - r (r the setpoint)
-        setpoint = nominal.injection == "setpoint"
+        setpoint = nominal.setpoint
         self.logged = -self.u if setpoint else rec.r - self.u
         self.sampled = self.y - rec.r if setpoint else self.y
         self.F = nominal.ratio

@@ -110,7 +110,8 @@ class Model:
         Where the excitation r enters: added to the plant input at the high rate
         (``u_h = r_h - H_u K_l S_d y_h``; r has n_u channels) or as the controller's
         setpoint, sampled with y (``u_h = H_u K_l S_d (r_h - y_h)``; r has n_y channels).
-        None: not stated (simulated at the plant input; the data tell it to identify).
+        None: not stated (simulated at the plant input; the data tell it to identify). In
+        open loop (no controller) r is the plant's input whatever it says.
     plant_gain : float
         Multiplies the plant.
     input_delay : float
@@ -162,8 +163,6 @@ class Model:
             raise ModelError(
                 f"injection must be one of {', '.join(INJECTIONS)}, got {self.injection!r}"
             )
-        if self.injection == "setpoint" and self.controller is None:
-            raise ModelError("injection setpoint needs a controller (the setpoint is its input)")
 
     @property
     def n_y(self) -> int:
@@ -178,7 +177,12 @@ class Model:
     @property
     def n_r(self) -> int:
         """Channels of the excitation r: n_u at the plant input, n_y at the setpoint."""
-        return self.n_y if self.injection == "setpoint" else self.n_u
+        return self.n_y if self.setpoint else self.n_u
+
+    @property
+    def setpoint(self) -> bool:
+        """Whether r enters as the controller's setpoint (in open loop r is the plant's input)."""
+        return self.injection == "setpoint" and self.controller is not None
 
     @property
     def fs_low(self) -> float:

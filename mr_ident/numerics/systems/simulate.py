@@ -48,7 +48,7 @@ def lifted_loop(model: Model) -> StateSpace:
         Ck = np.zeros((nu, 0))
         Dk = np.zeros((nu, ny))
     nk = Ak.shape[0]
-    setpoint = model.injection == "setpoint"
+    setpoint = model.setpoint
     nr = model.n_r
     phase, hold = model.sample_phase, model.sample_phase + model.control_delay
     nh = -((0 - hold) // F) if model.controller is not None else 0  # ceil(hold / F)
@@ -229,7 +229,7 @@ def simulate(
         ra = np.asarray(reference, dtype=float)
         ra = ra[:, None] if ra.ndim == 1 else ra
         if ra.ndim != 2 or ra.shape[1] != nr:
-            where = "setpoint: n_y" if model.injection == "setpoint" else "plant input: n_u"
+            where = "setpoint: n_y" if model.setpoint else "plant input: n_u"
             raise DimensionError(
                 f"reference must have shape (N, n_r={nr}) (r at the {where}), got "
                 f"{np.shape(reference)}"
