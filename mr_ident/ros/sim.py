@@ -206,10 +206,14 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     SIGINT/SIGTERM stop it through one path (:mod:`mr_ident.ros.program`) with exit 0.
     """
+    from .entry import wants_help
+
+    args_all = list(sys.argv if argv is None else argv)
+    if wants_help(args_all[1:]):  # the usage needs no ROS (nor rclpy installed)
+        build_parser().parse_args(["--help"])
     stop = handle_signals()
     from rclpy.utilities import remove_ros_args
 
-    args_all = list(sys.argv if argv is None else argv)
     args = build_parser().parse_args(remove_ros_args(args_all)[1:])
     try:
         model = load_model(args.model)
