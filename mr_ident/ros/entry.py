@@ -9,9 +9,8 @@ install :func:`~mr_ident.ros.program.handle_signals` before importing anything s
 from __future__ import annotations
 
 import sys
-from collections.abc import Sequence
 
-from .program import handle_signals
+from .program import handle_signals, wants_help
 
 NODE_USAGE = """\
 usage: mr-ident-node [-h] [--ros-args -p NAME:=VALUE ... | --params-file FILE.yaml]
@@ -32,16 +31,6 @@ parameters (docs/node.md, "All parameters"; config/node.yaml holds every default
   autostart             configure and activate at start (default false)
   legacy_array_topics   also publish the Float64MultiArray topics (default false)
 """
-
-
-def wants_help(argv: Sequence[str]) -> bool:
-    """Whether ``-h``/``--help`` comes before any ``--ros-args`` (ROS's own arguments)."""
-    for arg in argv:
-        if arg == "--ros-args":
-            return False
-        if arg in ("-h", "--help"):
-            return True
-    return False
 
 
 def node_usage() -> str:

@@ -159,3 +159,13 @@ def spin_until_stopped(executor: Any, node: Any, stop: Stop) -> None:
     stop.on_request(guard.trigger)
     while not stop.requested:
         executor.spin_once()
+
+
+def wants_help(argv: Sequence[str]) -> bool:
+    """Whether ``-h``/``--help`` comes before any ``--ros-args`` (ROS's own arguments)."""
+    for arg in argv:
+        if arg == "--ros-args":
+            return False
+        if arg in ("-h", "--help"):
+            return True
+    return False

@@ -30,7 +30,7 @@ from ..io.modelfile import load_model
 from ..numerics.arrays import FloatArray
 from ..numerics.excitation.sources import Follower, SimSource
 from ..numerics.systems.model import Model
-from .program import Stop, handle_signals, ros_context, spin_until_stopped
+from .program import Stop, handle_signals, ros_context, spin_until_stopped, wants_help
 
 
 def excitation_signal(path: str, model: Model) -> FloatArray:
@@ -206,8 +206,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     SIGINT/SIGTERM stop it through one path (:mod:`mr_ident.ros.program`) with exit 0.
     """
-    from .entry import wants_help
-
     args_all = list(sys.argv if argv is None else argv)
     if wants_help(args_all[1:]):  # the usage needs no ROS (nor rclpy installed)
         build_parser().parse_args(["--help"])
