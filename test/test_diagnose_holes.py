@@ -107,12 +107,26 @@ def test_open_loop_the_plant_is_driven_by_us_estimates():
     assert d.cause == "gain_error" and abs(d.parameters["gain"] - 1.3) < 5e-3
 
 
-def test_r_missing_periodic_holes_and_holes_beyond_the_limits_are_refused(holed):
+def test_r_missing_is_recovered_and_more_than_a_fit_takes_is_refused(holed):
+    """r at the plant input: u - r is held, so a lost r whose u came is recovered exactly;
+    lost with its u, it is guessed, and beyond 0.1 % of the record refused, naming it."""
+    from mr_ident.diagnosis.criterion.records import with_r
+
     true, rec = holed
     r = rec.r.copy()
-    r[7] = np.nan
-    with pytest.raises(DataError, match="r has 1 NaN samples .first at sample 7.; r is"):
-        check_missing(dataclasses.replace(rec, r=r), 8, "d.npz")
+    lost = np.flatnonzero(np.isfinite(rec.u[:, 0]))[7::50]
+    r[lost] = np.nan
+    got = with_r(true, dataclasses.replace(rec, r=r))
+    np.testing.assert_allclose(got.r, rec.r, rtol=0, atol=1e-12 * np.abs(rec.r).max())
+    d = diagnose(dataclasses.replace(true, noise_std=0.0), dataclasses.replace(rec, r=r))
+    assert d.cause == "none", d.cause
+    r[np.flatnonzero(np.isnan(rec.u[:, 0]))] = np.nan  # lost with u: about 1 %
+    with pytest.raises(DataError, match="d.npz: r has .* read samples missing where the loop"):
+        with_r(true, dataclasses.replace(rec, r=r), "d.npz")
+
+
+def test_periodic_holes_and_holes_beyond_the_limits_are_refused(holed):
+    true, rec = holed
     with pytest.raises(DataError, match="d.npz: u or y miss .* periodic data"):
         check_missing(dataclasses.replace(rec, period=200), 8, "d.npz")
     many = _holed(rec, 9, share=0.2)

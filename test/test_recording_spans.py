@@ -3,8 +3,9 @@
 wrong with the data (too few messages, a topic with nothing on it, the spans and the gaps).
 
 Bags written by ``rosbags`` (not by this project); the loop is the paper's example (240 Hz,
-F = 3) simulated by mr_ident. Cycles are dropped at samples 1000 and 12000 of 14400: the
-gap-free spans are [0, 999), [1002, 12000) and [12003, 14400) on the F grid, the longest
+F = 3) simulated by mr_ident. Four cycles are dropped at samples 1000 and 12000 of 14400
+(a hole of r longer than a block: not bridged): the spans are [0, 999), [1005, 12000) and
+[12006, 14400) on the F grid, the longest
 the middle one. Its P_h is held to the same tolerance as a clean bag's (median relative
 error < 1e-4 against the exact model; 46 s of data).
 """
@@ -27,7 +28,7 @@ from mr_ident.numerics.identify import identify
 from mr_ident.numerics.systems.simulate import simulate
 
 SPECS = {"r": [R], "u": [U], "y": [Y]}
-DROPPED = {1000, 12000}
+DROPPED = {1000, 1001, 1002, 1003, 12000, 12001, 12002, 12003}
 
 
 @pytest.fixture(scope="module")
@@ -43,23 +44,24 @@ def test_the_longest_span_is_used_by_default_and_the_note_says_where_the_gaps_ar
     model, sim, path = gappy
     loaded = load_recording(path, specs=SPECS, ratio=3)
     data = loaded.data
-    assert (data.first, data.end) == (1002, 12000)
-    np.testing.assert_array_equal(data.y, sim.y[1002:12000])
+    assert (data.first, data.end) == (1005, 12000)
+    np.testing.assert_array_equal(data.y, sim.y[1005:12000])
     res = identify(data.r, data.u, data.y, fs_high=240.0, ratio=3)
     P = model.plant_discrete().freqresp(res.plant.frequency)
     assert float(np.median(np.abs(res.plant.response - P) / np.abs(P))) < 1e-4
     (note,) = loaded.notes
-    assert "using the longest span [1002, 12000) of 10998 samples" in note
-    assert "3 span(s)" in note and "gaps at [999, 1002), [12000, 12003)" in note
+    assert "using the longest span [1005, 12000) of 10995 samples" in note
+    assert "3 span(s)" in note and "gaps at [999, 1005), [12000, 12006)" in note
     # why: the messages that held r were dropped too (u, y alone would be bridged)
-    assert "split at: reference: gap of 1 samples at [1000, 1001) (r, the excitation" in note
+    assert "split at: reference: gap of 4 samples at [1000, 1004) (longer than 3 samples" in note
     assert re.search(r"\(bridged: holes of u, y at most \d+ samples a hole, 5.9 % of a", note)
+    assert "of r, at most 3 samples)" in note
 
 
 def test_span_latest_takes_the_last_and_all_is_an_error_naming_the_gaps(gappy):
     _, sim, path = gappy
     data, info = bag_signals(path, SPECS, ratio=3, span="latest")
-    assert (data.first, data.end) == (12003, sim.n_samples) and "latest" in info.broken
+    assert (data.first, data.end) == (12006, sim.n_samples) and "latest" in info.broken
     with pytest.raises(
         DataError, match=r"--span all needs a recording without gaps too long.*gaps at"
     ):
@@ -73,7 +75,7 @@ def test_the_cli_flag_chooses_the_span_and_warns(gappy, tmp_path, capsys):
     base = ["identify", str(path), "--r", R, "--u", U, "--y", Y, "--ratio", "3"]
     code = main([*base, "--out", str(tmp_path / "a.npz")])
     err = capsys.readouterr().err
-    assert code == 0 and "warning:" in err and "longest span [1002, 12000)" in err, err
+    assert code == 0 and "warning:" in err and "longest span [1005, 12000)" in err, err
     code = main([*base, "--span", "all", "--out", str(tmp_path / "b.npz")])
     err = capsys.readouterr().err
     assert code == 2 and err.startswith("error: ") and "gaps at" in err, err
@@ -134,20 +136,20 @@ def test_batch_passes_the_span_and_its_rows_say_which_was_used(gappy, tmp_path, 
     code = main([*args, "--span", "latest", "--workers", "1", "--out-dir", str(out)])
     assert code == 0, capsys.readouterr().err
     (row,) = list(csv.DictReader(open(out / "summary.csv")))
-    assert row["status"] == "ok" and row["first"] == "12003", row
-    assert "using the latest span [12003, 14400)" in row["notes"]
+    assert row["status"] == "ok" and row["first"] == "12006", row
+    assert "using the latest span [12006, 14400)" in row["notes"]
 
 
 def test_replay_is_the_nodes_latest_window_unless_span_says_otherwise(gappy, tmp_path, capsys):
-    """The latest span [12003, 14400) is 9.99 s, under min_window_s = 10 s: replay as the
-    node fails and lists the spans; --span longest identifies [1002, 12000)."""
+    """The latest span [12006, 14400) is 9.98 s, under min_window_s = 10 s: replay as the
+    node fails and lists the spans; --span longest identifies [1005, 12000)."""
     _, _, path = gappy
     base = ["replay", str(path), "--r", R, "--u", U, "--y", Y, "--ratio", "3"]
     code = main([*base, "--out", str(tmp_path / "a.npz")])
     err = capsys.readouterr().err
     assert code == 2 and "no gap-free aligned window of at least 2400 samples" in err, err
-    assert "the longest [1002, 12000) of 10998 samples; gaps at [999, 1002)" in err
+    assert "the longest [1005, 12000) of 10995 samples; gaps at [999, 1005)" in err
     code = main([*base, "--span", "longest", "--out", str(tmp_path / "b.npz")])
     out, err = capsys.readouterr()
     assert code == 0, err
-    assert "window [1002, 12000)" in out and "note: using the longest span" in err
+    assert "window [1005, 12000)" in out and "note: using the longest span" in err

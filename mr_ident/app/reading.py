@@ -114,4 +114,28 @@ def read_settled(
     fs, settled = settle_rates(
         data, fs_high=fs_high, ratio=ratio, model=model, injection=injection
     )
+    why = "" if complete else _r_undetermined(data, settled, model)
+    if why:
+        notify(Notice("warning", f"{reading.path}: {why}; the longest span without holes is used"))
+        return read_settled(
+            reading, specs, fs_high, ratio, model, notify, complete=True, injection=injection
+        )
     return data, fs, settled
+
+
+def _r_undetermined(data: LoopData, settled: Settled, model: Model | None) -> str:
+    """Why r's bridged holes leave more unknown samples than a fit takes, or ""."""
+    import numpy as np
+
+    from ..numerics.missing_r import recover_r
+
+    if not np.isnan(data.r).any():
+        return ""
+    phase = settled.phase if settled.phase is not None else (model.sample_phase if model else 0)
+    try:
+        recover_r(
+            data.r, data.u, data.y, ratio=settled.ratio, injection=settled.injection, phase=phase
+        )
+    except DataError as e:
+        return str(e).split(":")[0]  # the count and the share
+    return ""

@@ -86,6 +86,12 @@ def cmd_identify(args: argparse.Namespace) -> int:
             f"note: {int(missing[:ny].sum())} samples of y and {int(missing[ny:].sum())} of u "
             f"missing (NaN) of {outcome.n_samples}: estimated as unknowns of the fit"
         )
+    if ident.r_recovered or ident.r_unknown:
+        print(
+            f"note: {ident.r_recovered + ident.r_unknown} samples of r missing: "
+            f"{ident.r_recovered} recovered exactly from the loop, {ident.r_unknown} not "
+            "determined by the data (guessed; their error is part of the std)"
+        )
     write_result(args.out, ident, outcome.structure)
     print(f"wrote {args.out} ({ident.plant.frequency.size} bins, method {outcome.method})")
     for line in describe_pfgs(ident):

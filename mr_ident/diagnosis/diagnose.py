@@ -62,7 +62,7 @@ from .criterion.realizations import SpreadLevels, records_spread, spread_nonline
 from .criterion.records import check_record as check_record  # re-exported
 from .criterion.records import min_record as min_record  # re-exported
 from .criterion.records import split as split  # re-exported
-from .criterion.records import with_injection
+from .criterion.records import with_injection, with_r
 from .criterion.timevarying import Segments, within
 from .criterion.unexplained import (
     Unexplained,
@@ -325,9 +325,11 @@ def diagnose(
         raise ConfigError(f"holdout must be in [0.05, 0.5], got {holdout!r}")
     check_record(model, data, n=n, what=names[0])
     model = with_injection(model, data, None)  # r where the data show it entered
+    data = with_r(model, data, names[0])  # r's holes recovered (the simulation reads r)
     if validation is not None:
         check_record(model, validation, n=n, what=names[1])
         with_injection(model, validation, None)  # the same loop there (else refused)
+        validation = with_r(model, validation, names[1])
         est, val, val_start = data, validation, 0
         est_desc = f"all of DATA ({data.n_samples} samples)"
         val_desc = f"the validation data ({validation.n_samples} samples)"
@@ -350,6 +352,7 @@ def diagnose(
         )
     for j, other in enumerate(more):
         check_record(model, other, n=n, what=f"record {j + 3}")
+    more = [with_r(model, other, f"record {j + 3}") for j, other in enumerate(more)]
     if val_start and val.period is None and val.n_samples - val_start < min_record(n, model.ratio):
         raise DataError(
             f"the held-out part of {names[0]} ({val.n_samples - val_start} samples) "

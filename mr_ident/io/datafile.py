@@ -24,6 +24,8 @@ NPZ (result, written by ``mr-ident identify``)
     the LPM window half-width used per bin (0: none; files written before it read the same;
     stored as int16 when it fits);
     ``n_missing`` (n_y + n_u,), the missing samples of every channel of y then u, when any;
+    ``r_recovered`` and ``r_unknown``, r's missing samples recovered from the loop and not
+    determined by the data, when any;
     ``injection`` where r entered (``plant_input`` or ``setpoint``), ``structure`` what the
     data showed of the loop (a sentence: the hold, F, where r enters), and with r at the
     setpoint ``undetermined`` (K,) bool, the bins whose window reaches a zero of the hold.
@@ -387,6 +389,8 @@ def write_result(path: str | Path, ident: Identification, structure: str = "") -
         arrays["undetermined"] = ident.undetermined
     if ident.n_missing is not None and ident.n_missing.any():
         arrays["n_missing"] = ident.n_missing
+    if ident.r_recovered or ident.r_unknown:
+        arrays["r_recovered"], arrays["r_unknown"] = ident.r_recovered, ident.r_unknown
     for key, g in (("pfg", ident.pfg), ("pfg_data", ident.pfg_data)):
         if g is not None:
             arrays[key] = g.gain
@@ -441,4 +445,6 @@ def read_identification(path: str | Path) -> Identification:
         n_missing=z["n_missing"] if "n_missing" in z else None,
         injection=str(z["injection"]) if "injection" in z else "plant_input",
         undetermined=z["undetermined"] if "undetermined" in z else None,
+        r_recovered=int(z["r_recovered"]) if "r_recovered" in z else 0,
+        r_unknown=int(z["r_unknown"]) if "r_unknown" in z else 0,
     )

@@ -21,7 +21,7 @@ import numpy as np
 from ..io.blocks import LABELS_STREAM, STREAMS, Block
 from ..numerics.arrays import FloatArray
 from ..numerics.signals import LoopData
-from .gaps import BRIDGED, NOT_BRIDGED, BridgeRule, Bridging, Holes, union_count
+from .gaps import NOT_BRIDGED, BridgeRule, Bridging, Holes, stream_bridging, union_count
 
 
 @dataclass
@@ -32,7 +32,7 @@ class StreamStats:
     samples: int = 0  # accepted samples
     gaps: int = 0  # holes declared (samples never arrived)
     gap_samples: int = 0  # samples in those holes
-    bridged: int = 0  # holes kept in the window as missing samples (u, y)
+    bridged: int = 0  # holes kept in the window as missing samples (r, u, y)
     bridged_samples: int = 0  # samples in those holes
     duplicates: int = 0  # blocks wholly received before
     overlaps: int = 0  # blocks partly received before (the new tail is kept)
@@ -107,10 +107,10 @@ class Aligner:
         (:attr:`~mr_ident.numerics.signals.LoopData.labels`).
     bridge : callable, optional
         ``(n_in, n_out) -> Bridging | None`` (:func:`~mr_ident.live.gaps.bridging`): the
-        holes of u and y kept as missing samples (NaN) in the window; None: every hole
-        restarts.
+        holes of r, u and y kept as missing samples (NaN) in the window (r's up to a block:
+        :func:`~mr_ident.live.gaps.stream_bridging`); None: every hole restarts.
 
-    Policy: a hole of u or y within the bridging limits is kept as missing samples; any
+    Policy: a hole of r, u or y within the bridging limits is kept as missing samples; any
     other hole restarts the stream after it (so the window restarts). A block
     that starts before the stream's end must repeat the samples held for the
     indices they share: then it is a duplicate (wholly behind the end; ignored)
@@ -356,7 +356,7 @@ class Aligner:
         restarts (also kept in :attr:`breaks`).
         """
         s = self._s[stream]
-        b = self.bridging() if stream in BRIDGED else None
+        b = stream_bridging(self.bridging(), stream, self.ratio)
         why = ""
         if b is None:
             why = NOT_BRIDGED.get(stream, "") if self._rule is not None or stream == 3 else ""
@@ -409,7 +409,7 @@ class Aligner:
         b = self.bridging()
         # a window later than the stream's own checks (another stream behind) stays
         # within the share: it starts after the holes that would break it
-        for s in self._s[1:3]:
+        for s in self._s[:3]:
             while (
                 b is not None
                 and hi > lo
@@ -419,8 +419,8 @@ class Aligner:
         return lo, max(lo, hi)
 
     def missing(self, lo: int, hi: int) -> int:
-        """Indices in [lo, hi) where u or y is missing (bridged holes of the held samples)."""
-        return union_count([s.holes for s in self._s[1:3]], lo, hi)
+        """Indices in [lo, hi) where r, u or y is missing (bridged holes of the held samples)."""
+        return union_count([s.holes for s in self._s[:3]], lo, hi)
 
     def window(self, min_samples: int = 1, stop: int | None = None) -> LoopData | None:
         """The latest aligned window, or None when it holds fewer than ``min_samples``.

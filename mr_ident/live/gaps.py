@@ -15,16 +15,20 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from ..errors import MrIdentError
 from ..io.config import IdentConfig
 from ..numerics.lifted.options import default_n, missing_limits
 
-#: The streams whose holes may be bridged: u (1) and y (2).
-BRIDGED = (1, 2)
-#: Why the others' never are (r, the excitation's labels).
-NOT_BRIDGED = {0: "r, the excitation, is never estimated", 3: "the labels are never estimated"}
+#: The streams whose holes may be bridged: r (0), u (1) and y (2).
+BRIDGED = (0, 1, 2)
+#: Why the others' never are (the excitation's labels).
+NOT_BRIDGED = {3: "the labels are never estimated"}
+#: The longest hole of r bridged, in blocks of F samples: a block's r is recovered from
+#: its u - r or the controller's equation with its neighbours received; longer runs of
+#: lost blocks are not (their r would be guessed).
+R_GAP_BLOCKS = 1
 
 
 @dataclass(frozen=True)
@@ -45,12 +49,15 @@ class Bridging:
         The shortest window identified.
     window : int
         The longest window identified (a whole recording: its length).
+    gap_reason : str
+        Why ``gap`` is the limit, where another rule than the fit's sets it ("": the fit).
     """
 
     gap: int
     share: float
     min_samples: int
     window: int
+    gap_reason: str = ""
 
     def refuses(self, holes: Holes, lo: int, hi: int, origin: int) -> str:
         """Why the hole [lo, hi) cannot be bridged, or "" (it can).
@@ -58,7 +65,7 @@ class Bridging:
         ``holes``: the stream's bridged holes; ``origin``: where it (re)started.
         """
         if hi - holes.run_from(lo) > self.gap:
-            return f"longer than {self.gap} samples"
+            return f"longer than {self.gap} samples{self.gap_reason}"
         base = max(origin, hi - self.window)
         missing = holes.count(base, lo) + hi - lo
         length = max(hi - base, self.min_samples)
@@ -72,6 +79,19 @@ class Bridging:
     def describe(self) -> str:
         """The limits in words, for a message."""
         return f"at most {self.gap} samples a hole, {100 * self.share:.1f} % of a window"
+
+
+def stream_bridging(b: Bridging | None, stream: int, ratio: int) -> Bridging | None:
+    """The limits for one stream's holes (None: every hole splits).
+
+    ``b`` for u and y; for r at most :data:`R_GAP_BLOCKS` blocks a hole; None for the labels.
+    """
+    if b is None or stream not in BRIDGED:
+        return None
+    if stream != 0 or b.gap <= R_GAP_BLOCKS * ratio:
+        return b
+    why = ": r is recovered within a block, from its neighbours"
+    return replace(b, gap=R_GAP_BLOCKS * ratio, gap_reason=why)
 
 
 #: ``(n_in, n_out) -> Bridging`` (the channel counts known once the streams came), or None.

@@ -11,8 +11,9 @@ span as data (for ``identify`` and ``diagnose``; :mod:`mr_ident.live.spans`).
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -56,11 +57,12 @@ def _feed(
 
 @dataclass(frozen=True)
 class ReplayResult:
-    """Outcome of :func:`replay`.
+    """Outcome of :func:`replay` and :func:`replay_bag`.
 
-    ``signals``: asked for with ``keep_signals``, the whole span replayed (the
-    ``span`` chosen), with the rates: what :func:`loop_windows` cuts the node's windows from
-    (monitoring), from the same read.
+    ``stats``: per stream, what the alignment met (gaps, restarts, ...); ``info``: what was
+    read (the span used in ``info.span``, why in ``info.broken``); ``signals``: asked for
+    with ``keep_signals``, the whole span replayed (the ``span`` chosen), with the rates:
+    what :func:`loop_windows` cuts the node's windows from (monitoring), from the same read.
     """
 
     estimate: Estimate
@@ -68,6 +70,72 @@ class ReplayResult:
     info: RecordingInfo
     anomalies: tuple[str, ...]
     signals: LoopData | None = None
+
+
+@dataclass(frozen=True)
+class _Aligned:
+    """A recording aligned twice, as the node and whole: what :func:`_replayed` takes.
+
+    ``every``: every span with history (the holes judged by the node's limits), or what
+    makes it when first needed; ``node``: the node's own window aligner fed alike (None:
+    not fed, a span other than the latest);
+    ``cfg``: the configuration at the recording's rates; ``what``: the recording in
+    messages; ``tail``: appended to the message when no window is found.
+    """
+
+    every: Callable[[], Aligner]
+    node: Aligner | None
+    notes: tuple[str, ...]
+    info: RecordingInfo
+    cfg: IdentConfig
+    what: str
+    tail: str = ""
+
+
+def _node_aligner(cfg: IdentConfig, labels: bool) -> Aligner:
+    """The node's window aligner for ``cfg``."""
+    return Aligner(
+        cfg.window_samples,
+        cfg.ratio,
+        cfg.reorder_blocks,
+        labels=labels,
+        bridge=config_bridging(cfg),
+    )
+
+
+def _replayed(rec: _Aligned, span: str, stop: int | None, keep_signals: bool) -> ReplayResult:
+    """The window the node identified last (of ``span``), its estimate and the whole span.
+
+    The one assembly of both replays: the node's aligner as fed live for the latest span,
+    else the span chosen from ``rec.every`` pushed into a fresh one (its holes as holes).
+    """
+    cfg = rec.cfg
+    labels = bool(cfg.excitation_index_topic)
+    notes = list(rec.notes)
+    info = rec.info
+    if span == "latest" and rec.node is not None:
+        al = rec.node
+    else:
+        al = _node_aligner(cfg, labels)
+        chosen, info = _chosen(rec.every(), span, notes, info, rec.what)
+        _push(al, chosen)
+        notes = [info.broken, *notes] if info.broken else notes
+    win = al.window(cfg.min_samples, stop=stop)
+    if win is None:
+        lo, hi = al.span(stop)
+        raise DataError(
+            f"{rec.what}: no gap-free aligned window of at least {cfg.min_samples} samples "
+            f"(min_window_s = {cfg.min_window_s:g} s at {cfg.fs_high:g} Hz); aligned span at "
+            f"the end: {max(0, hi - lo)} samples; {describe_spans(rec.every().spans())}"
+            + _what_broke(rec.every(), rec.notes, rec.info)
+            + rec.tail
+        )
+    signals = None
+    if keep_signals:
+        whole, _ = _chosen(rec.every(), span, rec.notes, rec.info, rec.what)
+        signals = replace(whole, fs_high=cfg.fs_high, ratio=cfg.ratio)
+    seen = rec.node if span == "latest" and rec.node is not None else rec.every()
+    return ReplayResult(estimate(win, cfg), seen.stats, info, tuple(notes), signals)
 
 
 def replay(
@@ -79,27 +147,28 @@ def replay(
     span: str = "latest",
     keep_signals: bool = False,
 ) -> ReplayResult:
-    """Run a recording through the node's alignment and identification, offline.
+    """Run a recording's block topics through the node's alignment and identification.
 
     The estimate is computed from the last aligned window (``config.window_s``)
     ending at or before sample index ``stop`` (default: the end of the data) -
     the window the live node identified last when it saw the same blocks. ``span``
     other than "latest": the last window of that span (:mod:`mr_ident.live.spans`)
     instead. ``keep_signals``: also the whole span (:attr:`ReplayResult.signals`).
+
+    Raises
+    ------
+    DataError
+        As :func:`~mr_ident.io.recording.read_blocks`; no window of ``min_window_s``.
     """
     check_span(span)
     labels = config.excitation_index_topic
     items, info, _ = read_blocks(path, topics, labels)
-    al = Aligner(
-        config.window_samples,
-        config.ratio,
-        config.reorder_blocks,
-        labels=bool(labels),
-        bridge=config_bridging(config),
-    )
 
-    def whole_aligner() -> Aligner:  # every span, the holes judged as the node judges them
-        return Aligner(
+    fed: list[list[str]] = []
+
+    @cache
+    def every() -> Aligner:  # every span, the holes judged as the node judges them
+        al = Aligner(
             1 << 62,
             config.ratio,
             config.reorder_blocks,
@@ -107,41 +176,64 @@ def replay(
             labels=bool(labels),
             bridge=config_bridging(config),
         )
+        fed.append(_feed(al, items, stop))
+        return al
 
-    every = None
-    if span == "latest":
-        notes = _feed(al, items, stop)
+    node = None
+    if span == "latest":  # the node's aligner, fed as it was live
+        node = _node_aligner(config, bool(labels))
+        notes = _feed(node, items, stop)
     else:
-        every = whole_aligner()
-        notes = _feed(every, items, stop)
-        notes = _span_into(al, every, span, notes, info, str(path))
-    signals = None
-    if keep_signals:
-        if every is None:
-            every = whole_aligner()
-            _feed(every, items, stop)
-        whole = _chosen(every, span, notes, replace(info), str(path))
-        signals = replace(whole, fs_high=config.fs_high, ratio=config.ratio)
-    w = al.window(config.min_samples, stop=stop)
-    if w is None:
-        lo, hi = al.span(stop)
-        every = whole_aligner()
-        _feed(every, items, stop)  # every span, for the message
-        raise DataError(
-            f"{path}: the recording holds no gap-free aligned window of at least "
-            f"{config.min_samples} samples (min_window_s = {config.min_window_s:g} s); "
-            f"aligned span at the end: {max(0, hi - lo)} samples; {describe_spans(every.spans())}"
-            + _what_broke(al, notes, info)
-        )
-    return ReplayResult(estimate(w, config), al.stats, info, tuple(notes), signals)
+        every()
+        notes = fed[0]
+    rec = _Aligned(every, node, tuple(notes), info, config, f"{path}: the recording")
+    return _replayed(rec, span, stop, keep_signals)
 
 
-def _span_into(
-    al: Aligner, every: Aligner, span: str, notes: list[str], info: RecordingInfo, what: str
-) -> list[str]:
-    """Push the span ``span`` of ``every`` (with history) into ``al``; the notes."""
-    _push(al, _chosen(every, span, notes, info, what))
-    return [info.broken, *notes] if info.broken else notes
+def replay_bag(
+    path: str | Path,
+    config: IdentConfig,
+    specs: Mapping[str, Sequence[str]],
+    *,
+    fs_high: float | None = None,
+    ratio: int | None = None,
+    stop: int | None = None,
+    span: str = "latest",
+    msg_path: Sequence[str | Path] = (),
+    keep_signals: bool = False,
+) -> ReplayResult:
+    """:func:`replay` for per-sample sources.
+
+    The window the node would have identified last (``config.window_s``, ending at or before
+    ``stop``; ``span`` other than "latest": the last window of that span);
+    ``fs_high``/``ratio`` None: read off the stamps (and the configuration's replaced by
+    them). ``keep_signals``: also the whole span (:attr:`ReplayResult.signals`).
+    """
+    check_span(span)
+    read = read_bag(
+        path,
+        specs,
+        fs_high=fs_high,
+        ratio=ratio,
+        stop=stop,
+        history=True,
+        msg_path=msg_path,
+        labels=config.excitation_index_topic,
+        options=config,
+        node=config if span == "latest" else None,
+    )
+    cfg = config.replace(fs_high=read.fs_high, ratio=read.ratio)
+    what = f"{path}: the sources"
+    rec = _Aligned(
+        lambda: read.aligner,
+        read.node,
+        read.notes,
+        read.info,
+        cfg,
+        what,
+        f"; sources: {read.sources}",
+    )
+    return _replayed(rec, span, stop, keep_signals)
 
 
 def _length(items: Sequence[tuple[int, int, Block | BlockError]]) -> int:
@@ -233,86 +325,19 @@ def recorded_signals(
         bridge=bridge or bridging(n, n, ratio=ratio),
     )
     notes = _feed(al, items)
-    return _chosen(al, span, notes, info, str(path)), info
+    return _chosen(al, span, notes, info, str(path))
 
 
 def _chosen(
     al: Aligner, span: str, notes: Sequence[str], info: RecordingInfo, what: str
-) -> LoopData:
-    """The ``span`` of an aligner with history; ``info.span``/``broken`` set."""
+) -> tuple[LoopData, RecordingInfo]:
+    """The ``span`` of an aligner with history, and ``info`` with its span and why (a copy)."""
     try:
         w, note = choose(al, span, what=what)
     except DataError as err:
         raise DataError(f"{err}{_what_broke(al, notes, info)}") from None
-    info.span = (w.first, w.end)
-    if note:
-        info.broken = note + _what_broke(al, notes)
-    return w
-
-
-def replay_bag(
-    path: str | Path,
-    config: IdentConfig,
-    specs: Mapping[str, Sequence[str]],
-    *,
-    fs_high: float | None = None,
-    ratio: int | None = None,
-    stop: int | None = None,
-    span: str = "latest",
-    msg_path: Sequence[str | Path] = (),
-    keep_signals: bool = False,
-) -> ReplayResult:
-    """:func:`replay` for per-sample sources.
-
-    The window the node would have identified last (``config.window_s``, ending at or before
-    ``stop``; ``span`` other than "latest": the last window of that span);
-    ``fs_high``/``ratio`` None: read off the stamps (and the configuration's replaced by
-    them). ``keep_signals``: also the whole span (:attr:`ReplayResult.signals`).
-    """
-    check_span(span)
-    labels = config.excitation_index_topic
-    read = read_bag(
-        path,
-        specs,
-        fs_high=fs_high,
-        ratio=ratio,
-        stop=stop,
-        history=True,
-        msg_path=msg_path,
-        labels=labels,
-        options=config,
-        node=config if span == "latest" else None,
-    )
-    cfg = config.replace(fs_high=read.fs_high, ratio=read.ratio)
-    al = Aligner(
-        cfg.window_samples,
-        cfg.ratio,
-        cfg.reorder_blocks,
-        labels=bool(labels),
-        bridge=config_bridging(cfg),
-    )
-    lo, hi = read.aligner.span(stop)
-    notes = list(read.notes)
-    if span == "latest" and read.node is not None:  # the holes decided as the node did
-        al = read.node
-    else:
-        notes = _span_into(al, read.aligner, span, notes, read.info, str(path))
-    win = al.window(cfg.min_samples, stop=stop)
-    if win is None:
-        raise DataError(
-            f"{path}: the sources give no gap-free aligned window of at least {cfg.min_samples} "
-            f"samples (min_window_s = {cfg.min_window_s:g} s at {cfg.fs_high:g} Hz); aligned "
-            "span at "
-            f"the end: {max(0, hi - lo)} samples; {describe_spans(read.aligner.spans())}"
-            + _what_broke(read.aligner, read.notes, read.info)
-            + f"; sources: {read.sources}"
-        )
-    signals = None
-    if keep_signals:
-        what = f"{path}: sources {read.sources}"
-        whole = _chosen(read.aligner, span, read.notes, replace(read.info), what)
-        signals = replace(whole, fs_high=read.fs_high, ratio=read.ratio)
-    return ReplayResult(estimate(win, cfg), read.aligner.stats, read.info, tuple(notes), signals)
+    broken = note + _what_broke(al, notes) if note else info.broken
+    return w, replace(info, span=(w.first, w.end), broken=broken)
 
 
 def bag_signals(
@@ -342,8 +367,8 @@ def bag_signals(
         labels=labels,
         bridge=bridge,
     )
-    w = _chosen(read.aligner, span, read.notes, read.info, f"{path}: sources {read.sources}")
-    return replace(w, fs_high=read.fs_high, ratio=read.ratio), read.info
+    w, info = _chosen(read.aligner, span, read.notes, read.info, f"{path}: sources {read.sources}")
+    return replace(w, fs_high=read.fs_high, ratio=read.ratio), info
 
 
 def bag_windows(

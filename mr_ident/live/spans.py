@@ -23,6 +23,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from ..errors import ConfigError, DataError
+from .gaps import R_GAP_BLOCKS
 
 if TYPE_CHECKING:  # numpy-free at import: the parser takes SPANS from here
     from ..numerics.signals import LoopData
@@ -106,5 +107,10 @@ def why(al: Aligner, most: int = 3) -> str:
     shown = "; ".join(breaks[:most]) + (
         f"; and {len(breaks) - most} more" if len(breaks) > most else ""
     )
-    limit = f" (bridged: holes of u, y {b.describe()})" if b is not None else ""
+    r_gap = R_GAP_BLOCKS * al.ratio
+    limit = (
+        f" (bridged: holes of u, y {b.describe()}; of r, at most {r_gap} samples)"
+        if b is not None
+        else ""
+    )
     return f"; split at: {shown}{limit}"

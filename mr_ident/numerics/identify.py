@@ -41,6 +41,7 @@ from .local.bandwidth import (
     setpoint_span,
 )
 from .local.segments import Run, runs_of
+from .missing_r import RecoveredR, recover_r
 from .results import FRF, PFG, Identification
 from .signals import y_at_low_rate
 from .structure import INJECTIONS
@@ -72,16 +73,12 @@ def _check_signals(
             raise DimensionError(
                 f"{name} must have shape (n_samples,) or (n_samples, n_channels), got {a.shape}"
             )
-        bad_values = np.isinf(a) if name != "r" else ~np.isfinite(a)
-        if bad_values.any():
-            bad = np.argwhere(bad_values)[0]
-            what = (
-                "NaN or inf: r is the excitation, known at every sample (a NaN of u or y is "
-                "a missing sample)"
-                if name == "r"
-                else "inf (a missing sample is NaN)"
+        if np.isinf(a).any():
+            bad = np.argwhere(np.isinf(a))[0]
+            raise DataError(
+                f"{name} contains inf (a missing sample is NaN); first at sample {bad[0]}, "
+                f"channel {bad[1]}"
             )
-            raise DataError(f"{name} contains {what}; first at sample {bad[0]}, channel {bad[1]}")
         arrays.append(a)
     ra, ua, ya = arrays
     if setpoint:  # r is the controller's reference: one per output, at either rate
@@ -136,7 +133,10 @@ def identify(
         of the lifted fit r -> [y; u]
         (:func:`~mr_ident.numerics.lifted.missing.estimate_missing`), the method then fits
         the whole record with its std corrected (``Identification.n_missing`` counts them;
-        the method page, "Missing samples"). r is the excitation: never missing.
+        the method page, "Missing samples"). A NaN of r is recovered where the loop
+        determines it (u - r held, r held, a setpoint's controller equation), else guessed
+        and counted as noise (:func:`~mr_ident.numerics.missing_r.recover_r`;
+        ``Identification.r_recovered``, ``r_unknown``).
     fs_high : float
         High sample rate in Hz.
     ratio : int
@@ -197,7 +197,8 @@ def identify(
     Raises
     ------
     DimensionError, DataError, ConfigError
-        Bad shapes, NaN in r, inf anywhere, more missing samples than the windows carry,
+        Bad shapes, more than 0.1 % of r's read samples neither received nor determined,
+        inf anywhere, more missing samples than the windows carry,
         N not a multiple of F, too little data, bad options.
 
     Examples
@@ -231,6 +232,11 @@ def identify(
     m = method_of(method)
     n_workers = resolve_workers(workers)
     ra, ua, ya = _check_signals(r, u, y, F, setpoint)
+    r_found = RecoveredR(ra)
+    if np.isnan(ra).any():  # r's missing samples: recovered where the loop determines them
+        q = check_sample_of_period("phase", phase, F)
+        r_found = recover_r(ra, ua, ya, ratio=F, injection=injection, phase=q)
+        ra = r_found.r
     if setpoint:  # the sampled setpoint r↑, and its estimator
         ra = setpoint_regressor(ra, F, phase, method, ua.shape[0])
         method, m = "lpm", method_of("lpm")
@@ -353,6 +359,8 @@ def identify(
         n_missing=n_missing,
         injection=injection,
         undetermined=undetermined,
+        r_recovered=r_found.recovered,
+        r_unknown=r_found.unknown,
     )
 
 

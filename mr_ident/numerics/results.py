@@ -214,6 +214,12 @@ class Identification:
         Plant frequencies where P_h is not determined by the data: with r at the setpoint,
         the bins whose window reaches a zero of the hold (multiples of fs_high/F; NaN at
         the zeros). None: every frequency is.
+    r_recovered : int
+        Missing samples of r recovered exactly from the loop (u - r or r held, a setpoint's
+        controller equation): :func:`~mr_ident.numerics.missing_r.recover_r`.
+    r_unknown : int
+        Missing samples of r the fit reads that the data do not determine: guessed, their
+        error part of the noise every std contains.
     """
 
     plant: FRF
@@ -228,6 +234,8 @@ class Identification:
     n_missing: IntArray | None = None
     injection: str = "plant_input"
     undetermined: BoolArray | None = None
+    r_recovered: int = 0
+    r_unknown: int = 0
 
     def __post_init__(self) -> None:
         n_ch = sum(self.plant.response.shape[1:])

@@ -148,6 +148,7 @@ def _phase(r: FloatArray, u: FloatArray, F: int, s: int) -> int | None:
     M = u.shape[0] // F
     if M < 64:
         return None
+    r, u = (np.where(np.isnan(x), np.nanmean(x, axis=0), x) for x in (r, u))  # lost: the mean
     v = u[s : s + (M - 1) * F : F]  # the held value of each block
     scores = []
     for q in range(F):

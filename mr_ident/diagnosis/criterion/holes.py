@@ -164,7 +164,9 @@ def beyond_limits(rec: LoopData, n: int, degree: int = 2, ratio: int | None = No
 
 
 def check_missing(rec: LoopData, n: int, what: str) -> None:
-    """Missing samples diagnose carries: none of r, none in periodic data, within the limits.
+    """Missing samples of u and y diagnose carries: none in periodic data, within the limits.
+
+    r's are recovered before (:func:`~mr_ident.diagnosis.criterion.records.with_r`).
 
     Raises
     ------
@@ -173,12 +175,6 @@ def check_missing(rec: LoopData, n: int, what: str) -> None:
     from ...errors import DataError
 
     lost = np.isnan(rec.u).any(axis=1) | np.isnan(rec.y).any(axis=1)
-    if np.isnan(rec.r).any():
-        k = np.flatnonzero(np.isnan(rec.r).any(axis=1))
-        raise DataError(
-            f"{what}: r has {k.size} NaN samples (first at sample {int(k[0])}); r is the "
-            "excitation, known at every sample (only u and y may miss samples)"
-        )
     if not lost.any():
         return
     if rec.period is not None:

@@ -6,8 +6,11 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
+import numpy as np
+
 from ...errors import DataError
 from ...numerics.identify import min_samples
+from ...numerics.missing_r import recover_r
 from ...numerics.signals import LoopData
 from ...numerics.structure import read_structure, settle_structure
 from ...numerics.systems.model import Model
@@ -47,6 +50,30 @@ def with_injection(model: Model, data: LoopData, injection: str | None) -> Model
     if settled.injection == "plant_input" and model.injection is None:
         return model
     return replace(model, injection=settled.injection)
+
+
+def with_r(model: Model, rec: LoopData, what: str = "data") -> LoopData:
+    """``rec`` with r's missing samples recovered where the loop determines them.
+
+    The model's loop is simulated from r: its holes are filled as identification fills
+    them (:func:`~mr_ident.numerics.missing_r.recover_r`, r where the model, settled by
+    :func:`with_injection`, says it enters). DataError, naming the record, where more of r is
+    undetermined than a fit takes.
+    """
+    if not np.isnan(rec.r).any():
+        return rec
+    try:
+        found = recover_r(
+            rec.r,
+            rec.u,
+            rec.y,
+            ratio=model.ratio,
+            injection=model.injection or "plant_input",
+            phase=model.sample_phase,
+        )
+    except DataError as e:
+        raise DataError(f"{what}: {e}") from None
+    return replace(rec, r=found.r)
 
 
 def check_record(model: Model, rec: LoopData, *, n: int = 8, what: str = "data") -> None:
