@@ -164,7 +164,7 @@ def test_the_periodic_average_with_missing_samples_is_an_error_naming_them():
 
 
 def test_the_lifting_phase_is_detected_over_missing_samples():
-    from mr_ident.live.estimate import held_phase
+    from mr_ident.numerics.structure import held_phase
 
     rng = np.random.default_rng(2)
     x = np.repeat(rng.standard_normal(400), 3)[2:-1]  # held over 3, changing at index 1 mod 3

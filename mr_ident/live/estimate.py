@@ -28,7 +28,7 @@ from ..numerics.excitation.bla import BLA
 from ..numerics.identify import identify
 from ..numerics.results import Identification
 from ..numerics.signals import LoopData
-from ..numerics.structure import Settled, read_structure, settle_structure
+from ..numerics.structure import Settled, held_phase, read_structure, settle_structure
 from ..numerics.systems.lti import TransferMatrix
 from .periodic import bla_identification, cut_by_labels, periodic_bla
 
@@ -70,29 +70,6 @@ def detect_phase(
     F = int(ratio)
     hold, contrast = held_phase(first, np.asarray(u, dtype=float) - np.asarray(r, dtype=float), F)
     return PhaseDetection((hold - control_delay) % F, hold, contrast)
-
-
-def held_phase(first: int, x: NDArray, ratio: int) -> tuple[int, float]:
-    """The index (mod F) at which a signal held over F samples changes, and the contrast.
-
-    ``x`` (N,) or (N, c), its first sample at absolute index ``first``. For each candidate h
-    the variation between consecutive samples *inside* the hold intervals starting at
-    indices = h (mod F) is summed; the true h gives (nearly) 0. The contrast is that sum
-    relative to the next best candidate's (below 0.1: clear; near 1: not held, or F = 1).
-    Missing samples (NaN) are left out.
-    """
-    F = int(ratio)
-    if F == 1:
-        return 0, 1.0
-    # a missing sample (NaN) leaves out the two steps it is in
-    step = np.abs(np.diff(x, axis=0))
-    step = np.nansum(step, axis=1) if x.ndim == 2 else np.nan_to_num(step, nan=0.0)
-    idx = (first + 1 + np.arange(step.shape[0])) % F  # index of the later sample
-    per_class = np.bincount(idx, weights=step, minlength=F)  # variation entering index = c (mod F)
-    inside = per_class.sum() - per_class  # hold at h: changes only allowed at h
-    order = np.argsort(inside)
-    best, second = float(inside[order[0]]), float(inside[order[1]])
-    return int(order[0]), (best / second if second > 0 else 1.0)
 
 
 def low_rate_output(first: int, y: NDArray, ratio: int) -> tuple[NDArray, int]:
@@ -150,11 +127,20 @@ class Estimate:
     structure: str = ""
 
 
-def _phase(window: LoopData, config: IdentConfig) -> tuple[int, str]:
-    """The lifting phase of ``window``: the parameter, else detected."""
+def _phase(window: LoopData, config: IdentConfig, loop: Settled) -> tuple[int, str]:
+    """The lifting phase of ``window``: the parameter, else read from the hold.
+
+    The hold the structure read exactly (:func:`~mr_ident.numerics.structure.hold_of`),
+    else the hold's contrast (:func:`~mr_ident.numerics.structure.held_phase`, for a u - r
+    logged with noise).
+    """
+    F = config.ratio
     if config.phase is not None:
         return config.phase, "parameter"
-    det = detect_phase(window.first, window.r, window.u, config.ratio, config.control_delay)
+    found = loop.found
+    if found.ratio == F and found.hold_start is not None and found.held != "u":
+        return (found.hold_start + window.first - config.control_delay) % F, "auto"
+    det = detect_phase(window.first, window.r, window.u, F, config.control_delay)
     if det.determined:
         return det.phase, "auto"
     return 0, "auto (undetermined: 0 assumed)"
@@ -189,7 +175,7 @@ def estimate(window: LoopData, config: IdentConfig) -> Estimate:
         phase = (q + window.first) % F
         source = "parameter" if config.phase is not None else "auto"
     else:
-        phase, source = _phase(window, config)
+        phase, source = _phase(window, config, loop)
     periodic = ""
     if window.labels is not None:
         try:

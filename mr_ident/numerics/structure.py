@@ -134,6 +134,30 @@ def hold_of(x: FloatArray, max_ratio: int = MAX_RATIO) -> tuple[int, int] | None
     return best
 
 
+def held_phase(first: int, x: FloatArray, ratio: int) -> tuple[int, float]:
+    """The index (mod F) at which a signal held over F samples changes, and the contrast.
+
+    The rule for a hold that :func:`hold_of` cannot see exactly (a u - r logged with noise),
+    F given. ``x`` (N,) or (N, c), its first sample at absolute index ``first``. For each
+    candidate h the variation between consecutive samples *inside* the hold intervals starting at
+    indices = h (mod F) is summed; the true h gives (nearly) 0. The contrast is that sum
+    relative to the next best candidate's (below 0.1: clear; near 1: not held, or F = 1).
+    Missing samples (NaN) are left out.
+    """
+    F = int(ratio)
+    if F == 1:
+        return 0, 1.0
+    # a missing sample (NaN) leaves out the two steps it is in
+    step = np.abs(np.diff(x, axis=0))
+    step = np.nansum(step, axis=1) if x.ndim == 2 else np.nan_to_num(step, nan=0.0)
+    idx = (first + 1 + np.arange(step.shape[0])) % F  # index of the later sample
+    per_class = np.bincount(idx, weights=step, minlength=F)  # variation entering index = c (mod F)
+    inside = per_class.sum() - per_class  # hold at h: changes only allowed at h
+    order = np.argsort(inside)
+    best, second = float(inside[order[0]]), float(inside[order[1]])
+    return int(order[0]), (best / second if second > 0 else 1.0)
+
+
 def _equal(r: FloatArray, u: FloatArray) -> bool:
     """Whether u equals r to round-off of its scale (NaN samples skipped): an open loop."""
     d = np.abs(u - r)
