@@ -257,3 +257,21 @@ def test_the_plant_monitoring_watches_a_setpoint_loop(paper_model, gain, level):
     sim = simulate(true, duration=60.0, rng=np.random.default_rng(12))
     state = watch.observe(estimate(sim, cfg))
     assert state.level == level
+
+
+def test_an_r_held_at_the_plant_input_takes_the_setpoints_estimator(paper_model):
+    """r published at the controller's rate and added to the plant input: the lifted
+    regressor has rank one per block (every lifted fit NaN); the high-rate fit on r gives
+    P_h away from the hold's zeros to the local polynomial's bias, noise-free."""
+    F = paper_model.ratio
+    r = np.repeat(np.random.default_rng(0).standard_normal((4800, 1)), F, axis=0)
+    sim = simulate(paper_model, reference=r)
+    res = identify(sim.r, sim.u, sim.y, fs_high=paper_model.fs_high, ratio=F)
+    err, _ = _errors(res, paper_model, sim.n_samples)
+    assert (
+        res.undetermined is not None and np.isnan(err[hold_zero_bins(sim.n_samples, F) - 1]).all()
+    )
+    assert float(np.nanmedian(err[~res.undetermined])) < 1e-6
+    assert res.pfg_data is None
+    with pytest.raises(ConfigError, match="r is held over blocks of 3 samples: .* got method"):
+        identify(sim.r, sim.u, sim.y, fs_high=paper_model.fs_high, ratio=F, method="time-lifted")

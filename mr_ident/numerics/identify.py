@@ -26,6 +26,7 @@ from .lifted.pfg import pfg_from_plant
 from .lifted.pfg_data import fit_data_pfg
 from .lifted.setpoint import (
     check_setpoint_shapes,
+    held_over_blocks,
     hold_zero_bins,
     hold_zone,
     setpoint_regressor,
@@ -183,7 +184,9 @@ def identify(
         [y; u] and the indirect step (``method`` "freq-lifted", the default, or "lpm": one
         estimator here); ``Identification.undetermined`` flags the bins whose window
         reaches a zero of the hold (multiples of fs_high/F), where P_h is not determined
-        (NaN at the zeros themselves); no PFG from data.
+        (NaN at the zeros themselves); no PFG from data. An r at the plant input held over
+        blocks of F (published at the controller's rate) has a lifted regressor of rank one
+        per block: it takes the same estimator, on r itself.
 
     Returns
     -------
@@ -239,8 +242,10 @@ def identify(
         ra = r_found.r
     if setpoint:  # the sampled setpoint r↑, and its estimator
         ra = setpoint_regressor(ra, F, phase, method, ua.shape[0])
+    high = setpoint or held_over_blocks(ra, F, method)  # a regressor held or sampled per block
+    if high:
         method, m = "lpm", method_of("lpm")
-    F_fit = 1 if setpoint else F  # the setpoint's fit is LTI at the high rate
+    F_fit = 1 if high else F  # the fit is LTI at the high rate
     N = ra.shape[0]
     ny, nu = ya.shape[1], ua.shape[1]
     slow = ya.shape[0] != N  # y at the low rate
@@ -265,7 +270,7 @@ def identify(
         )
     ns: tuple[int, ...] = (n0,)
     if auto and m.uses_lpm:
-        span = setpoint_span(n0, N / float(fs_high)) if setpoint else SPAN
+        span = setpoint_span(n0, N / float(fs_high)) if high else SPAN
         ns = candidates(n0, (N // (2 * m.lift(F_fit)) - 1) // 2, span)
 
     n_missing = np.concatenate([np.isnan(ya).sum(axis=0), np.isnan(ua).sum(axis=0)])
@@ -311,11 +316,11 @@ def identify(
         fit = fit_with(n0, keep_lifted, True, runs, n_workers)
         pfg_data = (
             None
-            if slow or setpoint
+            if slow or high
             else _data_pfg(fit, ra, ua, ya, F, n0, degree, local, n_workers, float(fs_high), share)
         )
     undetermined = None
-    if setpoint:  # P_h is not determined at the hold's zeros: NaN there
+    if high:  # P_h is not determined at the hold's zeros: NaN there
         undetermined = hold_zone(N, F, n_used[1:])
         fit.P_half[hold_zero_bins(N, F)] = np.nan
         fit.var_half[hold_zero_bins(N, F)] = np.nan

@@ -37,6 +37,7 @@ import numpy as np
 from ...errors import ConfigError, DimensionError
 from ..arrays import BoolArray, FloatArray, IntArray
 from ..lifting import check_sample_of_period
+from ..structure import hold_of
 
 #: The methods a setpoint-excited loop takes (one estimator there: the high-rate local fit).
 SETPOINT_METHODS = ("freq-lifted", "lpm")
@@ -81,6 +82,27 @@ def setpoint_regressor(
         )
     q = check_sample_of_period("phase", phase, ratio)
     return sampled_setpoint(r, ratio, q, n_samples)
+
+
+def held_over_blocks(r: FloatArray, ratio: int, method: str) -> bool:
+    """Whether r at the plant input is held over blocks of F: the setpoint's estimator then.
+
+    A held r is ``r = H r_l↑`` (H the hold), so the loop from ``r_l↑`` is LTI at the high
+    rate as a setpoint's is, and ``Y/R = G_y/H`` on every bin but the hold's zeros: the
+    high-rate local fit on r itself is the estimator. The lifted regressor has rank one per
+    block (no lifted method can fit it). ConfigError for a ``method`` other than
+    :data:`SETPOINT_METHODS`.
+    """
+    hold = hold_of(r) if ratio > 1 and r.shape[0] > ratio else None
+    if hold is None or hold[0] % ratio:
+        return False
+    if method not in SETPOINT_METHODS:
+        raise ConfigError(
+            f"r is held over blocks of {hold[0]} samples: its lifted regressor has rank one "
+            "per block, so the loop is identified by the high-rate local fit on r (method "
+            f"{' or '.join(SETPOINT_METHODS)}), got method {method!r}"
+        )
+    return True
 
 
 def sampled_setpoint(r: FloatArray, ratio: int, phase: int, n_samples: int) -> FloatArray:
