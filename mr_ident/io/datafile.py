@@ -7,15 +7,20 @@ CSV
     fs_high is taken from ``t`` (uniform spacing required); F from the caller. An output
     measured at the low rate leaves its y cells empty (or ``nan``) but on the rows q,
     q + F, q + 2F, ... to the end: y is then those N/F rows, taken at sample q of each
-    period (the caller checks that the step is F). Otherwise an empty (or ``nan``) cell of
+    period (the caller checks that the step is F). A u logged at the controller's rate is
+    given the same way, on the rows where each value was applied: it is held to the next
+    (the rows before the first are missing samples). Otherwise an empty (or ``nan``) cell of
     u or y is a **missing sample** (a dropped message): ``identify`` estimates it as an
-    unknown of the fit (the method page, "Missing samples"); r and t are complete.
+    unknown of the fit (the method page, "Missing samples"); one of r is recovered from the
+    loop where it determines it ("Missing samples of r"); t is complete.
 NPZ (data)
     Arrays ``r``, ``u``, ``y`` of shape (N,) or (N, channels), and scalars
     ``fs_high`` (Hz) and ``ratio`` (F). ``y`` may hold N/F rows instead: the output measured
     at the low rate only, y_h at samples q, q + F, ... (exactly N/F; another length is an
-    error naming the lengths), q the optional scalar ``y_phase`` (default 0). A NaN of u
-    or of a high-rate y is a missing sample, as in the CSV.
+    error naming the lengths), q the optional scalar ``y_phase`` (default 0). ``u`` may hold
+    N/F rows: the controller's output at its rate, held to the high rate from sample
+    ``u_phase`` of each block (optional scalar, default 0; the samples before it missing).
+    A NaN of r, u or a high-rate y is a missing sample, as in the CSV.
 NPZ (result, written by ``mr-ident identify``)
     ``frequency`` (K,), ``P`` (K, n_y, n_u) complex, ``P_std`` (K, n_y, n_u);
     ``pfg_data``, ``pfg_data_std`` (K,), the PFG identified from data alone (the lifted
@@ -144,7 +149,7 @@ def read_csv(path: str | Path) -> LoopData:
         raise DataError(f"{p}: empty file (expected a header line t,r,u,y)")
     cols = _columns(header, str(p))
     empty_is_nan: dict[int | str, Callable[[str], Any]] = dict.fromkeys(
-        cols["u"] + cols["y"], _cell_or_nan
+        cols["r"] + cols["u"] + cols["y"], _cell_or_nan
     )
     try:
         with warnings.catch_warnings():
@@ -168,14 +173,18 @@ def read_csv(path: str | Path) -> LoopData:
     for s in _SIGNALS:
         arrays[s] = table[:, cols[s]]
         rows = None
-        if s == "y" and np.isnan(arrays[s]).any():
-            arrays[s], y_phase = _low_rate_y(arrays[s], str(p))
+        if s in ("u", "y") and np.isnan(arrays[s]).any():
+            arrays[s], q = _low_rate_rows(arrays[s], s, str(p))
             step = table.shape[0] // arrays[s].shape[0]
-            rows = y_phase + step * np.arange(arrays[s].shape[0])
-        holes = s == "u" or (s == "y" and arrays[s].shape[0] == table.shape[0])
+            rows = q + step * np.arange(arrays[s].shape[0])
+            if s == "y":
+                y_phase = q
+        holes = arrays[s].shape[0] == table.shape[0]
         for c, j in enumerate(cols[s]):
             name = header[j].strip()
             _check_finite(name, arrays[s][:, c : c + 1], str(p), True, rows, holes)
+        if s == "u" and rows is not None:  # the controller's rate: held to the next value
+            arrays[s] = held_to_high_rate(arrays[s], table.shape[0], q)
     fs = None
     if t.size >= 2:
         dt = np.diff(t)
@@ -191,44 +200,61 @@ def _cell_or_nan(cell: str) -> float:
     return float(cell) if cell.strip() else np.nan
 
 
-def _low_rate_y(y: FloatArray, where: str) -> tuple[FloatArray, int]:
-    """A CSV's y with empty (NaN) cells: its rows q, q + s, ... to the end, and q.
+def held_to_high_rate(x: FloatArray, n_samples: int, start: int) -> FloatArray:
+    """A signal at the controller's rate held to the high rate, shape (n_samples, channels).
 
-    DataError naming the first line that breaks that pattern (header = line 1); y as it is
-    when most of its given rows are adjacent (a high-rate y with missing samples).
+    ``x`` (M, channels): value k applied at sample ``start + k F`` (F = n_samples // M) and
+    held to the next; the samples before ``start`` are missing (NaN).
     """
-    N = y.shape[0]
-    given = ~np.isnan(y)
+    F = n_samples // x.shape[0]
+    out = np.full((n_samples, x.shape[1]), np.nan)
+    held = np.repeat(x, F, axis=0)[: n_samples - start]
+    out[start : start + held.shape[0]] = held
+    return out
+
+
+def _low_rate_rows(x: FloatArray, name: str, where: str) -> tuple[FloatArray, int]:
+    """A CSV's y or u with empty (NaN) cells: its rows q, q + s, ... to the end, and q.
+
+    DataError naming the first line that breaks that pattern (header = line 1); x as it is
+    when most of its given rows are adjacent (a high-rate signal with missing samples).
+    """
+    N = x.shape[0]
+    given = ~np.isnan(x)
     rows = np.flatnonzero(given.any(axis=1))
     mixed = np.flatnonzero(given.any(axis=1) & ~given.all(axis=1))
     rule = (
-        "y at the low rate must be given on one row of every low-rate period (rows q, q + F, "
-        "q + 2F, ... to the end) and left empty on the others"
+        f"{name} at the low rate must be given on one row of every low-rate period (rows q, "
+        "q + F, q + 2F, ... to the end) and left empty on the others"
     )
     if rows.size >= 2 and (np.diff(rows) == 1).mean() > 0.5:  # high rate, missing samples
-        return y, 0
+        return x, 0
     if mixed.size:
-        raise DataError(f"{where}: line {mixed[0] + 2}: y is empty in some columns only; {rule}")
+        raise DataError(
+            f"{where}: line {mixed[0] + 2}: {name} is empty in some columns only; {rule}"
+        )
     if rows.size < 2:
-        raise DataError(f"{where}: y is given on {rows.size} row(s) of {N}; {rule}")
+        raise DataError(f"{where}: {name} is given on {rows.size} row(s) of {N}; {rule}")
     q, step = int(rows[0]), int(rows[1] - rows[0])
     if q >= step:
-        raise DataError(f"{where}: y is empty on lines 2..{q + 1}, more than a period; {rule}")
+        raise DataError(
+            f"{where}: {name} is empty on lines 2..{q + 1}, more than a period; {rule}"
+        )
     want = np.zeros(N, dtype=bool)
     want[q::step] = True
     off = np.flatnonzero(want != given.any(axis=1))
     if off.size:
         state = "empty" if want[off[0]] else "given"
         raise DataError(
-            f"{where}: line {off[0] + 2}: y is {state} there, but given every {step} rows from "
-            f"line {q + 2} before it; {rule}"
+            f"{where}: line {off[0] + 2}: {name} is {state} there, but given every {step} rows "
+            f"from line {q + 2} before it; {rule}"
         )
     if N % step:
         raise DataError(
-            f"{where}: y is given every {step} rows but the {N} rows are no whole number of "
-            f"periods; {rule}"
+            f"{where}: {name} is given every {step} rows but the {N} rows are no whole number "
+            f"of periods; {rule}"
         )
-    return y[rows], q
+    return x[rows], q
 
 
 def load_npz(path: str | Path, required: tuple[str, ...], what: str) -> dict[str, Any]:
@@ -267,7 +293,7 @@ def read_npz(path: str | Path) -> LoopData:
         a = a.astype(float, copy=False)  # float64 as stored: no copy
         if a.ndim == 1:
             a = a[:, None]
-        _check_finite(s, a, str(p), holes=s != "r")  # a low-rate y: checked below
+        _check_finite(s, a, str(p), holes=True)  # a low-rate y: checked below
         arrays[s] = a
     fs = ratio = None
     if "fs_high" in z:
@@ -282,19 +308,31 @@ def read_npz(path: str | Path) -> LoopData:
         ratio = int(v)
     lens = {s: arrays[s].shape[0] for s in _SIGNALS}
     if lens["u"] != lens["r"]:
-        raise DataError(f"{p}: r, u, y have unequal lengths {lens}")
+        F = ratio or lens["r"] // lens["u"]
+        if lens["u"] * F != lens["r"]:
+            raise DataError(
+                f"{p}: r, u, y have unequal lengths {lens} (u may hold N/F rows: the "
+                "controller's output at its rate)"
+            )
+        _check_finite("u", arrays["u"], str(p))  # a low-rate u has no missing samples
+        arrays["u"] = held_to_high_rate(arrays["u"], lens["r"], _scalar(z, "u_phase", p))
     if lens["y"] != lens["r"]:
         _check_finite("y", arrays["y"], str(p))  # a low-rate y has no missing samples
-    y_phase = 0
-    if "y_phase" in z:
-        v = np.asarray(z["y_phase"])
-        if v.size != 1 or v.dtype.kind not in "iu" or int(v) < 0:
-            raise DataError(f"{p}: y_phase must be one integer >= 0, got {v.tolist()!r}")
-        y_phase = int(v)
+    y_phase = _scalar(z, "y_phase", p)
     try:
         return LoopData(arrays["r"], arrays["u"], arrays["y"], fs, ratio, y_phase=y_phase)
     except DimensionError as err:
         raise DataError(f"{p}: {err}") from None
+
+
+def _scalar(z: Any, key: str, p: Path) -> int:
+    """An optional scalar sample index of an NPZ (0 when absent); DataError naming it."""
+    if key not in z:
+        return 0
+    v = np.asarray(z[key])
+    if v.size != 1 or v.dtype.kind not in "iu" or int(v) < 0:
+        raise DataError(f"{p}: {key} must be one integer >= 0, got {v.tolist()!r}")
+    return int(v)
 
 
 def read_data(path: str | Path) -> LoopData:
