@@ -275,3 +275,26 @@ def test_an_r_held_at_the_plant_input_takes_the_setpoints_estimator(paper_model)
     assert res.pfg_data is None
     with pytest.raises(ConfigError, match="r is held over blocks of 3 samples: .* got method"):
         identify(sim.r, sim.u, sim.y, fs_high=paper_model.fs_high, ratio=F, method="time-lifted")
+
+
+def test_a_periodic_setpoint_gives_the_bla_as_p_h_and_no_pfg_from_data(
+    setpoint_model, tmp_path, capsys
+):
+    """`identify --period` on realizations of a periodic setpoint: the BLA Y/U is P_h at the
+    excited lines (the derivation's single-term response), to round-off of the periodic
+    steady state; the PFG from data, defined for r at the plant input, is left out."""
+    from mr_ident.cli import main
+    from mr_ident.numerics.excitation.multisine import design
+
+    ms = design(fs_high=240.0, period=2400, band=(0.5, 100.0), kind="odd", periods=3,
+                realizations=2, ratio=3)  # fmt: skip
+    runs = [simulate(setpoint_model, reference=ms.r[m]) for m in range(2)]
+    r, u, y = (np.stack([getattr(s, k)[2400:, 0] for s in runs]) for k in "ruy")
+    np.savez(tmp_path / "p.npz", r=r, u=u, y=y, fs_high=240.0, ratio=3)
+    out = tmp_path / "bla.npz"
+    assert main(["identify", str(tmp_path / "p.npz"), "--period", "2400", "--out", str(out)]) == 0
+    assert "r is the controller's setpoint: no PFG from data" in capsys.readouterr().err
+    z = np.load(out)
+    P = setpoint_model.plant_discrete().freqresp(z["frequency"])[:, 0, 0]
+    # the periodic steady state's round-off relative to P (1e-11 here)
+    assert np.max(np.abs(z["P"][:, 0, 0] / P - 1)) < 1e-8 and "pfg_data" not in z

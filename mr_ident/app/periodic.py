@@ -12,7 +12,7 @@ low-rate samples only gives P_h on a rotated lifted design (:class:`SlowPlant`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 from ..errors import ConfigError, DataError
@@ -66,8 +66,23 @@ def periodic_recording(req: IdentifyRequest, heard: Heard) -> PeriodicBLA | Slow
         assert isinstance(req.period, int)  # "auto" refused by _read_npz
         cut = cut_by_count(data.r, data.u, data.y, req.period, req.transient_periods)
     bla = periodic_bla(cut, F)
+    if bla.pfg is not None and _setpoint(cut):
+        bla = replace(bla, pfg=None, pfg_std=None)
+        heard(Notice("note", "r is the controller's setpoint: no PFG from data (the BLA is P_h)"))
     bands = distortion_by_band(cut.r, cut.y, cut.period, fs, ratio=F) if bla.periods > 1 else []
     return PeriodicBLA(bla, cut, fs, F, tuple(bands), tuple(heard.notices))
+
+
+def _setpoint(cut: Periods) -> bool:
+    """Whether the periods' first realization shows r at the setpoint (u held, u - r not).
+
+    The BLA ``Y/U`` is P_h wherever r enters; the PFG from data is the paper's lifted map
+    from r at the plant input, not defined for a setpoint.
+    """
+    from ..numerics.structure import SETPOINT, read_structure
+
+    first = (x[0][:, None] for x in (cut.r, cut.u, cut.y))
+    return read_structure(*first).injection == SETPOINT
 
 
 def _npz_slow(

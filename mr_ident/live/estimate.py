@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import functools
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -184,6 +184,8 @@ def estimate(window: LoopData, config: IdentConfig) -> Estimate:
             periodic = f"no BLA ({err}): identified with {config.method}"
         else:
             bla = periodic_bla(cut, F)
+            if loop.injection == "setpoint":  # the PFG from data is r-at-the-plant-input's
+                bla = replace(bla, pfg=None, pfg_std=None)
             ident = bla_identification(bla, cut.period, config.fs_high, F)
             return Estimate(
                 window.first, window.n_samples, ident, phase, source,
