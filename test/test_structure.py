@@ -2,6 +2,7 @@
 """The loop's structure read from its data, and what contradicts it refused."""
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -201,3 +202,22 @@ def _written(tmp_path, sim):
     path = tmp_path / "full.npz"
     write_data(path, sim.r, sim.u, sim.y, fs_high=300.0, ratio=3)
     return path
+
+
+MOTOR_BENCH = Path(__file__).resolve().parents[2] / "shared" / "data" / "motor_bench"
+
+
+@pytest.mark.skipif(
+    not (MOTOR_BENCH / "MultisineTypeA.mat").exists(),
+    reason="the motor bench's measured data (../shared/data/motor_bench) is not beside the clone",
+)
+def test_measured_data_whose_u_is_the_drives_current_shows_no_hold():
+    """Real measurements (a motor bench, FdiTools, MIT): u is the measured current after the
+    drive's current loop, with its noise: no hold, so F and where r enters are the user's."""
+    from scipy.io import loadmat
+
+    d = loadmat(MOTOR_BENCH / "MultisineTypeA.mat")
+    r, u, y = (np.asarray(d[k], float).reshape(-1, 1) for k in ("iq_refx", "iq_adx", "theta_mx"))
+    found = read_structure(r, u, y)
+    assert (found.held, found.ratio, found.injection) == ("none", None, None)
+    assert "u shows no hold" in found.describe()
