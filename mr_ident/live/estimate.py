@@ -191,6 +191,7 @@ def estimate(window: LoopData, config: IdentConfig) -> Estimate:
                 window.first, window.n_samples, ident, phase, source,
                 time.perf_counter() - t0, bla, f"BLA from {cut.describe()}", cut.period,
             )  # fmt: skip
+    window, cut_note = _r_determined(window, loop.injection, (phase - window.first) % F, config)
     controller = config.controller
     K_low = None if controller is None else _controller_low(controller, window.n_samples // F)
     y, y_phase = window.y, 0
@@ -218,8 +219,44 @@ def estimate(window: LoopData, config: IdentConfig) -> Estimate:
     dt = time.perf_counter() - t0
     return Estimate(
         window.first, window.n_samples, ident, phase, source, dt, None, periodic,
-        structure=loop.found.describe(),
+        structure=loop.found.describe() + cut_note,
     )  # fmt: skip
+
+
+def _r_determined(
+    window: LoopData, injection: str, phase: int, config: IdentConfig
+) -> tuple[LoopData, str]:
+    """The window, or its longest stretch without r's holes, and a note ("": the window).
+
+    The stretch where the loop leaves too many of r's holes undetermined
+    (:func:`~mr_ident.numerics.missing_r.recover_r`), as a recording read offline falls
+    back to its longest span without holes.
+    """
+    if not np.isnan(window.r).any():
+        return window, ""
+    from ..numerics.missing_r import recover_r
+
+    F = config.ratio
+    try:
+        recover_r(window.r, window.u, window.y, ratio=F, injection=injection, phase=phase)
+    except DataError as err:
+        ok = np.isfinite(window.r).all(axis=1)
+        edges = np.flatnonzero(np.diff(np.r_[0, ok.astype(np.int8), 0]))
+        runs = edges.reshape(-1, 2)
+        lo, hi = runs[np.argmax(runs[:, 1] - runs[:, 0])]
+        lo, hi = -(-int(lo) // F) * F, int(hi) // F * F  # whole blocks
+        part = window.part(lo, max(lo, hi))
+        if part.n_samples < config.min_samples:
+            raise DataError(
+                f"{err}; the longest stretch without them is {part.n_samples} samples, fewer "
+                f"than min_window_s = {config.min_window_s:g} s"
+            ) from None
+        reason = str(err).split(":")[0]
+        return part, (
+            f"; {reason}: identified on the longest stretch without them, "
+            f"[{part.first}, {part.end})"
+        )
+    return window, ""
 
 
 @functools.lru_cache(maxsize=2)
