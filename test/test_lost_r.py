@@ -172,9 +172,10 @@ def test_a_bag_losing_1_percent_of_each_topic_is_identified_from_its_whole_recor
     assert float(np.median(e)) < 1e-3
 
 
-def test_a_live_window_whose_r_the_loop_cannot_give_is_cut_to_its_longest_stretch():
+def test_a_live_window_whose_r_the_loop_cannot_give_restarts_after_its_last_hole():
     """u measured with noise (no hold): r's holes are not determined; the node's estimate
-    takes the window's longest stretch without them and says so (offline: the longest span)."""
+    takes the window's part after the last of them (as after a hole it cannot bridge) and
+    says so; offline, a recording falls back to its longest span without holes."""
     from mr_ident.io.config import IdentConfig
     from mr_ident.live.estimate import estimate
     from mr_ident.numerics.signals import LoopData
@@ -187,5 +188,5 @@ def test_a_live_window_whose_r_the_loop_cannot_give_is_cut_to_its_longest_stretc
     r[9002:9030] = np.nan  # 30 of 14400 in all: 0.21 %, beyond the 0.1 % a fit takes
     cfg = IdentConfig(window_s=60.0, min_window_s=10.0)
     est = estimate(LoopData(r, u, sim.y, ratio=3, first=0), cfg)
-    assert "identified on the longest stretch without them, [9030, 14400)" in est.structure
+    assert "identified after the last of them, [9030, 14400)" in est.structure
     assert (est.first, est.n_samples) == (9030, 14400 - 9030)

@@ -226,14 +226,32 @@ def estimate(window: LoopData, config: IdentConfig) -> Estimate:
 def _r_determined(
     window: LoopData, injection: str, phase: int, config: IdentConfig
 ) -> tuple[LoopData, str]:
-    """The window, or its longest stretch without r's holes, and a note ("": the window).
+    """The window, or its part after r's last hole, and a note ("": the window).
 
-    The stretch where the loop leaves too many of r's holes undetermined
-    (:func:`~mr_ident.numerics.missing_r.recover_r`), as a recording read offline falls
-    back to its longest span without holes.
+    Where the loop leaves too many of r's holes undetermined
+    (:func:`~mr_ident.numerics.missing_r.recover_r`), the window restarts after the last
+    one, as it does after any hole it cannot bridge. DataError when that part is shorter
+    than ``min_window_s``.
     """
     if not np.isnan(window.r).any():
         return window, ""
+    from ..numerics.missing_r import recover_r
+
+    F = config.ratio
+    try:
+        recover_r(window.r, window.u, window.y, ratio=F, injection=injection, phase=phase)
+    except DataError as err:
+        last = int(np.flatnonzero(np.isnan(window.r).any(axis=1))[-1])
+        lo = -(-(last + 1) // F) * F  # whole blocks after it
+        part = window.part(lo, window.n_samples // F * F)
+        if part.n_samples < config.min_samples:
+            raise DataError(
+                f"{err}; after the last of them {part.n_samples} samples remain, fewer than "
+                f"min_window_s = {config.min_window_s:g} s"
+            ) from None
+        reason = str(err).split(":")[0]
+        return part, f"; {reason}: identified after the last of them, [{part.first}, {part.end})"
+    return window, ""
     from ..numerics.missing_r import recover_r
 
     F = config.ratio
