@@ -53,7 +53,7 @@ class Health:
     warm_up: str
     clock: str = ""  # why the ROS clock stands still ("" when it runs)
     active: bool = True
-    missing: int = 0  # indices of the window where u or y is missing (bridged holes)
+    missing: int = 0  # indices of the window where r, u or y is missing (bridged holes)
     qos_problems: dict[str, str] | None = None  # stream -> an incompatible QoS policy seen
 
 

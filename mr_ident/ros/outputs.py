@@ -55,7 +55,8 @@ def estimate_message(
 ) -> Any:
     """The Estimate message of ``est`` on the bins ``picks`` (flat, row-major arrays).
 
-    ``missing``: samples of the window where u or y was missing (estimated as unknowns).
+    ``missing``: samples of the window where r, u or y was missing (u and y estimated as
+    unknowns, r recovered from the loop).
     """
     ident = est.identification
     plant = ident.plant
@@ -187,7 +188,7 @@ class Outputs:
     ) -> Any:
         """One estimate out on every result topic; its Estimate message.
 
-        ``missing``: the window's missing samples (u or y), as ``Estimate.missing_samples``.
+        ``missing``: the window's missing samples (r, u or y), as ``Estimate.missing_samples``.
         """
         picks = publish_grid(est.identification.plant.frequency.size, cfg.publish_points)
         msg = estimate_message(est, picks, stamp_ns, missing)
