@@ -252,29 +252,6 @@ def _r_determined(
         reason = str(err).split(":")[0]
         return part, f"; {reason}: identified after the last of them, [{part.first}, {part.end})"
     return window, ""
-    from ..numerics.missing_r import recover_r
-
-    F = config.ratio
-    try:
-        recover_r(window.r, window.u, window.y, ratio=F, injection=injection, phase=phase)
-    except DataError as err:
-        ok = np.isfinite(window.r).all(axis=1)
-        edges = np.flatnonzero(np.diff(np.r_[0, ok.astype(np.int8), 0]))
-        runs = edges.reshape(-1, 2)
-        lo, hi = runs[np.argmax(runs[:, 1] - runs[:, 0])]
-        lo, hi = -(-int(lo) // F) * F, int(hi) // F * F  # whole blocks
-        part = window.part(lo, max(lo, hi))
-        if part.n_samples < config.min_samples:
-            raise DataError(
-                f"{err}; the longest stretch without them is {part.n_samples} samples, fewer "
-                f"than min_window_s = {config.min_window_s:g} s"
-            ) from None
-        reason = str(err).split(":")[0]
-        return part, (
-            f"; {reason}: identified on the longest stretch without them, "
-            f"[{part.first}, {part.end})"
-        )
-    return window, ""
 
 
 @functools.lru_cache(maxsize=2)
