@@ -198,21 +198,21 @@ def lpm_bins_last(
 
     def chunk(c0: int) -> int:
         # centre bins c0 .. c0 + step - 1 of the padded spectra; of them the selected ones,
-        # written to the outputs from position k0
+        # written to the outputs from position k0; the sums are formed from centre bin first
         pick: NDArray[np.intp] | None = None
         if centres is None:
-            k0, Kc, a = c0, min(step, K_all - c0), c0
+            k0, Kc, first = c0, min(step, K_all - c0), c0
         else:
             k0, stop = (int(i) for i in np.searchsorted(centres, (c0, c0 + step)))
             if stop == k0:
                 return 0
-            a = int(centres[k0])
-            pick = centres[k0:stop] - a
+            first = int(centres[k0])
+            pick = centres[k0:stop] - first
             Kc = int(pick.size)
             if int(pick[-1]) + 1 == Kc:  # consecutive: nothing to drop
                 pick = None
         span = Kc if pick is None else int(pick[-1]) + 1  # centres whose sums are formed
-        sums = chunk_sums(Ua, Ya, a, span, pick, lay)
+        sums = chunk_sums(Ua, Ya, first, span, pick, lay)
         L, W, bad = factor(sums, lay)
         # Back substitution for the trailing (G_0) block only: L_tt^H theta = W_t.
         t0 = lay.Q - n_in
@@ -230,10 +230,10 @@ def lpm_bins_last(
             for i in range(j + 1, n_in):
                 Li[i, j] = -sum(Ltt[i, m] * Li[m, j] for m in range(j, i)) / Ltt[i, i]
         AI = Ainv[:, :, k0 : k0 + Kc]
-        for a in range(n_in):
-            for b in range(a, n_in):
-                AI[a, b] = sum(np.conj(Li[m, a]) * Li[m, b] for m in range(b, n_in))
-                AI[b, a] = np.conj(AI[a, b])
+        for row in range(n_in):
+            for col in range(row, n_in):
+                AI[row, col] = sum(np.conj(Li[m, row]) * Li[m, col] for m in range(col, n_in))
+                AI[col, row] = np.conj(AI[row, col])
         noise_cov(sums[4], W, q, Cv[:, :, k0 : k0 + Kc])
         if bad.any():
             idx = np.nonzero(bad)[0] + k0
