@@ -30,6 +30,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -229,8 +230,29 @@ def _centres(seg: Segments) -> IntArray | None:
     return None if seg.whole else seg.keep
 
 
-def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
-    F = req.ratio if ratio is None else ratio
+class _LiftedParts(NamedTuple):
+    """A segment's lifted fit, bins first: G, the noise covariance, the inverse Gram."""
+
+    G: ComplexArray
+    noise_cov: ComplexArray
+    inv_gram: ComplexArray
+
+
+class _BlockFit(NamedTuple):
+    """What one segment of :func:`_freq_lifted` returns besides the bins it writes."""
+
+    n_bad: int  # centre bins whose regressor was rank deficient
+    dof: int  # the local fit's residual degrees of freedom
+    lifted: _LiftedParts | None  # None unless the lifted maps are kept
+
+
+def _freq_lifted(req: FitRequest, *, lti: bool = False) -> PlantFit:
+    """``freq-lifted``, or with ``lti`` the LTI ``lpm``: the same steps at F = 1.
+
+    The LTI fit keeps no PFG of its own (the request's loop is lifted by its F), and its
+    lifted maps only when F is 1 anyway.
+    """
+    F = 1 if lti else req.ratio
     N = req.n_samples
     ny, nu = req.y.shape[1], req.u.shape[1]
     M, half = N // F, N // 2
@@ -243,11 +265,11 @@ def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
     plan = req.plan(Kc + 1)
     # the maps of the request's loop: lifted by its F (lpm's of a setpoint loop: F = 1)
     keep = req.keep_lifted and F == req.ratio and not slow and covers(plan, Kc + 1)
-    pfg = empty_pfg(N) if req.data_pfg and ratio is None and not slow else None
+    pfg = empty_pfg(N) if req.data_pfg and not lti and not slow else None
 
     step = block_bins(F, req.r.shape[1], max(ny, nu))
 
-    def block(seg: Segments) -> tuple[int, int, tuple[ComplexArray, ...] | None]:
+    def block(seg: Segments) -> _BlockFit:
         """Lift, fit, indirect step and unlift one segment of bins.
 
         Segments bound the memory and run on threads; each writes only its own bins.
@@ -284,19 +306,20 @@ def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
                 *pfg, kb, G[: F * ny], Cv[: F * ny, : F * ny], fit.inv_gram, F, N, den
             )
         lifted = (fit.G, fit.noise_cov, fit.inv_gram)
-        kept = tuple(a.transpose(2, 0, 1) for a in lifted) if keep else None
-        return fit.n_bad, fit.dof, kept
+        kept = _LiftedParts(*(a.transpose(2, 0, 1) for a in lifted)) if keep else None
+        return _BlockFit(fit.n_bad, fit.dof, kept)
 
     segs = segments(plan, 1, step)
     done = thread_map(block, segs, req.workers)
-    warn_rank_deficient(sum(d[0] for d in done), n_centres(plan), stacklevel=4)
+    warn_rank_deficient(sum(d.n_bad for d in done), n_centres(plan), stacklevel=4)
     pfg_half, pfg_var = (None, None) if pfg is None else pfg
     if not keep:
         return PlantFit(P_half, var_half, pfg_half=pfg_half, pfg_var_half=pfg_var)
-    G, Cv, Ainv = (
-        in_bin_order(segs, [d[2][i] for d in done if d[2] is not None], Kc + 1) for i in range(3)
-    )
-    q = min(d[1] for d in done)
+    parts = [d.lifted for d in done if d.lifted is not None]
+    G = in_bin_order(segs, [p.G for p in parts], Kc + 1)
+    Cv = in_bin_order(segs, [p.noise_cov for p in parts], Kc + 1)
+    Ainv = in_bin_order(segs, [p.inv_gram for p in parts], Kc + 1)
+    q = min(d.dof for d in done)
     maps = _lifted_maps(G, Cv, Ainv, F * ny, "frequency", req, q)
     return PlantFit(P_half, var_half, *maps, pfg_half, pfg_var)
 
@@ -402,7 +425,7 @@ def _structured(req: FitRequest) -> PlantFit:
 
 
 def _lpm(req: FitRequest) -> PlantFit:
-    return _freq_lifted(req, ratio=1)
+    return _freq_lifted(req, lti=True)
 
 
 def _etfe(req: FitRequest) -> PlantFit:
