@@ -11,7 +11,7 @@ function and one more row.
     Frequency-lift R, U, Y (stack the F aliases), LPM on r -> [y; u] giving the
     lifted J and S, indirect step ``P = J S^-1``, P_h from the diagonal blocks. With y at
     the low rate (N/F samples) its spectrum sums the aliases: J and P are one block row,
-    whose blocks are P_h at the F aliases (:func:`~mr_ident.numerics.lifting.unlift_row`).
+    whose blocks are P_h at the F aliases (:func:`~mr_ident.numerics.lifted.low_rate.unlift_row`).
 ``time-lifted``
     Time-lift r, u, y (stack F samples), LPM on their M-point DFTs, indirect step,
     P_h from the first block column (polyphase components).
@@ -43,12 +43,9 @@ from ..lifting import (
     freq_lift_half,
     half_spectra,
     half_to_full,
-    low_rate_lift_half,
     time_lift,
     unlift_bins,
     unlift_frf,
-    unlift_row,
-    unlift_row_variance,
     unlift_variance,
 )
 from ..local.fit import local_fit, merge_fits
@@ -67,6 +64,7 @@ from ..local.segments import (
 from ..results import LiftedFRF
 from ..threads import thread_map
 from .indirect import indirect_diag, indirect_on, time_den_variance
+from .low_rate import low_rate_lift_half, unlift_row, unlift_row_variance
 from .pfg_data import empty_pfg, store_lifted_pfg
 from .spectra import Spectra
 from .structured import structured_block
