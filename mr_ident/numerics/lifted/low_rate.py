@@ -27,7 +27,7 @@ def low_rate_lift_half(
     Parameters
     ----------
     half : list of ndarray, each (M//2+1,)
-        :func:`~mr_ident.numerics.lifting.half_spectrum` of the low-rate signal (M =
+        :func:`~mr_ident.numerics.fourier.half_spectrum` of the low-rate signal (M =
         ``n_low`` samples, c columns).
     bins : range or ndarray of int
         Low-rate bins k, usually consecutive (may reach below 0 or beyond M).
