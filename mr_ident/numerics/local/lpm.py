@@ -62,6 +62,21 @@ class LPMFit:
         The G_0 block of ``(K^H K)^-1``.
     dof : int
         Residual degrees of freedom q.
+
+    Raises
+    ------
+    DimensionError
+        If the shapes do not agree: G (K, n_out, n_in), noise_cov (K, n_out, n_out),
+        inv_gram (K, n_in, n_in).
+
+    Notes
+    -----
+    The covariance of G at a bin is ``inv_gram (x) noise_cov`` (Kronecker, [1]_).
+
+    References
+    ----------
+    .. [1] R. Pintelon, J. Schoukens, *System Identification: A Frequency Domain
+       Approach*, 2nd ed., Wiley 2012, ch. 7.
     """
 
     G: ComplexArray
@@ -291,13 +306,23 @@ def lpm(
     DataError
         If there are fewer than 2n+1 bins.
     ConfigError
-        If the degrees-of-freedom condition ``2n+1-(R+1)(n_in+1) > n_out`` fails,
-        or ``workers`` is not None or a positive integer.
+        If ``n < 1``, ``degree < 0``, the degrees-of-freedom condition
+        ``2n+1-(R+1)(n_in+1) > n_out`` fails, or ``workers`` is not None or a positive
+        integer.
 
     Warns
     -----
     RuntimeWarning
         When some windows have a rank-deficient regressor; those bins are NaN.
+
+    See Also
+    --------
+    pad_circular : the padding of a periodic spectrum.
+
+    References
+    ----------
+    .. [1] R. Pintelon, J. Schoukens, *System Identification: A Frequency Domain
+       Approach*, 2nd ed., Wiley 2012, ch. 7.
 
     Examples
     --------
@@ -372,6 +397,14 @@ def pad_circular(X: ArrayLike, centres: ArrayLike, n: int) -> NDArray[np.complex
     Returns
     -------
     ndarray, shape (K + 2n, c)
+        Bin ``centres[0] - n + j`` of the period in row j (indices modulo N).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from mr_ident import pad_circular
+    >>> pad_circular(np.arange(6.0)[:, None], [0, 1], 1).ravel()  # wraps at both ends
+    array([5., 0., 1., 2.])
     """
     Xa = np.asarray(X)
     c = np.asarray(centres, dtype=np.int64)
