@@ -26,8 +26,8 @@ def _fft_columns(
 ) -> ComplexArray:
     """``transform`` (numpy's unitary FFT) along axis 0, the columns on ``workers`` threads.
 
-    NumPy's FFT rather than scipy's: the same pocketfft, bit for bit, without the quarter
-    second that importing ``scipy.fft`` adds to every program's start.
+    NumPy's FFT rather than scipy's: the same pocketfft, bit for bit, without the import of
+    ``scipy.fft`` at every program's start (docs/benchmarks.md, "Start-up").
     """
     if workers is None or workers <= 1 or x.ndim < 2 or x[0].size <= 1:
         return transform(x, axis=0, norm="ortho")

@@ -309,7 +309,8 @@ def _one_blas_thread() -> Any:
 
     :func:`~mr_ident.numerics.threads.one_blas_thread` knows the libraries loaded when it
     was imported; SciPy's, loaded with ``scipy.optimize``, ran least-squares' SVDs on
-    competing threads (0.5 s for a 2000 x 20 SVD on the shared 2-core machine).
+    competing threads, many times slower than one (measured: docs/benchmarks.md, "Threads
+    and block sizes").
     """
     if not _BLAS:
         import scipy.optimize  # noqa: F401, PLC0415 (loads SciPy's BLAS before the scan)

@@ -346,7 +346,7 @@ def estimate_missing(
         When the conjugate gradients stop at :data:`MAX_ITER` steps before ``rtol``.
     """
     options = SolveOptions(rtol=rtol, reweight=reweight, ridge=ridge, ftol=ftol)
-    with one_blas_thread():  # its threads made a (33 x 18 000) product 100x slower
+    with one_blas_thread():  # its threads slow the thin products down (docs/benchmarks.md)
         crit = _Criterion(r, ratio, n, degree, n if stride is None else stride)
         return _estimate(crit, u, y, options)
 
