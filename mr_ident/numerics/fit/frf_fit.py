@@ -323,9 +323,9 @@ def _one_blas_thread() -> Any:
     return _BLAS[0].limit(limits=1, user_api="blas")
 
 
-def _fit(frf: FRF, options: FitOptions) -> FitResult:
+def _delays(options: FitOptions) -> tuple[list[float], bool, float]:
+    """The options checked (ConfigError): the delays tried, whether refined, their bound."""
     fs, order, domain, delay = options.fs, options.order, options.domain, options.delay
-    direct, noise_dof = options.direct, options.noise_dof
     if domain not in DOMAINS:
         raise ConfigError(f'domain must be "continuous" or "discrete", got {domain!r}')
     if not (isinstance(fs, (int, float)) and math.isfinite(fs) and fs > 0):
@@ -336,16 +336,20 @@ def _fit(frf: FRF, options: FitOptions) -> FitResult:
         raise ConfigError(f'order must be "auto" or an integer >= 1, got {order!r}')
     if delay == "auto":
         step = h if domain == "discrete" else h / 2
-        delays = [float(t) for t in np.arange(0.0, max_delay + 1e-12 * h, step)]
-        free_delay = domain == "continuous"
-    else:
-        if isinstance(delay, bool) or not isinstance(delay, (int, float)) or not delay >= 0:
-            raise ConfigError(f'delay must be "auto" or a number of seconds >= 0, got {delay!r}')
-        if domain == "discrete" and abs(delay * fs - round(delay * fs)) > 1e-9:
-            raise ConfigError(
-                f"a discrete fit's delay must be whole samples of 1/fs, got {delay!r} s"
-            )
-        delays, free_delay = [float(delay)], False
+        grid = [float(t) for t in np.arange(0.0, max_delay + 1e-12 * h, step)]
+        return grid, domain == "continuous", max_delay
+    if isinstance(delay, bool) or not isinstance(delay, (int, float)) or not delay >= 0:
+        raise ConfigError(f'delay must be "auto" or a number of seconds >= 0, got {delay!r}')
+    if domain == "discrete" and abs(delay * fs - round(delay * fs)) > 1e-9:
+        raise ConfigError(f"a discrete fit's delay must be whole samples of 1/fs, got {delay!r} s")
+    return [float(delay)], False, max_delay
+
+
+def _fit(frf: FRF, options: FitOptions) -> FitResult:
+    fs, order, domain = options.fs, options.order, options.domain
+    direct, noise_dof = options.direct, options.noise_dof
+    delays, free_delay, max_delay = _delays(options)
+    h = 1.0 / fs
     f, P, S = _select(frf, options.band)
     no, ni = frf.response.shape[1:]
     prob = Problem(np.exp(2j * np.pi * f * h), P, 1.0 / S, domain, h, 2.0 * np.pi * f[-1], direct)
@@ -411,12 +415,10 @@ def _result(
     reports: tuple[OrderReport, ...],
     options: FitOptions,
 ) -> FitResult:
-    """The :class:`FitResult` of one fitted order, with the std of the natural parameters.
+    """The :class:`FitResult` of one order: the natural parameters' std from ``jac cov jac^T``.
 
-    Those (poles, frequencies, damping, residues, c1, c0) are functions of the fit's
-    parameters x (first the poles' and the delay's, ``n_nonlinear`` of them, then the
-    linear coefficients); their covariance is ``J cov J^T``, J their Jacobian by central
-    differences.
+    ``jac``: their Jacobian in the fit's parameters x (``n_nonlinear`` of the poles and the
+    delay, then the linear coefficients), by central differences.
     """
     sol, rep, fs = kept.solution, kept.report, options.fs
     no, ni = int(shape[0]), int(shape[1])
