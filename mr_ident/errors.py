@@ -10,7 +10,19 @@ from __future__ import annotations
 
 
 class MrIdentError(Exception):
-    """Root of every error raised on purpose by mr_ident."""
+    """Root of every error raised on purpose by mr_ident.
+
+    Examples
+    --------
+    A caller may catch the package's errors, or the builtin each also is:
+
+    >>> from mr_ident import MrIdentError, time_lift
+    >>> try:
+    ...     time_lift([1.0, 2.0], 0)
+    ... except MrIdentError as err:
+    ...     print(type(err).__name__, isinstance(err, ValueError), err)
+    ConfigError True ratio must be an integer >= 1, got 0
+    """
 
 
 class DimensionError(MrIdentError, ValueError):

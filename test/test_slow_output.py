@@ -17,15 +17,9 @@ from mr_ident.errors import ConfigError, DataError, DimensionError
 from mr_ident.io.datafile import read_npz
 from mr_ident.numerics.identify import default_n, identify
 from mr_ident.numerics.lifted.alias_range import row_alias_range
+from mr_ident.numerics.lifted.low_rate import low_rate_lift_half, unlift_row
 from mr_ident.numerics.lifted.pfg import pfg_of_model
-from mr_ident.numerics.lifting import (
-    dft,
-    half_spectrum,
-    half_to_full,
-    low_rate_lift_half,
-    unlift_bins,
-    unlift_row,
-)
+from mr_ident.numerics.lifting import dft, half_spectrum, half_to_full, unlift_bins
 from mr_ident.numerics.signals import LoopData
 from mr_ident.numerics.systems.simulate import simulate
 

@@ -111,6 +111,15 @@ def _system(d: Any, name: str, dt: float | None) -> TransferMatrix:
 def model_from_dict(d: Any, *, source: str = "model") -> Model:
     """Validate a parsed model mapping (see the module docstring for the form).
 
+    Parameters
+    ----------
+    d : mapping
+        The model file's content (``yaml.safe_load``); ``source`` names it in errors.
+
+    Returns
+    -------
+    Model
+
     Raises
     ------
     ModelError
@@ -401,7 +410,21 @@ def _index(v: Any, where: str, n: int) -> int:
 
 
 def load_model(path: str | Path) -> Model:
-    """Read and validate a model YAML file."""
+    """Read and validate a model YAML file.
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    Model
+
+    Raises
+    ------
+    ModelError
+        The file cannot be read, is not YAML, or is not a valid model.
+    """
     p = Path(path)
     try:
         text = p.read_text()
@@ -435,7 +458,16 @@ def _plain(v: Any) -> Any:
 
 
 def model_to_dict(model: Model) -> dict[str, Any]:
-    """The YAML mapping of a model (inverse of :func:`model_from_dict`)."""
+    """The YAML mapping of a model (inverse of :func:`model_from_dict`): plain values.
+
+    Parameters
+    ----------
+    model : Model
+
+    Returns
+    -------
+    dict
+    """
 
     def sysd(t: TransferMatrix, domain: str | None) -> dict[str, Any]:
         num = [[[float(c) for c in e] for e in row] for row in t.num]  # plain floats for YAML

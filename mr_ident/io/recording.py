@@ -37,6 +37,8 @@ from .blocks import BLOCK_TYPE, STREAMS, Block, BlockError, cdr_fields, decode_b
 from .msgdef import message_definition, type_hash
 
 if TYPE_CHECKING:
+    from mcap.records import Channel, Message, Schema
+
     from .bags import Bag
 
 
@@ -320,15 +322,21 @@ def _bag_blocks(
     return items, info, found
 
 
+#: One decoded message: (stream, log time in ns, the block or why it is not one).
+Item = tuple[int, int, Block | BlockError]
+
+
 def read_blocks(
     path: str | Path, topics: Sequence[str] | None = None, labels: str = ""
-) -> tuple[list[tuple[int, int, Block | BlockError]], RecordingInfo, list[str]]:
+) -> tuple[list[Item], RecordingInfo, list[str]]:
     """Decode the block messages of an MCAP recording, in file order.
 
     Returns ``(items, info, topics_found)``; each item is ``(stream, log_time_ns,
     Block or BlockError)``. ``topics`` names the r, u, y topics (default: the
     topics whose last name component is reference, input, output); ``labels`` the topic
-    of an excitation's labels, stream 3 (matched as ``topics``; "": none).
+    of an excitation's labels, stream 3 (matched as ``topics``; "": none). A plain MCAP
+    file is scanned here; a rosbag2 directory of MCAP files file by file; other bags
+    through :class:`~mr_ident.io.bags.Bag`.
 
     Raises
     ------
@@ -337,41 +345,48 @@ def read_blocks(
         whose schema is not std_msgs/msg/Float64MultiArray.
     """
     p = Path(path)
-    if p.is_dir() or not _plain_mcap(p):
-        from .bags import Bag
+    if not p.is_dir() and _plain_mcap(p):
+        return _mcap_blocks(p, topics, labels)
+    from .bags import Bag
 
-        bag = Bag.open(p)
-        if not all(_plain_mcap(f) for f in bag.files):
-            return _bag_blocks(bag, topics, labels)
-        files = bag.files  # a rosbag2 directory of MCAP files: each in order
-        parts = [read_blocks(f, topics, labels) for f in files]
-        info = RecordingInfo(
-            file_bytes=sum(x[1].file_bytes for x in parts),
-            bytes_read=sum(x[1].bytes_read for x in parts),
-        )
-        for _, i, _ in parts:
-            for k, v in i.messages.items():
-                info.messages[k] = info.messages.get(k, 0) + v
-            if i.truncated:
-                info.truncated, info.reason = True, i.reason
-        found = sorted({t for x in parts for t in x[2]})
-        return [it for x in parts for it in x[0]], info, found
+    bag = Bag.open(p)
+    if not all(_plain_mcap(f) for f in bag.files):
+        return _bag_blocks(bag, topics, labels)
+    # a rosbag2 directory of MCAP files: each in order
+    return _joined([_mcap_blocks(f, topics, labels) for f in bag.files])
+
+
+def _joined(
+    parts: list[tuple[list[Item], RecordingInfo, list[str]]],
+) -> tuple[list[Item], RecordingInfo, list[str]]:
+    """The files of one recording as one: items in file order, counts summed."""
+    infos = [info for _, info, _ in parts]
+    info = RecordingInfo(
+        file_bytes=sum(i.file_bytes for i in infos), bytes_read=sum(i.bytes_read for i in infos)
+    )
+    for i in infos:
+        for k, v in i.messages.items():
+            info.messages[k] = info.messages.get(k, 0) + v
+        if i.truncated:
+            info.truncated, info.reason = True, i.reason
+    found = sorted({t for _, _, topics in parts for t in topics})
+    return [it for items, _, _ in parts for it in items], info, found
+
+
+def _mcap_blocks(
+    p: Path, topics: Sequence[str] | None, labels: str
+) -> tuple[list[Item], RecordingInfo, list[str]]:
+    """:func:`read_blocks` of one plain MCAP file: its records scanned in order."""
     from mcap.records import Channel, Message, Schema
     from mcap.stream_reader import StreamReader
-    from mcap_ros2.decoder import DecoderFactory
 
+    scan = _McapScan(p, topics, labels)
     info = RecordingInfo()
     try:
         info.file_bytes = p.stat().st_size
         fh = open(p, "rb")
     except OSError as err:
         raise DataError(f"cannot read recording {str(p)!r}: {err.strerror}") from err
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
-    decoders: dict[int, Any] = {}
-    stream_of: dict[int, int] = {}
-    items: list[tuple[int, int, Block | BlockError]] = []
-    factory = DecoderFactory()
     with fh:
         head = fh.read(8)
         fh.seek(0)
@@ -382,63 +397,92 @@ def read_blocks(
         try:
             for rec in reader.records:
                 if isinstance(rec, Schema):
-                    schemas[rec.id] = rec
+                    scan.schemas[rec.id] = rec
                 elif isinstance(rec, Channel):
-                    channels[rec.id] = rec
-                    s = _stream_of_topic(rec.topic, topics, labels)
-                    if s is not None:
-                        schema = schemas.get(rec.schema_id)
-                        if schema is None or schema.name != BLOCK_TYPE:
-                            raise DataError(
-                                f"{p}: topic {rec.topic!r} has schema "
-                                f"{schema.name if schema else '(none)'!r}, expected "
-                                "std_msgs/msg/Float64MultiArray"
-                            )
-                        stream_of[rec.id] = s
-                        decoders[rec.id] = factory.decoder_for(rec.message_encoding, schema)
+                    scan.channel(rec)
                 elif isinstance(rec, Message):
-                    ch = channels.get(rec.channel_id)
-                    if ch is None:
-                        continue
-                    info.messages[ch.topic] = info.messages.get(ch.topic, 0) + 1
-                    if rec.channel_id not in stream_of:
-                        continue
-                    try:
-                        msg = decoders[rec.channel_id](rec.data)
-                        dims = [(d.label, int(d.size), int(d.stride)) for d in msg.layout.dim]
-                        item: Block | BlockError = decode_block(
-                            dims, int(msg.layout.data_offset), np.asarray(msg.data, dtype=float)
-                        )
-                    except BlockError as err:
-                        item = err
-                    except Exception as err:  # undecodable CDR: count it as malformed
-                        item = BlockError("malformed", f"undecodable message: {err}")
-                    items.append((stream_of[rec.channel_id], rec.log_time, item))
+                    scan.message(rec, info)
                 info.bytes_read = fh.tell()
         except DataError:
             raise
         except (
             Exception
         ) as err:  # cut short or corrupt: keep what was read (McapError, EOF, struct)
-            info.truncated = True
-            detail = str(err).strip()
-            info.reason = (
-                f"the file ends inside a record after byte {info.bytes_read}"
-                if type(err).__name__ == "EndOfFile"
-                else f"unreadable record after byte {info.bytes_read} "
-                f"({type(err).__name__}{': ' + detail if detail else ''})"
-            )
-    found = sorted({c.topic for c in channels.values()})
-    if not channels:
+            info.truncated, info.reason = True, _cut_reason(err, info.bytes_read)
+    found = sorted({c.topic for c in scan.channels.values()})
+    if not scan.channels:
         raise DataError(
             f"{p}: no channel could be read ({info.reason or 'the file holds none'}; "
             f"file of {info.file_bytes} bytes): nothing to recover"
         )
-    missing = [
-        name
-        for s, name in enumerate(_stream_names(topics, labels))
-        if s not in set(stream_of.values())
-    ]
+    streams = set(scan.stream_of.values())
+    missing = [name for s, name in enumerate(_stream_names(topics, labels)) if s not in streams]
     if missing:
         raise DataError(f"{p}: topic(s) {missing} not in the recording; it holds {found}")
-    return items, info, found
+    return scan.items, info, found
+
+
+def _cut_reason(err: Exception, bytes_read: int) -> str:
+    """Why the scan of a file stopped at ``bytes_read`` (``RecordingInfo.reason``)."""
+    detail = str(err).strip()
+    if type(err).__name__ == "EndOfFile":
+        return f"the file ends inside a record after byte {bytes_read}"
+    return (
+        f"unreadable record after byte {bytes_read} "
+        f"({type(err).__name__}{': ' + detail if detail else ''})"
+    )
+
+
+class _McapScan:
+    """The records of one MCAP file, in order: schemas, channels, and the streams' blocks."""
+
+    def __init__(self, path: Path, topics: Sequence[str] | None, labels: str) -> None:
+        from mcap_ros2.decoder import DecoderFactory
+
+        self.path, self.topics, self.labels = path, topics, labels
+        self.schemas: dict[int, Schema] = {}
+        self.channels: dict[int, Channel] = {}
+        self.decoders: dict[int, Any] = {}
+        self.stream_of: dict[int, int] = {}  # channel id -> stream (its topic's)
+        self.items: list[Item] = []
+        self.factory = DecoderFactory()
+
+    def message(self, rec: Message, info: RecordingInfo) -> None:
+        """Count a message of a known channel; decode it when its topic is a stream's."""
+        ch = self.channels.get(rec.channel_id)
+        if ch is None:
+            return
+        info.messages[ch.topic] = info.messages.get(ch.topic, 0) + 1
+        if rec.channel_id in self.stream_of:
+            item = self._decoded(self.decoders[rec.channel_id], rec.data)
+            self.items.append((self.stream_of[rec.channel_id], rec.log_time, item))
+
+    def channel(self, rec: Channel) -> None:
+        """Keep a channel; a stream's topic must carry blocks (its decoder made)."""
+        self.channels[rec.id] = rec
+        s = _stream_of_topic(rec.topic, self.topics, self.labels)
+        if s is None:
+            return
+        schema = self.schemas.get(rec.schema_id)
+        if schema is None or schema.name != BLOCK_TYPE:
+            raise DataError(
+                f"{self.path}: topic {rec.topic!r} has schema "
+                f"{schema.name if schema else '(none)'!r}, expected "
+                "std_msgs/msg/Float64MultiArray"
+            )
+        self.stream_of[rec.id] = s
+        self.decoders[rec.id] = self.factory.decoder_for(rec.message_encoding, schema)
+
+    @staticmethod
+    def _decoded(decoder: Any, data: bytes) -> Block | BlockError:
+        """One message's block, or why it is none (undecodable CDR counts as malformed)."""
+        try:
+            msg = decoder(data)
+            dims = [(d.label, int(d.size), int(d.stride)) for d in msg.layout.dim]
+            return decode_block(
+                dims, int(msg.layout.data_offset), np.asarray(msg.data, dtype=float)
+            )
+        except BlockError as err:
+            return err
+        except Exception as err:  # undecodable CDR: count it as malformed
+            return BlockError("malformed", f"undecodable message: {err}")

@@ -22,6 +22,7 @@ from ..io.blocks import LABELS_STREAM, STREAMS, Block
 from ..numerics.arrays import FloatArray
 from ..numerics.signals import LoopData
 from .gaps import NOT_BRIDGED, BridgeRule, Bridging, Holes, stream_bridging, union_count
+from .streams import SIGNALS, Stream
 
 
 @dataclass
@@ -102,9 +103,9 @@ class Aligner:
         Keep every contiguous run of each stream, not only the latest (for a recording,
         whose spans are all wanted: :meth:`spans`, :meth:`extract`).
     labels : bool
-        A fourth stream, 3 (``LABELS_STREAM``): an excitation's labels (realization,
-        period, sample) at the same indices, aligned as the others; windows then carry them
-        (:attr:`~mr_ident.numerics.signals.LoopData.labels`).
+        A fourth stream, ``Stream.LABELS`` (``LABELS_STREAM``): an excitation's labels
+        (realization, period, sample) at the same indices, aligned as the others; windows
+        carry them (:attr:`~mr_ident.numerics.signals.LoopData.labels`).
     bridge : callable, optional
         ``(n_in, n_out) -> Bridging | None`` (:func:`~mr_ident.live.gaps.bridging`): the
         holes of r, u and y kept as missing samples (NaN) in the window (r's up to a block:
@@ -147,7 +148,7 @@ class Aligner:
             for s, c in zip(self._s, channels, strict=False):
                 s.channels = int(c)
         if labels:
-            self._s[3].channels = 3
+            self._s[Stream.LABELS].channels = 3
         self.restarts = 0  # times the aligned window had to start again
 
     @property
@@ -165,7 +166,7 @@ class Aligner:
         setattr(self._s[stream].stats, kind, getattr(self._s[stream].stats, kind) + 1)
 
     def push(self, stream: int, block: Block, now: float = 0.0) -> str | None:
-        """Add one decoded block of stream 0 (r), 1 (u) or 2 (y).
+        """Add one decoded block of ``stream`` (a :class:`~.streams.Stream`, or its index).
 
         ``now`` is the caller's clock (for :meth:`expire`).
 
@@ -343,8 +344,8 @@ class Aligner:
         """The bridging limits for the channels seen so far (None: every hole restarts)."""
         if self._rule is None:
             return None
-        ch = [max(s.channels, 1) for s in self._s[:3]]
-        key = (ch[0], max(ch[1], ch[2]))
+        r, u, y = (max(self._s[i].channels, 1) for i in SIGNALS)
+        key = (r, max(u, y))
         if key not in self._bridging:
             self._bridging[key] = self._rule(*key)
         return self._bridging[key]
@@ -358,8 +359,9 @@ class Aligner:
         s = self._s[stream]
         b = stream_bridging(self.bridging(), stream, self.ratio)
         why = ""
-        if b is None:
-            why = NOT_BRIDGED.get(stream, "") if self._rule is not None or stream == 3 else ""
+        if b is None:  # the labels are never bridged, nor anything without a rule
+            told = self._rule is not None or stream == Stream.LABELS
+            why = NOT_BRIDGED.get(stream, "") if told else ""
         else:
             why = b.refuses(s.holes, lo, hi, s.origin)
         if b is not None and not why:
@@ -409,7 +411,7 @@ class Aligner:
         b = self.bridging()
         # a window later than the stream's own checks (another stream behind) stays
         # within the share: it starts after the holes that would break it
-        for s in self._s[:3]:
+        for s in (self._s[i] for i in SIGNALS):
             while (
                 b is not None
                 and hi > lo
@@ -420,7 +422,7 @@ class Aligner:
 
     def missing(self, lo: int, hi: int) -> int:
         """Indices in [lo, hi) where r, u or y is missing (bridged holes of the held samples)."""
-        return union_count([s.holes for s in self._s[:3]], lo, hi)
+        return union_count([self._s[i].holes for i in SIGNALS], lo, hi)
 
     def window(self, min_samples: int = 1, stop: int | None = None) -> LoopData | None:
         """The latest aligned window, or None when it holds fewer than ``min_samples``.
@@ -435,8 +437,9 @@ class Aligner:
 
     def _data(self, x: list[FloatArray], first: int) -> LoopData:
         """r, u, y (and the labels, as integers) of one span."""
-        labels = np.rint(x[3]).astype(np.int64) if len(x) > 3 else None
-        return LoopData(x[0], x[1], x[2], ratio=self.ratio, first=first, labels=labels)
+        labels = np.rint(x[Stream.LABELS]).astype(np.int64) if len(x) > Stream.LABELS else None
+        r, u, y = (x[i] for i in SIGNALS)
+        return LoopData(r, u, y, ratio=self.ratio, first=first, labels=labels)
 
     def _runs(self, s: _Stream) -> list[tuple[int, int, list[tuple[int, FloatArray]]]]:
         """A stream's contiguous runs (start, end, chunks), earlier and current.

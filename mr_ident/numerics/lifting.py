@@ -14,19 +14,27 @@ Conventions (see DEVELOPERS.md):
 * Real signals: their DFT is kept on bins 0..N//2 (:func:`half_spectrum`); any bin is
   read through ``X(N - k) = conj X(k)`` (:func:`spectrum_bins`, :func:`half_to_full`,
   :func:`fold_half`).
+
+The DFT and the half spectra live in :mod:`~mr_ident.numerics.fourier`; their names are
+re-exported here, beside the rules that lift them.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import ConfigError, DimensionError
-from .arrays import AnyArray, BoolArray, ComplexArray, FloatArray, IndexArray, IntArray
-from .threads import thread_map
+from .arrays import AnyArray, ComplexArray, FloatArray, IntArray
+from .fourier import dft as dft
+from .fourier import fold_half as fold_half
+from .fourier import half_spectra as half_spectra
+from .fourier import half_spectrum as half_spectrum
+from .fourier import half_to_full as half_to_full
+from .fourier import idft as idft
+from .fourier import spectrum_bins as spectrum_bins
 
 Domain = Literal["frequency", "time"]
 
@@ -68,114 +76,43 @@ def _as_2d(x: ArrayLike, name: str) -> AnyArray:
     return a
 
 
-def _fft_columns(
-    transform: Callable[..., ComplexArray], x: AnyArray, workers: int | None
-) -> ComplexArray:
-    """``transform`` (numpy's unitary FFT) along axis 0, the columns on ``workers`` threads.
-
-    NumPy's FFT rather than scipy's: the same pocketfft, bit for bit, without the quarter
-    second that importing ``scipy.fft`` adds to every program's start.
-    """
-    if workers is None or workers <= 1 or x.ndim < 2 or x[0].size <= 1:
-        return transform(x, axis=0, norm="ortho")
-    flat = x.reshape(x.shape[0], -1)
-    cols = thread_map(
-        lambda c: transform(c, norm="ortho"), [flat[:, i] for i in range(flat.shape[1])], workers
-    )
-    return np.stack(cols, axis=1).reshape((cols[0].shape[0], *x.shape[1:]))
-
-
-def dft(x: ArrayLike, *, workers: int | None = None) -> ComplexArray:
-    """Unitary DFT along axis 0: ``X(k) = N**-0.5 sum_n x[n] exp(-2j pi n k/N)``.
-
-    Parameters
-    ----------
-    x : array_like, shape (N, ...)
-    workers : int, optional
-        Threads over the columns; the result does not depend on it.
-
-    Returns
-    -------
-    ndarray, shape (N, ...), complex128
-    """
-    return _fft_columns(np.fft.fft, np.asarray(x), workers)
-
-
-def idft(X: ArrayLike, *, workers: int | None = None) -> ComplexArray:
-    """Inverse of :func:`dft` (complex result; take ``.real`` for real signals)."""
-    return _fft_columns(np.fft.ifft, np.asarray(X), workers)
-
-
-def half_spectrum(x: FloatArray, *, workers: int = 1) -> list[ComplexArray]:
-    """The DFT of a real (N, c) signal on bins 0..N//2: one (N//2+1,) array per column.
-
-    One real transform per column, the columns on ``workers`` threads. The upper half is
-    never formed; :func:`spectrum_bins` reads any bin through conjugate symmetry.
-    """
-    return half_spectra([x], workers=workers)[0]
-
-
-def half_spectra(xs: list[FloatArray], *, workers: int = 1) -> list[list[ComplexArray]]:
-    """:func:`half_spectrum` of several signals, all their columns on the threads at once.
-
-    (Signal by signal, a SISO loop's r, u and y would each be one transform: one thread.)
-    """
-
-    def rfft(c: FloatArray) -> ComplexArray:
-        out: ComplexArray = np.fft.rfft(c, norm="ortho")
-        return out
-
-    flat = thread_map(rfft, [x[:, i] for x in xs for i in range(x.shape[1])], workers)
-    ends = np.cumsum([x.shape[1] for x in xs])
-    return [flat[e - x.shape[1] : e] for x, e in zip(xs, ends, strict=True)]
-
-
-def fold_half(kappa: ArrayLike, n_samples: int) -> tuple[IndexArray, BoolArray]:
-    """Where bin ``kappa`` (0..N-1) of a real signal's DFT lies in its half 0..N//2.
-
-    Returns ``(index, conj)``: ``X(kappa) = X_half(index)``, conjugated where ``conj``.
-    """
-    k = np.asarray(kappa, dtype=np.intp)
-    upper = k > n_samples // 2
-    return np.where(upper, n_samples - k, k), upper
-
-
-def spectrum_bins(half: list[ComplexArray], idx: IndexArray, n_samples: int) -> ComplexArray:
-    """``X[idx]`` of the full N-bin DFT of each column, shape ``idx.shape + (c,)``.
-
-    ``half`` is :func:`half_spectrum`'s list of columns on bins 0..N//2; ``idx`` in 0..N-1.
-    """
-    src, upper = fold_half(idx, n_samples)
-    out = np.stack([c[src] for c in half], axis=-1)
-    np.conjugate(out, out=out, where=upper[..., None])
-    return out
-
-
-def half_to_full(X_half: AnyArray, n_samples: int) -> AnyArray:
-    """Extend values on bins 0..N//2 (axis 0) to all N bins by conjugate symmetry."""
-    h = n_samples // 2
-    out = np.empty((n_samples,) + X_half.shape[1:], dtype=X_half.dtype)
-    out[: h + 1] = X_half[: h + 1]
-    upper = X_half[n_samples - h - 1 : 0 : -1]
-    out[h + 1 :] = np.conj(upper) if np.iscomplexobj(X_half) else upper
-    return out
-
-
 def time_lift(x: ArrayLike, ratio: int) -> AnyArray:
     """Stack F consecutive samples: (N, c) -> (N/F, F*c) (a view when ``x`` is contiguous).
 
+    Column ``i*c + ch`` of row m holds sample ``mF + i`` of channel ``ch`` [1]_.
+
+    Parameters
+    ----------
+    x : array_like, shape (N,) or (N, c)
+        A signal at the high rate; N a multiple of F.
+    ratio : int
+        F, the samples per low-rate period.
+
+    Returns
+    -------
+    ndarray, shape (N/F, F*c)
+
     Raises
     ------
+    ConfigError
+        If ``ratio`` is not an integer >= 1.
     DimensionError
-        If N is not a multiple of ``ratio`` (never cut silently).
+        If N is not a multiple of ``ratio`` (never cut silently), or ``x`` is not 1-D or 2-D.
+
+    References
+    ----------
+    .. [1] E. van Haren, L. Blanken, T. Oomen, "Frequency Domain Identification of
+       Multirate Systems: A Lifted Local Polynomial Modeling Approach", CDC 2022.
 
     Examples
     --------
     >>> import numpy as np
-    >>> from mr_ident.numerics.lifting import time_lift
+    >>> from mr_ident import time_lift, time_unlift
     >>> time_lift(np.arange(6.0), 3)
     array([[0., 1., 2.],
            [3., 4., 5.]])
+    >>> time_unlift(time_lift(np.arange(6.0), 3), 3).ravel()
+    array([0., 1., 2., 3., 4., 5.])
     """
     F = check_ratio(ratio)
     a = _as_2d(x, "x")
@@ -184,7 +121,24 @@ def time_lift(x: ArrayLike, ratio: int) -> AnyArray:
 
 
 def time_unlift(x_bar: ArrayLike, ratio: int) -> AnyArray:
-    """Inverse of :func:`time_lift`: (M, F*c) -> (M*F, c)."""
+    """Inverse of :func:`time_lift`: (M, F*c) -> (M*F, c).
+
+    Parameters
+    ----------
+    x_bar : array_like, shape (M,) or (M, F*c)
+    ratio : int
+
+    Returns
+    -------
+    ndarray, shape (M*F, c)
+
+    Raises
+    ------
+    ConfigError
+        If ``ratio`` is not an integer >= 1.
+    DimensionError
+        If the columns are not a multiple of F, or ``x_bar`` is not 1-D or 2-D.
+    """
     F = check_ratio(ratio)
     a = _as_2d(x_bar, "x_bar")
     if a.shape[1] % F:
@@ -195,7 +149,40 @@ def time_unlift(x_bar: ArrayLike, ratio: int) -> AnyArray:
 def freq_lift(X: ArrayLike, ratio: int) -> AnyArray:
     """Stack the F aliases of a DFT spectrum: (N, c) -> (N/F, F*c).
 
-    ``X_tilde[k, l*c + ch] = X[k + l*M, ch]`` with M = N/F.
+    ``X_tilde[k, l*c + ch] = X[k + l*M, ch]`` with M = N/F: the bins one low-rate bin k
+    folds together, alias-major [1]_.
+
+    Parameters
+    ----------
+    X : array_like, shape (N,) or (N, c)
+        A spectrum on all N bins (:func:`dft`); N a multiple of F.
+    ratio : int
+
+    Returns
+    -------
+    ndarray, shape (N/F, F*c)
+
+    Raises
+    ------
+    ConfigError
+        If ``ratio`` is not an integer >= 1.
+    DimensionError
+        If N is not a multiple of F, or ``X`` is not 1-D or 2-D.
+
+    References
+    ----------
+    .. [1] E. van Haren, L. Blanken, T. Oomen, "Frequency Domain Identification of
+       Multirate Systems: A Lifted Local Polynomial Modeling Approach", CDC 2022.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from mr_ident import freq_lift, freq_unlift
+    >>> freq_lift(np.arange(6.0), 3)  # bin k beside its aliases k + 2 and k + 4
+    array([[0., 2., 4.],
+           [1., 3., 5.]])
+    >>> freq_unlift(freq_lift(np.arange(6.0), 3), 3).ravel()
+    array([0., 1., 2., 3., 4., 5.])
     """
     F = check_ratio(ratio)
     a = _as_2d(X, "X")
@@ -231,7 +218,24 @@ def freq_lift_half(
 
 
 def freq_unlift(X_tilde: ArrayLike, ratio: int) -> AnyArray:
-    """Inverse of :func:`freq_lift`: (M, F*c) -> (M*F, c)."""
+    """Inverse of :func:`freq_lift`: (M, F*c) -> (M*F, c).
+
+    Parameters
+    ----------
+    X_tilde : array_like, shape (M,) or (M, F*c)
+    ratio : int
+
+    Returns
+    -------
+    ndarray, shape (M*F, c)
+
+    Raises
+    ------
+    ConfigError
+        If ``ratio`` is not an integer >= 1.
+    DimensionError
+        If the columns are not a multiple of F, or ``X_tilde`` is not 1-D or 2-D.
+    """
     F = check_ratio(ratio)
     a = _as_2d(X_tilde, "X_tilde")
     if a.shape[1] % F:
@@ -288,6 +292,24 @@ def lift_frf(
     ndarray, shape (K, F*n_out, F*n_in)
         Frequency-lifted: block diagonal ``diag(G(k + l M))``.
         Time-lifted: ``T(k)^H G_tilde(k) T(k)`` (the M-point FRF of the lifted system).
+
+    Raises
+    ------
+    ConfigError
+        If ``ratio`` is not an integer >= 1 or ``domain`` not "frequency" or "time".
+    DimensionError
+        If ``G`` is not 3-D or N not a multiple of F.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from mr_ident import lift_frf, unlift_frf
+    >>> G = np.arange(1.0, 5.0).reshape(4, 1, 1)  # on N = 4 bins
+    >>> lift_frf(G, 2)[1].real  # low-rate bin 1: bins 1 and 3
+    array([[2., 0.],
+           [0., 4.]])
+    >>> unlift_frf(lift_frf(G, 2), 2).transpose(1, 0, 2, 3).ravel().real
+    array([1., 2., 3., 4.])
     """
     F = check_ratio(ratio)
     Ga = np.asarray(G, dtype=complex)
@@ -356,6 +378,13 @@ def unlift_frf(
         Entry ``[j, l]`` is the FRF at high-rate bin ``bins[j] + l*M``
         (:func:`unlift_bins`); for ``bins = 0..M-1`` reshape with
         ``out.transpose(1, 0, 2, 3).reshape(N, n_out, n_in)``.
+
+    Raises
+    ------
+    ConfigError
+        If ``ratio`` is not an integer >= 1 or ``domain`` not "frequency" or "time".
+    DimensionError
+        If ``G_lifted`` is not (K, F*n_out, F*n_in), or N not a multiple of F (time).
     """
     F = check_ratio(ratio)
     Gl = np.asarray(G_lifted, dtype=complex)
@@ -428,82 +457,3 @@ def unlift_variance(
         tvar: FloatArray = quad[:, :, :, None] * c0[:, None, None, :]
         return tvar
     raise ConfigError(f'domain must be "frequency" or "time", got {domain!r}')
-
-
-# --- An output measured at the low rate only -------------------------------------------
-# y_l[m] = y_h[m F + q] (q: the high-rate sample of each low-rate period at which y is taken).
-# Its M-point DFT sums the aliases of the high-rate one:
-#     sqrt(F) Y_l(k) = sum_l exp(2j pi kappa_l q / N) Y_h(kappa_l),   kappa_l = k + l M,
-# so with Y_h = P_h U_h the lifted map from U_tilde (alias-major) to sqrt(F) Y_l is one
-# block row, block l = exp(2j pi kappa_l q / N) P_h(kappa_l): every high-rate bin's plant.
-
-
-def low_rate_lift_half(
-    half: list[ComplexArray], bins: range | IntArray, ratio: int, n_low: int
-) -> ComplexArray:
-    """``sqrt(F) Y_l(k)`` of a low-rate signal on consecutive low-rate bins (the row's output).
-
-    Parameters
-    ----------
-    half : list of ndarray, each (M//2+1,)
-        :func:`half_spectrum` of the low-rate signal (M = ``n_low`` samples, c columns).
-    bins : range or ndarray of int
-        Low-rate bins k, usually consecutive (may reach below 0 or beyond M).
-    ratio, n_low : int
-        F and M.
-
-    Returns
-    -------
-    ndarray, shape (len(bins), c)
-    """
-    F = check_ratio(ratio)
-    idx = np.asarray(bins, dtype=np.int64)[:, None] % n_low
-    out: ComplexArray = np.sqrt(F) * spectrum_bins(half, idx, n_low)[:, 0]
-    return out
-
-
-def unlift_row(
-    G_row: ArrayLike, ratio: int, bins: ArrayLike, n_samples: int, y_phase: int = 0
-) -> ComplexArray:
-    """The high-rate FRF from the lifted map to a low-rate output (one block row).
-
-    ``G(k + l M) = exp(-2j pi (k + l M) q / N) G_row(k)[:, block l]`` (the comment above).
-
-    Parameters
-    ----------
-    G_row : array_like, shape (K, n_out, F*n_in)
-        Alias-major columns (index ``l*n_in + i``).
-    ratio : int
-    bins : array_like of int, shape (K,)
-        The low-rate bins k of ``G_row``.
-    n_samples : int
-        N (high-rate samples).
-    y_phase : int
-        q, the high-rate sample (0..F-1) of each low-rate period at which y was taken.
-
-    Returns
-    -------
-    ndarray, shape (K, F, n_out, n_in)
-        Entry ``[j, l]`` at high-rate bin ``bins[j] + l M``, as :func:`unlift_frf`.
-    """
-    F = check_ratio(ratio)
-    G = np.asarray(G_row, dtype=complex)
-    K, ny = G.shape[:2]
-    kappa = unlift_bins(bins, F, n_samples)
-    shift = np.exp(-2j * np.pi * kappa * (int(y_phase) / n_samples))  # (K, F)
-    out: ComplexArray = G.reshape(K, ny, F, -1).transpose(0, 2, 1, 3) * shift[:, :, None, None]
-    return out
-
-
-def unlift_row_variance(row_diag: ArrayLike, col_diag: ArrayLike, ratio: int) -> FloatArray:
-    """Variance ``E|dG|^2`` of every entry of :func:`unlift_row` (Kronecker covariance).
-
-    ``row_diag`` (K, n_out) and ``col_diag`` (K, F*n_in) are the diagonals of the factors;
-    returns (K, F, n_out, n_in) (the phase factor has modulus 1).
-    """
-    F = check_ratio(ratio)
-    r = np.real(np.asarray(row_diag))
-    c = np.real(np.asarray(col_diag))
-    K = r.shape[0]
-    var: FloatArray = r[:, None, :, None] * c.reshape(K, F, 1, -1)
-    return var

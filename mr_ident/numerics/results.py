@@ -38,6 +38,20 @@ class FRF:
     The arrays are held read-only: an array of the right dtype that is read-only down to
     the array owning its memory is kept as given (an estimator hands its arrays over that
     way, uncopied); anything else is copied (:func:`~mr_ident.numerics.arrays.frozen`).
+
+    Raises
+    ------
+    DimensionError
+        If ``frequency`` is not 1-D and strictly increasing, or ``response`` and ``std``
+        are not both (n_freq, n_out, n_in).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from mr_ident import FRF
+    >>> frf = FRF(np.array([1.0, 2.0]), np.ones((2, 1, 1)), np.zeros((2, 1, 1)), "model")
+    >>> frf.n_out, frf.n_in, frf.response.dtype, frf.response.flags.writeable
+    (1, 1, dtype('complex128'), False)
     """
 
     frequency: FloatArray
@@ -100,6 +114,20 @@ class LiftedFRF:
     dof : int
         Degrees of freedom q of the noise covariance estimate
         (:func:`~mr_ident.numerics.local.lpm.dof`).
+
+    Raises
+    ------
+    DimensionError
+        If the shapes disagree (response (n_bins, n_out, n_in), row_cov (n_bins, n_out,
+        n_out), col_cov (n_bins, n_in, n_in)), ``domain`` is neither "frequency" nor
+        "time", or ``dof < 1``.
+
+    References
+    ----------
+    .. [1] R. Pintelon, J. Schoukens, *System Identification: A Frequency Domain
+       Approach*, 2nd ed., Wiley 2012, ch. 7.
+    .. [2] E. van Haren, L. Blanken, T. Oomen, "Frequency Domain Identification of
+       Multirate Systems: A Lifted Local Polynomial Modeling Approach", CDC 2022.
     """
 
     bins: IntArray
@@ -161,6 +189,18 @@ class PFG:
         What it was computed from (``"model"``, ``"plant:freq-lifted"``, ...).
 
     The arrays are held read-only (views: not copied).
+
+    Raises
+    ------
+    DimensionError
+        If ``frequency``, ``gain`` and ``std`` do not share one 1-D shape.
+
+    References
+    ----------
+    .. [1] T. Oomen, M. van de Wal, O. Bosgra, "Design framework for high-performance
+       optimal sampled-data control with application to a wafer stage", IJC 80(6), 2007.
+    .. [2] E. van Haren, L. Blanken, T. Oomen, "Performance analysis of multirate systems:
+       a direct frequency-domain identification approach", MSSP 235, 2025.
     """
 
     frequency: FloatArray
@@ -220,6 +260,18 @@ class Identification:
     r_unknown : int
         Missing samples of r the fit reads that the data do not determine: guessed, their
         error part of the noise every std contains.
+
+    Raises
+    ------
+    DimensionError
+        If ``n_missing`` is not (n_y + n_u,), ``pfg``, ``pfg_data``, ``n_used`` or
+        ``undetermined`` are not on the plant's frequencies, only one of ``lifted_J`` and
+        ``lifted_S`` is given, or ``fs_high <= 0`` or ``ratio < 1``.
+
+    References
+    ----------
+    .. [1] E. van Haren, L. Blanken, T. Oomen, "Frequency Domain Identification of
+       Multirate Systems: A Lifted Local Polynomial Modeling Approach", CDC 2022.
     """
 
     plant: FRF

@@ -73,6 +73,20 @@ class LoopData:
     y_phase : int
         q: with y at the low rate, the high-rate sample (0..F-1) of each period at which it
         was taken, ``y[m] = y_h[m F + q]`` (0 otherwise).
+
+    Raises
+    ------
+    DimensionError
+        If a signal is not 1-D or 2-D, r and u differ in length, y has neither N nor N/F
+        samples, ``y_phase`` is outside 0..F-1, or ``labels`` is not (N, 3).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from mr_ident import LoopData
+    >>> d = LoopData(np.zeros(6), np.zeros(6), np.zeros(2), fs_high=300.0, ratio=3)
+    >>> d.n_samples, d.y_step, d.r.shape  # y at the low rate: one sample per period
+    (6, 3, (6, 1))
     """
 
     r: FloatArray

@@ -206,14 +206,69 @@ def publish(
         Start stopped: nothing goes out before a call of ``~/start``
         (:mod:`~mr_ident.ros.excite_control`: ``~/start``, ``~/stop``, the status on
         /diagnostics).
+
+    Returns
+    -------
+    Played
+        What went out: samples, messages per topic, ticks, the stamp origin, late ticks.
+
+    Raises
+    ------
+    ConfigError
+        ``r`` not (M, P·N, n_in) with ``period`` N dividing P·N, ``joints`` not one per
+        input, an option out of range, or an unknown ``form``.
+
+    Notes
+    -----
+    The steps: check the options, advertise both topics and wait for their readers, play
+    on a timer (``_Player``) until done or stopped, wait for the readers' acks.
     """
     from rclpy.duration import Duration
-    from rclpy.executors import SingleThreadedExecutor
 
     from .excite_control import ExciteControl
     from .messages import BLOCK_QOS
 
     sched = Schedule.of(r, period)
+    joints = _checked(r, joints, rate=rate, loops=loops, block=block, tick=tick)
+    fm = make_form(form, joints)
+    if tick is None:
+        tick = max(1.0 / (fs_high * rate), 1e-3) if fm.per_sample else 0.01
+    stop = stop if stop is not None else Stop()
+    control = ExciteControl(node, topic, running=not paused)
+    sig = node.create_publisher(fm.msg_type, topic, BLOCK_QOS)
+    idx = node.create_publisher(fm.msg_type, index_topic(topic), BLOCK_QOS)
+    _await_subscribers(sig, wait, subscribers, stop)
+    player = _Player(
+        schedule=sched,
+        r=r,
+        form=fm,
+        topics=(sig, idx),
+        control=control,
+        stop=stop,
+        fs_high=fs_high,
+        rate=rate,
+        tick=tick,
+        block=block,
+        total=None if loops == 0 else loops * sched.cycle,
+        t0=node.get_clock().now().nanoseconds,
+        start=time.monotonic(),
+    )
+    _spin(node, tick, player, stop, control)
+    for pub in (sig, idx):  # reliable delivery: do not exit before the readers have it
+        pub.wait_for_all_acked(Duration(seconds=1 if stop.signal is not None else 5))
+    return Played(player.next_index, player.messages, player.ticks, player.t0, player.late)
+
+
+def _checked(
+    r: FloatArray,
+    joints: list[str] | None,
+    *,
+    rate: float,
+    loops: int,
+    block: int,
+    tick: float | None,
+) -> list[str]:
+    """The joints' names (``j0`` ... by default), the options checked."""
     n_in = r.shape[2]
     joints = list(joints) if joints else [f"j{i}" for i in range(n_in)]
     if len(joints) != n_in:
@@ -226,58 +281,82 @@ def publish(
     ):
         if not ok:
             raise ConfigError(f"{name} must be positive, got {value!r}")
-    fm = make_form(form, joints)
-    if tick is None:
-        tick = max(1.0 / (fs_high * rate), 1e-3) if fm.per_sample else 0.01
-    stop = stop if stop is not None else Stop()
-    control = ExciteControl(node, topic, running=not paused)
-    sig = node.create_publisher(fm.msg_type, topic, BLOCK_QOS)
-    idx = node.create_publisher(fm.msg_type, index_topic(topic), BLOCK_QOS)
+    return joints
+
+
+def _await_subscribers(pub: Any, wait: float, subscribers: int, stop: Stop) -> None:
+    """Wait up to ``wait`` s for ``subscribers`` on ``pub``, then 0.5 s more (matching)."""
     deadline = time.monotonic() + wait
     while (
         time.monotonic() < deadline
         and not stop.requested
-        and sig.get_subscription_count() < subscribers
+        and pub.get_subscription_count() < subscribers
     ):
         stop.wait(0.02)
     if wait > 0:
         stop.wait(min(wait, 0.5))
-    total = None if loops == 0 else loops * sched.cycle
-    t0 = node.get_clock().now().nanoseconds
-    start = time.monotonic()
-    state = {"next": 0, "messages": 0, "ticks": 0, "late": 0}
 
-    def on_tick() -> None:
-        due = int((time.monotonic() - start) * fs_high * rate) + 1
-        if total is not None:
-            due = min(due, total)
-        first = state["next"]
-        state["ticks"] += 1
-        if not control.running:  # stopped from the graph: the due samples are not sent
-            state["next"] = due
-            if total is not None and due >= total:
-                control.done = True
-                stop.request()
-            return
-        if due - first > max(2, int(2 * tick * fs_high * rate)):
-            state["late"] += 1  # the timer fell behind by more than a tick: a burst
+
+@dataclass
+class _Player:
+    """The stream's progress, advanced by the timer: every tick sends the samples due."""
+
+    schedule: Schedule
+    r: FloatArray
+    form: Form
+    topics: tuple[Any, Any]  # the signal's publisher and the labels'
+    control: Any  # the ExciteControl: running, sent, labels, done
+    stop: Stop
+    fs_high: float
+    rate: float  # times real time
+    tick: float
+    block: int
+    total: int | None  # samples to send (None: until stopped)
+    t0: int  # the stamp of sample 0 (ns)
+    start: float  # time.monotonic() at sample 0
+    next_index: int = 0
+    messages: int = 0
+    ticks: int = 0
+    late: int = 0  # ticks that found more than two ticks' samples due
+
+    def __call__(self) -> None:
+        """One tick: the samples due by now sent (dropped while stopped from the graph)."""
+        due = int((time.monotonic() - self.start) * self.fs_high * self.rate) + 1
+        if self.total is not None:
+            due = min(due, self.total)
+        self.ticks += 1
+        if not self.control.running:  # stopped from the graph: the due samples are not sent
+            self.next_index = due
+        else:
+            if due - self.next_index > max(2, int(2 * self.tick * self.fs_high * self.rate)):
+                self.late += 1  # the timer fell behind by more than a tick: a burst
+            self.next_index = self._send(self.next_index, due)
+        if self.total is not None and self.next_index >= self.total:
+            self.control.done = True
+            self.stop.request()
+
+    def _send(self, first: int, due: int) -> int:
+        """Samples ``first .. due - 1`` published (in blocks of ``block`` for that form)."""
+        sig, idx = self.topics
         while first < due:
-            n = min(due - first, block) if not fm.per_sample else due - first
-            x = sched.take(r, first, n)
-            labels = sched.labels(first, n)
-            stamps = grid_stamps(t0, first, n, fs_high)
-            msgs, index = fm.messages(first, x, labels, stamps)
+            n = min(due - first, self.block) if not self.form.per_sample else due - first
+            x = self.schedule.take(self.r, first, n)
+            labels = self.schedule.labels(first, n)
+            stamps = grid_stamps(self.t0, first, n, self.fs_high)
+            msgs, index = self.form.messages(first, x, labels, stamps)
             for m, k in zip(msgs, index, strict=True):
                 sig.publish(m)
                 idx.publish(k)
-            state["messages"] += len(msgs)
+            self.messages += len(msgs)
             first += n
-            control.sent += n
-            control.labels = tuple(int(v) for v in labels[-1])  # type: ignore[assignment]
-        state["next"] = first
-        if total is not None and first >= total:
-            control.done = True
-            stop.request()
+            self.control.sent += n
+            self.control.labels = tuple(int(v) for v in labels[-1])
+        return first
+
+
+def _spin(node: Any, tick: float, on_tick: _Player, stop: Stop, control: Any) -> None:
+    """Run ``on_tick`` every ``tick`` s on the node's own executor until ``stop``."""
+    from rclpy.executors import SingleThreadedExecutor
 
     executor = SingleThreadedExecutor(context=node.context)
     executor.add_node(node)
@@ -289,6 +368,3 @@ def publish(
         node.destroy_timer(timer)
         control.destroy()
         executor.remove_node(node)
-    for pub in (sig, idx):  # reliable delivery: do not exit before the readers have it
-        pub.wait_for_all_acked(Duration(seconds=1 if stop.signal is not None else 5))
-    return Played(state["next"], state["messages"], state["ticks"], t0, state["late"])

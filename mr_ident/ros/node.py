@@ -87,23 +87,24 @@ class IdentNode(LifecycleNode):
         self.config: IdentConfig | None = None
         self.configure_error = ""
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self._lock = threading.Lock()  # guards the estimate state below
+        self._lock = threading.Lock()  # held on every access to the six fields below
+        self._busy = False  # a worker (warm-up or identification) runs
+        self._warm_up = ""
+        self._published: Published | None = None
+        self._last_estimate_wall = 0.0
+        self._estimates = 0
+        self._last_error = ""
+        self._last_error_time = 0.0
         self._pending: tuple[IdentConfig, Any] | None = None
         self._active = False
         self._stopping = False
         self._joined = False  # shutdown has waited for the threads
         self._notes: list[tuple[float, str]] = []
         self._started = time.monotonic()
-        self._published: Published | None = None
-        self._last_estimate_wall = 0.0
-        self._estimates = 0
-        self._last_error = ""
-        self._last_error_time = 0.0
-        self._warm_up = ""
-        self._busy = False
         self._worker_thread: threading.Thread | None = None
         self._recording = NodeRecorder(self)
         self._naming = False
+        self._update_timer: Any = None  # made at configure
         self._node_timers: list[Any] = []
         self.inputs: Inputs | None = None  # subscriptions and window, made at configure
         self._outputs: Outputs | None = None
@@ -150,7 +151,8 @@ class IdentNode(LifecycleNode):
         self._node_timers = [self._update_timer]
         # One identification of a synthetic full-size window, so that the first real one
         # does not pay the one-time costs (see live.warm_up); estimates wait for it.
-        self._busy, self._warm_up = True, ""
+        with self._lock:
+            self._busy, self._warm_up = True, ""
         self._worker_thread = threading.Thread(
             target=self._warm, args=(cfg,), daemon=True, name="mr_ident-warm-up"
         )
@@ -330,14 +332,16 @@ class IdentNode(LifecycleNode):
 
     # -- estimation ---------------------------------------------------------------------
     def _on_update(self) -> None:
-        if self._busy or self._stopping or not self._active:
-            return
+        with self._lock:  # only this thread sets _busy, the workers clear it
+            if self._busy or self._stopping or not self._active:
+                return
         cfg, inputs = self.config, self.inputs
         assert cfg is not None and inputs is not None
         window = inputs.window(cfg.min_samples)
         if window is None:
             return
-        self._busy = True
+        with self._lock:
+            self._busy = True
         self._worker_thread = threading.Thread(
             target=self._work,
             args=(
@@ -377,22 +381,26 @@ class IdentNode(LifecycleNode):
                     f"identification failed: {err}",
                     time.monotonic(),
                 )
-            self.get_logger().error(self._last_error)
+            self.get_logger().error(f"identification failed: {err}")
         finally:
-            self._busy = False
+            with self._lock:
+                self._busy = False
 
     def _warm(self, cfg: IdentConfig) -> None:
         try:
             seconds = warm_up(cfg)
-            self._warm_up = f"{seconds:.4f}"
+            with self._lock:
+                self._warm_up = f"{seconds:.4f}"
             self.get_logger().info(
                 f"warm-up: one identification of {cfg.window_samples} samples took {seconds:.3f} s"
             )
         except Exception as err:  # only a speed-up: the node works without it
-            self._warm_up = f"failed: {err}"
+            with self._lock:
+                self._warm_up = f"failed: {err}"
             self.get_logger().warning(f"warm-up identification failed: {err}")
         finally:
-            self._busy = False
+            with self._lock:
+                self._busy = False
 
     @property
     def published(self) -> Published | None:
@@ -430,7 +438,7 @@ class IdentNode(LifecycleNode):
             return unconfigured_status(fqn, self.configure_error, state_label(self))
         with self._lock:
             pub, err, err_t = self._published, self._last_error, self._last_error_time
-            n_est, est_t = self._estimates, self._last_estimate_wall
+            n_est, est_t, warm = self._estimates, self._last_estimate_wall, self._warm_up
         path = self._recording.path
         health = Health(
             now=time.monotonic(),
@@ -451,7 +459,7 @@ class IdentNode(LifecycleNode):
             sources=inputs.sources,
             record_error=self._recording.error,
             recording=path.as_posix() if path is not None else "",
-            warm_up=self._warm_up,
+            warm_up=warm,
             clock=NO_CLOCK
             if self.get_parameter("use_sim_time").value and self.get_clock().now().nanoseconds == 0
             else "",

@@ -18,7 +18,7 @@ from __future__ import annotations
 import contextlib
 import math
 from dataclasses import dataclass, replace
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 
@@ -48,6 +48,30 @@ class OrderReport:
     def in_band(self) -> bool:
         """Whether the cost lies within ``expected ± 2 sd``."""
         return abs(self.cost - self.expected) <= 2.0 * self.sd
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """The options of :func:`fit_frf` (its keywords, as given: checked by the fit)."""
+
+    fs: float
+    order: int | Literal["auto"] = "auto"
+    domain: str = "continuous"
+    delay: float | Literal["auto"] = 0.0
+    band: tuple[float, float] | None = None
+    direct: bool = False
+    max_order: int = 20
+    max_delay: float | None = None
+    noise_dof: float | None = None
+    noise_kernel: FloatArray | None = None
+
+
+class _Candidate(NamedTuple):
+    """One order fitted: its report, its solution and the condition of its start."""
+
+    report: OrderReport
+    solution: Solution
+    start_cond: float
 
 
 @dataclass(frozen=True)
@@ -239,31 +263,42 @@ def fit_frf(
         Hz; the bins fitted.
     direct : bool
         Fit a direct term D (default: strictly proper).
+    max_order : int
+        The highest order "auto" tries.
+    max_delay : float or None
+        The end of the "auto" delay grid in s (None: 4 samples of 1/fs).
     noise_dof : float or None
         The LPM's residual dof q (scales the expected cost by q/(q-1)).
     noise_kernel : array or None
         ρ(l) of the errors of bins l apart (:func:`lpm_kernel`): widens the cost band and
         the parameters' covariance (a sandwich); None: independent bins.
 
+    Returns
+    -------
+    FitResult
+        The model of the order chosen, its parameters' std and every order tried.
+
     Raises
     ------
     ConfigError
-        An option out of range. DataError: too few usable bins.
+        An option out of range: ``domain``, ``fs``, ``order``, ``delay`` or ``band``.
+    DataError
+        Fewer than 4 bins with a positive finite std (in ``band``).
     """
     with _one_blas_thread():  # small least-squares problems: BLAS threads only compete
-        return _fit(
-            frf,
-            fs,
-            order,
-            domain,
-            delay,
-            band,
-            direct,
-            max_order,
-            max_delay,
-            noise_dof,
-            noise_kernel,
+        options = FitOptions(
+            fs=fs,
+            order=order,
+            domain=domain,
+            delay=delay,
+            band=band,
+            direct=direct,
+            max_order=max_order,
+            max_delay=max_delay,
+            noise_dof=noise_dof,
+            noise_kernel=noise_kernel,
         )
+        return _fit(frf, options)
 
 
 _BLAS: list[Any] = []
@@ -274,7 +309,8 @@ def _one_blas_thread() -> Any:
 
     :func:`~mr_ident.numerics.threads.one_blas_thread` knows the libraries loaded when it
     was imported; SciPy's, loaded with ``scipy.optimize``, ran least-squares' SVDs on
-    competing threads (0.5 s for a 2000 x 20 SVD on the shared 2-core machine).
+    competing threads, many times slower than one (measured: docs/benchmarks.md, "Threads
+    and block sizes").
     """
     if not _BLAS:
         import scipy.optimize  # noqa: F401, PLC0415 (loads SciPy's BLAS before the scan)
@@ -287,55 +323,49 @@ def _one_blas_thread() -> Any:
     return _BLAS[0].limit(limits=1, user_api="blas")
 
 
-def _fit(
-    frf: FRF,
-    fs: float,
-    order: int | Literal["auto"],
-    domain: str,
-    delay: float | Literal["auto"],
-    band: tuple[float, float] | None,
-    direct: bool,
-    max_order: int,
-    max_delay: float | None,
-    noise_dof: float | None,
-    noise_kernel: FloatArray | None,
-) -> FitResult:
+def _delays(options: FitOptions) -> tuple[list[float], bool, float]:
+    """The options checked (ConfigError): the delays tried, whether refined, their bound."""
+    fs, order, domain, delay = options.fs, options.order, options.domain, options.delay
     if domain not in DOMAINS:
         raise ConfigError(f'domain must be "continuous" or "discrete", got {domain!r}')
     if not (isinstance(fs, (int, float)) and math.isfinite(fs) and fs > 0):
         raise ConfigError(f"fs must be a positive number (Hz), got {fs!r}")
     h = 1.0 / fs
-    max_delay = 4.0 * h if max_delay is None else float(max_delay)
+    max_delay = 4.0 * h if options.max_delay is None else float(options.max_delay)
     if order != "auto" and (isinstance(order, bool) or not isinstance(order, int) or order < 1):
         raise ConfigError(f'order must be "auto" or an integer >= 1, got {order!r}')
     if delay == "auto":
         step = h if domain == "discrete" else h / 2
-        delays = [float(t) for t in np.arange(0.0, max_delay + 1e-12 * h, step)]
-        free_delay = domain == "continuous"
-    else:
-        if isinstance(delay, bool) or not isinstance(delay, (int, float)) or not delay >= 0:
-            raise ConfigError(f'delay must be "auto" or a number of seconds >= 0, got {delay!r}')
-        if domain == "discrete" and abs(delay * fs - round(delay * fs)) > 1e-9:
-            raise ConfigError(
-                f"a discrete fit's delay must be whole samples of 1/fs, got {delay!r} s"
-            )
-        delays, free_delay = [float(delay)], False
-    f, P, S = _select(frf, band)
+        grid = [float(t) for t in np.arange(0.0, max_delay + 1e-12 * h, step)]
+        return grid, domain == "continuous", max_delay
+    if isinstance(delay, bool) or not isinstance(delay, (int, float)) or not delay >= 0:
+        raise ConfigError(f'delay must be "auto" or a number of seconds >= 0, got {delay!r}')
+    if domain == "discrete" and abs(delay * fs - round(delay * fs)) > 1e-9:
+        raise ConfigError(f"a discrete fit's delay must be whole samples of 1/fs, got {delay!r} s")
+    return [float(delay)], False, max_delay
+
+
+def _fit(frf: FRF, options: FitOptions) -> FitResult:
+    fs, order, domain = options.fs, options.order, options.domain
+    direct, noise_dof = options.direct, options.noise_dof
+    delays, free_delay, max_delay = _delays(options)
+    h = 1.0 / fs
+    f, P, S = _select(frf, options.band)
     no, ni = frf.response.shape[1:]
     prob = Problem(np.exp(2j * np.pi * f * h), P, 1.0 / S, domain, h, 2.0 * np.pi * f[-1], direct)
     N = P.size
-    orders = range(1, max_order + 1) if order == "auto" else [order]
+    orders = range(1, options.max_order + 1) if order == "auto" else [order]
     reports: list[OrderReport] = []
     # only two solutions are kept (each holds K x E residuals): the first order inside the
     # band (the choice) and, until there is one, the least MDL so far (the fallback)
-    chosen: tuple[OrderReport, Solution, float] | None = None
-    fallback: tuple[OrderReport, Solution, float] | None = None
-    corr = correlation_length(noise_kernel)
+    chosen: _Candidate | None = None
+    fallback: _Candidate | None = None
+    corr = correlation_length(options.noise_kernel)
 
     def n_params(n: int, free: bool) -> int:
         return int(n * (1 + no * ni) + (no * ni if direct else 0) + (1 if free else 0))
 
-    def fit_at(n: int, at: list[float], free: bool) -> tuple[OrderReport, Solution, float]:
+    def fit_at(n: int, at: list[float], free: bool) -> _Candidate:
         """Order n fitted (delays ``at``, free or not) with its report."""
         p = n_params(n, free)
 
@@ -349,63 +379,63 @@ def _fit(
             np.all(poles.real < 0) if domain == "continuous" else np.all(np.abs(poles) < 1)
         )
         aic, mdl = 2 * v + 2 * p, 2 * v + p * math.log(2 * N)
-        return OrderReport(n, v, e, sd, aic, mdl, sol.delay, stable), sol, start_cond
+        return _Candidate(OrderReport(n, v, e, sd, aic, mdl, sol.delay, stable), sol, start_cond)
 
     for n in orders:
-        report, sol, start_cond = fit_at(n, delays, free_delay)
+        candidate = fit_at(n, delays, free_delay)
+        report = candidate.report
         e, sd, v = report.expected, report.sd, report.cost
         reports.append(report)
         if chosen is None:
             if order == "auto" and v <= e + 2.0 * sd:
-                chosen, fallback = (report, sol, start_cond), None
-            elif fallback is None or report.mdl < fallback[0].mdl:
-                fallback = (report, sol, start_cond)
-        elif n >= chosen[0].order + 2:
+                chosen, fallback = candidate, None
+            elif fallback is None or report.mdl < fallback.report.mdl:
+                fallback = candidate
+        elif n >= chosen.report.order + 2:
             break
     kept = chosen if chosen is not None else fallback
     assert kept is not None
-    rep, sol, start_cond = kept
-    chosen_order = rep.order
     shape = frf.response.shape[1:]
-    out = _result(
-        prob, sol, start_cond, free_delay, f, shape, fs, rep, tuple(reports), noise_kernel
-    )
+    out = _result(prob, kept, free_delay, f, shape, tuple(reports), options)
     if free_delay and out.delay_std > h:
         # the data do not pin the delay: the fit with it fixed at 0, unless that costs more
-        rep0, fixed, cond0 = fit_at(chosen_order, [0.0], False)
-        if fixed.cost <= sol.cost + 2.0 * rep.sd:
-            zero = _result(
-                prob, fixed, cond0, False, f, shape, fs, rep0, tuple(reports), noise_kernel
-            )
+        fixed = fit_at(kept.report.order, [0.0], False)
+        if fixed.solution.cost <= kept.solution.cost + 2.0 * kept.report.sd:
+            zero = _result(prob, fixed, False, f, shape, tuple(reports), options)
             out = replace(zero, delay_std=out.delay_std, delay_determined=False)
     return out
 
 
 def _result(
     prob: Problem,
-    sol: Solution,
-    start_cond: float,
+    kept: _Candidate,
     free_delay: bool,
     f: FloatArray,
     shape: tuple[int, ...],
-    fs: float,
-    rep: OrderReport,
     reports: tuple[OrderReport, ...],
-    kernel: FloatArray | None,
+    options: FitOptions,
 ) -> FitResult:
+    """The :class:`FitResult` of one order: the natural parameters' std from ``jac cov jac^T``.
+
+    ``jac``: their Jacobian in the fit's parameters x (``n_nonlinear`` of the poles and the
+    delay, then the linear coefficients), by central differences.
+    """
+    sol, rep, fs = kept.solution, kept.report, options.fs
     no, ni = int(shape[0]), int(shape[1])
     poles, tau, coef, res = sol.poles, sol.delay, sol.coef, sol.residual
     R, D = residues_of(coef.reshape(-1, no, ni), poles, no, ni, direct=prob.direct)
     plant = ModalPlant(poles, R, D, None if prob.domain == "continuous" else prob.h)
-    x, cov, _ = covariance(prob, poles, tau, free_delay=free_delay, kernel=kernel, known=sol)
-    nu = x.size - coef.size
+    x, cov, _ = covariance(
+        prob, poles, tau, free_delay=free_delay, kernel=options.noise_kernel, known=sol
+    )
+    n_nonlinear = x.size - coef.size
     E = no * ni
     pair = [bool(p.imag > 0) for p in poles]
 
     def natural(xx: FloatArray) -> FloatArray:
         nq = sum(2 if q else 1 for q in pair)
         pp = from_params(xx[:nq], pair, prob.domain, prob.h, prob.w_ref)
-        cc = xx[nu:].reshape(E, -1).T.reshape(-1, no, ni)
+        cc = xx[n_nonlinear:].reshape(E, -1).T.reshape(-1, no, ni)
         RR, _ = residues_of(cc, pp, no, ni, direct=prob.direct)
         s = pp if prob.domain == "continuous" else np.log(pp.astype(complex)) * fs
         w = np.abs(s)
@@ -425,22 +455,23 @@ def _result(
         )
 
     q0 = natural(x)
-    G = np.empty((q0.size, x.size))
+    jac = np.empty((q0.size, x.size))
+    linear_scale = 1e-3 * np.max(np.abs(x[n_nonlinear:]), initial=1.0)
     for j in range(x.size):
-        step = 1e-7 * max(
-            abs(x[j]), 1e-3 * np.max(np.abs(x[nu:]), initial=1.0) if j >= nu else 1.0
-        )
+        step = 1e-7 * max(abs(x[j]), linear_scale if j >= n_nonlinear else 1.0)
         xp, xm = x.copy(), x.copy()
         xp[j] += step
         xm[j] -= step
-        G[:, j] = (natural(xp) - natural(xm)) / (2 * step)
-    std = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", G, cov, G), 0.0))
+        jac[:, j] = (natural(xp) - natural(xm)) / (2 * step)
+    std = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", jac, cov, jac), 0.0))
     n_p = poles.size
     parts = np.split(std, np.cumsum([n_p, n_p, n_p, n_p, n_p * E, n_p * E, n_p * E]))
     real = ~np.array(pair, dtype=bool)
     c1s, c0s = parts[6].reshape(n_p, no, ni), parts[7].reshape(n_p, no, ni)
     c1s[real], c0s[real] = np.nan, np.nan
-    delay_std = float(np.sqrt(max(cov[nu - 1, nu - 1], 0.0))) if free_delay else 0.0
+    delay_std = (
+        float(np.sqrt(max(cov[n_nonlinear - 1, n_nonlinear - 1], 0.0))) if free_delay else 0.0
+    )
     return FitResult(
         plant=plant,
         delay=float(tau),
@@ -463,5 +494,5 @@ def _result(
         c0_std=c0s,
         delay_std=delay_std,
         orders=reports,
-        max_condition=max(sol.condition, start_cond),
+        max_condition=max(sol.condition, kept.start_cond),
     )

@@ -11,7 +11,7 @@ function and one more row.
     Frequency-lift R, U, Y (stack the F aliases), LPM on r -> [y; u] giving the
     lifted J and S, indirect step ``P = J S^-1``, P_h from the diagonal blocks. With y at
     the low rate (N/F samples) its spectrum sums the aliases: J and P are one block row,
-    whose blocks are P_h at the F aliases (:func:`~mr_ident.numerics.lifting.unlift_row`).
+    whose blocks are P_h at the F aliases (:func:`~mr_ident.numerics.lifted.low_rate.unlift_row`).
 ``time-lifted``
     Time-lift r, u, y (stack F samples), LPM on their M-point DFTs, indirect step,
     P_h from the first block column (polyphase components).
@@ -30,6 +30,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -42,12 +43,9 @@ from ..lifting import (
     freq_lift_half,
     half_spectra,
     half_to_full,
-    low_rate_lift_half,
     time_lift,
     unlift_bins,
     unlift_frf,
-    unlift_row,
-    unlift_row_variance,
     unlift_variance,
 )
 from ..local.fit import local_fit, merge_fits
@@ -66,6 +64,7 @@ from ..local.segments import (
 from ..results import LiftedFRF
 from ..threads import thread_map
 from .indirect import indirect_diag, indirect_on, time_den_variance
+from .low_rate import low_rate_lift_half, unlift_row, unlift_row_variance
 from .pfg_data import empty_pfg, store_lifted_pfg
 from .spectra import Spectra
 from .structured import structured_block
@@ -229,8 +228,29 @@ def _centres(seg: Segments) -> IntArray | None:
     return None if seg.whole else seg.keep
 
 
-def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
-    F = req.ratio if ratio is None else ratio
+class _LiftedParts(NamedTuple):
+    """A segment's lifted fit, bins first: G, the noise covariance, the inverse Gram."""
+
+    G: ComplexArray
+    noise_cov: ComplexArray
+    inv_gram: ComplexArray
+
+
+class _BlockFit(NamedTuple):
+    """What one segment of :func:`_freq_lifted` returns besides the bins it writes."""
+
+    n_bad: int  # centre bins whose regressor was rank deficient
+    dof: int  # the local fit's residual degrees of freedom
+    lifted: _LiftedParts | None  # None unless the lifted maps are kept
+
+
+def _freq_lifted(req: FitRequest, *, lti: bool = False) -> PlantFit:
+    """``freq-lifted``, or with ``lti`` the LTI ``lpm``: the same steps at F = 1.
+
+    The LTI fit keeps no PFG of its own (the request's loop is lifted by its F), and its
+    lifted maps only when F is 1 anyway.
+    """
+    F = 1 if lti else req.ratio
     N = req.n_samples
     ny, nu = req.y.shape[1], req.u.shape[1]
     M, half = N // F, N // 2
@@ -243,11 +263,11 @@ def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
     plan = req.plan(Kc + 1)
     # the maps of the request's loop: lifted by its F (lpm's of a setpoint loop: F = 1)
     keep = req.keep_lifted and F == req.ratio and not slow and covers(plan, Kc + 1)
-    pfg = empty_pfg(N) if req.data_pfg and ratio is None and not slow else None
+    pfg = empty_pfg(N) if req.data_pfg and not lti and not slow else None
 
     step = block_bins(F, req.r.shape[1], max(ny, nu))
 
-    def block(seg: Segments) -> tuple[int, int, tuple[ComplexArray, ...] | None]:
+    def block(seg: Segments) -> _BlockFit:
         """Lift, fit, indirect step and unlift one segment of bins.
 
         Segments bound the memory and run on threads; each writes only its own bins.
@@ -284,19 +304,20 @@ def _freq_lifted(req: FitRequest, ratio: int | None = None) -> PlantFit:
                 *pfg, kb, G[: F * ny], Cv[: F * ny, : F * ny], fit.inv_gram, F, N, den
             )
         lifted = (fit.G, fit.noise_cov, fit.inv_gram)
-        kept = tuple(a.transpose(2, 0, 1) for a in lifted) if keep else None
-        return fit.n_bad, fit.dof, kept
+        kept = _LiftedParts(*(a.transpose(2, 0, 1) for a in lifted)) if keep else None
+        return _BlockFit(fit.n_bad, fit.dof, kept)
 
     segs = segments(plan, 1, step)
     done = thread_map(block, segs, req.workers)
-    warn_rank_deficient(sum(d[0] for d in done), n_centres(plan), stacklevel=4)
+    warn_rank_deficient(sum(d.n_bad for d in done), n_centres(plan), stacklevel=4)
     pfg_half, pfg_var = (None, None) if pfg is None else pfg
     if not keep:
         return PlantFit(P_half, var_half, pfg_half=pfg_half, pfg_var_half=pfg_var)
-    G, Cv, Ainv = (
-        in_bin_order(segs, [d[2][i] for d in done if d[2] is not None], Kc + 1) for i in range(3)
-    )
-    q = min(d[1] for d in done)
+    parts = [d.lifted for d in done if d.lifted is not None]
+    G = in_bin_order(segs, [p.G for p in parts], Kc + 1)
+    Cv = in_bin_order(segs, [p.noise_cov for p in parts], Kc + 1)
+    Ainv = in_bin_order(segs, [p.inv_gram for p in parts], Kc + 1)
+    q = min(d.dof for d in done)
     maps = _lifted_maps(G, Cv, Ainv, F * ny, "frequency", req, q)
     return PlantFit(P_half, var_half, *maps, pfg_half, pfg_var)
 
@@ -402,7 +423,7 @@ def _structured(req: FitRequest) -> PlantFit:
 
 
 def _lpm(req: FitRequest) -> PlantFit:
-    return _freq_lifted(req, ratio=1)
+    return _freq_lifted(req, lti=True)
 
 
 def _etfe(req: FitRequest) -> PlantFit:

@@ -25,7 +25,7 @@ columns of [y; u] are decoupled (P_w acts per column), so one run solves them al
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -80,6 +80,26 @@ class MissingFill:
     holes: tuple[IntArray, ...]
     theta: tuple[FloatArray, ...]
     iterations: int
+
+
+@dataclass(frozen=True)
+class SolveOptions:
+    """How the conjugate gradients solve for θ̂ (the keywords of :func:`estimate_missing`)."""
+
+    rtol: float = RTOL
+    reweight: bool = True
+    ridge: float = RIDGE
+    ftol: float = FTOL
+
+
+@dataclass(frozen=True)
+class _Holes:
+    """[y; u] with holes: zero-filled, where, interpolated (mask order), Aᵀ A's diagonal."""
+
+    x0: FloatArray
+    mask: BoolArray
+    prior: FloatArray
+    diag: FloatArray
 
 
 def holes_of(x: FloatArray) -> tuple[IntArray, ...]:
@@ -325,37 +345,28 @@ def estimate_missing(
     RuntimeWarning
         When the conjugate gradients stop at :data:`MAX_ITER` steps before ``rtol``.
     """
-    with one_blas_thread():  # its threads made a (33 x 18 000) product 100x slower
-        return _estimate(r, u, y, ratio, n, degree, rtol, stride, reweight, ridge, ftol)
+    options = SolveOptions(rtol=rtol, reweight=reweight, ridge=ridge, ftol=ftol)
+    with one_blas_thread():  # its threads slow the thin products down (docs/benchmarks.md)
+        crit = _Criterion(r, ratio, n, degree, n if stride is None else stride)
+        return _estimate(crit, u, y, options)
 
 
 def _estimate(
-    r: FloatArray,
-    u: FloatArray,
-    y: FloatArray,
-    ratio: int,
-    n: int,
-    degree: int,
-    rtol: float,
-    stride: int | None,
-    reweight: bool,
-    ridge: float,
-    ftol: float,
+    crit: _Criterion, u: FloatArray, y: FloatArray, options: SolveOptions
 ) -> MissingFill:
-    """:func:`estimate_missing` (OpenBLAS on one thread)."""
-    crit = _Criterion(r, ratio, n, degree, n if stride is None else stride)
+    """:func:`estimate_missing` on its criterion (OpenBLAS on one thread)."""
     yu = np.concatenate([y, u], axis=1)
     holes = holes_of(yu)
     mask = np.isnan(yu)
     x0 = np.where(mask, 0.0, yu)
-    first = max(rtol, FIRST_RTOL) if reweight else rtol
-    prior = _interpolated(x0, mask)
+    rtol = options.rtol
+    first = max(rtol, FIRST_RTOL) if options.reweight else rtol
     # the unweighted diagonal preconditions both solves (weights of mean 1, about equal with
     # noise: the weighted one took as many steps), the record's window power serves both
     rows, cols = np.nonzero(mask)
-    diag = crit.diagonal(rows, cols, mask.shape[1])
-    theta, it, bb = _solve(crit, x0, mask, prior.copy(), first, ridge, prior, ftol, diag)
-    if reweight:
+    record = _Holes(x0, mask, _interpolated(x0, mask), crit.diagonal(rows, cols, mask.shape[1]))
+    theta, it, bb = _solve(crit, record, record.prior.copy(), replace(options, rtol=first))
+    if options.reweight:
         filled = x0.copy()
         filled[mask] = theta
         power = crit.window_power(crit.forward(filled))  # (n_win, C)
@@ -368,7 +379,7 @@ def _estimate(
         floor = WEIGHT_FLOOR * np.median(smooth, axis=0, keepdims=True) + np.finfo(float).tiny
         crit.weights = 1.0 / (smooth + floor)
         crit.weights /= crit.weights.mean(axis=0, keepdims=True)
-        theta, it2, _ = _solve(crit, x0, mask, theta, rtol, ridge, prior, ftol, diag, bb)
+        theta, it2, _ = _solve(crit, record, theta, options, bb)
         it += it2
     filled = x0.copy()
     filled[mask] = theta
@@ -390,14 +401,9 @@ def _interpolated(x0: FloatArray, mask: BoolArray) -> FloatArray:
 
 def _solve(
     crit: _Criterion,
-    x0: FloatArray,
-    mask: BoolArray,
+    record: _Holes,
     theta0: FloatArray,
-    rtol: float,
-    ridge: float,
-    prior: FloatArray,
-    ftol: float,
-    d: FloatArray,
+    options: SolveOptions,
     bb: float | None = None,
 ) -> tuple[FloatArray, int, float]:
     """Preconditioned conjugate gradients from θ0; θ, the steps and ``‖b‖²``.
@@ -407,11 +413,13 @@ def _solve(
     ramp is smooth across every window: the transient takes it); the preconditioner
     keeps its exact diagonal (bounded below by 1e-14 of the median against rounding), so
     the steps stay few, and its value is loose (the fit's transient takes it too).
-    ``d``: the diagonal of the unweighted Aᵀ A (the preconditioner; a weighted solve's
-    weights have mean 1); ``bb``: ``‖b‖²``, the scale of ``rtol``, where known (a weighted
+    ``record.diag``: the diagonal of the unweighted Aᵀ A (the preconditioner; a weighted
+    solve's weights have mean 1); ``bb``: ``‖b‖²``, the scale of ``rtol``, where known (a weighted
     solve takes the unweighted one's: weights of mean 1).
     """
-    lam = ridge * float(np.median(d))
+    x0, mask, prior, d = record.x0, record.mask, record.prior, record.diag
+    rtol, ftol = options.rtol, options.ftol
+    lam = options.ridge * float(np.median(d))
     inv_diag = 1.0 / (np.maximum(d, 1e-14 * float(np.median(d))) + lam)
 
     def apply(v: FloatArray) -> FloatArray:

@@ -68,6 +68,7 @@ def pfg_from_plant(
     K_low : array_like, shape (M, n_u, n_y)
         Controller on all low-rate bins 0..M-1, M = N / F.
     ratio, n_samples : int
+        F and N (a multiple of F).
     P_std_half : array_like, shape like P_half, optional
         Standard deviation of the plant estimate (independent bins assumed);
         gives a first-order std of the PFG.
@@ -83,6 +84,22 @@ def pfg_from_plant(
     -------
     PFG
         On the N//2 + 1 bins 0..N//2; its std is NaN when ``P_std_half`` is None.
+
+    Raises
+    ------
+    ConfigError
+        If ``ratio`` is not an integer >= 1, or ``workers`` not None or a positive
+        integer.
+    DimensionError
+        If N is not a multiple of F, ``P_half`` is not (N//2 + 1, n_y, n_u), or
+        ``K_low`` does not cover the M low-rate bins.
+
+    References
+    ----------
+    .. [1] T. Oomen, M. van de Wal, O. Bosgra, "Design framework for high-performance
+       optimal sampled-data control with application to a wafer stage", IJC 80(6), 2007.
+    .. [2] E. van Haren, L. Blanken, T. Oomen, "Frequency Domain Identification of
+       Multirate Systems: A Lifted Local Polynomial Modeling Approach", CDC 2022.
 
     Examples
     --------
@@ -248,6 +265,9 @@ def pfg_from_lifted(
     J : array_like, shape (K, F*n_y, F*n_r)
         At low-rate bins ``bins`` (for a real loop, 0..M//2 suffice).
     bins : array_like of int, shape (K,)
+        The low-rate bins k of ``J``.
+    ratio, n_samples : int
+        F and N (a multiple of F).
     row_cov, col_cov : array_like, optional
         Kronecker covariance factors of J (see :class:`~mr_ident.numerics.results.LiftedFRF`).
     fs_high : float, default 1.0
@@ -257,7 +277,36 @@ def pfg_from_lifted(
     -------
     PFG
         At the high-rate bins ``bins + l M`` folded into 0..N//2 (K*F of them), in
-        increasing order: ``frequency * N / fs_high`` are the bins.
+        increasing order: ``frequency * N / fs_high`` are the bins. Its std is the first
+        order one of the Kronecker covariance (NaN without ``row_cov`` and ``col_cov``).
+
+    Raises
+    ------
+    ConfigError
+        If ``ratio`` is not an integer >= 1.
+    DimensionError
+        If N is not a multiple of F.
+
+    References
+    ----------
+    .. [1] T. Oomen, M. van de Wal, O. Bosgra, "Design framework for high-performance
+       optimal sampled-data control with application to a wafer stage", IJC 80(6), 2007.
+    .. [2] E. van Haren, L. Blanken, T. Oomen, "Frequency Domain Identification of
+       Multirate Systems: A Lifted Local Polynomial Modeling Approach", CDC 2022.
+    .. [3] E. van Haren, L. Blanken, T. Oomen, "Performance analysis of multirate
+       systems: a direct frequency-domain identification approach", MSSP 235, 2025.
+
+    Examples
+    --------
+    The frequency-lifted map of a unit gain at F = 2 (the identity): each input frequency
+    reaches only itself, so the PFG is 1 at every high-rate bin.
+
+    >>> import numpy as np
+    >>> from mr_ident import pfg_from_lifted
+    >>> J = np.broadcast_to(np.eye(2), (3, 2, 2))  # low-rate bins 0..2 of M = 4, N = 8
+    >>> pfg = pfg_from_lifted(J, np.arange(3), 2, 8)
+    >>> pfg.frequency * 8, pfg.gain
+    (array([0., 1., 2., 2., 3., 4.]), array([1., 1., 1., 1., 1., 1.]))
     """
     F = check_ratio(ratio)
     N = int(n_samples)

@@ -62,6 +62,21 @@ class LPMFit:
         The G_0 block of ``(K^H K)^-1``.
     dof : int
         Residual degrees of freedom q.
+
+    Raises
+    ------
+    DimensionError
+        If the shapes do not agree: G (K, n_out, n_in), noise_cov (K, n_out, n_out),
+        inv_gram (K, n_in, n_in).
+
+    Notes
+    -----
+    The covariance of G at a bin is ``inv_gram (x) noise_cov`` (Kronecker, [1]_).
+
+    References
+    ----------
+    .. [1] R. Pintelon, J. Schoukens, *System Identification: A Frequency Domain
+       Approach*, 2nd ed., Wiley 2012, ch. 7.
     """
 
     G: ComplexArray
@@ -198,21 +213,21 @@ def lpm_bins_last(
 
     def chunk(c0: int) -> int:
         # centre bins c0 .. c0 + step - 1 of the padded spectra; of them the selected ones,
-        # written to the outputs from position k0
+        # written to the outputs from position k0; the sums are formed from centre bin first
         pick: NDArray[np.intp] | None = None
         if centres is None:
-            k0, Kc, a = c0, min(step, K_all - c0), c0
+            k0, Kc, first = c0, min(step, K_all - c0), c0
         else:
             k0, stop = (int(i) for i in np.searchsorted(centres, (c0, c0 + step)))
             if stop == k0:
                 return 0
-            a = int(centres[k0])
-            pick = centres[k0:stop] - a
+            first = int(centres[k0])
+            pick = centres[k0:stop] - first
             Kc = int(pick.size)
             if int(pick[-1]) + 1 == Kc:  # consecutive: nothing to drop
                 pick = None
         span = Kc if pick is None else int(pick[-1]) + 1  # centres whose sums are formed
-        sums = chunk_sums(Ua, Ya, a, span, pick, lay)
+        sums = chunk_sums(Ua, Ya, first, span, pick, lay)
         L, W, bad = factor(sums, lay)
         # Back substitution for the trailing (G_0) block only: L_tt^H theta = W_t.
         t0 = lay.Q - n_in
@@ -230,10 +245,10 @@ def lpm_bins_last(
             for i in range(j + 1, n_in):
                 Li[i, j] = -sum(Ltt[i, m] * Li[m, j] for m in range(j, i)) / Ltt[i, i]
         AI = Ainv[:, :, k0 : k0 + Kc]
-        for a in range(n_in):
-            for b in range(a, n_in):
-                AI[a, b] = sum(np.conj(Li[m, a]) * Li[m, b] for m in range(b, n_in))
-                AI[b, a] = np.conj(AI[a, b])
+        for row in range(n_in):
+            for col in range(row, n_in):
+                AI[row, col] = sum(np.conj(Li[m, row]) * Li[m, col] for m in range(col, n_in))
+                AI[col, row] = np.conj(AI[row, col])
         noise_cov(sums[4], W, q, Cv[:, :, k0 : k0 + Kc])
         if bad.any():
             idx = np.nonzero(bad)[0] + k0
@@ -291,13 +306,23 @@ def lpm(
     DataError
         If there are fewer than 2n+1 bins.
     ConfigError
-        If the degrees-of-freedom condition ``2n+1-(R+1)(n_in+1) > n_out`` fails,
-        or ``workers`` is not None or a positive integer.
+        If ``n < 1``, ``degree < 0``, the degrees-of-freedom condition
+        ``2n+1-(R+1)(n_in+1) > n_out`` fails, or ``workers`` is not None or a positive
+        integer.
 
     Warns
     -----
     RuntimeWarning
         When some windows have a rank-deficient regressor; those bins are NaN.
+
+    See Also
+    --------
+    pad_circular : the padding of a periodic spectrum.
+
+    References
+    ----------
+    .. [1] R. Pintelon, J. Schoukens, *System Identification: A Frequency Domain
+       Approach*, 2nd ed., Wiley 2012, ch. 7.
 
     Examples
     --------
@@ -372,6 +397,14 @@ def pad_circular(X: ArrayLike, centres: ArrayLike, n: int) -> NDArray[np.complex
     Returns
     -------
     ndarray, shape (K + 2n, c)
+        Bin ``centres[0] - n + j`` of the period in row j (indices modulo N).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from mr_ident import pad_circular
+    >>> pad_circular(np.arange(6.0)[:, None], [0, 1], 1).ravel()  # wraps at both ends
+    array([5., 0., 1., 2.])
     """
     Xa = np.asarray(X)
     c = np.asarray(centres, dtype=np.int64)

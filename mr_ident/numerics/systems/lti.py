@@ -22,7 +22,25 @@ Poly = tuple[float, ...]
 
 @dataclass(frozen=True)
 class StateSpace:
-    """``x+ = A x + B u, y = C x + D u`` (discrete) with sample time ``dt``."""
+    """``x+ = A x + B u, y = C x + D u`` (discrete) with sample time ``dt``.
+
+    Continuous (``dx/dt = A x + B u``) when ``dt`` is None.
+
+    Attributes
+    ----------
+    A, B, C, D : ndarray, shapes (n, n), (n, n_in), (n_out, n), (n_out, n_in)
+    dt : float or None
+        Sample time in s; None for continuous time.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from mr_ident import StateSpace
+    >>> ss = StateSpace(np.array([[0.5]]), np.ones((1, 1)), np.ones((1, 1)),
+    ...                 np.zeros((1, 1)), dt=0.1)  # 1 / (z - 0.5)
+    >>> ss.freqresp([0.0]).real  # at DC: 1 / (1 - 0.5)
+    array([[[2.]]])
+    """
 
     A: NDArray[np.float64]
     B: NDArray[np.float64]
@@ -104,6 +122,13 @@ class TransferMatrix:
         ``num[o][i]`` and ``den[o][i]``: coefficients, descending powers.
     dt : float or None
         Sample time in s; None for continuous time.
+
+    Examples
+    --------
+    >>> from mr_ident import TransferMatrix
+    >>> g = TransferMatrix.siso([1.0], [1.0, 1.0])  # 1 / (s + 1)
+    >>> g.shape, g(0.0).real
+    ((1, 1), array([[[1.]]]))
     """
 
     num: tuple[tuple[Poly, ...], ...]
@@ -156,6 +181,11 @@ class TransferMatrix:
 
         ``z = exp(2j pi k / n)``, k = 0..n-1, shape (n, n_out, n_in) (a controller on
         every low-rate bin of a record).
+
+        Raises
+        ------
+        ModelError
+            If the system is continuous (``dt`` None).
         """
         if self.dt is None:
             raise ModelError("dft_response needs a discrete-time system (dt set)")

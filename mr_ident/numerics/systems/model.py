@@ -138,6 +138,26 @@ class Model:
         (``P_h + C``, C n_y x n_u) or ``"multiplicative"`` (``P_h (I + C)``, C n_u x n_u),
         applied in turn after the hold and the input delay (written by ``mr-ident
         diagnose`` where no listed cause explains the data).
+
+    Raises
+    ------
+    ModelError
+        If ``injection`` is not None, "plant_input" or "setpoint". (A model file is
+        checked whole by :func:`~mr_ident.io.modelfile.model_from_dict`.)
+
+    References
+    ----------
+    .. [1] E. van Haren, L. Blanken, T. Oomen, "Frequency Domain Identification of
+       Multirate Systems: A Lifted Local Polynomial Modeling Approach", CDC 2022 (the
+       loop and its example).
+
+    Examples
+    --------
+    >>> from mr_ident import Model, TransferMatrix
+    >>> plant = TransferMatrix.siso([1.0], [1.0, 1.0])  # 1 / (s + 1), continuous
+    >>> m = Model(fs_high=100.0, ratio=4, plant=plant)
+    >>> m.n_y, m.n_u, m.controller is None  # no controller: open loop
+    (1, 1, True)
     """
 
     fs_high: float

@@ -34,6 +34,37 @@ def lifted_loop(model: Model) -> StateSpace:
     is what the controller and the logger see. r enters where ``model.injection`` says:
     added to the plant input (n_r = n_u) or as the controller's setpoint, sampled with y
     at the sampling phase (n_r = n_y; the other F - 1 samples of r do not act).
+
+    Parameters
+    ----------
+    model : Model
+        The loop; open loop (no controller) maps r straight to the plant input.
+
+    Returns
+    -------
+    StateSpace
+        Discrete at ``ratio / fs_high``; F*n_r + F*n_y inputs, F*n_y + F*n_u outputs.
+
+    Raises
+    ------
+    ModelError
+        If the plant or the controller cannot be realised (an improper transfer
+        function, a negative input delay).
+
+    References
+    ----------
+    .. [1] E. van Haren, L. Blanken, T. Oomen, "Frequency Domain Identification of
+       Multirate Systems: A Lifted Local Polynomial Modeling Approach", CDC 2022.
+
+    Examples
+    --------
+    >>> from mr_ident import lifted_loop
+    >>> from mr_ident.io.modelfile import model_from_dict
+    >>> model = model_from_dict({"fs_high": 100.0, "ratio": 2,
+    ...                          "plant": {"num": [1.0], "den": [1.0, 1.0]},
+    ...                          "controller": {"num": [0.5], "den": [1.0]}})
+    >>> lifted_loop(model).shape  # [y; u] of F = 2 samples from [r; v] of 2 samples
+    (4, 4)
     """
     Pd = model.plant_discrete()
     F, ny, nu = model.ratio, model.n_y, model.n_u
@@ -211,6 +242,23 @@ def simulate(
     -------
     LoopData
         r, u, y (N, channels) with ``fs_high`` and ``ratio`` of the model.
+
+    Raises
+    ------
+    ConfigError
+        If none of ``n_samples``, ``duration``, ``reference`` is given, ``duration`` is
+        not a positive number, or ``rng`` is missing where something is drawn.
+    DimensionError
+        If N is not a positive multiple of F, or ``reference`` (N, n_r) or ``noise``
+        (N, n_y) has another shape.
+    ModelError
+        If the plant or the controller cannot be realised (an improper transfer
+        function, a negative input delay).
+
+    References
+    ----------
+    .. [1] E. van Haren, L. Blanken, T. Oomen, "Frequency Domain Identification of
+       Multirate Systems: A Lifted Local Polynomial Modeling Approach", CDC 2022.
 
     Examples
     --------
