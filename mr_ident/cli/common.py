@@ -107,16 +107,27 @@ def describe_pfgs(ident: Identification) -> list[str]:
     return lines
 
 
+def quiet_option(p: argparse.ArgumentParser) -> None:
+    """--quiet: no progress (:class:`Progress`, the one progress display of every command)."""
+    p.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no progress on stderr (shown only where stderr is a terminal, for steps over 2 s)",
+    )
+
+
 class Progress:
     """Steps of a long computation told on stderr, each only once it has run 2 s.
 
     A timer per step: a step that ends within :attr:`after` seconds prints nothing; one that
-    runs longer prints ``mr-ident: <step> ... (<t> s in)`` once. Silent where stderr is not a
-    terminal or ``quiet`` (as such tools do). Use as a context manager; call it with each
-    step's name as the step begins.
+    runs longer prints ``mr-ident: <step> ... (<t> s in)``, and again every :attr:`every`
+    seconds while it lasts. Silent where stderr is not a terminal or ``quiet`` (as such tools
+    do). Use as a context manager; call it with each step's name as the step begins. The one
+    progress display of every command (identify, replay, diagnose, fit, batch).
     """
 
     after = 2.0
+    every = 10.0
 
     def __init__(self, *, quiet: bool = False):
         import threading
@@ -125,31 +136,45 @@ class Progress:
         self._on = not quiet and sys.stderr.isatty()
         self._t0 = time.monotonic()
         self._timer: threading.Timer | None = None
+        self._step = ""
         self._lock = threading.Lock()
 
     def __call__(self, step: str) -> None:
         """``step`` begins (the one before it ends)."""
         if not self._on:
             return
+        with self._lock:
+            self._step = step
+            self._arm(step, self.after)
+
+    def _arm(self, step: str, delay: float) -> None:
         import threading
 
-        with self._lock:
-            if self._timer is not None:
-                self._timer.cancel()
-            self._timer = threading.Timer(self.after, self._show, (step,))
-            self._timer.daemon = True
-            self._timer.start()
+        if self._timer is not None:
+            self._timer.cancel()
+        self._timer = threading.Timer(delay, self._show, (step,))
+        self._timer.daemon = True
+        self._timer.start()
 
     def _show(self, step: str) -> None:
         import time
 
-        print(f"mr-ident: {step} ... ({time.monotonic() - self._t0:.0f} s in)", file=sys.stderr)
+        with self._lock:
+            if step != self._step or self._timer is None:
+                return  # ended meanwhile
+            print(
+                f"mr-ident: {step} ... ({time.monotonic() - self._t0:.0f} s in)",
+                file=sys.stderr,
+                flush=True,
+            )
+            self._arm(step, self.every)
 
     def __enter__(self) -> Progress:
         return self
 
     def __exit__(self, *exc: object) -> None:
         with self._lock:
+            self._step = ""
             if self._timer is not None:
                 self._timer.cancel()
                 self._timer = None

@@ -7,16 +7,19 @@ Imports are lazy (inside each command); rclpy is imported only by the ROS ones.
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 from ..errors import ConfigError
-from .common import describe_pfgs, recording, show, write_plots
+from .common import Progress, describe_pfgs, recording, show, write_plots
+
+if TYPE_CHECKING:
+    from ..app.replay import Replayed
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
     """``mr-ident replay``: a recording through the node's steps, or re-published."""
-    from ..app.replay import plant_events, replay_recording
+    from ..app.replay import replay_recording
     from ..app.requests import ReplayRequest
-    from ..io.datafile import write_result
 
     if args.publish:
         from ..ros.record import publish_recording
@@ -37,7 +40,17 @@ def cmd_replay(args: argparse.Namespace) -> int:
         y_rate=args.y_rate,
         excitation_index=args.excitation_index,
     )
-    replayed = replay_recording(req, show)
+    with Progress(quiet=args.quiet) as progress:
+        progress(f"replaying {args.recording} through the node's steps")
+        replayed = replay_recording(req, show)
+        return _report_replayed(args, replayed, progress)
+
+
+def _report_replayed(args: argparse.Namespace, replayed: Replayed, progress: Progress) -> int:
+    """Tell and write what the replay found; then the plant's events (monitoring)."""
+    from ..app.replay import plant_events
+    from ..io.datafile import write_result
+
     res, cfg = replayed.result, replayed.config
     info, est = res.info, res.estimate
     counts = ", ".join(f"{k} {v}" for k, v in info.messages.items())
@@ -62,10 +75,13 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if args.plot:
         from ..io.modelfile import load_model
 
+        progress(f"writing {args.plot}")
         model = load_model(args.model) if args.model else None
         write_plots(est.identification, args.plot, cfg.fs_high, cfg.ratio, est.n_samples, model)
+    if replayed.monitoring:
+        progress("watching the plant against its reference, window by window (monitoring)")
     for line in plant_events(replayed, str(args.recording)):
-        print(line)
+        print(line, flush=True)
     return 0
 
 
