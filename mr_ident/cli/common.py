@@ -56,11 +56,18 @@ def show(notice: Notice) -> None:
 
 
 def write_plots(
-    ident: Identification, path: Path, fs: float, F: int, N: int, model: Model | None
+    ident: Identification,
+    path: Path,
+    fs: float,
+    F: int,
+    N: int,
+    model: Model | None,
+    units: tuple[str, str] | None = None,
 ) -> None:
     """Bode plot of P_h at ``path`` (model drawn when given); with a PFG, ``<path>_pfg``.
 
     The PFG plot shows the PFG from data and, with a controller, the one from P_h and it.
+    ``units``: (u's, y's), the model file's (:func:`~mr_ident.io.units.load_units`).
     """
     from ..numerics.lifted.pfg import pfg_of_model
     from ..plots import plot_bode, plot_pfg
@@ -68,7 +75,12 @@ def write_plots(
     nyq = fs / F / 2 if F > 1 else None
     mfrf = model.plant_result(N) if model is not None else None
     bode = plot_bode(
-        ident.plant, path, model=mfrf, nyquist_low=nyq, undetermined=ident.undetermined
+        ident.plant,
+        path,
+        model=mfrf,
+        nyquist_low=nyq,
+        undetermined=ident.undetermined,
+        units=units,
     )
     print(f"wrote {bode}")
     shown = [g for g in (ident.pfg_data, ident.pfg) if g is not None]
@@ -77,7 +89,8 @@ def write_plots(
             pfg_of_model(model, N) if model is not None and model.controller is not None else None
         )
         pfg_path = path.with_name(path.stem + "_pfg" + path.suffix)
-        print(f"wrote {plot_pfg(shown[0], pfg_path, model=ref, also=shown[1:])}")
+        pfg = plot_pfg(shown[0], pfg_path, model=ref, also=shown[1:], nyquist_low=nyq)
+        print(f"wrote {pfg}")
 
 
 def describe_pfgs(ident: Identification) -> list[str]:

@@ -171,16 +171,22 @@ def _report(args: argparse.Namespace, ident: Any, fit: Any, controller: Any) -> 
         title = f"{args.out.name}, fitted by mr-ident fit from {args.result.name}"
         print(f"wrote {export_control(control_path(args.out), model, title=title)}")
     if args.plot:
-        _plots(args.plot, ident.plant, fit, fs / ratio / 2 if ratio > 1 else None)
+        from ..io.units import load_units
+
+        nyq = fs / ratio / 2 if ratio > 1 else None
+        _plots(args.plot, ident.plant, fit, nyq, load_units(args.controller))
     return 0
 
 
-def _plots(path: Path, frf: Any, fit: Any, nyq: float | None) -> None:
+def _plots(
+    path: Path, frf: Any, fit: Any, nyq: float | None, units: tuple[str, str] | None
+) -> None:
     from ..numerics.results import FRF
     from ..plots import plot_bode, plot_errors
 
     model = FRF(frf.frequency, fit.response(frf.frequency), 0 * frf.std, "fit")
-    print(f"wrote {plot_bode(frf, path, model=model, nyquist_low=nyq, title='fit')}")
+    bode = plot_bode(frf, path, model=model, nyquist_low=nyq, title="fit", units=units)
+    print(f"wrote {bode}")
     errs = {
         f"[{o},{i}]": abs(fit.residual[:, o, i])
         for o in range(fit.residual.shape[1])

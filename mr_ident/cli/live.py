@@ -74,10 +74,12 @@ def _report_replayed(args: argparse.Namespace, replayed: Replayed, progress: Pro
         print(line)
     if args.plot:
         from ..io.modelfile import load_model
+        from ..io.units import load_units
 
         progress(f"writing {args.plot}")
         model = load_model(args.model) if args.model else None
-        write_plots(est.identification, args.plot, cfg.fs_high, cfg.ratio, est.n_samples, model)
+        fs, F, N = cfg.fs_high, cfg.ratio, est.n_samples
+        write_plots(est.identification, args.plot, fs, F, N, model, load_units(args.model))
     if replayed.monitoring:
         progress("watching the plant against its reference, window by window (monitoring)")
     for line in plant_events(replayed, str(args.recording)):
@@ -121,7 +123,9 @@ def cmd_view(args: argparse.Namespace) -> int:
             raise ConfigError("give --model or --reference, not both")
         reference = read_result(args.reference)
         reference_bla = read_bla(args.reference)  # a BLA: its noise and nonlinear parts too
-    state = ViewState(model, source, reference, reference_bla)
+    from ..io.units import load_units
+
+    state = ViewState(model, source, reference, reference_bla, load_units(args.model))
     server = ViewServer(state, args.host, args.port).start()
     print(f"view: {server.url}  (Ctrl-C to stop)", flush=True)
     try:

@@ -116,7 +116,9 @@ def _report_identified(
         print(line)
     if args.plot:
         fs, F, N = outcome.fs_high, outcome.ratio, outcome.n_samples
-        write_plots(ident, args.plot, fs, F, N, outcome.model)
+        from ..io.units import load_units
+
+        write_plots(ident, args.plot, fs, F, N, outcome.model, load_units(args.model))
     return 0
 
 
