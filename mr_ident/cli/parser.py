@@ -25,7 +25,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _sources(p: argparse.ArgumentParser) -> None:
-    """--r/--u/--y: per-sample sources in a bag (README, "Use it on your robot")."""
+    """--r/--u/--y: per-sample sources in a bag (docs/sources.md, "Message paths")."""
     for sig, what in (("r", "excitation"), ("u", "plant input"), ("y", "plant output")):
         p.add_argument(
             f"--{sig}",
@@ -38,7 +38,10 @@ def _sources(p: argparse.ArgumentParser) -> None:
 
 
 def _y_rate(p: argparse.ArgumentParser, default: str) -> None:
-    """--y-rate: y measured at the controller's rate (README, "Outputs at the low rate")."""
+    """--y-rate: y measured at the controller's rate.
+
+    docs/method.md, "Outputs at the low rate".
+    """
     p.add_argument(
         "--y-rate",
         choices=("high", "low"),
@@ -48,7 +51,7 @@ def _y_rate(p: argparse.ArgumentParser, default: str) -> None:
 
 
 def _reading(p: argparse.ArgumentParser, default_span: str = DEFAULT_SPAN) -> None:
-    """--span and --msg-path: how a recording is read (README, "Bags")."""
+    """--span and --msg-path: how a recording is read (docs/sources.md, "Bags")."""
     p.add_argument(
         "--span",
         choices=SPANS,
@@ -104,7 +107,10 @@ def _injection(p: argparse.ArgumentParser) -> None:
 
 
 def _local_option(p: argparse.ArgumentParser) -> None:
-    """--local: the local model of the LPM methods' windows (README, "Local rational models")."""
+    """--local: the local model of the LPM methods' windows.
+
+    docs/method.md, "Local rational models".
+    """
     p.add_argument(
         "--local",
         choices=LOCAL_MODELS,

@@ -283,7 +283,8 @@ def _report(out_dir: Path, cfg, model, recording: Path, live: _Live, node_rc: in
         f"node exit {node_rc}"
     )
     print(
-        "see it live: with mr-ident-node and mr-ident-sim running (README, Live view), start\n"
+        "see it live (docs/monitoring.md, 'Live view'): with mr-ident-node and mr-ident-sim "
+        "running, start\n"
         "  mr-ident view --model config/paper_example.yaml    and open http://127.0.0.1:8765/\n"
         f"or replay this demo's recording there:\n  mr-ident view {recording} "
         "--model config/paper_example.yaml --speed 20"
