@@ -29,7 +29,7 @@ def _frf(f0=0.1, f1=120.0, n=400):
 
 
 def test_the_magnitude_is_in_the_model_files_units_or_says_y_per_u(tmp_path):
-    assert load_units(ROOT / "config" / "tutorial_robot.yaml") == ("N m", "rad")
+    assert load_units(ROOT / "config" / "tutorial_robot.yaml") == ("N", "m")
     assert magnitude_label(("N m", "rad"), 0, 0, 1, 1) == "|P_h| [dB re 1 rad/(N m)]"
     assert magnitude_label(("A", "rad/s"), 0, 0, 1, 1) == "|P_h| [dB re 1 rad/s/A]"
     assert magnitude_label(None, 1, 0, 2, 1) == "|P_h y1←u0| [dB re 1 y/u]"
