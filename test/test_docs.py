@@ -216,7 +216,10 @@ def test_every_command_of_every_page_runs_and_prints_what_the_page_says(page, tm
     run_page(page, tmp_path)
     if page == TUTORIAL:
         assert len(shell_commands(TUTORIAL.read_text())) >= 8
-        assert (tmp_path / "out/tutorial/robot_found.yaml").read_text().count("plant_gain") == 1
+        found = (tmp_path / "out/tutorial/robot_found.yaml").read_text()
+        fitted = (tmp_path / "out/tutorial/fitted.yaml").read_text()
+        assert found.count("plant_gain") == 1 and "fs_high: 240\n" in fitted
+        assert found.endswith("units:\n  u: N\n  y: m\n") and "units:\n  u: N\n" in fitted
 
 
 def test_the_tutorial_and_the_pages_with_examples_are_run():

@@ -163,7 +163,10 @@ def _report(args: argparse.Namespace, ident: Any, fit: Any, controller: Any) -> 
         "bins past 2σ"
     )
     model = fitted_model(fit, ratio=ratio, controller=controller)
-    for path in write_fit(args.out, model, fit):
+    from ..io.units import load_units
+
+    units = load_units(args.controller)
+    for path in write_fit(args.out, model, fit, units):
         print(f"wrote {path}")
     if args.export == "python-control":
         from ..io.control_export import control_path, export_control
@@ -171,10 +174,8 @@ def _report(args: argparse.Namespace, ident: Any, fit: Any, controller: Any) -> 
         title = f"{args.out.name}, fitted by mr-ident fit from {args.result.name}"
         print(f"wrote {export_control(control_path(args.out), model, title=title)}")
     if args.plot:
-        from ..io.units import load_units
-
         nyq = fs / ratio / 2 if ratio > 1 else None
-        _plots(args.plot, ident.plant, fit, nyq, load_units(args.controller))
+        _plots(args.plot, ident.plant, fit, nyq, units)
     return 0
 
 
