@@ -48,28 +48,40 @@ def _phase(x: NDArray) -> NDArray:
 
 
 def _phase_ticks(ax: Any) -> None:
-    """Ticks every 90 degrees (every 180, 360 ... where the phase runs far)."""
+    """Phase ticks on multiples of 15, 30, 45, 90, 180 ... degrees.
+
+    The finest step with at most eight ticks across the axis (a phase that runs far gets
+    180 or 360).
+    """
     from matplotlib.ticker import MultipleLocator
 
     lo, hi = ax.get_ylim()
-    ax.yaxis.set_major_locator(
-        MultipleLocator(90 * 2 ** max(0, int(np.ceil(np.log2((hi - lo) / 720)))))
+    step = next(
+        (b for b in (15, 30, 45, 90, 180, 360, 720, 1440) if (hi - lo) / b <= 8),
+        90 * 2 ** max(0, int(np.ceil(np.log2((hi - lo) / 720)))),
     )
+    ax.yaxis.set_major_locator(MultipleLocator(step))
 
 
 def _log_ticks(ax: Any) -> None:
     """Readable frequency ticks on a log axis.
 
-    On an axis of less than 2.5 decades, 1-2-5 ticks labelled in plain numbers (the
-    default labels the decades only: one tick across 11-250 Hz).
+    On an axis of less than 2.5 decades (where the default labels the decades only: one
+    tick across 11-250 Hz), ticks on 1-2-5 or finer steps of each decade, as many as give
+    at least four labels, in plain numbers.
     """
     from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
     lo, hi = ax.get_xlim()
-    if lo > 0 and np.log10(hi / lo) < 2.5:
-        ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
-        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-        ax.xaxis.set_minor_formatter(NullFormatter())
+    if not (lo > 0 and np.log10(hi / lo) < 2.5):
+        return
+    for subs in ((1.0, 2.0, 5.0), (1.0, 2.0, 3.0, 5.0, 7.0), tuple(range(1, 10))):
+        ticks = LogLocator(subs=subs).tick_values(lo, hi)
+        if np.count_nonzero((ticks >= lo) & (ticks <= hi)) >= 4:
+            break
+    ax.xaxis.set_major_locator(LogLocator(subs=subs))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.xaxis.set_minor_formatter(NullFormatter())
 
 
 def _nyquist(ax: Any, f: float, *, label: bool) -> None:

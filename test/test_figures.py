@@ -73,6 +73,14 @@ def test_a_short_log_axis_has_several_labelled_ticks():
     assert len(labels) >= 4 and "20" in labels and "100" in labels
 
 
+def test_an_axis_of_less_than_a_decade_has_four_labels_and_the_phase_ticks_fit_its_span():
+    fig = plots.bode_figure(_frf(55.0, 230.0))
+    assert len(_labels(fig.axes[-1])) >= 4
+    ticks = [t for t in fig.axes[1].get_yticks() if np.ptp(fig.axes[1].get_ylim()) > 0]
+    lo, hi = fig.axes[1].get_ylim()
+    assert 3 <= sum(lo <= t <= hi for t in ticks) <= 9
+
+
 def test_the_low_rate_nyquist_label_lies_inside_the_frame():
     fig = plots.bode_figure(_frf(), nyquist_low=40.0)
     FigureCanvasAgg(fig)
