@@ -114,8 +114,13 @@ def tutorial_environment(tmp: Path) -> dict[str, str]:
 #: A number as a page prints it: 14400, -64.7, 0.0088, 1.4e-05, 1.1999766501546003.
 NUMBER = re.compile(r"(?<![\w.])[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?(?![\w])")
 #: Figures a page shows for illustration only, not compared: a compute time at the end of
-#: a line (``0.142 s``), a round-off level (``to 8e-16 of it``).
-ILLUSTRATIVE = [re.compile(r"\d+(?:\.\d+)? s$"), re.compile(r"to \S+ of it")]
+#: a line (``0.142 s``), a round-off level (``to 8e-16 of it``), the bands of a drift (their
+#: edges are bins where the test statistic crosses its threshold: ``drift 1.6 dB at ...``).
+ILLUSTRATIVE = [
+    re.compile(r"\d+(?:\.\d+)? s$"),
+    re.compile(r"to \S+ of it"),
+    re.compile(r"(?<=dB at ).*Hz$"),
+]
 #: How close a printed figure must come to the page's: 2 % of it, or one unit in the page's
 #: last digit where that is more (the page rounds; other BLAS kernels move the last digit).
 REL_TOL = 0.02
@@ -223,7 +228,14 @@ def test_every_command_of_every_page_runs_and_prints_what_the_page_says(page, tm
 
 
 def test_the_tutorial_and_the_pages_with_examples_are_run():
-    pages = {TUTORIAL.name, "setpoint.md", "sources.md", "excitation.md", "diagnose.md"}
+    pages = {
+        TUTORIAL.name,
+        "setpoint.md",
+        "sources.md",
+        "excitation.md",
+        "diagnose.md",
+        "monitoring.md",
+    }
     assert pages | {"commands.md"} <= {p.name for p in RUN_PAGES}
 
 
