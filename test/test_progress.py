@@ -82,3 +82,34 @@ def test_identify_tells_its_steps_on_a_terminal_and_nothing_with_quiet(
     monkeypatch.setattr(Progress, "after", 0.0)
     assert main([*argv, "--quiet"]) == 0
     assert "mr-ident:" not in capsys.readouterr().err
+
+
+def test_replay_tells_its_steps_and_the_monitoring_as_one(monkeypatch, tmp_path, capsys):
+    """``replay`` with ``monitor_model``: the replay, then the window-by-window watch of the
+    plant (silent for half a minute on a long bag before), each a step of the display."""
+    from bagmaker import joint_state_bag, stamps
+
+    from mr_ident.cli import main
+    from mr_ident.io.datafile import read_data
+
+    root = Path(__file__).resolve().parents[1]
+    data = tmp_path / "d.npz"
+    robot = root / "config" / "tutorial_robot.yaml"
+    assert main(["simulate", str(robot), "--duration", "20", "--out", str(data)]) == 0
+    sim = read_data(data)
+    bag = joint_state_bag(tmp_path / "js", sim, stamps(sim.n_samples, 240.0))
+    told: list[str] = []
+    monkeypatch.setattr(Progress, "__call__", lambda self, step: told.append(step))
+    monkeypatch.chdir(root)  # the params file names the model relative to the repository
+    argv = ["replay", str(bag), "--params", "config/tutorial_monitor.yaml"]
+    argv += ["--r", '/ident/reference.position{name=="j1"}']
+    argv += [
+        "--u",
+        '/joint_states.effort{name=="j1"}',
+        "--y",
+        '/joint_states.position{name=="j1"}',
+    ]
+    assert main([*argv, "--out", str(tmp_path / "w.npz")]) == 0
+    assert told[0] == f"replaying {bag} through the node's steps"
+    assert told[-1].startswith("watching the plant against its reference")
+    assert "plant gain 1.2" in capsys.readouterr().out
