@@ -21,7 +21,6 @@ import csv
 import glob
 import io
 import math
-import sys
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
@@ -401,33 +400,6 @@ def write_table(result: BatchResult, path: str | Path) -> None:
     w.writeheader()
     w.writerows(result.rows)
     atomic_write(Path(path), lambda fh: fh.write(buf.getvalue()), binary=False)
-
-
-def progress_bar(stream: Any = None) -> Callable[[int, int, dict[str, str]], None]:
-    """A progress display.
-
-    A bar redrawn in place on a terminal, one line per recording otherwise (logs).
-    """
-    out = stream or sys.stderr
-    tty = bool(getattr(out, "isatty", lambda: False)())
-
-    def show(done: int, total: int, row: dict[str, str]) -> None:
-        name = Path(row["recording"]).name
-        state = "ok" if row["status"] == "ok" else f"error: {row['error']}"
-        if tty:
-            width = 30
-            fill = round(width * done / total)
-            end = "\n" if done == total else ""
-            out.write(
-                f"\r[{'#' * fill}{'.' * (width - fill)}] {done}/{total} {name[:40]:<40}{end}"
-            )
-            if row["status"] != "ok":
-                out.write(f"\n  {name}: {state}\n")
-        else:
-            out.write(f"[{done}/{total}] {name}: {state}\n")
-        out.flush()
-
-    return show
 
 
 def default_workers(n_jobs: int) -> int:

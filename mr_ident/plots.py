@@ -15,6 +15,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
+from .io.units import magnitude_label
 from .numerics.results import FRF, PFG
 
 if TYPE_CHECKING:
@@ -33,6 +34,94 @@ def _db(x: NDArray) -> NDArray:
         return 20 * np.log10(np.abs(x))
 
 
+def _phase(x: NDArray) -> NDArray:
+    """The phase in degrees, unwrapped along frequency; NaN bins stay NaN.
+
+    The one convention of the plots, the live view and the Bode message; the first finite
+    bin lies in (-180, 180].
+    """
+    deg = np.full(np.shape(x), np.nan)
+    ok = np.isfinite(x)
+    if ok.any():
+        deg[ok] = np.degrees(np.unwrap(np.angle(x[ok])))
+    return deg
+
+
+def _phase_ticks(ax: Any) -> None:
+    """Phase ticks on multiples of 15, 30, 45, 90, 180 ... degrees.
+
+    The finest step with at most eight ticks across the axis (a phase that runs far gets
+    180 or 360).
+    """
+    from matplotlib.ticker import MultipleLocator
+
+    lo, hi = ax.get_ylim()
+    step = next(
+        (b for b in (15, 30, 45, 90, 180, 360, 720, 1440) if (hi - lo) / b <= 8),
+        90 * 2 ** max(0, int(np.ceil(np.log2((hi - lo) / 720)))),
+    )
+    ax.yaxis.set_major_locator(MultipleLocator(step))
+
+
+def _log_ticks(ax: Any) -> None:
+    """Readable frequency ticks on a log axis.
+
+    On an axis of less than 2.5 decades (where the default labels the decades only: one
+    tick across 11-250 Hz), ticks on 1-2-5 or finer steps of each decade, as many as give
+    at least four labels, in plain numbers.
+    """
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    lo, hi = ax.get_xlim()
+    if not (lo > 0 and np.log10(hi / lo) < 2.5):
+        return
+    for subs in ((1.0, 2.0, 5.0), (1.0, 2.0, 3.0, 5.0, 7.0), tuple(range(1, 10))):
+        ticks = LogLocator(subs=subs).tick_values(lo, hi)
+        if np.count_nonzero((ticks >= lo) & (ticks <= hi)) >= 4:
+            break
+    ax.xaxis.set_major_locator(LogLocator(subs=subs))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.xaxis.set_minor_formatter(NullFormatter())
+
+
+def _nyquist(ax: Any, f: float, *, label: bool) -> None:
+    """The low-rate Nyquist frequency: a dotted line, named inside the frame (left of it)."""
+    ax.axvline(f, color="0.5", ls=":", lw=1)
+    if label:
+        ax.text(
+            f,
+            0.97,
+            "low-rate Nyquist ",
+            transform=ax.get_xaxis_transform(),
+            fontsize=7,
+            ha="right",
+            va="top",
+            color="0.35",
+        )
+
+
+def _band(ax: Any, f: NDArray, g: NDArray, s: NDArray, color: str) -> None:
+    """The ±2σ band of |g| in dB.
+
+    Its legend says how wide it is where it hides behind the line (an estimate 80 dB above
+    its σ has a band of 1e-3 dB).
+    """
+    a = np.abs(g)
+    lo, hi = np.maximum(a - 2 * s, a * 1e-3), a + 2 * s
+    with np.errstate(invalid="ignore", divide="ignore"):
+        width = float(np.nanmax(_db(hi) - _db(lo))) if np.isfinite(s).any() else 0.0
+    label = "±2σ" if width >= 1.0 else f"±2σ (at most {width:.2g} dB wide: within the line)"
+    ax.fill_between(f, _db(lo), _db(hi), color=color, alpha=0.35, lw=0, label=label, zorder=1)
+
+
+def pfg_label(source: str) -> str:
+    """A PFG's name in the figures: from data (the lifted r→y map), or from P_h and K_l."""
+    if source.startswith("data"):
+        return "PFG from data (lifted r→y)"
+    method = source.split(":", 1)[1] if ":" in source else ""
+    return "PFG from P_h and K_l" + (f" ({method})" if method else "")
+
+
 def bode_figure(
     frf: FRF,
     *,
@@ -40,11 +129,13 @@ def bode_figure(
     nyquist_low: float | None = None,
     title: str | None = None,
     undetermined: NDArray[np.bool_] | None = None,
+    units: tuple[str, str] | None = None,
 ) -> Figure:
     """Bode magnitude and phase of an estimate with a +-2 sigma band, and reference curves.
 
     ``models`` holds ``(label, frf, line style)`` triples drawn over the estimate;
-    ``undetermined`` (n_freq,) marks the bins the data do not determine (shaded).
+    ``undetermined`` (n_freq,) marks the bins the data do not determine (shaded);
+    ``units``: (u's, y's) physical units, for the magnitude's axis. The phase is unwrapped.
     """
     ny, nu = frf.n_out, frf.n_in
     fig = Figure(figsize=(5.5 * nu + 1, 6.5 * ny))
@@ -55,39 +146,28 @@ def bode_figure(
             am, ap = axes[2 * o, i], axes[2 * o + 1, i]
             g = frf.response[:, o, i]
             s = frf.std[:, o, i]
-            am.semilogx(f, _db(g), lw=0.8, color="C0", label=f"estimate ({frf.method})")
+            am.semilogx(f, _db(g), lw=0.8, color="C0", label=f"estimate ({frf.method})", zorder=3)
             if np.isfinite(s).any():
-                lo = np.maximum(np.abs(g) - 2 * s, np.abs(g) * 1e-3)
-                am.fill_between(
-                    f, _db(lo), _db(np.abs(g) + 2 * s), color="C0", alpha=0.25, lw=0, label="±2σ"
-                )
+                _band(am, f, g, s, "C0")
                 am.semilogx(f, _db(s), lw=0.6, color="C2", label="σ")
-            ap.semilogx(f, np.degrees(np.angle(g)), lw=0.8, color="C0")
+            ap.semilogx(f, _phase(g), lw=0.8, color="C0", zorder=3)
             for label, m, style in models:
                 am.semilogx(m.frequency, _db(m.response[:, o, i]), lw=1, label=label, **style)
-                ap.semilogx(m.frequency, np.degrees(np.angle(m.response[:, o, i])), lw=1, **style)
+                ap.semilogx(m.frequency, _phase(m.response[:, o, i]), lw=1, **style)
             for ax in (am, ap):
                 if nyquist_low:
-                    ax.axvline(nyquist_low, color="0.5", ls=":", lw=1)
+                    _nyquist(ax, nyquist_low, label=ax is axes[0, 0])
                 for k, (a, b) in enumerate(_runs(f, undetermined)):
                     zero = "not determined (hold zero)" if ax is am and k == 0 else None
                     ax.axvspan(a, b, color="C3", alpha=0.15, lw=0)
                     ax.axvline((a + b) / 2, color="C3", ls="--", lw=0.8, label=zero)
                 ax.grid(True, which="both", alpha=0.3)
-            am.set_ylabel(f"|P[{o},{i}]| [dB]")
-            ap.set_ylabel("phase [deg]")
-            ap.set_yticks([-180, -90, 0, 90, 180])
+            am.set_ylabel(magnitude_label(units, o, i, ny, nu))
+            ap.set_ylabel("phase [deg] (unwrapped)")
+            _phase_ticks(ap)
     axes[0, 0].legend(loc="best", fontsize=8)
     axes[-1, -1].set_xlabel("frequency [Hz]")
-    if nyquist_low:
-        axes[0, 0].text(
-            nyquist_low,
-            axes[0, 0].get_ylim()[1],
-            " low-rate Nyquist",
-            fontsize=7,
-            va="top",
-            color="0.4",
-        )
+    _log_ticks(axes[-1, -1])
     fig.suptitle(title or f"Plant estimate P_h ({frf.method})")
     fig.tight_layout()
     return fig
@@ -110,11 +190,17 @@ def plot_bode(
     nyquist_low: float | None = None,
     title: str | None = None,
     undetermined: NDArray[np.bool_] | None = None,
+    units: tuple[str, str] | None = None,
 ) -> Path:
     """:func:`bode_figure` with the model (dashed black) when given, saved to ``path``."""
     models = [("model", model, {"color": "k", "ls": "--"})] if model is not None else []
     fig = bode_figure(
-        frf, models=models, nyquist_low=nyquist_low, title=title, undetermined=undetermined
+        frf,
+        models=models,
+        nyquist_low=nyquist_low,
+        title=title,
+        undetermined=undetermined,
+        units=units,
     )
     return _save(fig, path)
 
@@ -126,29 +212,28 @@ def plot_pfg(
     model: PFG | None = None,
     title: str | None = None,
     also: Sequence[PFG] = (),
+    nyquist_low: float | None = None,
 ) -> Path:
-    """PFG of the multirate loop with a +-2 sigma band, ``also`` the same, and the model's."""
+    """PFG of the multirate loop with a +-2 sigma band, ``also`` the same, and the model's.
+
+    In dB, as in the live view.
+    """
     fig = Figure(figsize=(7, 4))
     ax = fig.subplots()
     for j, p in enumerate((pfg, *also)):
         f, g, s = p.frequency, p.gain, p.std
-        ax.semilogx(f, _db(g), lw=0.8, color=f"C{j}", label=f"PFG from {p.source}")
+        ax.semilogx(f, _db(g), lw=0.8, color=f"C{j}", label=pfg_label(p.source), zorder=3)
         if np.isfinite(s).any():
-            ax.fill_between(
-                f,
-                _db(np.maximum(g - 2 * s, g * 1e-3)),
-                _db(g + 2 * s),
-                color=f"C{j}",
-                alpha=0.25,
-                lw=0,
-                label="±2σ",
-            )
+            _band(ax, f, g, s, f"C{j}")
     if model is not None:
         ax.semilogx(model.frequency, _db(model.gain), "k--", lw=1, label="model")
+    if nyquist_low:
+        _nyquist(ax, nyquist_low, label=True)
     ax.set_xlabel("frequency [Hz]")
     ax.set_ylabel("PFG r→y [dB]")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="best")
+    _log_ticks(ax)
     ax.set_title(title or "Performance frequency gain")
     fig.tight_layout()
     return _save(fig, path)
@@ -217,12 +302,13 @@ def _per_method(
         else:
             ax.semilogx(frequency, c, lw=0.8, color=f"C{j}", label=name, drawstyle="steps-mid")
     if nyquist_low:
-        ax.axvline(nyquist_low, color="0.5", ls=":", lw=1)
+        _nyquist(ax, nyquist_low, label=True)
     ax.set_xlabel("frequency [Hz]")
     ax.set_ylabel(ylabel)
     ax.set_title(title)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
+    _log_ticks(ax)
     fig.tight_layout()
     return _save(fig, path)
 
@@ -234,6 +320,7 @@ def bla_figure(
     bands: Sequence[BandLevels] = (),
     model: FRF | None = None,
     title: str | None = None,
+    units: tuple[str, str] | None = None,
 ) -> Figure:
     """The best linear approximation with its noise and nonlinear parts, per line.
 
@@ -248,10 +335,9 @@ def bla_figure(
     fig = Figure(figsize=(7.5, 2.9 * rows + 0.6))
     axes = fig.subplots(rows, 1, sharex=True, squeeze=False)[:, 0]
     am, ap = axes[0], axes[1]
-    am.semilogx(f, _db(g), lw=1.0, color="C0", label="BLA")
+    am.semilogx(f, _db(g), lw=1.0, color="C0", label="BLA", zorder=3)
     if np.isfinite(bla.std).any():
-        lo = np.maximum(np.abs(g) - 2 * bla.std, np.abs(g) * 1e-3)
-        am.fill_between(f, _db(lo), _db(np.abs(g) + 2 * bla.std), color="C0", alpha=0.2, lw=0)
+        _band(am, f, g, bla.std, "C0")
     odd, even = float(bla.odd_db[0]), float(bla.even_db[0])
     parts = (
         (bla.std, "C7", "σ total"),
@@ -261,17 +347,17 @@ def bla_figure(
     for s, c, label in parts:
         if np.isfinite(s).any():
             am.semilogx(f, _db(s), ls="none", marker=".", ms=3, color=c, label=label)
-    ap.semilogx(f, np.degrees(np.angle(g)), lw=1.0, color="C0")
+    ap.semilogx(f, _phase(g), lw=1.0, color="C0")
     if model is not None:
         am.semilogx(model.frequency, _db(model.response[:, 0, 0]), "k--", lw=1, label="model")
-        ap.semilogx(model.frequency, np.degrees(np.angle(model.response[:, 0, 0])), "k--", lw=1)
-    am.set_ylabel("|G| [dB]")
+        ap.semilogx(model.frequency, _phase(model.response[:, 0, 0]), "k--", lw=1)
+    am.set_ylabel(magnitude_label(units, 0, 0, 1, 1).replace("P_h", "G"))
     am.set_title(
         f"distortion at the unexcited lines: odd {odd:.1f} dB, even {even:.1f} dB above the noise",
         fontsize=8,
     )
-    ap.set_ylabel("phase [deg]")
-    ap.set_yticks([-180, -90, 0, 90, 180])
+    ap.set_ylabel("phase [deg] (unwrapped)")
+    _phase_ticks(ap)
     am.legend(fontsize=7, loc="best")
     if bands:
         ad = axes[2]
@@ -289,6 +375,7 @@ def bla_figure(
     for ax in axes:
         ax.grid(True, which="both", alpha=0.3)
     axes[-1].set_xlabel("frequency [Hz]")
+    _log_ticks(axes[-1])
     fig.suptitle(
         title
         or f"Best linear approximation ({bla.realizations} realization(s) x {bla.periods} periods)"

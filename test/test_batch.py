@@ -17,7 +17,6 @@ import numpy as np
 import pytest
 from bagmaker import joint_state_bag, stamps
 
-from mr_ident import batch
 from mr_ident.cli import main
 from mr_ident.io.datafile import read_identification, read_result, write_data
 from mr_ident.io.modelfile import load_model
@@ -175,11 +174,13 @@ def test_a_batch_that_cannot_start_is_an_error_with_exit_2(
     assert code == 2 and err.startswith("error: ") and match in err
 
 
-def test_progress_is_one_line_per_recording_off_a_terminal():
-    import io
+def test_a_failure_is_told_always_and_the_count_only_as_progress(capsys):
+    from mr_ident.cli.offline import batch_progress
 
-    buf = io.StringIO()
-    show = batch.progress_bar(buf)
-    show(1, 2, {"recording": "/x/a.npz", "status": "ok", "error": ""})
-    show(2, 2, {"recording": "/x/b.npz", "status": "error", "error": "bad"})
-    assert buf.getvalue() == "[1/2] a.npz: ok\n[2/2] b.npz: error: bad\n"
+    steps: list[str] = []
+    show = batch_progress(steps.append, "on 2 worker(s)")
+    show(1, 3, {"recording": "/x/a.npz", "status": "ok", "error": ""})
+    show(2, 3, {"recording": "/x/b.npz", "status": "error", "error": "bad"})
+    show(3, 3, {"recording": "/x/c.npz", "status": "ok", "error": ""})
+    assert capsys.readouterr().err == "b.npz: error: bad\n"
+    assert steps == ["3 recordings on 2 worker(s), 1 done", "3 recordings on 2 worker(s), 2 done"]

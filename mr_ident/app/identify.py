@@ -9,6 +9,7 @@ over to :mod:`.periodic` (the best linear approximation).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -43,11 +44,14 @@ class Identified:
 
 
 def identify_recording(
-    req: IdentifyRequest, notify: Notify = ignore
+    req: IdentifyRequest,
+    notify: Notify = ignore,
+    progress: Callable[[str], None] | None = None,
 ) -> Identified | PeriodicBLA | SlowPlant:
     """The identification a request asks for (the result file is the caller's to write).
 
-    ``notify`` hears each notice when it happens (the outcome keeps them all).
+    ``notify`` hears each notice when it happens (the outcome keeps them all);
+    ``progress`` each step (reading, identifying) as it begins.
 
     Raises
     ------
@@ -58,6 +62,8 @@ def identify_recording(
         :func:`~mr_ident.numerics.identify.identify` raise.
     """
     heard = Heard(notify)
+    step = progress or (lambda _: None)
+    step(f"reading {req.reading.path}")
     if req.period is not None:
         from .periodic import periodic_recording
 
@@ -109,6 +115,7 @@ def identify_recording(
     if settled.injection == "setpoint":
         q = settled.phase if settled.phase is not None else loop.get("phase", 0)
         loop = loop | {"phase": q}
+    step(f"identifying P_h from {N} samples ({req.method})")
     ident = identify(
         data.r,
         data.u,

@@ -56,11 +56,18 @@ def show(notice: Notice) -> None:
 
 
 def write_plots(
-    ident: Identification, path: Path, fs: float, F: int, N: int, model: Model | None
+    ident: Identification,
+    path: Path,
+    fs: float,
+    F: int,
+    N: int,
+    model: Model | None,
+    units: tuple[str, str] | None = None,
 ) -> None:
     """Bode plot of P_h at ``path`` (model drawn when given); with a PFG, ``<path>_pfg``.
 
     The PFG plot shows the PFG from data and, with a controller, the one from P_h and it.
+    ``units``: (u's, y's), the model file's (:func:`~mr_ident.io.units.load_units`).
     """
     from ..numerics.lifted.pfg import pfg_of_model
     from ..plots import plot_bode, plot_pfg
@@ -68,7 +75,12 @@ def write_plots(
     nyq = fs / F / 2 if F > 1 else None
     mfrf = model.plant_result(N) if model is not None else None
     bode = plot_bode(
-        ident.plant, path, model=mfrf, nyquist_low=nyq, undetermined=ident.undetermined
+        ident.plant,
+        path,
+        model=mfrf,
+        nyquist_low=nyq,
+        undetermined=ident.undetermined,
+        units=units,
     )
     print(f"wrote {bode}")
     shown = [g for g in (ident.pfg_data, ident.pfg) if g is not None]
@@ -77,7 +89,8 @@ def write_plots(
             pfg_of_model(model, N) if model is not None and model.controller is not None else None
         )
         pfg_path = path.with_name(path.stem + "_pfg" + path.suffix)
-        print(f"wrote {plot_pfg(shown[0], pfg_path, model=ref, also=shown[1:])}")
+        pfg = plot_pfg(shown[0], pfg_path, model=ref, also=shown[1:], nyquist_low=nyq)
+        print(f"wrote {pfg}")
 
 
 def describe_pfgs(ident: Identification) -> list[str]:
@@ -107,16 +120,27 @@ def describe_pfgs(ident: Identification) -> list[str]:
     return lines
 
 
+def quiet_option(p: argparse.ArgumentParser) -> None:
+    """--quiet: no progress (:class:`Progress`, the one progress display of every command)."""
+    p.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no progress on stderr (shown only where stderr is a terminal, for steps over 2 s)",
+    )
+
+
 class Progress:
     """Steps of a long computation told on stderr, each only once it has run 2 s.
 
     A timer per step: a step that ends within :attr:`after` seconds prints nothing; one that
-    runs longer prints ``mr-ident: <step> ... (<t> s in)`` once. Silent where stderr is not a
-    terminal or ``quiet`` (as such tools do). Use as a context manager; call it with each
-    step's name as the step begins.
+    runs longer prints ``mr-ident: <step> ... (<t> s in)``, and again every :attr:`every`
+    seconds while it lasts. Silent where stderr is not a terminal or ``quiet`` (as such tools
+    do). Use as a context manager; call it with each step's name as the step begins. The one
+    progress display of every command (identify, replay, diagnose, fit, batch).
     """
 
     after = 2.0
+    every = 10.0
 
     def __init__(self, *, quiet: bool = False):
         import threading
@@ -125,31 +149,45 @@ class Progress:
         self._on = not quiet and sys.stderr.isatty()
         self._t0 = time.monotonic()
         self._timer: threading.Timer | None = None
+        self._step = ""
         self._lock = threading.Lock()
 
     def __call__(self, step: str) -> None:
         """``step`` begins (the one before it ends)."""
         if not self._on:
             return
+        with self._lock:
+            self._step = step
+            self._arm(step, self.after)
+
+    def _arm(self, step: str, delay: float) -> None:
         import threading
 
-        with self._lock:
-            if self._timer is not None:
-                self._timer.cancel()
-            self._timer = threading.Timer(self.after, self._show, (step,))
-            self._timer.daemon = True
-            self._timer.start()
+        if self._timer is not None:
+            self._timer.cancel()
+        self._timer = threading.Timer(delay, self._show, (step,))
+        self._timer.daemon = True
+        self._timer.start()
 
     def _show(self, step: str) -> None:
         import time
 
-        print(f"mr-ident: {step} ... ({time.monotonic() - self._t0:.0f} s in)", file=sys.stderr)
+        with self._lock:
+            if step != self._step or self._timer is None:
+                return  # ended meanwhile
+            print(
+                f"mr-ident: {step} ... ({time.monotonic() - self._t0:.0f} s in)",
+                file=sys.stderr,
+                flush=True,
+            )
+            self._arm(step, self.every)
 
     def __enter__(self) -> Progress:
         return self
 
     def __exit__(self, *exc: object) -> None:
         with self._lock:
+            self._step = ""
             if self._timer is not None:
                 self._timer.cancel()
                 self._timer = None

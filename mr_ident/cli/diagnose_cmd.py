@@ -54,7 +54,13 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     )
     # Everything is computed; now write (each file atomically).
     if args.out_model:
-        text = yaml.safe_dump(model_to_dict(d.extended), sort_keys=False)
+        from ..io.units import load_units
+
+        extended = model_to_dict(d.extended)
+        units = load_units(args.model)
+        if units is not None:  # the nominal model's, carried over
+            extended["units"] = {"u": units[0], "y": units[1]}
+        text = yaml.safe_dump(extended, sort_keys=False)
         header = (
             f"# Extended by mr-ident diagnose from {args.model} on {args.data}.\n"
             f"# Applied: {applied or nothing}\n"

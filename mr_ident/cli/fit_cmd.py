@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from .argtypes import auto_or_int, band
+from .common import Progress, quiet_option
 
 
 def _delay(text: str) -> float | str:
@@ -63,17 +64,15 @@ def add_fit_parser(sub: Any) -> None:
         type=Path,
         help="Bode plot of data and model (.png); <stem>_residual.png: the residual in σ units",
     )
+    quiet_option(p)
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
     """``mr-ident fit``."""
-    import numpy as np
-
     from ..errors import ConfigError
     from ..io.datafile import read_identification
-    from ..io.fitfile import fitted_model, write_fit
     from ..io.modelfile import load_model
-    from ..numerics.fit.frf_fit import fit_frf, lpm_kernel
+    from ..numerics.fit.frf_fit import lpm_kernel
     from ..numerics.local.lpm import dof
 
     if args.max_order == "auto":
@@ -84,7 +83,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         require_control()
     controller = load_model(args.controller) if args.controller else None
     ident = read_identification(args.result)
-    fs, ratio = ident.fs_high, ident.ratio
+    ratio = ident.ratio
     n_in = ident.plant.n_in
     q, kernel = None, None
     n = ident.median_window
@@ -92,7 +91,20 @@ def cmd_fit(args: argparse.Namespace) -> int:
         q = float(dof(n, 2, n_in * ratio)) if ident.local == "polynomial" else None
         q = q if q is not None and q > 1 else None
         kernel = lpm_kernel(n)
-    fit = fit_frf(
+    with Progress(quiet=args.quiet) as progress:
+        what = f"order {args.order}" if args.order != "auto" else f"orders up to {args.max_order}"
+        progress(f"fitting {what} to {args.result.name}")
+        fit = _fit(args, ident, q, kernel)
+        if args.plot:
+            progress(f"writing {args.plot}")
+        return _report(args, ident, fit, controller)
+
+
+def _fit(args: argparse.Namespace, ident: Any, q: float | None, kernel: Any) -> Any:
+    from ..numerics.fit.frf_fit import fit_frf
+
+    fs = ident.fs_high
+    return fit_frf(
         ident.plant,
         fs=fs,
         order=args.order,
@@ -103,6 +115,15 @@ def cmd_fit(args: argparse.Namespace) -> int:
         noise_dof=q,
         noise_kernel=kernel,
     )
+
+
+def _report(args: argparse.Namespace, ident: Any, fit: Any, controller: Any) -> int:
+    """What the fit found, told; the model (and the plots) written."""
+    import numpy as np
+
+    from ..io.fitfile import fitted_model, write_fit
+
+    fs, ratio = ident.fs_high, ident.ratio
     for r in fit.orders:
         mark = "  <- chosen" if r.order == fit.order else ""
         print(
@@ -142,7 +163,10 @@ def cmd_fit(args: argparse.Namespace) -> int:
         "bins past 2σ"
     )
     model = fitted_model(fit, ratio=ratio, controller=controller)
-    for path in write_fit(args.out, model, fit):
+    from ..io.units import load_units
+
+    units = load_units(args.controller)
+    for path in write_fit(args.out, model, fit, units):
         print(f"wrote {path}")
     if args.export == "python-control":
         from ..io.control_export import control_path, export_control
@@ -150,16 +174,20 @@ def cmd_fit(args: argparse.Namespace) -> int:
         title = f"{args.out.name}, fitted by mr-ident fit from {args.result.name}"
         print(f"wrote {export_control(control_path(args.out), model, title=title)}")
     if args.plot:
-        _plots(args.plot, ident.plant, fit, fs / ratio / 2 if ratio > 1 else None)
+        nyq = fs / ratio / 2 if ratio > 1 else None
+        _plots(args.plot, ident.plant, fit, nyq, units)
     return 0
 
 
-def _plots(path: Path, frf: Any, fit: Any, nyq: float | None) -> None:
+def _plots(
+    path: Path, frf: Any, fit: Any, nyq: float | None, units: tuple[str, str] | None
+) -> None:
     from ..numerics.results import FRF
     from ..plots import plot_bode, plot_errors
 
     model = FRF(frf.frequency, fit.response(frf.frequency), 0 * frf.std, "fit")
-    print(f"wrote {plot_bode(frf, path, model=model, nyquist_low=nyq, title='fit')}")
+    bode = plot_bode(frf, path, model=model, nyquist_low=nyq, title="fit", units=units)
+    print(f"wrote {bode}")
     errs = {
         f"[{o},{i}]": abs(fit.residual[:, o, i])
         for o in range(fit.residual.shape[1])

@@ -7,16 +7,19 @@ Imports are lazy (inside each command); rclpy is imported only by the ROS ones.
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 from ..errors import ConfigError
-from .common import describe_pfgs, recording, show, write_plots
+from .common import Progress, describe_pfgs, recording, show, write_plots
+
+if TYPE_CHECKING:
+    from ..app.replay import Replayed
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
     """``mr-ident replay``: a recording through the node's steps, or re-published."""
-    from ..app.replay import plant_events, replay_recording
+    from ..app.replay import replay_recording
     from ..app.requests import ReplayRequest
-    from ..io.datafile import write_result
 
     if args.publish:
         from ..ros.record import publish_recording
@@ -37,7 +40,17 @@ def cmd_replay(args: argparse.Namespace) -> int:
         y_rate=args.y_rate,
         excitation_index=args.excitation_index,
     )
-    replayed = replay_recording(req, show)
+    with Progress(quiet=args.quiet) as progress:
+        progress(f"replaying {args.recording} through the node's steps")
+        replayed = replay_recording(req, show)
+        return _report_replayed(args, replayed, progress)
+
+
+def _report_replayed(args: argparse.Namespace, replayed: Replayed, progress: Progress) -> int:
+    """Tell and write what the replay found; then the plant's events (monitoring)."""
+    from ..app.replay import plant_events
+    from ..io.datafile import write_result
+
     res, cfg = replayed.result, replayed.config
     info, est = res.info, res.estimate
     counts = ", ".join(f"{k} {v}" for k, v in info.messages.items())
@@ -61,11 +74,16 @@ def cmd_replay(args: argparse.Namespace) -> int:
         print(line)
     if args.plot:
         from ..io.modelfile import load_model
+        from ..io.units import load_units
 
+        progress(f"writing {args.plot}")
         model = load_model(args.model) if args.model else None
-        write_plots(est.identification, args.plot, cfg.fs_high, cfg.ratio, est.n_samples, model)
+        fs, F, N = cfg.fs_high, cfg.ratio, est.n_samples
+        write_plots(est.identification, args.plot, fs, F, N, model, load_units(args.model))
+    if replayed.monitoring:
+        progress("watching the plant against its reference, window by window (monitoring)")
     for line in plant_events(replayed, str(args.recording)):
-        print(line)
+        print(line, flush=True)
     return 0
 
 
@@ -105,7 +123,9 @@ def cmd_view(args: argparse.Namespace) -> int:
             raise ConfigError("give --model or --reference, not both")
         reference = read_result(args.reference)
         reference_bla = read_bla(args.reference)  # a BLA: its noise and nonlinear parts too
-    state = ViewState(model, source, reference, reference_bla)
+    from ..io.units import load_units
+
+    state = ViewState(model, source, reference, reference_bla, load_units(args.model))
     server = ViewServer(state, args.host, args.port).start()
     print(f"view: {server.url}  (Ctrl-C to stop)", flush=True)
     try:

@@ -8,12 +8,25 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
+from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..errors import ConfigError
-from .common import describe_pfgs, reading, recording, show, source_specs, write_plots
+from .common import (
+    Progress,
+    describe_pfgs,
+    reading,
+    recording,
+    show,
+    source_specs,
+    write_plots,
+)
 
 if TYPE_CHECKING:
+    from ..app.identify import Identified
+    from ..app.periodic import PeriodicBLA, SlowPlant
     from ..app.requests import IdentifyRequest
 
 
@@ -61,13 +74,24 @@ def identify_request(args: argparse.Namespace) -> IdentifyRequest:
 
 def cmd_identify(args: argparse.Namespace) -> int:
     """``mr-ident identify``: identify P_h (and the PFG) from a data file or a bag."""
-    from ..app.identify import Identified, identify_recording
-    from ..app.periodic import PeriodicBLA
-    from ..io.datafile import write_result
+    from ..app.identify import identify_recording
 
     if args.out.suffix.lower() != ".npz":
         raise ConfigError(f"--out must be a .npz file, got {str(args.out)!r}")
-    outcome = identify_recording(identify_request(args), show)
+    with Progress(quiet=args.quiet) as progress:
+        outcome = identify_recording(identify_request(args), show, progress)
+        progress(f"writing {args.out}" + (f" and {args.plot}" if args.plot else ""))
+        return _report_identified(args, outcome)
+
+
+def _report_identified(
+    args: argparse.Namespace, outcome: Identified | PeriodicBLA | SlowPlant
+) -> int:
+    """Write and tell what ``identify`` found: the result file, its lines, the plots."""
+    from ..app.identify import Identified
+    from ..app.periodic import PeriodicBLA  # noqa: F811 (the class, beyond its annotation)
+    from ..io.datafile import write_result
+
     if isinstance(outcome, PeriodicBLA):
         from .periodic import report_periodic
 
@@ -98,7 +122,9 @@ def cmd_identify(args: argparse.Namespace) -> int:
         print(line)
     if args.plot:
         fs, F, N = outcome.fs_high, outcome.ratio, outcome.n_samples
-        write_plots(ident, args.plot, fs, F, N, outcome.model)
+        from ..io.units import load_units
+
+        write_plots(ident, args.plot, fs, F, N, outcome.model, load_units(args.model))
     return 0
 
 
@@ -160,17 +186,39 @@ def cmd_batch(args: argparse.Namespace) -> int:
     )
     args.out_dir.mkdir(parents=True, exist_ok=True)
     jobs = batch.plan(recordings, args.out_dir, args.task)
-    if args.scheduler:
-        client = batch.dask_client(args.scheduler)
-        try:
-            result = batch.run_batch(jobs, opts, client.get_executor(), batch.progress_bar())
-        finally:
-            client.close()
-    else:
-        with batch.local_pool(workers) as pool:
-            result = batch.run_batch(jobs, opts, pool, batch.progress_bar())
+    with Progress(quiet=args.quiet) as progress:
+        where = f"on {args.scheduler}" if args.scheduler else f"on {workers} worker(s)"
+        progress(f"{len(jobs)} recordings {where}, 0 done")
+        told = batch_progress(progress, where)
+        if args.scheduler:
+            client = batch.dask_client(args.scheduler)
+            try:
+                result = batch.run_batch(jobs, opts, client.get_executor(), told)
+            finally:
+                client.close()
+        else:
+            with batch.local_pool(workers) as pool:
+                result = batch.run_batch(jobs, opts, pool, told)
     table = args.out_dir / "summary.csv"
     batch.write_table(result, table)
     print(batch.summary_text(result))
     print(f"wrote {table} ({len(result.rows)} recordings, {result.failed} failed)")
     return 1 if result.failed else 0
+
+
+def batch_progress(
+    progress: Callable[[str], None], where: str
+) -> Callable[[int, int, dict[str, str]], None]:
+    """What a batch tells as its recordings finish.
+
+    A failure at once (always, on stderr); the count as :class:`~.common.Progress`'s step
+    (on a terminal, while the next runs).
+    """
+
+    def told(done: int, total: int, row: dict[str, str]) -> None:
+        if row["status"] != "ok":
+            print(f"{Path(row['recording']).name}: error: {row['error']}", file=sys.stderr)
+        if done < total:
+            progress(f"{total} recordings {where}, {done} done")
+
+    return told

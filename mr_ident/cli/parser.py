@@ -10,6 +10,7 @@ from pathlib import Path
 from ..live.spans import DEFAULT_SPAN, SPANS
 from ..numerics.catalog import LOCAL_MODELS, METHOD_NAMES
 from .argtypes import frequencies, int_at_least, period_or_auto, positive_float, window_n
+from .common import quiet_option
 from .excite import add_excite_parser
 from .fit_cmd import add_fit_parser
 
@@ -24,7 +25,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _sources(p: argparse.ArgumentParser) -> None:
-    """--r/--u/--y: per-sample sources in a bag (README, "Use it on your robot")."""
+    """--r/--u/--y: per-sample sources in a bag (docs/sources.md, "Message paths")."""
     for sig, what in (("r", "excitation"), ("u", "plant input"), ("y", "plant output")):
         p.add_argument(
             f"--{sig}",
@@ -37,7 +38,10 @@ def _sources(p: argparse.ArgumentParser) -> None:
 
 
 def _y_rate(p: argparse.ArgumentParser, default: str) -> None:
-    """--y-rate: y measured at the controller's rate (README, "Outputs at the low rate")."""
+    """--y-rate: y measured at the controller's rate.
+
+    docs/method.md, "Outputs at the low rate".
+    """
     p.add_argument(
         "--y-rate",
         choices=("high", "low"),
@@ -47,7 +51,7 @@ def _y_rate(p: argparse.ArgumentParser, default: str) -> None:
 
 
 def _reading(p: argparse.ArgumentParser, default_span: str = DEFAULT_SPAN) -> None:
-    """--span and --msg-path: how a recording is read (README, "Bags")."""
+    """--span and --msg-path: how a recording is read (docs/sources.md, "Bags")."""
     p.add_argument(
         "--span",
         choices=SPANS,
@@ -103,7 +107,10 @@ def _injection(p: argparse.ArgumentParser) -> None:
 
 
 def _local_option(p: argparse.ArgumentParser) -> None:
-    """--local: the local model of the LPM methods' windows (README, "Local rational models")."""
+    """--local: the local model of the LPM methods' windows.
+
+    docs/method.md, "Local rational models".
+    """
     p.add_argument(
         "--local",
         choices=LOCAL_MODELS,
@@ -180,6 +187,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="with --period: leading periods of each realization dropped as transient (default 1)",
     )
     _labels_option(i, "with --period on a bag: ")
+    quiet_option(i)
 
     q = sub.add_parser("paper", help="the paper's example end to end: figures and an error table")
     q.add_argument("--duration", type=positive_float, default=600.0, help="seconds (default 600)")
@@ -248,6 +256,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=1.0,
         help="with --publish: times real time (default 1)",
     )
+    quiet_option(rp)
 
     rc = sub.add_parser("record", help="record topics to an MCAP file (rosbag2 form) until Ctrl-C")
     rc.add_argument("out", type=Path, help="MCAP file to write")
@@ -302,11 +311,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="most causes applied in turn (default 3)",
     )
     _injection(g)
-    g.add_argument(
-        "--quiet",
-        action="store_true",
-        help="no progress on stderr (shown only where stderr is a terminal, for steps over 2 s)",
-    )
+    quiet_option(g)
 
     b = sub.add_parser(
         "batch",
@@ -355,6 +360,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="run on an existing Dask distributed cluster (tcp://host:8786); needs the "
         "optional extra: pip install 'mr_ident[cluster]'",
     )
+    quiet_option(b)
 
     v = sub.add_parser(
         "view", help="a live page of the estimate (Bode, PFG, stream health) on localhost"

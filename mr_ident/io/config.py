@@ -124,7 +124,8 @@ PARAMETERS: dict[str, Param] = {
         1024,
     ),
     "monitor_model": Param(
-        "model file whose plant each estimate is held against (README 'Monitoring'); the "
+        "model file whose plant each estimate is held against "
+        "(docs/monitoring.md, 'Monitoring against a reference'); the "
         "diagnosis names the cause of a drift from it; empty: no monitoring"
     ),
     "monitor_reference": Param(
@@ -150,7 +151,7 @@ PARAMETERS: dict[str, Param] = {
         "topic of the labels of a periodic excitation (mr-ident excite --publish TOPIC puts "
         "them on TOPIC/excitation_index), aligned with r, u, y; a window holding whole "
         "periods is identified as the best linear approximation from the period means "
-        "(README 'Excitation'); empty: off"
+        "(docs/excitation.md, 'Periodic bags and the node'); empty: off"
     ),
     "transient_periods": Param(
         "with excitation_index_topic: leading whole periods of every run of one realization "

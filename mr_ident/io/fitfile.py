@@ -120,8 +120,14 @@ def side_path(path: str | Path) -> Path:
     return p.with_name(p.stem + ".fit.yaml")
 
 
-def write_fit(path: str | Path, model: Model, fit: FitResult) -> tuple[Path, Path]:
-    """Write the model file and its side file; returns both paths."""
+def write_fit(
+    path: str | Path, model: Model, fit: FitResult, units: tuple[str, str] | None = None
+) -> tuple[Path, Path]:
+    """Write the model file and its side file; returns both paths.
+
+    ``units``: (u's, y's) physical units, written as the file's ``units`` (the
+    ``--controller`` model's).
+    """
     p = Path(path)
     if p.suffix.lower() not in (".yaml", ".yml"):
         raise ModelError(f"the model file must end in .yaml or .yml, got {str(p)!r}")
@@ -130,7 +136,10 @@ def write_fit(path: str | Path, model: Model, fit: FitResult) -> tuple[Path, Pat
         f"(expected {fit.expected:.6g} ± {2 * fit.expected_sd:.3g}), delay {fit.delay:.6g} s\n"
         f"# the std of every parameter: {side_path(p).name}\n"
     )
-    text = head + yaml.safe_dump(model_to_dict(model), sort_keys=False)
+    d = model_to_dict(model)
+    if units is not None:
+        d["units"] = {"u": units[0], "y": units[1]}
+    text = head + yaml.safe_dump(d, sort_keys=False)
     atomic_write(p, lambda fh: fh.write(text), binary=False)
     side = side_path(p)
     body = yaml.safe_dump(fit_summary(fit), sort_keys=False)

@@ -1,9 +1,9 @@
 # SPDX-License-Identifier: Apache-2.0
 """Model files (YAML): read, validate and write a :class:`~mr_ident.numerics.systems.model.Model`.
 
-The form is the one in :mod:`mr_ident.numerics.systems.model`'s docstring and the README. Every
-problem is a :class:`~mr_ident.errors.ModelError` naming the file and the key
-(``plant.num[2]``), or the YAML line and column; an unstable loop is refused.
+The form is the one in :mod:`mr_ident.numerics.systems.model`'s docstring and
+docs/formats.md. Every problem is a :class:`~mr_ident.errors.ModelError` naming the file
+and the key (``plant.num[2]``), or the YAML line and column; an unstable loop is refused.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from ..numerics.systems.modal import ModalPlant
 from ..numerics.systems.model import CORRECTION_KINDS, Model
 from ..numerics.systems.simulate import loop_poles
 from .modal_yaml import modal_from_dict, modal_to_dict
+from .units import units_from_dict
 
 _KEYS = {
     "fs_high",
@@ -41,6 +42,7 @@ _KEYS = {
     "controller_notches",
     "disturbances",
     "plant_corrections",
+    "units",
 }
 _SYS_KEYS = {"num", "den", "domain"}
 
@@ -134,6 +136,7 @@ def model_from_dict(d: Any, *, source: str = "model") -> Model:
     for key in ("fs_high", "ratio", "plant"):
         if key not in d:
             raise ModelError(f"{source}: required key {key!r} is missing")
+    units_from_dict(d.get("units"), source=source)  # the figures' (io.units), checked here
     fs = d["fs_high"]
     if (
         isinstance(fs, bool)
@@ -457,6 +460,15 @@ def _plain(v: Any) -> Any:
     return float(v)
 
 
+def _rate(fs: float) -> float | int:
+    """A rate as a person gives it: ``240``, not the ``239.99999999999997`` of stamps.
+
+    12 significant digits; a whole number without a point.
+    """
+    v = float(f"{fs:.12g}")
+    return int(v) if v.is_integer() else v
+
+
 def model_to_dict(model: Model) -> dict[str, Any]:
     """The YAML mapping of a model (inverse of :func:`model_from_dict`): plain values.
 
@@ -480,7 +492,7 @@ def model_to_dict(model: Model) -> dict[str, Any]:
         return out
 
     d: dict[str, Any] = {
-        "fs_high": float(model.fs_high),
+        "fs_high": _rate(model.fs_high),
         "ratio": int(model.ratio),
         "plant": modal_to_dict(model.plant)
         if isinstance(model.plant, ModalPlant)

@@ -228,10 +228,12 @@ def _settle(rclpy, n, live: _Live, timeout: float, stop: Stop) -> None:
 
 
 def _report(out_dir: Path, cfg, model, recording: Path, live: _Live, node_rc: int) -> int:
+    from ..io.units import load_units
     from ..live.replay import replay
     from ..numerics.lifted.pfg import pfg_of_model
     from ..plots import plot_bode, plot_pfg
 
+    units = load_units(share_file("config/paper_example.yaml"))  # the model's
     if live.P is None or live.freq is None or live.P_std is None or live.window is None:
         raise MrIdentError("no estimate was received from the node")
     first, count = live.window
@@ -256,6 +258,7 @@ def _report(out_dir: Path, cfg, model, recording: Path, live: _Live, node_rc: in
             model=model_frf,
             nyquist_low=cfg.fs_high / cfg.ratio / 2,
             title="mr-ident-node live estimate vs model",
+            units=units,
         ),
         "recording": recording,
     }
@@ -265,13 +268,18 @@ def _report(out_dir: Path, cfg, model, recording: Path, live: _Live, node_rc: in
         model=model.plant_result(count),
         nyquist_low=cfg.fs_high / cfg.ratio / 2,
         title="offline replay of the recording",
+        units=units,
     )
     if live.pfg is not None and live.pfg_std is not None and est.identification.pfg is not None:
         ref = pfg_of_model(model, count)
         live_pfg = PFG(live.freq, live.pfg, live.pfg_std, "live")
         ref_at = PFG(live.freq, ref.gain[picks], np.zeros(picks.size), "model")
         files["pfg"] = plot_pfg(
-            live_pfg, out_dir / "live_pfg.png", model=ref_at, title="live PFG vs model"
+            live_pfg,
+            out_dir / "live_pfg.png",
+            model=ref_at,
+            title="live PFG vs model",
+            nyquist_low=cfg.fs_high / cfg.ratio / 2,
         )
     for name, path in files.items():
         print(f"{name:12s} {path}")
@@ -283,7 +291,8 @@ def _report(out_dir: Path, cfg, model, recording: Path, live: _Live, node_rc: in
         f"node exit {node_rc}"
     )
     print(
-        "see it live: with mr-ident-node and mr-ident-sim running (README, Live view), start\n"
+        "see it live (docs/monitoring.md, 'Live view'): with mr-ident-node and mr-ident-sim "
+        "running, start\n"
         "  mr-ident view --model config/paper_example.yaml    and open http://127.0.0.1:8765/\n"
         f"or replay this demo's recording there:\n  mr-ident view {recording} "
         "--model config/paper_example.yaml --speed 20"

@@ -86,7 +86,7 @@ class SourceSubscriber:
         self.sources: SignalSources | None = None
         self.feed: SourceFeed | None = None
         self.status = "waiting for the sources' topics on the graph"
-        self.error = ""
+        self._error = ""
         self._types: dict[str, str] = {}
         self._pending: dict[str, list[tuple[bytes, int]]] = {}
         self._names: dict[str, dict[int, list[str]]] = {}
@@ -94,6 +94,17 @@ class SourceSubscriber:
         self._subs: list[Any] = []
         self._drain: _Drain | None = None
         self._layouts: dict[str, dict[str, Any]] = {}
+
+    @property
+    def error(self) -> str:
+        """Why the sources cannot work ("" when they can): on /diagnostics and the console."""
+        return self._error
+
+    @error.setter
+    def error(self, text: str) -> None:
+        if text and text != self._error:  # each new problem once in the node's console
+            self.node.get_logger().error(text)
+        self._error = text
 
     # -- graph ------------------------------------------------------------------------------
     def poll(self) -> None:

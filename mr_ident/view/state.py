@@ -70,8 +70,12 @@ class ViewState:
         source: str = "",
         reference: FRF | None = None,
         reference_bla: tuple[BLA, FloatArray] | None = None,
+        units: tuple[str, str] | None = None,
     ) -> None:
+        from ..io.units import magnitude_label
+
         self.model = model
+        self.magnitude_label = magnitude_label(units, 0, 0, 1, 1)  # the model file's units
         self.reference = reference  # an identification to draw instead of a model
         self._reference_bla = None if reference_bla is None else bla_parts(*reference_bla)
         self.source = source
@@ -180,7 +184,7 @@ class ViewState:
         Keys: version, source, estimate (None before the first), health, plant (the
         monitoring status and its drift ``bands``; empty without monitoring),
         estimate_age_s, reference_bla (a BLA reference's parts, :func:`bla_parts`; None
-        without).
+        without), magnitude_label (the magnitude axis' label, in the model's units).
         """
         with self._cond:
             age = time.time() - self._received if self._estimate is not None else None
@@ -192,6 +196,7 @@ class ViewState:
                 "plant": dict(self._plant),
                 "estimate_age_s": age,
                 "reference_bla": self._reference_bla,
+                "magnitude_label": self.magnitude_label,
             }
 
     def estimate(self, version: int | None = None) -> dict[str, Any] | None:

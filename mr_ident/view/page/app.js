@@ -71,16 +71,16 @@ function referenceTraces(ref, withMag) {
 // The PFGs: identified from data alone (pfg_data) and from P_h and the controller (pfg).
 function pfgTraces(est) {
   const f = est.frequency, traces = [];
-  const shown = [["pfg_data", "PFG from data", "#ff7f0e"], ["pfg", "PFG from P̂ and K", "#1f77b4"]];
+  const shown = [["pfg_data", "PFG from data (lifted r→y)", "#ff7f0e"], ["pfg", "PFG from P_h and K_l", "#1f77b4"]];
   for (const [key, name, color] of shown) {
     const g = est[key];
     if (!g) continue;
     const s = est[key + "_std"] || g.map(() => 0);
     const band = { line: { width: 0 }, fillcolor: color + "33", hoverinfo: "skip" };
-    traces.push(
-      { x: f, y: g.map((x, k) => x - 2 * s[k]), mode: "lines", ...band, showlegend: false },
-      { x: f, y: g.map((x, k) => x + 2 * s[k]), mode: "lines", fill: "tonexty", ...band, name: "±2σ" },
-      { x: f, y: g, mode: "lines", name, line: { color, width: 1.5 } },
+    traces.push(  // in dB, as the PNGs; the band's floor at -60 dB of the gain
+      { x: f, y: g.map((x, k) => db(Math.max(x - 2 * s[k], x * 1e-3))), mode: "lines", ...band, showlegend: false },
+      { x: f, y: g.map((x, k) => db(x + 2 * s[k])), mode: "lines", fill: "tonexty", ...band, name: "±2σ" },
+      { x: f, y: g.map(db), mode: "lines", name, line: { color, width: 1.5 } },
     );
   }
   return traces.length ? traces : null;
@@ -161,11 +161,13 @@ function draw(state) {
     type: "rect", xref: "x", yref: "paper", x0: lo, x1: hi, y0: 0, y1: 1,
     fillcolor: "#cf222e22", line: { width: 0 }, layer: "below",
   }));
-  Plotly.react("mag", mag, { ...LAYOUT("magnitude", "|P| (dB)"), shapes: shade });
-  Plotly.react("phase", phase, { ...LAYOUT("phase", "∠P (deg)"), shapes: shade });
+  // the conventions of the PNGs (mr_ident.plots): |P_h| in dB in the model's units, the
+  // phase unwrapped, the PFG in dB
+  Plotly.react("mag", mag, { ...LAYOUT("magnitude", state.magnitude_label || "|P_h| [dB]"), shapes: shade });
+  Plotly.react("phase", phase, { ...LAYOUT("phase", "phase [deg] (unwrapped)"), shapes: shade });
   plotted.drift_bands = bands;
   const pfg = pfgTraces(est);
-  if (pfg) Plotly.react("pfg", pfg, LAYOUT("Performance Frequency Gain", "PFG"));
+  if (pfg) Plotly.react("pfg", pfg, LAYOUT("Performance frequency gain", "PFG r→y [dB]"));
   if (est.sigma_error) {  // |P̂ − P_model| / σ per bin: above 2-3 the model is contradicted
     const K = est.frequency.length, [ny, nu] = est.shape, traces = [];
     for (let o = 0; o < ny; o++) for (let i = 0; i < nu; i++) {
