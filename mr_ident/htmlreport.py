@@ -47,6 +47,16 @@ def fig_bode(ev: Evidence, extended: NDArray | None) -> Figure:
     )
 
 
+def fig_controller(d: Diagnosis) -> Figure:
+    """The controller identified from the data ± 2σ against the model's and the fitted one."""
+    c = d.controller_frf
+    assert c is not None
+    models = [("model's controller", c.model, {"color": "k", "ls": "--"})]
+    if c.fit is not None:
+        models.append(("fitted controller", c.fit, {"color": "C3"}))
+    return bode_figure(c.identified, models=models, title="Controller at its rate")
+
+
 def fig_sigma(before: Evidence, after: Evidence) -> Figure:
     """σ-error per bin: nominal (estimation data), extended (validation data), thresholds."""
     rows = 2 if before.loop_frequency.size else 1
@@ -181,6 +191,10 @@ def report_html(
         ("Measured against simulated output, validation data", fig_time(d)),
         ("Ranking of the causes", fig_ranking(d)),
     ]
+    if d.controller_frf is not None:
+        figs.append(
+            ("Controller: identified from the data ± 2σ, model and fit", fig_controller(d))
+        )
     e = html.escape
 
     def params(p: dict[str, float]) -> str:

@@ -48,21 +48,28 @@ from ..numerics.signals import LoopData
 from ..numerics.systems.model import Model
 from ..numerics.threads import one_blas_thread
 from .causes.cause import CauseFit, PlantData
-from .causes.registry import CAUSES, build
-from .controller.relation import ControllerRelation, relate
+from .causes.registry import build
+from .controller.frf import ControllerFRF, where_differs
+from .controller.relation import (
+    ControllerPath,
+    ControllerRelation,
+    controller_path,
+    settled_fits,
+)
 from .criterion.correlation import HOS_ALPHA, Correlation, correlation
 from .criterion.distortion import NL_THRESHOLD_DB as NL_THRESHOLD_DB  # re-exported
 from .criterion.distortion import blind_text, distortion, lines_nonlinear, lines_text
 from .criterion.evidence import Evidence, frf_evidence, identify_record
+from .criterion.gain import Gain, gain_on
 from .criterion.noise import noise_spectrum
 from .criterion.nonlinearity import summarize
 from .criterion.objective import Objective, settle_samples
-from .criterion.prediction import TimeFit, centred, predict, time_fit
+from .criterion.prediction import TimeFit, time_fit
 from .criterion.realizations import SpreadLevels, records_spread, spread_nonlinear, spread_text
+from .criterion.records import Records, plan, with_injection, with_r
 from .criterion.records import check_record as check_record  # re-exported
 from .criterion.records import min_record as min_record  # re-exported
 from .criterion.records import split as split  # re-exported
-from .criterion.records import with_injection, with_r
 from .criterion.timevarying import Segments, within
 from .criterion.unexplained import (
     Unexplained,
@@ -147,8 +154,11 @@ class Diagnosis:
     correlation : Correlation or None
         The validated residual's higher-order correlations with the model's signals
         (nonlinear distortion under any excitation,
-        :mod:`~mr_ident.diagnosis.criterion.correlation`); None for periodic or
-        multichannel records.
+        :mod:`~mr_ident.diagnosis.criterion.correlation`); None for periodic records.
+    controller_frf : ControllerFRF or None
+        Where the logged u is not the model controller's output: the controller's FRF
+        identified from the estimation data at the low rate, with its std, beside the model's
+        and the applied controller-side causes' (:mod:`~mr_ident.diagnosis.controller.frf`).
     """
 
     cause: str
@@ -176,6 +186,7 @@ class Diagnosis:
     unexplained: Unexplained | None = None
     headline: Headline | None = None
     correlation: Correlation | None = None
+    controller_frf: ControllerFRF | None = None
 
     @property
     def time_varying(self) -> bool:
@@ -315,125 +326,45 @@ def diagnose(
         if progress is not None:
             progress(step)
 
-    if not 0.0 < alpha < 1.0:
-        raise ConfigError(f"alpha must be in (0, 1), got {alpha!r}")
-    if isinstance(n, str) and n != "auto":
-        raise ConfigError(f'n must be an integer >= 1 or "auto", got {n!r}')
-    if n is None or isinstance(n, str):  # the evidence test needs one window (one dof) for all
-        n = default_n("freq-lifted", degree, model.ratio, model.n_u, max(model.n_u, model.n_y))
-    if not 0.05 <= holdout <= 0.5:
-        raise ConfigError(f"holdout must be in [0.05, 0.5], got {holdout!r}")
+    n = _window(model, n, degree, alpha, holdout)
     check_record(model, data, n=n, what=names[0])
     model = with_injection(model, data, None)  # r where the data show it entered
     data = with_r(model, data, names[0])  # r's holes recovered (the simulation reads r)
-    if validation is not None:
-        check_record(model, validation, n=n, what=names[1])
-        with_injection(model, validation, None)  # the same loop there (else refused)
-        validation = with_r(model, validation, names[1])
-        est, val, val_start = data, validation, 0
-        est_desc = f"all of DATA ({data.n_samples} samples)"
-        val_desc = f"the validation data ({validation.n_samples} samples)"
-    else:
-        cut = split(data, 1.0 - holdout)
-        est = data.part(0, cut)
-        val, val_start = data, cut
-        check_record(model, est, n=n, what=f"the estimation part of {names[0]}")
-        if data.period is not None and (data.n_samples - cut) // data.period < 3:
-            raise DataError(
-                f"the held-out part of {names[0]} is {(data.n_samples - cut) // data.period} "
-                "periods; validating on it drops the first as transient and needs two more for "
-                "the noise: record more periods (7 with 30 % held out), or give validation data"
-            )
-        est_desc = f"samples 0..{cut - 1} of DATA (the first {100 * (1 - holdout):.0f} %)"
-        val_desc = (
-            f"samples {cut}..{data.n_samples - 1} of DATA (the last {100 * holdout:.0f} %, held "
-            "out; "
-            f"simulated over the whole record so the state carries over)"
-        )
-    for j, other in enumerate(more):
-        check_record(model, other, n=n, what=f"record {j + 3}")
     more = [with_r(model, other, f"record {j + 3}") for j, other in enumerate(more)]
-    if val_start and val.period is None and val.n_samples - val_start < min_record(n, model.ratio):
-        raise DataError(
-            f"the held-out part of {names[0]} ({val.n_samples - val_start} samples) "
-            "is too short for the LPM window"
-        )
+    recs = plan(model, data, validation, n=n, holdout=holdout, names=names, more=more)
+    est = recs.est
     tell("identifying the plant on the estimation data")
     ident = identify_record(est, model, n=n, degree=degree)
     ev_before = frf_evidence(model, est, n=n, degree=degree, alpha=alpha, ident=ident)
     noise = noise_spectrum(est, model, n=n, degree=degree, ident=ident)
     tell("checking the controller's own equation")
-    # the controller's own equation first: it settles the controller's path exactly
-    relation = relate(model, est)
-    shifts = relation.choices if relation is not None and relation.exact else []
-    nominal_criterion = None
-    if relation is not None and shifts and all(CAUSES[c.cause].discrete for c in shifts):
-        # a delay or offset that closes the equation must also make the loop explain y
-        # better; where it makes it worse, the channels are skewed in time (a shift of y
-        # against u reads as one), not the controller changed (a notch is no skew)
-        nominal_criterion = Objective(est, model, noise)
-        if not nominal_criterion.cost(build(model, shifts)) < nominal_criterion.cost(model):
-            relation = replace(relation, contradicted=True)
-    settled = relation if relation is not None and relation.settles else None
-    fixed = settled.choices if settled is not None else []
-    base = build(model, fixed)
-    if nominal_criterion is not None and not fixed:  # the skew's check built it already
-        full = nominal_criterion
-    else:
-        full = Objective(est, base, noise)
-    unit = est.period or model.ratio
-    n_screen = est.n_samples if est.period else min(est.n_samples, SCREEN_SAMPLES // unit * unit)
-    screen = full if n_screen == est.n_samples else Objective(est.part(0, n_screen), base, noise)
-    plant = PlantData(ev_before.frequency, ev_before.P_hat, ev_before.P_std)
-    why = f"settled by the controller's own equation: {settled.text()}" if settled else None
+    path = controller_path(model, est, noise)
     tell("fitting and selecting the causes")
-    sel = select(full, screen, base, plant, max_causes=max_causes, ruled_out=why)
-    ranking = sel.ranking
-    applied = _settled(full, model, relation) + with_equivalents(
-        full, screen, base, plant, sel.chosen, sel.ranking
-    )
-    val_part = val.part(val_start, val.n_samples) if val_start else val
-    cut_at = val_start
-    if not val_start and model.controller is not None and val.period is None:
-        val_start = settle_samples(model, val.n_samples)  # separate data: skip the transient
-    ident_val = identify_record(val_part, model, n=n, degree=degree)
-
-    def fit_of(m: Model) -> TimeFit:
-        return time_fit(m, val, val_start)
+    plant = PlantData(ev_before.frequency, ev_before.P_hat, ev_before.P_std)
+    ranking, chosen = _chosen_causes(path, model, est, plant, max_causes)
+    ident_val = identify_record(recs.val_part, model, n=n, degree=degree)
 
     @functools.cache
     def val_objective() -> Objective:
-        noise_val = noise_spectrum(val_part, model, n=n, degree=degree, ident=ident_val)
-        return Objective(val_part, model, noise_val)
+        noise_val = noise_spectrum(recs.val_part, model, n=n, degree=degree, ident=ident_val)
+        return Objective(recs.val_part, model, noise_val)
 
     tell("validating the causes on the validation data")
-    check = decide(val_objective, model, applied, fit_of, alpha=alpha, start=cut_at)
-    applied = [  # each with the validated ones before it in its model
-        replace(c, model=build(model, [a.choice for a in check.applied[: j + 1] if a.choice]))
-        for j, c in enumerate(check.applied)
-    ]
+    check, applied = _validated(model, recs, chosen, val_objective, alpha=alpha)
     current = applied[-1].model if applied else model
     # where the listed causes end: a correction on the validated model, applied only when it
     # validates
     tell("trying a correction of the plant")
-    corr = correction(model, current, est, ident, val, cut_at, n=n, degree=degree, alpha=alpha)
+    corr = correction(
+        model, current, est, ident, recs.val, recs.cut, n=n, degree=degree, alpha=alpha
+    )
     current = corr.model if corr is not None and corr.model is not None else current
     tell("measuring the gain on the validation data")
-    pred_b, pred_a = predict(model, val), predict(current, val)
-    fit_before = time_fit(model, val, val_start, pred_b)
-    fit_after = time_fit(current, val, val_start, pred_a)
-    ev_val_before = frf_evidence(model, val_part, n=n, degree=degree, alpha=alpha, ident=ident_val)
-    ev_after = frf_evidence(current, val_part, n=n, degree=degree, alpha=alpha, ident=ident_val)
-    _, _, y_meas = centred(val, model)
-    traces = {
-        "start": max(val_start, pred_b.skip),
-        "y": y_meas,
-        "y_before": pred_b.y,
-        "y_after": pred_a.y,
-        "fs_high": val.fs_high,
-    }
+    gain = gain_on(
+        model, current, recs, _val_start(model, recs), ident_val, n=n, degree=degree, alpha=alpha
+    )
     tell("testing for nonlinear distortion")
-    spread = records_spread(
+    spread, records = records_spread(
         [data, *([] if validation is None else [validation]), *more],
         model,
         n,
@@ -441,66 +372,122 @@ def diagnose(
         (ident,) if validation is None else (ident, ident_val),
     )
     lines = distortion(est)
-    # periodic: the residual's spread over periods (a periodic distortion left out)
-    noise_var = None if val_part.period is not None else criterion_noise(val_objective())
-    hos = correlation(current, val, val_start, pred_a, alpha=HOS_ALPHA)
-    if noise_var is not None and hos is not None and hos.detected:  # the LPM's holds it
-        shaped = loop_shaped(hos.rest_var, model, val.n_samples - val_start)
-        noise_var = np.minimum(noise_var, shaped)
-    left = unexplained(current, val, val_start, pred_a, noise_var)
-    if hos is not None and hos.detected:
-        left = with_distortion(left, hos.fitted_var, hos.rest_var)
-    corrected = corr is not None and corr.accepted
+    hos = correlation(current, recs.val, gain.start, gain.pred_after, alpha=HOS_ALPHA)
+    left = _unexplained(model, current, recs, gain, hos, val_objective)
     # random records: their LPM noise holds the distortion, the spread across them names
     # it only by chance (a finding, not the verdict); the correlations do instead
-    across = spread[0] if data.period is not None else []
-    found = summarize(lines, across, hos)
-    verdict = headline(applied, corrected, found, left)
+    found = summarize(lines, spread if data.period is not None else [], hos)
+    verdict = headline(applied, corr is not None and corr.accepted, found, left)
     tell("testing for a plant that changes in time")
     segments = within(data, model, n=n, degree=degree)
     return Diagnosis(
-        verdict.cause,
-        verdict.parameters,
-        ranking,
-        applied,
-        current,
-        ev_before,
-        ev_val_before,
-        ev_after,
-        fit_before,
-        fit_after,
-        est_desc,
-        val_desc,
-        traces,
-        lines,
-        None if ident is None else check_controller(ident, n),
-        full,
-        relation,
-        check,
-        *spread,
-        corr,
-        segments,
-        left,
-        verdict,
-        hos,
+        cause=verdict.cause,
+        parameters=verdict.parameters,
+        ranking=ranking,
+        applied=applied,
+        extended=current,
+        evidence_before=ev_before,
+        evidence_validation_before=gain.evidence_before,
+        evidence_after=gain.evidence_after,
+        fit_before=gain.fit_before,
+        fit_after=gain.fit_after,
+        estimation=recs.est_desc,
+        validation=recs.val_desc,
+        traces=gain.traces,
+        distortion=lines,
+        controller=None if ident is None else check_controller(ident, n),
+        criterion=path.criterion,
+        relation=path.relation,
+        decision=check,
+        spread=spread,
+        records=records,
+        correction=corr,
+        segments=segments,
+        unexplained=left,
+        headline=verdict,
+        correlation=hos,
+        controller_frf=where_differs(model, est, path.relation, applied, n=n, degree=degree),
     )
 
 
-def _settled(obj: Objective, nominal: Model, rel: ControllerRelation | None) -> list[CauseFit]:
-    """The controller-side causes the controller's equation determined, as CauseFits.
+def _window(model: Model, n: int | str | None, degree: int, alpha: float, holdout: float) -> int:
+    """The options checked; the LPM half-width of the evidence (one window for all bins)."""
+    if not 0.0 < alpha < 1.0:
+        raise ConfigError(f"alpha must be in (0, 1), got {alpha!r}")
+    if isinstance(n, str) and n != "auto":
+        raise ConfigError(f'n must be an integer >= 1 or "auto", got {n!r}')
+    if not 0.05 <= holdout <= 0.5:
+        raise ConfigError(f"holdout must be in [0.05, 0.5], got {holdout!r}")
+    if n is None or isinstance(n, str):  # the evidence test needs one window (one dof) for all
+        return default_n("freq-lifted", degree, model.ratio, model.n_u, max(model.n_u, model.n_y))
+    return n
 
-    Each with every one before it in its model; its score the BIC of that model on ``obj``
-    (the values were not fitted there, so they count no parameter); its std from the
-    equation.
+
+def _chosen_causes(
+    path: ControllerPath, model: Model, est: LoopData, plant: PlantData, max_causes: int
+) -> tuple[list[CauseFit], list[CauseFit]]:
+    """Every cause ranked on the estimation data, and the set it chose (settled ones first)."""
+    full, base = path.criterion, path.base
+    unit = est.period or model.ratio
+    n_screen = est.n_samples if est.period else min(est.n_samples, SCREEN_SAMPLES // unit * unit)
+    screen = (
+        full if n_screen == est.n_samples else Objective(est.part(0, n_screen), base, path.noise)
+    )
+    sel = select(full, screen, base, plant, max_causes=max_causes, ruled_out=path.why)
+    chosen = settled_fits(full, model, path.relation) + with_equivalents(
+        full, screen, base, plant, sel.chosen, sel.ranking
+    )
+    return sel.ranking, chosen
+
+
+def _validated(
+    model: Model,
+    recs: Records,
+    chosen: list[CauseFit],
+    val_objective: Callable[[], Objective],
+    *,
+    alpha: float,
+) -> tuple[Validation, list[CauseFit]]:
+    """What the validation data decide of ``chosen``, and the causes they validated.
+
+    Each validated cause with those before it in its model.
     """
-    if rel is None or not rel.settles:
-        return []
-    out = []
-    for j, c in enumerate(rel.choices):
-        cause = CAUSES[c.cause]
-        model = build(nominal, rel.choices[: j + 1])
-        bic, rss = obj.evaluate(model, 0)
-        params = cause.named(c, nominal)
-        text = cause.describe(params) + " (the controller's own equation, u from y, fixes it)"
-        out.append(CauseFit(c.cause, params, bic, rss, model, True, text, c, rel.std[j]))
-    return out
+    start = _val_start(model, recs)
+
+    def fit_of(m: Model) -> TimeFit:
+        return time_fit(m, recs.val, start)
+
+    check = decide(val_objective, model, chosen, fit_of, alpha=alpha, start=recs.cut)
+    applied = [
+        replace(c, model=build(model, [a.choice for a in check.applied[: j + 1] if a.choice]))
+        for j, c in enumerate(check.applied)
+    ]
+    return check, applied
+
+
+def _unexplained(
+    model: Model,
+    current: Model,
+    recs: Records,
+    gain: Gain,
+    hos: Correlation | None,
+    val_objective: Callable[[], Objective],
+) -> Unexplained | None:
+    """What the extended model leaves of y on the validation data, against the noise."""
+    val = recs.val
+    # periodic: the residual's spread over periods (a periodic distortion left out)
+    noise_var = None if recs.val_part.period is not None else criterion_noise(val_objective())
+    if noise_var is not None and hos is not None and hos.detected:  # the LPM's holds it
+        shaped = loop_shaped(hos.rest_var, model, val.n_samples - gain.start)
+        noise_var = np.minimum(noise_var, shaped)
+    left = unexplained(current, val, gain.start, gain.pred_after, noise_var)
+    if hos is not None and hos.detected:
+        left = with_distortion(left, hos.fitted_var, hos.rest_var)
+    return left
+
+
+def _val_start(model: Model, recs: Records) -> int:
+    """Where the validation fit starts: the cut, or past the transient of separate data."""
+    if not recs.cut and model.controller is not None and recs.val.period is None:
+        return settle_samples(model, recs.val.n_samples)
+    return recs.cut

@@ -125,6 +125,7 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
             else []
         )
         + ([d.controller.text()] if d.controller is not None and d.controller.differs else [])
+        + ([d.controller_frf.text()] if d.controller_frf is not None else [])
         + [c.description for c in d.applied]
         + _validation_findings(d)
         + ([d.correction.text()] if d.correction is not None else []),
@@ -200,6 +201,7 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
             "statistic": "rms of u - u_hat(r, y) over the rms of the controller's output, "
             "u_hat the model controller's output for the logged y, free responses projected out",
         },
+        "controller_frf": None if d.controller_frf is None else d.controller_frf.summary(),
         "controller_check": None
         if d.controller is None
         else {

@@ -54,8 +54,9 @@ import scipy.optimize
 from ...numerics.arrays import BoolArray, FloatArray
 from ...numerics.signals import LoopData
 from ...numerics.systems.model import Model
-from ..causes.cause import Cause, Choice, Params, clip
+from ..causes.cause import Cause, CauseFit, Choice, Params, clip
 from ..causes.registry import CAUSES, build
+from ..criterion.objective import Objective
 from ..selection.fitting import Continuous
 from .equation import Equation as Equation  # re-exported
 from .identified import controller_starts
@@ -342,3 +343,68 @@ def _std(eq: Equation, nominal: Model, choices: list[Choice]) -> list[Params]:
         sd = value_std(eq, model_at, c.x)
         out.append({k: float(v) for k, v in zip(cause.value_names(c), sd, strict=True)})
     return out
+
+
+def settled_fits(obj: Objective, nominal: Model, rel: ControllerRelation | None) -> list[CauseFit]:
+    """The controller-side causes the controller's equation determined, as CauseFits.
+
+    Each with every one before it in its model; its score the BIC of that model on ``obj``
+    (the values were not fitted there, so they count no parameter); its std from the
+    equation. [] where the relation does not settle the controller's path.
+    """
+    if rel is None or not rel.settles:
+        return []
+    out = []
+    for j, c in enumerate(rel.choices):
+        cause = CAUSES[c.cause]
+        model = build(nominal, rel.choices[: j + 1])
+        bic, rss = obj.evaluate(model, 0)
+        params = cause.named(c, nominal)
+        text = cause.describe(params) + " (the controller's own equation, u from y, fixes it)"
+        out.append(CauseFit(c.cause, params, bic, rss, model, True, text, c, rel.std[j]))
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class ControllerPath:
+    """The controller's path as its own equation settles it, and the criterion on top.
+
+    ``relation`` (None in open loop), ``base`` the nominal with the settled controller-side
+    causes, ``criterion`` the estimation criterion on ``base`` with the ``noise`` level,
+    ``why`` the text that rules the controller-side causes out of the search (None when it
+    does not).
+    """
+
+    relation: ControllerRelation | None
+    base: Model
+    criterion: Objective
+    noise: FloatArray
+    why: str | None
+
+
+def controller_path(model: Model, est: LoopData, noise: FloatArray) -> ControllerPath:
+    """The controller's own equation on ``est`` (:func:`relate`), checked against y.
+
+    A delay or offset that closes the equation must also make the loop explain y better
+    (on the criterion with ``noise``); where it makes it worse the relation is
+    ``contradicted``. The settled causes are applied to ``model`` as ``base``.
+    """
+    relation = relate(model, est)
+    shifts = relation.choices if relation is not None and relation.exact else []
+    nominal_criterion = None
+    if relation is not None and shifts and all(CAUSES[c.cause].discrete for c in shifts):
+        # a delay or offset that closes the equation must also make the loop explain y
+        # better; where it makes it worse, the channels are skewed in time (a shift of y
+        # against u reads as one), not the controller changed (a notch is no skew)
+        nominal_criterion = Objective(est, model, noise)
+        if not nominal_criterion.cost(build(model, shifts)) < nominal_criterion.cost(model):
+            relation = replace(relation, contradicted=True)
+    settled = relation if relation is not None and relation.settles else None
+    fixed = settled.choices if settled is not None else []
+    base = build(model, fixed)
+    if nominal_criterion is not None and not fixed:  # the skew's check built it already
+        full = nominal_criterion
+    else:
+        full = Objective(est, base, noise)
+    why = f"settled by the controller's own equation: {settled.text()}" if settled else None
+    return ControllerPath(relation=relation, base=base, criterion=full, noise=noise, why=why)

@@ -4,7 +4,8 @@
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -127,3 +128,70 @@ def split(rec: LoopData, fraction: float = 0.7) -> int:
     """
     unit = rec.period or rec.ratio or 1
     return int(rec.n_samples * fraction) // unit * unit
+
+
+@dataclass(frozen=True, eq=False)
+class Records:
+    """Which data estimate and which validate (:func:`plan`).
+
+    ``est`` the estimation record; ``val`` the record simulated for validation (the whole
+    of DATA when part of it is held out), ``val_part`` its validated part, ``cut`` where
+    that part begins in ``val`` (0 for separate data); ``est_desc``, ``val_desc`` in words.
+    """
+
+    est: LoopData
+    val: LoopData
+    val_part: LoopData
+    cut: int
+    est_desc: str
+    val_desc: str
+
+
+def plan(
+    model: Model,
+    data: LoopData,
+    validation: LoopData | None,
+    *,
+    n: int,
+    holdout: float,
+    names: tuple[str, str],
+    more: Sequence[LoopData] = (),
+) -> Records:
+    """Check the other records against ``model`` and split off the validation part.
+
+    ``data`` is checked already (:func:`check_record`, before ``model`` took the injection
+    the data show: :func:`with_injection`). Without ``validation`` the last ``holdout`` of
+    ``data`` (:func:`split`) is held out; periodic data need at least 3 held-out periods.
+    DataError naming the record otherwise.
+    """
+    if validation is not None:
+        check_record(model, validation, n=n, what=names[1])
+        with_injection(model, validation, None)  # the same loop there (else refused)
+        validation = with_r(model, validation, names[1])
+        est, val, cut = data, validation, 0
+        est_desc = f"all of DATA ({data.n_samples} samples)"
+        val_desc = f"the validation data ({validation.n_samples} samples)"
+    else:
+        cut = split(data, 1.0 - holdout)
+        est, val = data.part(0, cut), data
+        check_record(model, est, n=n, what=f"the estimation part of {names[0]}")
+        if data.period is not None and (data.n_samples - cut) // data.period < 3:
+            raise DataError(
+                f"the held-out part of {names[0]} is {(data.n_samples - cut) // data.period} "
+                "periods; validating on it drops the first as transient and needs two more for "
+                "the noise: record more periods (7 with 30 % held out), or give validation data"
+            )
+        est_desc = f"samples 0..{cut - 1} of DATA (the first {100 * (1 - holdout):.0f} %)"
+        val_desc = (
+            f"samples {cut}..{data.n_samples - 1} of DATA (the last {100 * holdout:.0f} %, held "
+            "out; simulated over the whole record so the state carries over)"
+        )
+    for j, other in enumerate(more):
+        check_record(model, other, n=n, what=f"record {j + 3}")
+    if cut and val.period is None and val.n_samples - cut < min_record(n, model.ratio):
+        raise DataError(
+            f"the held-out part of {names[0]} ({val.n_samples - cut} samples) "
+            "is too short for the LPM window"
+        )
+    val_part = val.part(cut, val.n_samples) if cut else val
+    return Records(est, val, val_part, cut, est_desc, val_desc)
