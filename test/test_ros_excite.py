@@ -37,6 +37,12 @@ from mr_ident.numerics.excitation.schedule import LABELS, Schedule, realizations
 from mr_ident.ros.excite_pub import index_topic, make_form, publish  # noqa: E402
 from mr_ident.ros.messages import BLOCK_QOS, block_of  # noqa: E402
 
+try:  # ros2_control's messages: a robot's stack has them; no wheel on the package index
+    from control_msgs.msg import MultiDOFCommand
+except ImportError:
+    MultiDOFCommand = None
+NO_CONTROL_MSGS = "control_msgs is not installed here (a ros2_control stack has it)"
+
 
 class Blocks:
     """Every block received on a topic, joined by index into one array."""
@@ -216,7 +222,17 @@ def _play(pub_node, r, fs, period, form, loops=1):
     return played[0]
 
 
-@pytest.mark.parametrize("form", ["jointstate", "float64multiarray"])
+@pytest.mark.parametrize(
+    "form",
+    [
+        "jointstate",
+        "float64multiarray",
+        pytest.param(
+            "multidofcommand",
+            marks=pytest.mark.skipif(MultiDOFCommand is None, reason=NO_CONTROL_MSGS),
+        ),
+    ],
+)
 def test_per_sample_forms_carry_the_values_stamps_from_the_index_and_the_labels(graph, form):
     """JointState (a position per joint, header.stamp t0 + i/fs_high exactly) and the
     forward_command_controller command (data per joint, no stamp): one message per sample,
@@ -227,7 +243,9 @@ def test_per_sample_forms_carry_the_values_stamps_from_the_index_and_the_labels(
     ms = design(fs_high=fs, period=N, band=(1, 100), kind="full", periods=P, realizations=M)
     r = np.concatenate([ms.r, -ms.r], axis=2)  # two joints
     total = N * P * M
-    cls = sensor_msgs.JointState if form == "jointstate" else Float64MultiArray
+    cls = {"jointstate": sensor_msgs.JointState, "multidofcommand": MultiDOFCommand}.get(
+        form, Float64MultiArray
+    )
     got: dict[str, list] = {"sig": [], "idx": []}
     lis = graph.node("listener")
     for key, topic in (("sig", "/cmd"), ("idx", index_topic("/cmd"))):
@@ -255,6 +273,10 @@ def test_per_sample_forms_carry_the_values_stamps_from_the_index_and_the_labels(
         np.testing.assert_array_equal(istamps, stamps)
         assert all(list(m.name) == ["a", "b"] for m in sig)
         assert all(list(m.name) == list(LABELS) for m in idx)
+    elif form == "multidofcommand":  # pid_controller's setpoint: values, values_dot NaN
+        values = np.array([m.values for m in sig])
+        labels = np.array([m.values for m in idx])
+        assert all(list(m.dof_names) == ["a", "b"] and np.isnan(m.values_dot).all() for m in sig)
     else:
         values = np.array([m.data for m in sig])
         labels = np.array([m.data for m in idx])
@@ -270,6 +292,9 @@ def test_per_sample_forms_carry_the_values_stamps_from_the_index_and_the_labels(
     if form == "jointstate":
         ref.name, ref.position = ["a", "b"], [float(v) for v in values[5]]
         ref.header.stamp.sec, ref.header.stamp.nanosec = divmod(int(stamp[0]), 10**9)
+    elif form == "multidofcommand":
+        ref.dof_names, ref.values = ["a", "b"], [float(v) for v in values[5]]
+        ref.values_dot = [float("nan")] * 2
     else:
         ref.data = [float(v) for v in values[5]]
     assert one == bytes(serialize_message(ref))
@@ -362,3 +387,23 @@ def test_the_publisher_is_started_and_stopped_from_the_graph(graph):
         stop.request()
         th.join(10)
         pub_node.destroy_node()
+
+
+@pytest.mark.skipif(MultiDOFCommand is not None, reason="control_msgs is installed here")
+def test_the_pid_controllers_setpoint_form_says_what_it_needs_where_control_msgs_is_absent():
+    from mr_ident.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="cannot import control_msgs: source the ROS 2"):
+        make_form("multidofcommand", ["j1"])
+
+
+def test_a_multidof_setpoint_leaves_its_derivative_uncommanded():
+    from types import SimpleNamespace
+
+    from mr_ident.ros.excite_pub import multidof_values
+
+    msg = SimpleNamespace(values=[], values_dot=[])
+    multidof_values(msg, [0.5, -1.0])
+    assert (
+        msg.values == [0.5, -1.0] and np.isnan(msg.values_dot).all() and len(msg.values_dot) == 2
+    )

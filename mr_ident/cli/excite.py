@@ -72,8 +72,9 @@ def add_excite_parser(sub: Any) -> None:
         dest="form",
         choices=EXCITATION_FORMS,
         default="block",
-        help="message form: the block contract (default), a JointState position, or a "
-        "Float64MultiArray command (forward_command_controller)",
+        help="message form: the block contract (default), a JointState position, a "
+        "Float64MultiArray command (forward_command_controller), or a MultiDOFCommand "
+        "setpoint (pid_controller's ~/reference; needs control_msgs)",
     )
     x.add_argument(
         "--joint",

@@ -14,4 +14,4 @@ METHOD_NAMES: tuple[str, ...] = ("freq-lifted", "time-lifted", "lpm", "structure
 LOCAL_MODELS: tuple[str, ...] = ("polynomial", "rational")
 #: The message forms ``mr-ident excite --publish`` streams (``--as``; README, "Excitation
 #: design"): the block contract, a JointState position, a forward_command_controller command.
-EXCITATION_FORMS: tuple[str, ...] = ("block", "jointstate", "float64multiarray")
+EXCITATION_FORMS: tuple[str, ...] = ("block", "jointstate", "float64multiarray", "multidofcommand")

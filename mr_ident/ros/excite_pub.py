@@ -21,6 +21,12 @@ clock at the start), computed from the index, never read off the wall clock per 
     the command of ros2_control's ``forward_command_controller`` (``~/commands``). It has
     no stamp: the controller applies the latest command at its update, so publish at
     ``--tick`` one sample (the default for this form).
+``multidofcommand``
+    ``control_msgs/MultiDOFCommand``, one message per sample: ``dof_names`` the joints,
+    ``values`` the values, ``values_dot`` NaN (not commanded): the setpoint of
+    ros2_controllers' ``pid_controller`` (``~/reference``), which takes the latest message
+    at its update (its subscription keeps one, best effort). Needs control_msgs (a
+    ros2_control stack has it). Play a design at the controller's rate, one sample a tick.
 
 Beside the signal, on ``TOPIC/excitation_index``, the same form carries each sample's
 labels (realization, period, sample of the period;
@@ -154,7 +160,35 @@ def make_form(name: str, joints: list[str]) -> Form:
             return RawTemplate(Float64MultiArray(), n, put, stamped=False)
 
         return Form(name, Float64MultiArray, True, fa(len(joints)), fa(len(LABELS)))
+    if name == "multidofcommand":
+        command = _multidof_type()
+
+        def md(names: list[str]) -> RawTemplate:
+            nan = [math.nan] * len(names)
+            msg = command(dof_names=list(names), values=nan, values_dot=nan)
+            return RawTemplate(msg, len(names), multidof_values, stamped=False)
+
+        return Form(name, command, True, md(joints), md(list(LABELS)))
     raise ConfigError(f"--as must be one of {', '.join(FORMS)}, got {name!r}")
+
+
+def multidof_values(msg: Any, values: list[float]) -> None:
+    """A MultiDOFCommand's ``values`` (its ``values_dot`` NaN: not commanded)."""
+    msg.values = list(values)
+    msg.values_dot = [math.nan] * len(values)
+
+
+def _multidof_type() -> Any:
+    """control_msgs' MultiDOFCommand, or a ConfigError naming the package to install."""
+    try:
+        from control_msgs.msg import MultiDOFCommand
+    except ImportError:
+        raise ConfigError(
+            "--as multidofcommand publishes control_msgs/MultiDOFCommand (pid_controller's "
+            "~/reference), and this Python cannot import control_msgs: source the ROS 2 "
+            "installation of the ros2_control stack (apt: ros-jazzy-control-msgs)"
+        ) from None
+    return MultiDOFCommand
 
 
 @dataclass(frozen=True)
