@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 from ..live.spans import DEFAULT_SPAN, SPANS
 from ..numerics.catalog import LOCAL_MODELS, METHOD_NAMES
@@ -121,12 +122,27 @@ def _local_option(p: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of ``mr-ident`` and its subcommands."""
+    """The argument parser of ``mr-ident``: one builder per subcommand, in the help's order."""
     p = _Parser(
         prog="mr-ident", description="Identify multirate control loops in the frequency domain."
     )
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    _simulate_command(sub)
+    _identify_command(sub)
+    _paper_command(sub)
+    _replay_command(sub)
+    _record_command(sub)
+    _diagnose_command(sub)
+    _batch_command(sub)
+    _view_command(sub)
+    add_excite_parser(sub)
+    add_fit_parser(sub)
+    _demo_command(sub)
+    return p
 
+
+def _simulate_command(sub: Any) -> None:
+    """``mr-ident simulate``: its arguments."""
     s = sub.add_parser("simulate", help="simulate a model's loop with white-noise excitation")
     s.add_argument("model", type=Path, help="model YAML")
     s.add_argument(
@@ -144,6 +160,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--out", type=Path, required=True, help="data file, .csv or .npz")
 
+
+def _identify_command(sub: Any) -> None:
+    """``mr-ident identify``: its arguments."""
     i = sub.add_parser("identify", help="identify P_h (and the PFG) from r, u, y data")
     i.add_argument(
         "data",
@@ -189,6 +208,9 @@ def build_parser() -> argparse.ArgumentParser:
     _labels_option(i, "with --period on a bag: ")
     quiet_option(i)
 
+
+def _paper_command(sub: Any) -> None:
+    """``mr-ident paper``: its arguments."""
     q = sub.add_parser("paper", help="the paper's example end to end: figures and an error table")
     q.add_argument("--duration", type=positive_float, default=600.0, help="seconds (default 600)")
     q.add_argument(
@@ -205,6 +227,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="where to write (default out/paper)",
     )
 
+
+def _replay_command(sub: Any) -> None:
+    """``mr-ident replay``: its arguments."""
     rp = sub.add_parser(
         "replay", help="identify from a recording as the node would (or re-publish an MCAP file)"
     )
@@ -258,11 +283,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     quiet_option(rp)
 
+
+def _record_command(sub: Any) -> None:
+    """``mr-ident record``: its arguments."""
     rc = sub.add_parser("record", help="record topics to an MCAP file (rosbag2 form) until Ctrl-C")
     rc.add_argument("out", type=Path, help="MCAP file to write")
     rc.add_argument("topics", nargs="*", help="topics (default: reference input output)")
     rc.add_argument("--duration", type=positive_float, help="stop after this many seconds")
 
+
+def _diagnose_command(sub: Any) -> None:
+    """``mr-ident diagnose``: its arguments."""
     g = sub.add_parser(
         "diagnose", help="where and why a model disagrees with measured data; extended model"
     )
@@ -313,6 +344,9 @@ def build_parser() -> argparse.ArgumentParser:
     _injection(g)
     quiet_option(g)
 
+
+def _batch_command(sub: Any) -> None:
+    """``mr-ident batch``: its arguments."""
     b = sub.add_parser(
         "batch",
         help="identify or diagnose many recordings: one summary table and a result each",
@@ -362,6 +396,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     quiet_option(b)
 
+
+def _view_command(sub: Any) -> None:
+    """``mr-ident view``: its arguments."""
     v = sub.add_parser(
         "view", help="a live page of the estimate (Bode, PFG, stream health) on localhost"
     )
@@ -405,9 +442,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="bag: loop time per wall time (default 1: as live; 0: as fast as possible)",
     )
 
-    add_excite_parser(sub)
-    add_fit_parser(sub)
 
+def _demo_command(sub: Any) -> None:
+    """``mr-ident demo``: its arguments."""
     d = sub.add_parser(
         "demo", help="live demo: simulated loop + node over DDS, recording, replay, plots"
     )
@@ -421,4 +458,3 @@ def build_parser() -> argparse.ArgumentParser:
         default=120.0,
         help="give up after this many s (default 120)",
     )
-    return p

@@ -23,7 +23,6 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from ..errors import ConfigError, DataError
-from .gaps import R_GAP_BLOCKS
 
 if TYPE_CHECKING:  # numpy-free at import: the parser takes SPANS from here
     from ..numerics.signals import LoopData
@@ -107,6 +106,8 @@ def why(al: Aligner, most: int = 3) -> str:
     shown = "; ".join(breaks[:most]) + (
         f"; and {len(breaks) - most} more" if len(breaks) > most else ""
     )
+    from .gaps import R_GAP_BLOCKS  # numpy's: not at import (the parser takes SPANS)
+
     r_gap = R_GAP_BLOCKS * al.ratio
     limit = (
         f" (bridged: holes of u, y {b.describe()}; of r, at most {r_gap} samples)"
