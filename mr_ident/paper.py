@@ -49,8 +49,11 @@ def run_paper(
     noise_std: float | None = None,
     n: int = 8,
     degree: int = 2,
+    units: tuple[str, str] | None = None,
 ) -> PaperRun:
     """Run the example and write figures and a table into ``out_dir``.
+
+    ``units``: the model file's (u's, y's), for the Bode plot's magnitude.
 
     Every method with the window ``n`` (rows ``method n=8``) and with ``n = "auto"``
     (rows ``method auto``; the ETFE has no window: one row); ``median_rel_error`` and
@@ -124,10 +127,16 @@ def run_paper(
     )
     best = results["freq-lifted auto"]
     files["bode"] = plot_bode(
-        best.plant, out / "paper_bode_freq_lifted.png", model=model_frf, nyquist_low=nyq
+        best.plant,
+        out / "paper_bode_freq_lifted.png",
+        model=model_frf,
+        nyquist_low=nyq,
+        units=units,
     )
     assert best.pfg is not None
-    files["pfg"] = plot_pfg(best.pfg, out / "paper_pfg_freq_lifted.png", model=model_pfg)
+    files["pfg"] = plot_pfg(
+        best.pfg, out / "paper_pfg_freq_lifted.png", model=model_pfg, nyquist_low=nyq
+    )
     rel = {m: float(np.median(err_P[m] / np.abs(P_true).max(axis=(1, 2)))) for m in err_P}
     lines = [
         f"# Paper example: N = {N} samples ({duration:g} s at {model.fs_high:g} Hz), F = {F}, "
