@@ -14,7 +14,7 @@ export MPLBACKEND := Agg
 venv: $(STAMP)
 
 $(PIP_STAMP): requirements.txt setup.py setup.cfg
-	@echo "setting up $(VENV): installing the pinned packages of requirements.txt and mr_ident, then building mr_ident_msgs (about a minute; once)" >&2
+	@echo "setting up $(VENV): installing the pinned packages of requirements.txt and mr_ident, then building mr_ident_msgs: 1-2 minutes the first time" >&2
 	test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --disable-pip-version-check -r requirements.txt
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation --use-pep517 -e .
@@ -28,7 +28,7 @@ MSGS_SRC   := mr_ident_msgs/CMakeLists.txt mr_ident_msgs/package.xml \
 MSGS_BUILD := $(VENV)/build/mr_ident_msgs
 ROS_PREFIX := CMAKE_PREFIX_PATH=$(abspath $(VENV)) AMENT_PREFIX_PATH=$(abspath $(VENV))
 $(STAMP): $(PIP_STAMP) $(MSGS_SRC)
-	@echo "building the interfaces mr_ident_msgs into $(VENV) (about 20 s)" >&2
+	@echo "building the interfaces mr_ident_msgs into $(VENV) (under a minute)" >&2
 	if [ -f $(MSGS_BUILD)/install_manifest.txt ]; then \
 	  xargs rm -f < $(MSGS_BUILD)/install_manifest.txt; fi
 	$(ROS_PREFIX) cmake -S mr_ident_msgs -B $(MSGS_BUILD) --log-level=WARNING \

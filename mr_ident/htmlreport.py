@@ -30,8 +30,10 @@ def _png(fig: Figure) -> str:
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def fig_bode(ev: Evidence, extended: NDArray | None) -> Figure:
-    """Nominal (and extended) model against P̂_h ± 2σ, every entry."""
+def fig_bode(
+    ev: Evidence, extended: NDArray | None, units: tuple[str, str] | None = None
+) -> Figure:
+    """Nominal (and extended) model against P̂_h ± 2σ, every entry (``units``: u's, y's)."""
     zero = np.zeros(ev.P_std.shape)
     models = [
         ("nominal model", FRF(ev.frequency, ev.P_model, zero, "model"), {"color": "k", "ls": "--"})
@@ -44,6 +46,7 @@ def fig_bode(ev: Evidence, extended: NDArray | None) -> Figure:
         FRF(ev.frequency, ev.P_hat, ev.P_std, "identified"),
         models=models,
         title="Plant: identified against the model",
+        units=units,
     )
 
 
@@ -179,13 +182,20 @@ def _decision_html(decision: dict[str, Any] | None) -> str:
 
 
 def report_html(
-    d: Diagnosis, summary: dict[str, Any], extended_frf: NDArray | None, title: str
+    d: Diagnosis,
+    summary: dict[str, Any],
+    extended_frf: NDArray | None,
+    title: str,
+    units: tuple[str, str] | None = None,
 ) -> str:
-    """A self-contained HTML page (PNG figures embedded as data URIs)."""
+    """A self-contained HTML page (PNG figures embedded as data URIs).
+
+    ``units``: the model file's (u's, y's), for the Bode plot's magnitude.
+    """
     figs = [
         (
             "Bode: nominal and extended model against P̂_h ± 2σ (estimation data)",
-            fig_bode(d.evidence_before, extended_frf),
+            fig_bode(d.evidence_before, extended_frf, units),
         ),
         ("Error in σ units per bin", fig_sigma(d.evidence_before, d.evidence_after)),
         ("Measured against simulated output, validation data", fig_time(d)),

@@ -51,8 +51,11 @@ def run_paper(
     noise_std: float | None = None,
     n: int = 8,
     degree: int = 2,
+    units: tuple[str, str] | None = None,
 ) -> PaperRun:
     """Run the example and write figures and a table into ``out_dir``.
+
+    ``units``: the model file's (u's, y's), for the Bode plot's magnitude.
 
     Every method with the window ``n`` (rows ``method n=8``) and with ``n = "auto"``
     (rows ``method auto``; the ETFE has no window: one row); ``median_rel_error`` and
@@ -67,7 +70,7 @@ def run_paper(
     sim = simulate(model, duration=duration, rng=np.random.default_rng(seed))
     truth = _Truth(model.plant_result(sim.n_samples), pfg_of_model(model, sim.n_samples))
     rows = _identify_rows(model, sim, truth, n, degree)
-    files = _figures(model, truth, rows, out, duration)
+    files = _figures(model, truth, rows, out, duration, units)
     lines = [
         f"# Paper example: N = {sim.n_samples} samples ({duration:g} s at {model.fs_high:g} "
         f"Hz), F = {model.ratio}, noise std {model.noise_std:g}, n = {n} or auto, "
@@ -146,7 +149,12 @@ def _identify_rows(model: Model, sim: LoopData, truth: _Truth, n: int, degree: i
 
 
 def _figures(
-    model: Model, truth: _Truth, rows: _Rows, out: Path, duration: float
+    model: Model,
+    truth: _Truth,
+    rows: _Rows,
+    out: Path,
+    duration: float,
+    units: tuple[str, str] | None = None,
 ) -> dict[str, Path]:
     """The automatic window's errors, the windows chosen, freq-lifted's Bode and PFG."""
     freq, nyq = truth.frf.frequency, model.fs_low / 2
@@ -178,10 +186,16 @@ def _figures(
     )
     best = rows.results["freq-lifted auto"]
     files["bode"] = plot_bode(
-        best.plant, out / "paper_bode_freq_lifted.png", model=truth.frf, nyquist_low=nyq
+        best.plant,
+        out / "paper_bode_freq_lifted.png",
+        model=truth.frf,
+        nyquist_low=nyq,
+        units=units,
     )
     assert best.pfg is not None
-    files["pfg"] = plot_pfg(best.pfg, out / "paper_pfg_freq_lifted.png", model=truth.pfg)
+    files["pfg"] = plot_pfg(
+        best.pfg, out / "paper_pfg_freq_lifted.png", model=truth.pfg, nyquist_low=nyq
+    )
     return files
 
 

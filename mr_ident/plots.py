@@ -34,6 +34,34 @@ def _db(x: NDArray) -> NDArray:
         return 20 * np.log10(np.abs(x))
 
 
+#: Buckets of a log frequency axis a curve keeps its extremes in (a figure 8 inches wide has
+#: about 900 pixels: more points than this only cost drawing time).
+THIN_BUCKETS = 1500
+
+
+def _thin(f: NDArray, values: Sequence[NDArray], buckets: int = THIN_BUCKETS) -> NDArray:
+    """Indices of ``f`` to draw, ascending.
+
+    Per bucket of log frequency the smallest and the largest of each of ``values`` (so the
+    envelope and every peak and notch stay; a NaN bin stays too); every index where few.
+    """
+    K = f.size
+    if K <= 4 * buckets:
+        return np.arange(K)
+    pos = np.flatnonzero(f > 0)
+    edges = np.geomspace(f[pos[0]], f[-1], buckets + 1)
+    b = np.full(K, -1)
+    b[pos] = np.clip(np.searchsorted(edges, f[pos], side="right") - 1, 0, buckets - 1)
+    keep = [np.flatnonzero(b < 0), pos[[0, -1]]]
+    for v in values:
+        w = np.where(np.isfinite(v), v, np.nan)
+        order = np.lexsort((w, b))  # by bucket, then value (NaN last)
+        _, first = np.unique(b[order], return_index=True)
+        _, last = np.unique(b[order][::-1], return_index=True)
+        keep += [order[first], order[::-1][last], np.flatnonzero(~np.isfinite(v))]
+    return np.unique(np.concatenate(keep))
+
+
 def _phase(x: NDArray) -> NDArray:
     """The phase in degrees, unwrapped along frequency; NaN bins stay NaN.
 
@@ -97,6 +125,7 @@ def _nyquist(ax: Any, f: float, *, label: bool) -> None:
             ha="right",
             va="top",
             color="0.35",
+            bbox={"facecolor": "white", "edgecolor": "none", "alpha": 0.7, "pad": 1},
         )
 
 
@@ -144,21 +173,26 @@ def bode_figure(
     for o in range(ny):
         for i in range(nu):
             am, ap = axes[2 * o, i], axes[2 * o + 1, i]
-            g = frf.response[:, o, i]
-            s = frf.std[:, o, i]
-            am.semilogx(f, _db(g), lw=0.8, color="C0", label=f"estimate ({frf.method})", zorder=3)
+            g, s = frf.response[:, o, i], frf.std[:, o, i]
+            ph = _phase(g)  # unwrapped at full resolution, then thinned
+            k = _thin(f, [_db(g), s, ph])
+            label = f"estimate ({frf.method})"
+            am.semilogx(f[k], _db(g[k]), lw=0.8, color="C0", label=label, zorder=3)
             if np.isfinite(s).any():
-                _band(am, f, g, s, "C0")
-                am.semilogx(f, _db(s), lw=0.6, color="C2", label="σ")
-            ap.semilogx(f, _phase(g), lw=0.8, color="C0", zorder=3)
+                _band(am, f[k], g[k], s[k], "C0")
+                am.semilogx(f[k], _db(s[k]), lw=0.6, color="C2", label="σ")
+            ap.semilogx(f[k], ph[k], lw=0.8, color="C0", zorder=3)
             for label, m, style in models:
-                am.semilogx(m.frequency, _db(m.response[:, o, i]), lw=1, label=label, **style)
-                ap.semilogx(m.frequency, _phase(m.response[:, o, i]), lw=1, **style)
+                r = m.response[:, o, i]
+                mph = _phase(r)
+                j = _thin(m.frequency, [_db(r), mph])
+                am.semilogx(m.frequency[j], _db(r[j]), lw=1, label=label, **style)
+                ap.semilogx(m.frequency[j], mph[j], lw=1, **style)
             for ax in (am, ap):
                 if nyquist_low:
                     _nyquist(ax, nyquist_low, label=ax is axes[0, 0])
-                for k, (a, b) in enumerate(_runs(f, undetermined)):
-                    zero = "not determined (hold zero)" if ax is am and k == 0 else None
+                for n, (a, b) in enumerate(_runs(f, undetermined)):
+                    zero = "not determined (hold zero)" if ax is am and n == 0 else None
                     ax.axvspan(a, b, color="C3", alpha=0.15, lw=0)
                     ax.axvline((a + b) / 2, color="C3", ls="--", lw=0.8, label=zero)
                 ax.grid(True, which="both", alpha=0.3)
@@ -221,12 +255,14 @@ def plot_pfg(
     fig = Figure(figsize=(7, 4))
     ax = fig.subplots()
     for j, p in enumerate((pfg, *also)):
-        f, g, s = p.frequency, p.gain, p.std
+        k = _thin(p.frequency, [_db(p.gain), p.std])
+        f, g, s = p.frequency[k], p.gain[k], p.std[k]
         ax.semilogx(f, _db(g), lw=0.8, color=f"C{j}", label=pfg_label(p.source), zorder=3)
         if np.isfinite(s).any():
             _band(ax, f, g, s, f"C{j}")
     if model is not None:
-        ax.semilogx(model.frequency, _db(model.gain), "k--", lw=1, label="model")
+        k = _thin(model.frequency, [_db(model.gain)])
+        ax.semilogx(model.frequency[k], _db(model.gain[k]), "k--", lw=1, label="model")
     if nyquist_low:
         _nyquist(ax, nyquist_low, label=True)
     ax.set_xlabel("frequency [Hz]")
@@ -298,7 +334,8 @@ def _per_method(
     ax = fig.subplots()
     for j, (name, c) in enumerate(curves.items()):
         if loglog:
-            ax.loglog(frequency, c, lw=0.7, color=f"C{j}", label=name)
+            k = _thin(frequency, [np.log(np.maximum(c, 1e-300))])
+            ax.loglog(frequency[k], c[k], lw=0.7, color=f"C{j}", label=name)
         else:
             ax.semilogx(frequency, c, lw=0.8, color=f"C{j}", label=name, drawstyle="steps-mid")
     if nyquist_low:

@@ -103,3 +103,15 @@ def test_the_band_says_how_wide_it_is_where_the_line_hides_it():
 def test_the_pfgs_are_named_in_words():
     assert plots.pfg_label("data:lifted r->y") == "PFG from data (lifted r→y)"
     assert plots.pfg_label("plant:freq-lifted") == "PFG from P_h and K_l (freq-lifted)"
+
+
+def test_a_long_record_is_drawn_thinned_with_every_peak_and_notch_kept():
+    f = np.linspace(0.01, 120.0, 144_000)
+    g = np.ones(f.size, complex)
+    g[100_000] = 50.0  # one bin's peak
+    g[120_000] = 1e-3  # one bin's notch
+    k = plots._thin(f, [plots._db(g)])
+    assert k.size < 8_000 and {100_000, 120_000} <= set(k.tolist())
+    assert np.all(np.diff(k) > 0) and k[0] == 0 and k[-1] == f.size - 1
+    short = np.linspace(1.0, 10.0, 500)
+    np.testing.assert_array_equal(plots._thin(short, [short]), np.arange(500))

@@ -39,3 +39,18 @@ def test_a_source_that_cannot_work_is_told_in_the_console_once():
     assert node.logger.errors == [bad] and sub.error == bad
     sub.error = ""
     assert sub.error == "" and node.logger.errors == [bad]
+
+
+def test_stamps_that_contradict_fs_high_are_told_in_the_console_once():
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    node = _Node()
+    sub = SourceSubscriber(node, {}, lambda s: None, fs_high=1000.0)  # type: ignore[arg-type,return-value]
+    spec = SimpleNamespace(text="/joint_states.position[0]", hold=False)
+    sub.sources = SimpleNamespace(all=[(2, 0, SimpleNamespace(spec=spec))])  # type: ignore[assignment]
+    sub._stamps = [[np.arange(200) * 2_000_000]]  # 500 Hz stamps, ns
+    first, again = sub.rate_problem(), sub.rate_problem()
+    assert first == again and "the stamps say 500 Hz, fs_high is 1000 Hz" in first
+    assert node.logger.errors == [first]

@@ -21,6 +21,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from ..htmlreport import report_html
     from ..io.atomic import atomic_write
     from ..io.modelfile import model_to_dict
+    from ..io.units import load_units
 
     if args.json is not None and args.json.suffix.lower() != ".json":
         raise ConfigError(f"--json must be a .json file, got {str(args.json)!r}")
@@ -52,12 +53,10 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         if d.decision is not None and d.decision.candidates
         else "nothing (the model explains the data)"
     )
+    units = load_units(args.model)  # the model file's, for the report and the extended model
     # Everything is computed; now write (each file atomically).
     if args.out_model:
-        from ..io.units import load_units
-
         extended = model_to_dict(d.extended)
-        units = load_units(args.model)
         if units is not None:  # the nominal model's, carried over
             extended["units"] = {"u": units[0], "y": units[1]}
         text = yaml.safe_dump(extended, sort_keys=False)
@@ -72,9 +71,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         ext = None
         if d.applied or d.corrected:
             ext = d.extended.plant_discrete().freqresp(d.evidence_before.frequency)
-        page = report_html(
-            d, summary, ext, f"mr-ident diagnose: {args.model.name} on {args.data.name}"
-        )
+        title = f"mr-ident diagnose: {args.model.name} on {args.data.name}"
+        page = report_html(d, summary, ext, title, units)
         atomic_write(args.report, lambda fh: fh.write(page), binary=False)
     fu = (
         ""

@@ -132,13 +132,20 @@ def cmd_paper(args: argparse.Namespace) -> int:
     """``mr-ident paper``: the paper's example end to end."""
     from ..io.config import share_file
     from ..io.modelfile import load_model
+    from ..io.units import load_units
     from ..paper import run_paper
 
-    model = load_model(args.model or share_file("config/paper_example.yaml", "; pass --model"))
+    path = args.model or share_file("config/paper_example.yaml", "; pass --model")
+    model = load_model(path)
     if args.noise_std is not None and not (math.isfinite(args.noise_std) and args.noise_std >= 0):
         raise ConfigError(f"--noise-std must be >= 0, got {args.noise_std}")
     run = run_paper(
-        model, args.out_dir, duration=args.duration, seed=args.seed, noise_std=args.noise_std
+        model,
+        args.out_dir,
+        duration=args.duration,
+        seed=args.seed,
+        noise_std=args.noise_std,
+        units=load_units(path),
     )
     print(run.table)
     for name, path in run.files.items():

@@ -87,6 +87,7 @@ class SourceSubscriber:
         self.feed: SourceFeed | None = None
         self.status = "waiting for the sources' topics on the graph"
         self._error = ""
+        self._rates_told: set[str] = set()  # sources whose rate problem the console has
         self._types: dict[str, str] = {}
         self._pending: dict[str, list[tuple[bytes, int]]] = {}
         self._names: dict[str, dict[int, list[str]]] = {}
@@ -239,11 +240,15 @@ class SourceSubscriber:
                 continue
             fs = infer_rate(np.concatenate(kept))
             if fs is not None and abs(fs / self.fs_high - 1.0) > 0.01:
-                return (
+                text = (
                     f"source {src.spec.text}: the stamps say {fs:.6g} Hz, fs_high is "
                     f"{self.fs_high:g} Hz; "
                     "set fs_high to the rate the loop runs at"
                 )
+                if src.spec.text not in self._rates_told:  # once in the console
+                    self._rates_told.add(src.spec.text)
+                    self.node.get_logger().error(text)
+                return text
         return ""
 
     def values(self) -> dict[str, str]:
