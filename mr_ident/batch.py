@@ -229,7 +229,9 @@ def run_job(job: Job, opts: BatchOptions) -> dict[str, str]:
     try:
         row.update(_run(job, opts))
     except MrIdentError as err:
-        row.update(status="error", error=str(err))
+        from .cli.common import told  # a request's fields as the command line's flags
+
+        row.update(status="error", error=told(err))
     except OSError as err:
         row.update(status="error", error=f"{err.filename or ''}: {err.strerror or err}")
     except Exception as err:  # a bug or a library failure: still one row, not the batch

@@ -8,6 +8,8 @@ Messages name the parameter, what was expected and what came.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 
 class MrIdentError(Exception):
     """Root of every error raised on purpose by mr_ident.
@@ -39,6 +41,33 @@ class ModelError(MrIdentError, ValueError):
 
 class ConfigError(MrIdentError, ValueError):
     """An option or parameter is out of range or of the wrong type."""
+
+
+class FieldError(ConfigError):
+    """A request's fields that do not go together or are out of range, named as fields.
+
+    The message holds ``{field}`` for each of ``fields`` (the request's attribute names);
+    ``str()`` says them as they are, and each caller says them in its own words with
+    :meth:`told`: the command line its flags (``--excitation-index``), the node its
+    parameters. Other braces in the message (a source's ``{name=="j1"}``) are left alone.
+
+    >>> err = FieldError("{excitation_index} goes with {period}", "excitation_index", "period")
+    >>> str(err)
+    'excitation_index goes with period'
+    >>> err.told(lambda f: "--" + f.replace("_", "-"))
+    '--excitation-index goes with --period'
+    """
+
+    def __init__(self, template: str, *fields: str) -> None:
+        self.template, self.fields = template, fields
+        super().__init__(self.told(str))
+
+    def told(self, name: Callable[[str], str]) -> str:
+        """The message with every field said as ``name(field)``."""
+        text = self.template
+        for f in self.fields:
+            text = text.replace("{" + f + "}", name(f))
+        return text
 
 
 class RecordingError(MrIdentError, OSError):

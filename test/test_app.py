@@ -19,6 +19,7 @@ from mr_ident.app.identify import Identified, identify_recording
 from mr_ident.app.reading import read_for_diagnosis, read_settled
 from mr_ident.app.requests import IdentifyRequest, Notice, Reading, ignore, source_specs
 from mr_ident.cli import main
+from mr_ident.cli.common import flag
 from mr_ident.errors import ConfigError
 from mr_ident.io.datafile import read_result
 from mr_ident.numerics.systems.simulate import simulate
@@ -62,13 +63,15 @@ def test_notices_are_heard_as_they_come_and_kept_in_the_outcome(record, capsys):
 
 def test_the_sources_are_checked_where_a_bag_would_read_them(record):
     assert source_specs({"r": [], "u": [], "y": []}) is None
-    with pytest.raises(ConfigError, match="missing --u, --y"):
+    with pytest.raises(ConfigError, match="missing u, y") as err:
         source_specs({"r": ["/a.x"], "u": [], "y": []})
+    assert err.value.told(flag).endswith("missing --u, --y")  # the command line's words
     sources = {"r": ["/a.x"], "u": ["/a.y"], "y": ["/a.z"]}
     with pytest.raises(ConfigError, match="--r/--u/--y name sources in a bag"):
         identify_recording(IdentifyRequest(Reading(record / "d.npz", sources), n=8))
-    with pytest.raises(ConfigError, match="--excitation-index goes with --period"):
+    with pytest.raises(ConfigError, match="^excitation_index goes with period") as err:
         identify_recording(IdentifyRequest(Reading(record / "d.npz"), excitation_index="/x"))
+    assert err.value.told(flag).startswith("--excitation-index goes with --period")
 
 
 def test_a_batch_job_and_a_single_identify_write_the_same_result(record, tmp_path, capsys):

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
-from ..errors import ConfigError
+from ..errors import ConfigError, FieldError
 from .reading import read_for_diagnosis, read_settled
 from .requests import DiagnoseRequest, Heard, Notice, Notify, ignore, load
 
@@ -55,7 +55,7 @@ def diagnose_recording(
     from ..diagnosis.criterion.records import with_injection
 
     if not 0.0 < req.alpha < 1.0:
-        raise ConfigError(f"--alpha must be in (0, 1), got {req.alpha}")
+        raise FieldError(f"{{alpha}} must be in (0, 1), got {req.alpha}", "alpha")
     heard = Heard(notify)
     model = load(req.model)
     assert model is not None

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from ..errors import ConfigError, DataError
+from ..errors import DataError, FieldError
 from .reading import read_settled
 from .requests import Heard, IdentifyRequest, Notice, Notify, ignore, load
 
@@ -69,7 +69,11 @@ def identify_recording(
 
         return periodic_recording(req, heard)
     if req.excitation_index:
-        raise ConfigError("--excitation-index goes with --period (the BLA of periodic data)")
+        raise FieldError(
+            "{excitation_index} goes with {period} (the BLA of periodic data)",
+            "excitation_index",
+            "period",
+        )
     from ..numerics.identify import identify
     from ..numerics.signals import LoopData
 
@@ -93,7 +97,7 @@ def identify_recording(
             )
         )
     elif req.y_rate == "high" and data.y_step != 1:
-        raise ConfigError(f"--y-rate high, but y has N/F = {data.y.shape[0]} samples")
+        raise FieldError(f"{{y_rate}} high, but y has N/F = {data.y.shape[0]} samples", "y_rate")
     elif data.y_step != 1:
         y_phase = data.y_phase
         heard(

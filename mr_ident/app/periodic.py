@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
-from ..errors import ConfigError, DataError
+from ..errors import DataError, FieldError
 from .reading import read_loop
 from .requests import Heard, IdentifyRequest, Notice, Specs, load
 
@@ -131,16 +131,19 @@ def _read_npz(req: IdentifyRequest) -> tuple[Realizations, float, int]:
 
     path = req.reading.path
     if req.period == "auto":
-        raise ConfigError(
-            "--period auto reads the period off the excitation's labels in a bag; "
-            f"{path} is an NPZ: give --period N"
+        raise FieldError(
+            "{period} auto reads the period off the excitation's labels in a bag; "
+            f"{path} is an NPZ: give {{period}} N",
+            "period",
         )
     if req.excitation_index:
-        raise ConfigError(f"--excitation-index names a topic of a bag; {path} is an NPZ")
+        raise FieldError(
+            f"{{excitation_index}} names a topic of a bag; {path} is an NPZ", "excitation_index"
+        )
     data = read_realizations(path, req.ratio)
     fs = req.fs_high or data.fs_high
     if fs is None:
-        raise ConfigError(f"{path} has no fs_high: pass --fs-high")
+        raise FieldError(f"{path} has no fs_high: give {{fs_high}}", "fs_high")
     return data, fs, req.ratio or data.ratio or 1
 
 

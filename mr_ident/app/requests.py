@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
-from ..errors import ConfigError
+from ..errors import FieldError
 
 if TYPE_CHECKING:
     from ..numerics.systems.model import Model
@@ -68,9 +68,14 @@ def source_specs(sources: Mapping[str, Sequence[str]] | None) -> Specs | None:
     specs = {sig: list((sources or {}).get(sig, ()) or ()) for sig in ("r", "u", "y")}
     if not any(specs.values()):
         return None
-    missing = [f"--{sig}" for sig, v in specs.items() if not v]
+    missing = [f"{{{sig}}}" for sig, v in specs.items() if not v]
     if missing:
-        raise ConfigError(f"give all of --r, --u, --y with a bag; missing {', '.join(missing)}")
+        raise FieldError(
+            f"give all of {{r}}, {{u}}, {{y}} with a bag; missing {', '.join(missing)}",
+            "r",
+            "u",
+            "y",
+        )
     return specs
 
 

@@ -15,6 +15,7 @@ from collections.abc import Sequence
 
 from ..allocator import keep_freed_memory
 from ..errors import MrIdentError
+from .common import told
 from .parser import EXIT_USAGE, build_parser
 
 __all__ = ["build_parser", "main"]
@@ -95,7 +96,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             check_outputs(args)
             return commands[args.command](args)
     except MrIdentError as err:
-        print(f"error: {err}", file=sys.stderr)
+        print(f"error: {told(err)}", file=sys.stderr)
         return EXIT_USAGE
     except OSError as err:
         print(f"error: {err.filename or ''}: {err.strerror or err}", file=sys.stderr)

@@ -9,6 +9,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from ..errors import FieldError
+
 if TYPE_CHECKING:
     from ..app.requests import Notice, Reading
     from ..numerics.results import Identification
@@ -191,3 +193,13 @@ class Progress:
             if self._timer is not None:
                 self._timer.cancel()
                 self._timer = None
+
+
+def flag(field: str) -> str:
+    """The command line's spelling of a request's field (``y_rate`` -> ``--y-rate``)."""
+    return "--" + field.replace("_", "-")
+
+
+def told(err: Exception) -> str:
+    """An error as the command line says it: a request's fields as its flags."""
+    return err.told(flag) if isinstance(err, FieldError) else str(err)

@@ -242,7 +242,8 @@ def identify(
         ra = r_found.r
     if setpoint:  # the sampled setpoint r↑, and its estimator
         ra = setpoint_regressor(ra, F, phase, method, ua.shape[0])
-    high = setpoint or held_over_blocks(ra, F, method)  # a regressor held or sampled per block
+    # a regressor held or sampled per block (a low-rate y keeps the lifted fit: its aliased sum)
+    high = setpoint or (ya.shape[0] == ra.shape[0] and held_over_blocks(ra, F, method))
     if high:
         method, m = "lpm", method_of("lpm")
     F_fit = 1 if high else F  # the fit is LTI at the high rate
