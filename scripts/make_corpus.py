@@ -45,7 +45,7 @@ def write_csv(name: str, rows: list[list[str]], header: str = "t,r,u,y") -> None
 def csv_files(r: np.ndarray, u: np.ndarray, y: np.ndarray) -> None:
     rows = table(r, u, y)
     bad = [row[:] for row in rows]
-    bad[41][1] = "nan"  # r at data row 42 (a NaN of u or y is a missing sample, r never)
+    bad[41][0] = "nan"  # t at data row 42 (a NaN of r, u or y is a missing sample, t never)
     write_csv("csv_nan.csv", bad)
     bad = [row[:] for row in rows]
     bad[99][2] = "inf"  # u at data row 100

@@ -18,7 +18,7 @@ PAPER = ROOT / "config" / "paper_example.yaml"
 
 #: file -> text the error must hold (what went wrong and where).
 CASES = {
-    "csv_nan.csv": "line 43, column 'r': nan",
+    "csv_nan.csv": "line 43, column 't': nan",
     "csv_inf.csv": "line 101, column 'u': inf",
     "csv_text.csv": "line 8, column 'r': 'abc' is not a number",
     "csv_missing_column.csv": "missing column 'u'",

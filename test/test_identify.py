@@ -120,9 +120,10 @@ def test_bad_data_is_named():
         DataError, match=r"y contains inf \(a missing sample is NaN\); first at sample 5"
     ):
         identify(x, x, bad, fs_high=240.0, ratio=3)
-    bad[5] = np.nan
-    with pytest.raises(DataError, match="r contains NaN or inf: r is the excitation"):
+    with pytest.raises(DataError, match=r"r contains inf \(a missing sample is NaN\)"):
         identify(bad, x, x, fs_high=240.0, ratio=3)
+    bad[5] = np.nan  # u is r (an open loop): r's missing sample is u's
+    assert identify(bad, x, x, fs_high=240.0, ratio=3, n=8).r_recovered == 1
     with pytest.raises(DataError, match="too few samples for the LPM window"):
         identify(x[:30], x[:30], x[:30], fs_high=240.0, ratio=3)
 

@@ -165,12 +165,11 @@ def test_a_complete_record_takes_none_of_the_new_path(paper_model, monkeypatch):
     assert missing_factor(np.zeros(1), 8, 11)[0] == 1.0
 
 
-def test_nan_in_r_inf_and_too_many_missing_samples_are_clear_errors(paper_model):
+def test_nan_in_r_is_recovered_inf_and_too_many_missing_samples_are_clear_errors(paper_model):
     sim = simulate(paper_model, duration=60.0, rng=np.random.default_rng(8))
     r = sim.r.copy()
-    r[10] = np.nan
-    with pytest.raises(DataError, match="r is the excitation"):
-        identify(r, sim.u, sim.y, fs_high=240.0, ratio=3)
+    r[10] = np.nan  # u - r is held: r is recovered (test_lost_r.py)
+    assert identify(r, sim.u, sim.y, fs_high=240.0, ratio=3).r_recovered == 1
     y = sim.y.copy()
     y[10] = np.inf
     with pytest.raises(DataError, match="inf"):

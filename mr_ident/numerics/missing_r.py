@@ -10,6 +10,7 @@ Where the loop determines r (exactly, to round-off):
 
 * **r held** over blocks (a setpoint logged at the controller's rate, held to the high
   rate): a hole takes the value of its block's other samples.
+* **an open loop**, u equal to r: r is u where u came.
 * **r at the plant input**, ``u_h = r_h + c_h`` with the controller's output ``c_h`` held
   over blocks of F: ``u - r`` is held, so ``r[n] = u[n] - (u - r)`` of its block, from any
   sample of the block where both came. Only a sample whose u is missing too (about the
@@ -40,7 +41,7 @@ import numpy as np
 
 from ..errors import DataError
 from .arrays import BoolArray, FloatArray
-from .structure import EQUATION_RTOL, HELD_RTOL, SETPOINT, hold_of
+from .structure import EQUATION_RTOL, HELD_RTOL, SETPOINT, hold_of, u_equals_r
 
 #: The largest share of r's read samples that may be unknown (neither received nor
 #: determined by the loop): their guesses' errors act as noise about
@@ -142,6 +143,8 @@ def recover_r(
         if high_rate_y and x.shape[1] == u.shape[1] == y.shape[1]:
             _setpoint_by_equation(x, u, y, ratio, phase, how)
     elif x.shape == u.shape:
+        if u_equals_r(x, u):  # an open loop: u is r
+            _fill(x, u, "u equal to r (open loop)", how)
         _fill(x, u - _held_values(u - x)[0], "u - r held over blocks", how)
         if np.isnan(x).any() and high_rate_y:
             _plant_input_by_equation(x, u, y, ratio, phase, how)

@@ -158,7 +158,7 @@ def held_phase(first: int, x: FloatArray, ratio: int) -> tuple[int, float]:
     return int(order[0]), (best / second if second > 0 else 1.0)
 
 
-def _equal(r: FloatArray, u: FloatArray) -> bool:
+def u_equals_r(r: FloatArray, u: FloatArray) -> bool:
     """Whether u equals r to round-off of its scale (NaN samples skipped): an open loop."""
     d = np.abs(u - r)
     scale = float(np.nanmax(np.abs(u), initial=0.0))
@@ -277,7 +277,7 @@ def read_structure(r: ArrayLike, u: ArrayLike, y: ArrayLike | None = None) -> Lo
             return LoopStructure("none", F_len, None, SETPOINT if F_len else None, r_low=True)
         return LoopStructure("u", hu[0], hu[1], SETPOINT, r_low=True)
     same = ra.shape[1] == ua.shape[1]
-    if same and _equal(ra, ua):  # nothing between r and u: no controller acts
+    if same and u_equals_r(ra, ua):  # nothing between r and u: no controller acts
         return LoopStructure("u = r", None, None, PLANT_INPUT)
     hd = hold_of(ua - ra) if same else None
     if hu is None and hd is None:
