@@ -24,12 +24,13 @@ centre, ``t' = t -+ w/2``::
     B_{j+1}[p, a] = 2^-p sum_{s<=p} C(p, s) ((-1)^(p-s) B_j[s, a] + B_j[s, a + w])
 
 and a window's moments about its centre (offset d of a block's centre, ``|d| + h <= n +
-1/2``) are ``sum_p C(q, p) (h/n)^p (d/n)^(q-p) B_j[p]`` summed over its blocks. Every
-coefficient is at most 1 in size and the absolute values of each row sum to at most 1
-(``2^-p 2^p`` per side; ``((h + |d|)/n)^q``), so no step amplifies an error: after the
-``log2(2n+1)`` merges each moment is off by a few ulps of ``sum |Z|`` over its window
-(growing with the number of merges, not with n, nor with the bins' index). Prefix sums
-of ``Z k^q`` would instead subtract numbers of size ``k^q sum |Z|`` (k up to 1e5).
+1/2``) are ``sum_p C(q, p) (h/n)^p (d/n)^(q-p) B_j[p]`` summed over its blocks. The
+absolute values of each row of coefficients sum to 1 in a merge (``2^-p 2^p`` per side)
+and to ``((h + |d|)/n)^q <= (1 + 1/(2n))^q`` in the assembly, so no step amplifies an
+error: after the ``log2(2n+1)`` merges each moment is off by a few ulps of ``sum |Z|`` over
+its window (growing with the number of merges, not with n, nor with the bins' index; the
+kernel's monomial coefficients then scale it, :func:`kernels`). Prefix sums of ``Z k^q``
+would instead subtract numbers of size ``k^q sum |Z|`` (k up to 1e5).
 """
 
 from __future__ import annotations
@@ -194,7 +195,7 @@ def route(kernel: Kernel, K: int) -> str:
 
     The weights were measured with one BLAS thread on blocks of 4096 bins (n = 8..710,
     strides 1, 2h+1 and 2n+1, the kernels of R = 2, one and two signals): the route chosen
-    was the fastest or within 7 % of it in all 144 cases; Toeplitz up to n = 41-93,
+    was the fastest or within 7 % of it in all 140 cases; Toeplitz up to n = 41-93,
     doubling from there at stride 1 (flat in n: 0.45-0.8 ms per 4096 bins, against
     Toeplitz's 1.2 ms at n = 210 and 5 ms at 710), direct for the gathered windows (5-10x
     Toeplitz's speed).
