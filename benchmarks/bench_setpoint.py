@@ -20,7 +20,12 @@ of their own and left out of the others):
   variance of P_hat over the runs / the mean reported variance);
 * the median time of one identification of either kind (same process, alternating).
 
-    .venv/bin/python benchmarks/bench_setpoint.py [--runs 50] [--duration 600]
+``--sums`` prints instead the time of the LPM's moment sums of one chunk (4096 bins, the four
+kernels of a SISO setpoint fit, R = 2) per window half-width n: by the Toeplitz route alone
+and by the route the cost rule picks (doubling for wide windows); the least CPU time of the
+thread over 15 repetitions, one BLAS thread (robust to other work on the machine).
+
+    .venv/bin/python benchmarks/bench_setpoint.py [--runs 50] [--duration 600] [--sums]
 """
 
 from __future__ import annotations
@@ -62,11 +67,49 @@ def welch(r: np.ndarray, u: np.ndarray, y: np.ndarray, fs: float, nper: int):
     return fw, Sry / Sru
 
 
+def sums_table(bins: int = 4096, repeats: int = 15) -> None:
+    """The moment sums' time per half-width: the Toeplitz route against the chosen one."""
+    from threadpoolctl import threadpool_limits
+
+    from mr_ident.numerics.local import window_sums as ws
+
+    rng = np.random.default_rng(0)
+
+    def least(job) -> float:
+        best = np.inf
+        for _ in range(repeats):
+            t0 = time.thread_time()
+            job()
+            best = min(best, time.thread_time() - t0)
+        return best
+
+    print(f"# moment sums of {bins} bins (ms of CPU); load {os.getloadavg()[0]:.1f} at the start")
+    print("| n | Toeplitz | chosen | routes |")
+    print("| --- | --- | --- | --- |")
+    with threadpool_limits(1):
+        for n in (8, 12, 18, 27, 41, 62, 93, 140, 210, 315, 473, 710):
+            width = bins + 2 * n
+            old = new = 0.0
+            used = []
+            # conj(U) U, conj(U) (1 signal each); conj(U) Y, Y (2 each): a SISO setpoint fit
+            for kernel, C in zip(ws.kernels(n, 2)[1:], (1, 1, 2, 2), strict=True):
+                Z = rng.standard_normal((C, width)) + 1j * rng.standard_normal((C, width))
+                old += least(lambda Z=Z, k=kernel: ws._toeplitz_sums(Z, k, bins))
+                new += least(lambda Z=Z, k=kernel: ws.window_sums(Z, k, bins))
+                used.append(ws.route(kernel, bins))
+            print(f"| {n} | {1e3 * old:.2f} | {1e3 * new:.2f} | {', '.join(sorted(set(used)))} |")
+    print(f"\nload {os.getloadavg()[0]:.1f} at the end")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=50)
     ap.add_argument("--duration", type=float, default=600.0)
+    ap.add_argument("--sums", action="store_true", help="time the moment sums per n instead")
     args = ap.parse_args()
+    if args.sums:
+        sums_table()
+        return
     base = load_model(ROOT / "config" / "paper_example.yaml")
     fs, F = base.fs_high, base.ratio
     plant_in = replace(base, injection="plant_input")

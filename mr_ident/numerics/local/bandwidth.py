@@ -65,21 +65,25 @@ GROWTH = 1.5
 SPAN = 4.0
 #: The same with r at the setpoint, at most: above the controller's band the plant input is
 #: only the hold's images of the controller's output, weak, and the plant smooth there:
-#: wider windows win (paper's loop, 600 s, noise 0.02, 80-120 Hz: median error 17 % with 32,
-#: 12 % with 64, 9.7 % with 128), at a cost that grows with the widest window's sums (the
-#: time 0.8x, 2.5x and more a plant-input identification's); make bench-setpoint.
-SPAN_SETPOINT = 32.0
+#: wider windows win. Paper's loop, 600 s, noise 0.02, 30 seeds, median error in 80-120 Hz:
+#: 16.2 % with 32 (widest candidate n = 210), 10.3 % with 64 (473), 8.6 % with 128 (710);
+#: 0-40 Hz 0.165 / 0.114 / 0.108 %, 40-80 Hz 1.01 / 0.66 / 0.59 %. The widest window's
+#: moment sums cost about the same as the narrowest's (doubling), so the time stays a
+#: plant-input identification's with 64 (0.98x wall, 1.02x CPU) but not with 128 (1.25x,
+#: 1.34x; 2 cores at load 14); make bench-setpoint.
+SPAN_SETPOINT = 64.0
 #: With r at the setpoint the widest candidate spans this many Hz on either side (at least
 #: SPAN, at most SPAN_SETPOINT times the narrowest): the plant's smoothness is in Hz, so a
-#: short record needs fewer bins for it and keeps a plant-input identification's time.
-WIDEST_SETPOINT_HZ = 0.35
+#: short record needs fewer bins for it. 600 s reaches SPAN_SETPOINT (widest 473 bins,
+#: 0.79 Hz).
+WIDEST_SETPOINT_HZ = 0.86
 
 
 def setpoint_span(n_min: int, duration_s: float) -> float:
     """The span of the candidates of a setpoint-excited record of ``duration_s`` seconds.
 
     >>> setpoint_span(8, 600.0), setpoint_span(8, 120.0), setpoint_span(8, 30.0)
-    (26.25, 5.25, 4.0)
+    (64.0, 12.9, 4.0)
     """
     return float(np.clip(WIDEST_SETPOINT_HZ * duration_s / n_min, SPAN, SPAN_SETPOINT))
 
@@ -99,7 +103,7 @@ def candidates(n_min: int, n_max: int, span: float = SPAN) -> tuple[int, ...]:
     >>> candidates(8, 1000)
     (8, 12, 18, 27)
     >>> candidates(8, 1000, span=SPAN_SETPOINT)
-    (8, 12, 18, 27, 41, 62, 93, 140, 210)
+    (8, 12, 18, 27, 41, 62, 93, 140, 210, 315, 473)
     >>> candidates(8, 10)
     (8,)
     """
