@@ -119,7 +119,7 @@ def test_with_noise_the_setpoint_estimate_beats_welchs_indirect_estimate(setpoin
     """Median relative error over the bins 1 Hz or more from the hold's zeros (600 s, 0.02).
 
     Welch's indirect estimate ``S_ry / S_ru`` at its best of five segment lengths on the
-    same data (1.7 % at 600 samples here) against the default identification (1.5 %).
+    same data (1.7 % at 600 samples here) against the default identification (1.1 %).
     """
     model = replace(setpoint_model, noise_std=0.02)
     sim = simulate(model, duration=600.0, rng=np.random.default_rng(3))

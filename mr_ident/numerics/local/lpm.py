@@ -16,8 +16,10 @@ How it is fast
 * One regressor (built from the inputs only) serves all outputs: J and S of the
   indirect method are fitted in one pass.
 * Every entry of ``K^H K``, ``K^H Y`` and ``Y^H Y`` is a windowed sum of a product
-  signal with a kernel ``(r/n)^q``; those sums are computed for all bins at once as
-  one real BLAS product per block of bins against a banded Toeplitz weight matrix.
+  signal with a kernel ``(r/n)^q``; those sums are computed for all bins at once
+  (:mod:`~mr_ident.numerics.local.window_sums`: a banded Toeplitz product for narrow
+  windows, moments merged by doubling for wide ones, at a cost that no longer grows
+  with n).
 * The polynomial (transient) part is the same in every window: its Cholesky factor
   is constant, and the transient columns of the factor and of the forward solve come
   straight out of the windowed sums (kernels from the window's orthonormal
