@@ -190,3 +190,23 @@ def test_a_live_window_whose_r_the_loop_cannot_give_restarts_after_its_last_hole
     est = estimate(LoopData(r, u, sim.y, ratio=3, first=0), cfg)
     assert "identified after the last of them, [9030, 14400)" in est.structure
     assert (est.first, est.n_samples) == (9030, 14400 - 9030)
+
+
+def test_a_periodic_r_is_recovered_from_its_own_period_where_the_loop_cannot_give_it():
+    """A multisine of two realizations x 4 periods at the plant input, u measured with noise
+    (no hold: the loop does not determine r): a lost r is the same sample one period away,
+    exactly; none is taken across a realization's edge."""
+    from mr_ident.numerics.excitation.multisine import design
+
+    model = load_model(PAPER)
+    ms = design(fs_high=240.0, period=480, band=(0.5, 100.0), kind="odd", periods=4,
+                realizations=2)  # fmt: skip
+    r_full = ms.r.reshape(-1, 1)  # realization after realization
+    sim = simulate(model, reference=r_full)
+    rng = np.random.default_rng(3)
+    u = sim.u + 1e-3 * rng.standard_normal(sim.u.shape)  # no hold
+    r, lost = _lose(sim.r, rng)
+    got = recover_r(r, u, sim.y, ratio=3, injection="plant_input")
+    assert got.unknown <= 2 and "r's own period" in got.how  # 2 at most: near an edge
+    exact = np.abs(got.r - sim.r)[:, 0] <= 1e-12 * np.abs(sim.r).max()  # the design's round-off
+    assert exact[lost].sum() == got.recovered == lost.sum() - got.unknown

@@ -11,6 +11,9 @@ Where the loop determines r (exactly, to round-off):
 * **r held** over blocks (a setpoint logged at the controller's rate, held to the high
   rate): a hole takes the value of its block's other samples.
 * **an open loop**, u equal to r: r is u where u came.
+* **a periodic r** (a multisine of ``mr-ident excite``, wherever it enters): r repeats
+  exactly, so a lost sample is the same sample a period before or after, where the
+  samples around both agree (:func:`_periodic_values`: the same realization).
 * **r at the plant input**, ``u_h = r_h + c_h`` with the controller's output ``c_h`` held
   over blocks of F: ``u - r`` is held, so ``r[n] = u[n] - (u - r)`` of its block, from any
   sample of the block where both came. Only a sample whose u is missing too (about the
@@ -148,6 +151,8 @@ def recover_r(
         _fill(x, u - _held_values(u - x)[0], "u - r held over blocks", how)
         if np.isnan(x).any() and high_rate_y:
             _plant_input_by_equation(x, u, y, ratio, phase, how)
+    if np.isnan(x).any():
+        _fill(x, _periodic_values(x), "r's own period (a periodic design repeats)", how)
     read = _read_mask(x.shape, u.shape[0], ratio, phase, injection)
     still = np.isnan(x)
     unknown = int((still & read).sum())
@@ -189,6 +194,61 @@ def _held_values(x: FloatArray) -> tuple[FloatArray, tuple[int, int] | None]:
     agree = (hi - lo) <= HELD_RTOL * scale  # NaN (no sample received) compares False
     value = np.where(agree, lo, np.nan)
     return np.repeat(value, np.diff(np.r_[starts, N]), axis=0), hold
+
+
+#: Samples on each side of a hole that must repeat exactly one period away before the
+#: sample there is taken for it (so a realization's edge is never crossed).
+PERIOD_CONTEXT = 8
+#: Share of the samples one period apart that must agree for r to be taken as periodic
+#: (M realizations of P periods agree on (P-1)/P of them: half at least, for P >= 2).
+PERIOD_SHARE = 0.3
+
+
+def _periodic_values(x: FloatArray) -> FloatArray:
+    """Each sample's value one period away where r repeats there exactly (NaN elsewhere).
+
+    The period is the lag of r's largest autocorrelation (by FFT, over lags of at least
+    :data:`PERIOD_CONTEXT`), taken where at least :data:`PERIOD_SHARE` of the sample pairs
+    it spans agree to :data:`~mr_ident.numerics.structure.HELD_RTOL` of r's scale. A hole
+    takes the sample a period before (or after) when the :data:`PERIOD_CONTEXT` received
+    samples on each side of both agree too.
+    """
+    out = np.full(x.shape, np.nan)
+    N = x.shape[0]
+    if N < 4 * PERIOD_CONTEXT:
+        return out
+    scale = float(np.nanmax(np.abs(x), initial=0.0))
+    if not scale > 0:
+        return out
+    tol = HELD_RTOL * scale
+    for i in range(x.shape[1]):
+        xi = x[:, i]
+        z = np.nan_to_num(xi - np.nanmean(xi))
+        spec = np.fft.rfft(z, 2 * N)
+        acf = np.fft.irfft(np.abs(spec) ** 2)[: N // 2]
+        if acf.size <= PERIOD_CONTEXT:
+            continue
+        P = PERIOD_CONTEXT + int(np.argmax(acf[PERIOD_CONTEXT:]))
+        both = np.isfinite(xi[P:]) & np.isfinite(xi[:-P])
+        agree = np.abs(xi[P:] - xi[:-P]) <= tol
+        if not both.any() or (agree & both).sum() < PERIOD_SHARE * both.sum():
+            continue
+        holes = np.flatnonzero(np.isnan(xi))
+        j = np.r_[-PERIOD_CONTEXT:0, 1 : PERIOD_CONTEXT + 1]
+        for shift in (-P, P):
+            src = holes + shift
+            ok = (src >= 0) & (src < N)
+            h, s = holes[ok], src[ok]
+            a, b = h[:, None] + j, s[:, None] + j
+            inside = (a >= 0) & (a < N) & (b >= 0) & (b < N)
+            va = np.where(inside, xi[np.clip(a, 0, N - 1)], np.nan)
+            vb = np.where(inside, xi[np.clip(b, 0, N - 1)], np.nan)
+            seen = np.isfinite(va) & np.isfinite(vb)
+            same = (np.abs(va - vb) <= tol) | ~seen
+            take = same.all(axis=1) & (seen.sum(axis=1) >= PERIOD_CONTEXT) & np.isfinite(xi[s])
+            fill = np.isnan(out[h, i]) & take
+            out[h[fill], i] = xi[s[fill]]
+    return out
 
 
 def _fill(x: FloatArray, values: FloatArray, how: str, said: list[str]) -> None:
