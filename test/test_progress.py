@@ -85,8 +85,8 @@ def test_identify_tells_its_steps_on_a_terminal_and_nothing_with_quiet(
 
 
 def test_replay_tells_its_steps_and_the_monitoring_as_one(monkeypatch, tmp_path, capsys):
-    """``replay`` with ``monitor_model``: the replay, then the window-by-window watch of the
-    plant (silent for half a minute on a long bag before), each a step of the display."""
+    """``replay`` with ``monitor_model``: the replay, then the watch of the plant, each
+    window a step of the display (silent for half a minute on a long bag before)."""
     from bagmaker import joint_state_bag, stamps
 
     from mr_ident.cli import main
@@ -111,5 +111,7 @@ def test_replay_tells_its_steps_and_the_monitoring_as_one(monkeypatch, tmp_path,
     ]
     assert main([*argv, "--out", str(tmp_path / "w.npz")]) == 0
     assert told[0] == f"replaying {bag} through the node's steps"
-    assert told[-1].startswith("watching the plant against its reference")
+    watched = [t for t in told if t.startswith("monitoring: window ")]
+    assert watched[0] == "monitoring: window 1 of 3, at 10 s of the recording", told
+    assert watched[-1] == "monitoring: window 3 of 3, at 20 s of the recording"
     assert "plant gain 1.2" in capsys.readouterr().out

@@ -12,7 +12,7 @@ plant status changes the node would have shown (monitoring, the diagnosis loaded
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -22,6 +22,9 @@ if TYPE_CHECKING:
     from ..io.config import IdentConfig
     from ..live.estimate import Estimate
     from ..live.replay import ReplayResult
+    from ..numerics.signals import LoopData
+
+    _W = tuple[float, LoopData, IdentConfig]  # a window and its time and configuration
     from ..numerics.systems.model import Model
 
 #: Anomalies of a replay told at most (the rest are counted in the result's ``anomalies``).
@@ -108,22 +111,35 @@ def replay_recording(req: ReplayRequest, notify: Notify = ignore) -> Replayed:
     return Replayed(res, cfg, monitoring, tuple(notices))
 
 
-def plant_events(replayed: Replayed, what: str) -> Iterator[str]:
+def plant_events(
+    replayed: Replayed, what: str, progress: Callable[[str], None] | None = None
+) -> Iterator[str]:
     """The plant status changes the node would have shown (monitor_* in the parameters).
 
     Over the span the replay read (not read again), window by window as the node; each as
-    one line. Nothing without monitoring.
+    one line. Nothing without monitoring. ``progress`` is told each window as it begins
+    ("window k of n, at t s").
     """
     if not replayed.monitoring:
         return
     from ..diagnosis.monitoring.monitor import load_watch, watch_windows
-    from ..live.replay import loop_windows
+    from ..live.replay import loop_windows, window_count
 
     cfg, signals = replayed.config, replayed.result.signals
     watch = load_watch(cfg)
     assert watch is not None and signals is not None
-    for ev in watch_windows(loop_windows(signals, cfg, what), watch):
+    windows = loop_windows(signals, cfg, what)
+    if progress is not None:
+        windows = _told(windows, progress, window_count(signals.n_samples, cfg))
+    for ev in watch_windows(windows, watch):
         yield f"plant at {ev.time_s:.1f} s: {ev.level.upper()} {ev.text}"
+
+
+def _told(windows: Iterator[_W], progress: Callable[[str], None], total: int) -> Iterator[_W]:
+    """``windows`` as they are, each told to ``progress`` as it begins."""
+    for k, w in enumerate(windows, 1):
+        progress(f"monitoring: window {k} of {total}, at {w[0]:.0f} s of the recording")
+        yield w
 
 
 def estimates_in_time(

@@ -80,9 +80,7 @@ def _report_replayed(args: argparse.Namespace, replayed: Replayed, progress: Pro
         model = load_model(args.model) if args.model else None
         fs, F, N = cfg.fs_high, cfg.ratio, est.n_samples
         write_plots(est.identification, args.plot, fs, F, N, model, load_units(args.model))
-    if replayed.monitoring:
-        progress("watching the plant against its reference, window by window (monitoring)")
-    for line in plant_events(replayed, str(args.recording)):
+    for line in plant_events(replayed, str(args.recording), progress):
         print(line, flush=True)
     return 0
 

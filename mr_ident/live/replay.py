@@ -413,6 +413,17 @@ def bag_windows(
     yield from loop_windows(data, cfg, str(path))
 
 
+def _window_step(cfg: IdentConfig) -> int:
+    """Samples between the node's windows: ``update_period_s`` on the F grid."""
+    F = cfg.ratio
+    return max(F, F * int(round(cfg.update_period_s * cfg.fs_high / F)))
+
+
+def window_count(n_samples: int, cfg: IdentConfig) -> int:
+    """How many windows :func:`loop_windows` gives over ``n_samples`` aligned samples."""
+    return len(range(cfg.min_samples, n_samples + 1, _window_step(cfg)))
+
+
 def loop_windows(
     data: LoopData, cfg: IdentConfig, what: str = "the data"
 ) -> Iterator[tuple[float, LoopData, IdentConfig]]:
@@ -424,7 +435,7 @@ def loop_windows(
     when the span is shorter than ``min_window_s``.
     """
     F, N = cfg.ratio, data.n_samples
-    step = max(F, F * int(round(cfg.update_period_s * cfg.fs_high / F)))
+    step = _window_step(cfg)
     if N < cfg.min_samples:
         raise DataError(
             f"{what}: {N} aligned samples, fewer than min_window_s = {cfg.min_window_s:g} s "
