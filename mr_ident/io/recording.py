@@ -278,9 +278,13 @@ def _plain_mcap(path: Path) -> bool:
     return not path.name.endswith((".db3", ".zstd"))
 
 
+#: One decoded message: (stream, log time in ns, the block or why it is not one).
+Item = tuple[int, int, Block | BlockError]
+
+
 def _bag_blocks(
     bag: Bag, topics: Sequence[str] | None, labels: str = ""
-) -> tuple[list[tuple[int, int, Block | BlockError]], RecordingInfo, list[str]]:
+) -> tuple[list[Item], RecordingInfo, list[str]]:
     """:func:`read_blocks` for an SQLite3 or zstd-compressed bag: through :class:`Bag`."""
     types = bag.scanned_topics()
     stream_of: dict[str, int] = {}
@@ -299,7 +303,7 @@ def _bag_blocks(
     ]
     if missing:
         raise DataError(f"{bag.path}: topic(s) {missing} not in the recording; it holds {found}")
-    items: list[tuple[int, int, Block | BlockError]] = []
+    items: list[Item] = []
     for topic, batch, sent in bag.batches(set(stream_of)):
         for i in range(batch.size):  # a block holds many samples: few messages
             o, n = int(batch.offset[i]), int(batch.length[i])
@@ -320,10 +324,6 @@ def _bag_blocks(
     )
     info.bytes_read = info.file_bytes
     return items, info, found
-
-
-#: One decoded message: (stream, log time in ns, the block or why it is not one).
-Item = tuple[int, int, Block | BlockError]
 
 
 def read_blocks(

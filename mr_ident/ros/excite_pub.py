@@ -290,7 +290,13 @@ def publish(
     _spin(node, tick, player, stop, control)
     for pub in (sig, idx):  # reliable delivery: do not exit before the readers have it
         pub.wait_for_all_acked(Duration(seconds=1 if stop.signal is not None else 5))
-    return Played(player.next_index, player.messages, player.ticks, player.t0, player.late)
+    return Played(
+        samples=player.next_index,
+        messages=player.messages,
+        ticks=player.ticks,
+        t0=player.t0,
+        late_ticks=player.late,
+    )
 
 
 def _checked(

@@ -379,7 +379,10 @@ def _fit(frf: FRF, options: FitOptions) -> FitResult:
             np.all(poles.real < 0) if domain == "continuous" else np.all(np.abs(poles) < 1)
         )
         aic, mdl = 2 * v + 2 * p, 2 * v + p * math.log(2 * N)
-        return _Candidate(OrderReport(n, v, e, sd, aic, mdl, sol.delay, stable), sol, start_cond)
+        report = OrderReport(
+            order=n, cost=v, expected=e, sd=sd, aic=aic, mdl=mdl, delay=sol.delay, stable=stable
+        )
+        return _Candidate(report=report, solution=sol, start_cond=start_cond)
 
     for n in orders:
         candidate = fit_at(n, delays, free_delay)
@@ -415,11 +418,7 @@ def _result(
     reports: tuple[OrderReport, ...],
     options: FitOptions,
 ) -> FitResult:
-    """The :class:`FitResult` of one order: the natural parameters' std from ``jac cov jac^T``.
-
-    ``jac``: their Jacobian in the fit's parameters x (``n_nonlinear`` of the poles and the
-    delay, then the linear coefficients), by central differences.
-    """
+    """The :class:`FitResult` of one order; ``jac``: the natural parameters' Jacobian in x."""
     sol, rep, fs = kept.solution, kept.report, options.fs
     no, ni = int(shape[0]), int(shape[1])
     poles, tau, coef, res = sol.poles, sol.delay, sol.coef, sol.residual
@@ -428,7 +427,7 @@ def _result(
     x, cov, _ = covariance(
         prob, poles, tau, free_delay=free_delay, kernel=options.noise_kernel, known=sol
     )
-    n_nonlinear = x.size - coef.size
+    n_nonlinear = x.size - coef.size  # x: the poles' and the delay's, then the linear ones
     E = no * ni
     pair = [bool(p.imag > 0) for p in poles]
 

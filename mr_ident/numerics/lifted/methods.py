@@ -305,7 +305,7 @@ def _freq_lifted(req: FitRequest, *, lti: bool = False) -> PlantFit:
             )
         lifted = (fit.G, fit.noise_cov, fit.inv_gram)
         kept = _LiftedParts(*(a.transpose(2, 0, 1) for a in lifted)) if keep else None
-        return _BlockFit(fit.n_bad, fit.dof, kept)
+        return _BlockFit(n_bad=fit.n_bad, dof=fit.dof, lifted=kept)
 
     segs = segments(plan, 1, step)
     done = thread_map(block, segs, req.workers)
@@ -318,8 +318,10 @@ def _freq_lifted(req: FitRequest, *, lti: bool = False) -> PlantFit:
     Cv = in_bin_order(segs, [p.noise_cov for p in parts], Kc + 1)
     Ainv = in_bin_order(segs, [p.inv_gram for p in parts], Kc + 1)
     q = min(d.dof for d in done)
-    maps = _lifted_maps(G, Cv, Ainv, F * ny, "frequency", req, q)
-    return PlantFit(P_half, var_half, *maps, pfg_half, pfg_var)
+    J, S = _lifted_maps(G, Cv, Ainv, F * ny, "frequency", req, q)
+    return PlantFit(
+        P_half, var_half, lifted_J=J, lifted_S=S, pfg_half=pfg_half, pfg_var_half=pfg_var
+    )
 
 
 def _time_lifted(req: FitRequest) -> PlantFit:
@@ -364,7 +366,8 @@ def _time_lifted(req: FitRequest) -> PlantFit:
     if not req.keep_lifted or not covers(plan, Kc + 1):
         return PlantFit(P_half, var_half)
     q = min(f.dof for f in fits)
-    return PlantFit(P_half, var_half, *_lifted_maps(G, Cv, Ainv, F * ny, "time", req, q))
+    J, S = _lifted_maps(G, Cv, Ainv, F * ny, "time", req, q)
+    return PlantFit(P_half, var_half, lifted_J=J, lifted_S=S)
 
 
 def _lifted_maps(

@@ -383,9 +383,10 @@ def _estimate(
         it += it2
     filled = x0.copy()
     filled[mask] = theta
-    ny = y.shape[1]
     thetas = tuple(filled[h, j] for j, h in enumerate(holes))
-    return MissingFill(filled[:, ny:], filled[:, :ny], holes, thetas, it)
+    ny = y.shape[1]
+    u_filled, y_filled = filled[:, ny:], filled[:, :ny]
+    return MissingFill(u=u_filled, y=y_filled, holes=holes, theta=thetas, iterations=it)
 
 
 def _interpolated(x0: FloatArray, mask: BoolArray) -> FloatArray:

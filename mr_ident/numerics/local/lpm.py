@@ -188,19 +188,31 @@ def lpm_bins_last(
     centres: NDArray[np.intp] | None = None,
     offsets: int = 0,
 ) -> tuple[NDArray[np.complex128], NDArray[np.complex128], NDArray[np.complex128], int]:
-    """The engine of :func:`lpm` (options already checked, ``q`` their dof).
+    """The engine of :func:`lpm` (options already checked, ``q`` their dof), bins last.
 
-    For callers that work bins-last: ``Ua`` (K+2n, n_in) and ``Ya`` (K+2n, n_out) padded
-    spectra; returns G (n_out, n_in, K), C_v (n_out, n_out, K), inv_gram (n_in, n_in, K) and
-    the number of bins whose regressor is rank deficient (NaN there). ``centres``
-    (increasing, in 0..K-1): fit those centre bins only (K of them in the outputs); the
-    windowed sums run over the stretch they span in each chunk, the per-bin solve over
-    them alone (a segment's windows that straddle two runs are not fitted).
+    Parameters
+    ----------
+    Ua, Ya : ndarray, shapes (K+2n, n_in), (K+2n, n_out), complex128
+        Padded spectra, as :func:`lpm` takes them.
+    n, degree, q : int
+        Window half-width, degree R and the dof ``q = dof(n, degree, n_in)``.
+    workers : int
+        Threads over chunks of :func:`chunk_bins` bins (independent of each other).
+    centres : ndarray of int, optional
+        Increasing, in 0..K-1: fit those centre bins only (K of them in the outputs); the
+        windowed sums run over the stretch they span in each chunk, the per-bin solve over
+        them alone (a segment's windows that straddle two runs are not fitted).
+    offsets : int
+        > 0: every ``2 offsets + 1`` windows one is solved, and its local polynomial
+        evaluated at the bins up to ``offsets`` from its centre
+        (:func:`~mr_ident.numerics.local.strided.lpm_strided`).
 
-    Chunks of :func:`chunk_bins` bins are independent and run on ``workers`` threads.
-    ``offsets`` > 0: every ``2 offsets + 1`` windows one is solved, and its local polynomial
-    evaluated at the bins up to ``offsets`` from its centre
-    (:func:`~mr_ident.numerics.local.strided.lpm_strided`).
+    Returns
+    -------
+    G, noise_cov, inv_gram : ndarray, shapes (n_out, n_in, K), (n_out, n_out, K), (n_in, n_in, K)
+        NaN at the bins whose regressor is rank deficient.
+    n_bad : int
+        The number of those bins.
     """
     n_in, n_out = Ua.shape[1], Ya.shape[1]
     if offsets:
