@@ -428,7 +428,8 @@ def _chosen_causes(
     """Every cause ranked on the estimation data, and the set it chose (settled ones first)."""
     full, base = path.criterion, path.base
     unit = est.period or model.ratio
-    n_screen = est.n_samples if est.period else min(est.n_samples, SCREEN_SAMPLES // unit * unit)
+    # the screening part: whole periods (at least 8) or a multiple of F, periodic data too
+    n_screen = min(est.n_samples, max(SCREEN_SAMPLES // unit, 8) * unit)
     screen = (
         full if n_screen == est.n_samples else Objective(est.part(0, n_screen), base, path.noise)
     )
