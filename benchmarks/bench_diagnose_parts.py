@@ -23,11 +23,15 @@ Every case also checks the verdict's rule: never ``none`` where the model leaves
 unexplained beyond the noise. Seeds ``seed * 10**6 + 1000 * kind + k``.
 
     .venv/bin/python benchmarks/bench_diagnose_parts.py --part controller --per-kind 5
+
+``--jsonl FILE`` appends each case's row to FILE as it is judged (a long run keeps what it
+has done); ``--report-from FILE ...`` prints the tables of such files.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 import time
@@ -190,12 +194,20 @@ def report(rows: list[dict]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--part", choices=("controller", "nonlinear", "linear"), required=True)
+    p.add_argument("--part", choices=("controller", "nonlinear", "linear"))
     p.add_argument("--per-kind", type=int, default=10)
     p.add_argument("--seed", type=int, default=9)
     p.add_argument("--duration", type=float, default=20.0, help="s of each record (20)")
     p.add_argument("--case", help="KIND:SEED, one case")
+    p.add_argument("--jsonl", help="append each case's row to this file as it is judged")
+    p.add_argument("--report-from", nargs="+", help="print the tables of these --jsonl files")
     a = p.parse_args(argv)
+    if a.report_from:
+        rows = [json.loads(line) for f in a.report_from for line in open(f) if line.strip()]
+        print(report(rows))
+        return 0
+    if a.part is None:
+        p.error("--part is required (or --report-from)")
     kinds = {
         "controller": CONTROLLER_KINDS,
         "nonlinear": RANDOM_NONLINEAR,
@@ -214,6 +226,9 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for kind, seed in plan:
         rows.append(run_case(a.part, kind, seed, a.duration))
+        if a.jsonl:
+            with open(a.jsonl, "a") as f:
+                f.write(json.dumps(rows[-1], default=float) + "\n")
         print(f"{kind}:{seed} {rows[-1].get('cause', rows[-1]['status'])}", file=sys.stderr)
     print(report(rows))
     print(f"\n{len(rows)} cases in {(time.perf_counter() - t0) / 60:.1f} min")

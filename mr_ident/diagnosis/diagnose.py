@@ -154,7 +154,8 @@ class Diagnosis:
     correlation : Correlation or None
         The validated residual's higher-order correlations with the model's signals
         (nonlinear distortion under any excitation,
-        :mod:`~mr_ident.diagnosis.criterion.correlation`); None for periodic records.
+        :mod:`~mr_ident.diagnosis.criterion.correlation`); None for periodic records
+        (they have their own tests) and records too short for it.
     controller_frf : ControllerFRF or None
         Where the logged u is not the model controller's output: the controller's FRF
         identified from the estimation data at the low rate, with its std, beside the model's
@@ -429,7 +430,8 @@ def _chosen_causes(
     """Every cause ranked on the estimation data, and the set it chose (settled ones first)."""
     full, base = path.criterion, path.base
     unit = est.period or model.ratio
-    n_screen = est.n_samples if est.period else min(est.n_samples, SCREEN_SAMPLES // unit * unit)
+    # the screening part: whole periods (at least 8) or a multiple of F, periodic data too
+    n_screen = min(est.n_samples, max(SCREEN_SAMPLES // unit, 8) * unit)
     screen = (
         full if n_screen == est.n_samples else Objective(est.part(0, n_screen), base, path.noise)
     )
@@ -477,7 +479,8 @@ def _unexplained(
     val = recs.val
     # periodic: the residual's spread over periods (a periodic distortion left out)
     noise_var = None if recs.val_part.period is not None else criterion_noise(val_objective())
-    if noise_var is not None and hos is not None and hos.detected:  # the LPM's holds it
+    if noise_var is not None and hos is not None and hos.detected and model.n_y == 1:
+        # the LPM's level holds the distortion: the correlations' rest bounds the noise's
         shaped = loop_shaped(hos.rest_var, model, val.n_samples - gain.start)
         noise_var = np.minimum(noise_var, shaped)
     left = unexplained(current, val, gain.start, gain.pred_after, noise_var)

@@ -69,45 +69,33 @@ def _decision(d: Diagnosis) -> dict[str, Any] | None:
     }
 
 
-def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> dict[str, Any]:
-    """The JSON report (see the README's "Model validation" section for every field)."""
-    none = next(c.score for c in d.ranking if c.cause == "none")
-    causes = [
+def _applied(d: Diagnosis) -> list[dict[str, Any]]:
+    """The ``applied`` field: each validated cause with its std and equivalents."""
+    return [
         {
             "cause": c.cause,
             "parameters": c.parameters,
-            "score": _finite(c.score),
-            "delta_bic": _finite(c.score - none),
-            "applicable": c.applicable,
+            "std": {k: _finite(v) for k, v in c.std.items()},
             "description": c.description,
+            "equivalents": [
+                {
+                    "cause": q.cause,
+                    "parameters": q.parameters,
+                    "std": {k: _finite(v) for k, v in q.std.items()},
+                    "description": q.description,
+                    "delta_bic": _finite(q.delta_bic),
+                }
+                for q in c.equivalents
+            ],
         }
-        for c in d.ranking
+        for c in d.applied
     ]
-    return {
-        "cause": d.cause,
-        "parameters": d.parameters,
-        "headline": d.headline.text if d.headline is not None else None,
-        "causes": causes,
-        "applied": [
-            {
-                "cause": c.cause,
-                "parameters": c.parameters,
-                "std": {k: _finite(v) for k, v in c.std.items()},
-                "description": c.description,
-                "equivalents": [
-                    {
-                        "cause": q.cause,
-                        "parameters": q.parameters,
-                        "std": {k: _finite(v) for k, v in q.std.items()},
-                        "description": q.description,
-                        "delta_bic": _finite(q.delta_bic),
-                    }
-                    for q in c.equivalents
-                ],
-            }
-            for c in d.applied
-        ],
-        "findings": ([d.distortion_text()] if d.nonlinear else [])
+
+
+def _findings(d: Diagnosis) -> list[str]:
+    """The ``findings`` field: every finding in words."""
+    return (
+        ([d.distortion_text()] if d.nonlinear else [])
         + ([d.segments.text()] if d.segments is not None and d.time_varying else [])
         + (
             [
@@ -128,38 +116,47 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
         + ([d.controller_frf.text()] if d.controller_frf is not None else [])
         + [c.description for c in d.applied]
         + _validation_findings(d)
-        + ([d.correction.text()] if d.correction is not None else []),
-        "validation_decision": _decision(d),
-        "nonlinear_distortion": {
-            "detected": d.nonlinear,
-            "threshold_db": NL_THRESHOLD_DB,
-            "bands": [
-                {
-                    "band_hz": list(b.band),
-                    "excited_db": _finite(b.excited_db),
-                    "odd_db": _finite(b.odd_db),
-                    "even_db": _finite(b.even_db),
-                    "odd_threshold_db": _finite(b.odd_threshold_db),
-                    "even_threshold_db": _finite(b.even_threshold_db),
-                }
-                for b in d.distortion
-            ],
-            "records": d.records,
-            "across_records": [
-                {
-                    "band_hz": list(b.band),
-                    "level_db": _finite(b.level_db),
-                    "threshold_db": _finite(b.threshold_db),
-                    "nl_std_relative": _finite(b.nl_std),
-                    "noise_std_relative": _finite(b.noise_std),
-                    "lines": b.lines,
-                }
-                for b in d.spread
-            ],
-            "blind": d.blind_text() or None,
-            "correlation": None if d.correlation is None else d.correlation.summary(),
-        },
-        "time_varying": None
+        + ([d.correction.text()] if d.correction is not None else [])
+    )
+
+
+def _nonlinear(d: Diagnosis) -> dict[str, Any]:
+    """The ``nonlinear_distortion`` field."""
+    return {
+        "detected": d.nonlinear,
+        "threshold_db": NL_THRESHOLD_DB,
+        "bands": [
+            {
+                "band_hz": list(b.band),
+                "excited_db": _finite(b.excited_db),
+                "odd_db": _finite(b.odd_db),
+                "even_db": _finite(b.even_db),
+                "odd_threshold_db": _finite(b.odd_threshold_db),
+                "even_threshold_db": _finite(b.even_threshold_db),
+            }
+            for b in d.distortion
+        ],
+        "records": d.records,
+        "across_records": [
+            {
+                "band_hz": list(b.band),
+                "level_db": _finite(b.level_db),
+                "threshold_db": _finite(b.threshold_db),
+                "nl_std_relative": _finite(b.nl_std),
+                "noise_std_relative": _finite(b.noise_std),
+                "lines": b.lines,
+            }
+            for b in d.spread
+        ],
+        "blind": d.blind_text() or None,
+        "correlation": None if d.correlation is None else d.correlation.summary(),
+    }
+
+
+def _time_varying(d: Diagnosis) -> dict[str, Any] | None:
+    """The ``time_varying`` field (None where the record is too short for segments)."""
+    return (
+        None
         if d.segments is None
         else {
             "detected": d.time_varying,
@@ -187,7 +184,13 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
                 {"band_hz": list(b.band), "level_db": _finite(b.line_ratio_db), "lines": b.lines}
                 for b in d.segments.bands
             ],
-        },
+        }
+    )
+
+
+def _controller(d: Diagnosis) -> dict[str, Any]:
+    """The ``controller_relation``, ``controller_frf`` and ``controller_check`` fields."""
+    return {
         "controller_relation": None
         if d.relation is None
         else {
@@ -214,6 +217,34 @@ def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> di
             "statistic": "|PFG_data - PFG_model_K| / sqrt(std_data^2 + std_model_K^2) per bin; "
             "fraction: share of the band beyond coverage_std, bins weighed by 1/f",
         },
+    }
+
+
+def report_dict(d: Diagnosis, *, extended_model: str | None, alpha: float) -> dict[str, Any]:
+    """The JSON report (see the README's "Model validation" section for every field)."""
+    none = next(c.score for c in d.ranking if c.cause == "none")
+    causes = [
+        {
+            "cause": c.cause,
+            "parameters": c.parameters,
+            "score": _finite(c.score),
+            "delta_bic": _finite(c.score - none),
+            "applicable": c.applicable,
+            "description": c.description,
+        }
+        for c in d.ranking
+    ]
+    return {
+        "cause": d.cause,
+        "parameters": d.parameters,
+        "headline": d.headline.text if d.headline is not None else None,
+        "causes": causes,
+        "applied": _applied(d),
+        "findings": _findings(d),
+        "validation_decision": _decision(d),
+        "nonlinear_distortion": _nonlinear(d),
+        "time_varying": _time_varying(d),
+        **_controller(d),
         "criterion": "BIC = 2 sum_k |E(k)|^2/S_noise(k) + p ln(n_bins) of the residual y - y_sim; "
         "lower is better; forward selection with joint re-fits: a cause (set) is accepted when "
         f"it lowers the BIC by more than {ACCEPT_MARGIN:g}",

@@ -16,11 +16,13 @@ with ``u²``; here with Hermite polynomials, as below).
 
 **Regressors.** With ``z = û / std(û)`` (input side) or ``z = ŷ / std(ŷ)`` (output side),
 ``He₂(z) = z² - 1`` (even) and ``He₃(z) = z³ - 3z`` (odd), the input side's through the
-model's plant P. For Gaussian r, z is Gaussian and ``E{He_n(z) w} = 0`` for every w
+model's plant P. With several inputs and outputs, per output channel o: He₂ and He₃ of
+every input's z through ``P[o, i]``, and of its own ``ŷ_o``. For Gaussian r, z is
+Gaussian and ``E{He_n(z) w} = 0`` for every w
 linear in r and n >= 2 (Isserlis): a *linear* model error leaves the coefficients at 0
 in expectation; only a nonlinear one moves them. The test asks r to be Gaussian-like
 (white or filtered noise, a random-phase multisine of many lines); it is run on records
-that are not periodic (periodic ones have the tests above), SISO, complete.
+that are not periodic (periodic ones have the tests above).
 
 **The test.** From the validation start on: ``e = X β + L γ + c + w``, four columns X,
 and as nuisances L the model's ŷ at lags 0..:data:`LAGS`-1 (a linear error of the
@@ -31,13 +33,23 @@ applied to e, X and L alike (prewhitening); the nuisances projected out of both
 heteroscedasticity-robust sandwich with each sample's residual over one less its
 leverage (HC3: He₃'s heavy tail puts weight on few samples) and the Newey-West sum over
 :func:`hac_lags` lags (what the filter left, a multirate loop's periodic statistics).
-Under the null the Wald statistic ``β^T V⁻¹ β`` is χ²(4); nonlinear distortion is found
-at ``p <`` :data:`HOS_ALPHA`. The kind is named by the sub-tests of the odd and even
-pairs and of the input and output pairs (each at the same level, the pair's χ²(2) within
-the joint fit); where both or neither pass, that part of the kind is not named. Its
-level: the fitted part's power over the rest, ``10 log10(1 + ‖Xβ‖² / ‖e - Xβ‖²)`` dB;
+Under the null the Wald statistic ``β^T V⁻¹ β`` is χ²(k), k = 2 n_u + 2 columns (4 for a
+SISO loop); nonlinear distortion is found at ``p <`` :data:`HOS_ALPHA`. With n_y outputs
+each is tested alone and the smallest p counts n_y times (Bonferroni: the level holds over
+the outputs together). The kind is named by the sub-tests of the odd and even columns and
+of the input and output columns (each at the same level, a χ² of their count within the
+joint fit, Bonferroni over the outputs alike); where both or neither pass, that part of
+the kind is not named. Its level: the fitted part's power over the rest,
+``10 log10(1 + ‖Xβ‖² / ‖e - Xβ‖²)`` dB (summed over the outputs);
 the rest's variance bounds the output noise's from above (:mod:`.unexplained` takes it
 where it is below the LPM's level, which under random r holds the distortion).
+
+**Missing samples** (NaN in u or y). The output error takes u's missing samples as
+identification estimates them and is NaN where y is missing (:func:`~.matched.
+output_error`); the regressors come from r alone and are complete. A filtered sample whose
+filter window reaches a missing e is left out (the filter is exact elsewhere), and so is
+every row of the autoregression that does; the Newey-West sum runs over the time axis
+with the left-out samples' scores at zero, so no lag is shortened by a hole.
 """
 
 from __future__ import annotations
@@ -54,7 +66,7 @@ from ...numerics.signals import LoopData
 from ...numerics.systems.model import Model
 from ...numerics.systems.simulate import LoopStream
 from .matched import free_response, output_error
-from .prediction import Prediction, centred
+from .prediction import Prediction
 
 #: Fewer samples than this many times 16 past the settling: no test.
 SMOOTH = 33
@@ -66,13 +78,14 @@ HOS_ALPHA = 1e-3
 LAGS = 8
 #: Order of the autoregressive filter that whitens the residual (and the regressors alike).
 ORDER = 30
-#: The regressors, in the order of the columns: (side, kind).
+#: The regressors of a SISO loop, in the order of the columns: (side, kind).
 COLUMNS: tuple[tuple[str, str], ...] = (
     ("input", "even"),
     ("input", "odd"),
     ("output", "even"),
     ("output", "odd"),
 )
+KINDS = ("even", "odd")
 
 
 @dataclass(frozen=True)
@@ -82,17 +95,19 @@ class Correlation:
     Attributes
     ----------
     statistic : float
-        Wald statistic of the four coefficients, χ²(4) under the null.
+        Wald statistic of the output with the smallest p, χ²(2 n_u + 2) under the null.
     p : float
+        That output's p times the number of outputs (at most 1).
     alpha : float
         The level.
     z : tuple of float
-        Each coefficient over its std (the order of :data:`COLUMNS`).
+        Each coefficient over its std, named by :attr:`names`.
     odd_p, even_p, input_p, output_p : float
-        The pairs' sub-tests (χ²(2)).
+        The sub-tests of the odd, even, input and output columns (Bonferroni over outputs).
     level_db : float
         The fitted part's power over the rest, dB above it.
     samples : int
+        Samples tested (per output; the ones left out for missing samples not counted).
     rest_var : float
         The output error's variance per sample with the fitted part taken out: an upper
         bound of the output noise's where the distortion is found (the LPM's noise level
@@ -115,6 +130,7 @@ class Correlation:
     samples: int
     rest_var: float = math.nan
     fitted_var: float = math.nan
+    names: tuple[str, ...] = tuple(f"{side}_{kind}" for side, kind in COLUMNS)
 
     @property
     def detected(self) -> bool:
@@ -155,7 +171,7 @@ class Correlation:
             "statistic": self.statistic,
             "p": self.p,
             "alpha": self.alpha,
-            "z": dict(zip([f"{s}_{k}" for s, k in COLUMNS], self.z, strict=True)),
+            "z": dict(zip(self.names, self.z, strict=True)),
             "odd_p": self.odd_p,
             "even_p": self.even_p,
             "input_p": self.input_p,
@@ -179,10 +195,14 @@ def hac_lags(ratio: int) -> int:
 
 
 def _ar(e: FloatArray, order: int) -> FloatArray:
-    """The AR polynomial ``[1, -a_1, ..., -a_p]`` that whitens ``e``, by least squares."""
+    """The AR polynomial ``[1, -a_1, ..., -a_p]`` that whitens ``e``, by least squares.
+
+    Rows that reach a missing (NaN) sample are left out.
+    """
     n = e.size
     lagged = np.column_stack([e[order - i - 1 : n - i - 1] for i in range(order)])
-    a = np.linalg.lstsq(lagged, e[order:], rcond=None)[0]
+    ok = np.isfinite(e[order:]) & np.all(np.isfinite(lagged), axis=1)
+    a = np.linalg.lstsq(lagged[ok], e[order:][ok], rcond=None)[0]
     return np.concatenate([[1.0], -a])
 
 
@@ -195,7 +215,8 @@ def _filtered(a: FloatArray, x: FloatArray) -> FloatArray:
     return out
 
 
-def _sub(beta: FloatArray, V: FloatArray, idx: list[int]) -> float:
+def _p(beta: FloatArray, V: FloatArray, idx: list[int]) -> float:
+    """The χ² p of the coefficients ``idx`` within the joint fit (1 where V is singular)."""
     b, v = beta[idx], V[np.ix_(idx, idx)]
     try:
         w = float(b @ np.linalg.solve(v, b))
@@ -204,79 +225,118 @@ def _sub(beta: FloatArray, V: FloatArray, idx: list[int]) -> float:
     return float(scipy.stats.chi2.sf(w, len(idx)))
 
 
-def correlation(
-    model: Model, rec: LoopData, start: int, pred: Prediction, *, alpha: float
-) -> Correlation | None:
-    """The test of the module docstring on ``rec`` from sample ``start`` on.
+@dataclass(frozen=True)
+class _Output:
+    """One output's fit: coefficients, their covariance, the fitted part and the rest."""
 
-    ``pred``: ``model``'s prediction on ``rec``. None for periodic or multichannel records,
-    records with missing samples, or too few samples left.
+    beta: FloatArray
+    V: FloatArray
+    fitted: float
+    rest: float
+    samples: int
+
+
+def _fit(e: FloatArray, X: FloatArray, lin: FloatArray, F: int) -> _Output | None:
+    """The prewhitened, robust fit of ``e`` (n,) on ``X`` (n, k), ``lin`` (n, m) out.
+
+    NaN in ``e`` (missing y): the filtered samples that reach one are left out.
     """
-    if rec.period is not None or model.n_u != 1 or model.n_y != 1:
-        return None
-    _, _, y = centred(rec, model)
-    if np.isnan(y).any() or np.isnan(rec.u).any():
-        return None
-    N, F = rec.n_samples, model.ratio
-    err = output_error(model, rec)  # y - P u - (P's free responses): the noise itself
-    if err is None or N - start < 16 * SMOOTH:
-        return None
-    s = start
-    plant = replace(model, controller=None, disturbances=())
-    cols = []
-    for g in _hermite(pred.u[:, 0], s):  # at the plant's input: through P
-        with warnings.catch_warnings():  # an integrator's Jordan block: the direct recursion
-            warnings.filterwarnings("ignore", "simulate: state matrix", RuntimeWarning)
-            _, x = LoopStream(plant).next(g[:, None])
-        cols.append(x[:, 0])
-    cols += list(_hermite(pred.y[:, 0], s))  # at its output: as they are
-    free = free_response(model.plant_discrete(), N)[:, 0, :]
-    X = np.column_stack(cols)[s:]
-    e = err.y[s:, 0]
-    lin = np.column_stack([np.roll(pred.y[:, 0], j) for j in range(LAGS)] + [free])[s:]
-    a = _ar(e - e.mean(), ORDER)
+    a = _ar(e - np.nanmean(e), ORDER)
     ew, Xw, Lw = (_filtered(a, v) for v in (e[:, None], X, lin))
+    keep = np.isfinite(ew[:, 0])
+    if keep.sum() < 16 * SMOOTH:
+        return None
     # the nuisances projected out of both (Frisch-Waugh), their span by SVD (P's free
     # responses are near one another where it integrates)
-    U, sv, _ = np.linalg.svd(np.column_stack([Lw, np.ones(Lw.shape[0])]), full_matrices=False)
+    Lk = np.column_stack([Lw[keep], np.ones(int(keep.sum()))])
+    U, sv, _ = np.linalg.svd(Lk, full_matrices=False)
     U = U[:, sv > 1e-9 * sv[0]]
-    ew = ew - U @ (U.T @ ew)
-    Xw = Xw - U @ (U.T @ Xw)
-    Q, R = np.linalg.qr(Xw)
+    ek = ew[keep, 0] - U @ (U.T @ ew[keep, 0])
+    Xk = Xw[keep] - U @ (U.T @ Xw[keep])
+    Q, R = np.linalg.qr(Xk)
     if np.min(np.abs(np.diag(R))) < 1e-10 * np.max(np.abs(np.diag(R))):
         return None
-    coef = np.linalg.solve(R, Q.T @ ew[:, 0])
-    res = ew[:, 0] - Xw @ coef
+    coef = np.linalg.solve(R, Q.T @ ek)
+    res = ek - Xk @ coef
     Rinv = np.linalg.inv(R)
     lev = np.einsum("ij,ij->i", Q, Q) + np.einsum("ij,ij->i", U, U)  # He3's heavy tail
-    G = Q * (res / np.maximum(1.0 - lev, 0.05))[:, None]  # HC3 scores
+    G = np.zeros((keep.size, Q.shape[1]))  # HC3 scores on the time axis, 0 where left out
+    G[keep] = Q * (res / np.maximum(1.0 - lev, 0.05))[:, None]
     meat = G.T @ G
     for lag in range(1, hac_lags(F) + 1):  # Newey-West: what whitening left, cyclic too
         c = G[lag:].T @ G[:-lag]
         meat += (1.0 - lag / (hac_lags(F) + 1)) * (c + c.T)
     cov = Rinv @ meat @ Rinv.T
-    beta, V = coef[:4], cov[:4, :4]
-    try:
-        stat = float(beta @ np.linalg.solve(V, beta))
-    except np.linalg.LinAlgError:
+    seen = np.isfinite(e)
+    Xc = X[seen] - X[seen].mean(axis=0)
+    fitted = Xc @ coef
+    rest = float(np.sum((e[seen] - e[seen].mean() - fitted) ** 2))
+    return _Output(coef, cov, float(np.sum(fitted**2)), rest, int(seen.sum()))
+
+
+def correlation(
+    model: Model, rec: LoopData, start: int, pred: Prediction, *, alpha: float
+) -> Correlation | None:
+    """The test of the module docstring on ``rec`` from sample ``start`` on.
+
+    ``pred``: ``model``'s prediction on ``rec``. None for periodic records or too few
+    samples left (:data:`SMOOTH`).
+    """
+    if rec.period is not None:
         return None
-    X = X - X.mean(axis=0)
-    e = e - e.mean()
-    fitted = X @ beta
-    rest = float(np.sum((e - fitted) ** 2))
-    level = 10.0 * math.log10(1.0 + float(np.sum(fitted**2)) / max(rest, 1e-300))
-    sd = np.sqrt(np.maximum(np.diag(V), 1e-300))
+    N, F, n_u, n_y = rec.n_samples, model.ratio, model.n_u, model.n_y
+    err = output_error(model, rec)  # y - P u - (P's free responses): the noise itself
+    if err is None or err.y.shape[0] != N or N - start < 16 * SMOOTH:
+        return None
+    s = start
+    plant = replace(model, controller=None, disturbances=())
+    through_p = []  # per input and kind (input-major), (N, n_y): He(z_i) through P[:, i]
+    for i in range(n_u):
+        for g in _hermite(pred.u[:, i], s):
+            drive = np.zeros((N, n_u))
+            drive[:, i] = g
+            with warnings.catch_warnings():  # an integrator's Jordan block: the recursion
+                warnings.filterwarnings("ignore", "simulate: state matrix", RuntimeWarning)
+                through_p.append(LoopStream(plant).next(drive)[1])
+    free = free_response(model.plant_discrete(), N)
+    names = [f"input{i if n_u > 1 else ''}_{k}" for i in range(n_u) for k in KINDS]
+    names += [f"output_{k}" for k in KINDS]
+    outs = []
+    for o in range(n_y):
+        X = np.column_stack([x[:, o] for x in through_p] + list(_hermite(pred.y[:, o], s)))
+        lags = [np.roll(pred.y[:, o], j) for j in range(LAGS)]
+        fit = _fit(err.y[s:, o], X[s:], np.column_stack([*lags, free[:, o, :]])[s:], F)
+        if fit is None:
+            return None
+        outs.append(fit)
+    k = 2 * n_u + 2
+    odd, even = list(range(1, k, 2)), list(range(0, k, 2))
+    groups = (odd, even, list(range(2 * n_u)), [k - 2, k - 1])
+
+    def bonferroni(p: float) -> float:
+        return min(1.0, n_y * p)
+
+    ps = [_p(f.beta, f.V, list(range(k))) for f in outs]
+    best = int(np.argmin(ps))
+    b = outs[best]
+    stat = float(b.beta @ np.linalg.solve(b.V, b.beta)) if ps[best] < 1.0 else 0.0
+    sub = [bonferroni(min(_p(f.beta, f.V, g) for f in outs)) for g in groups]
+    fitted, rest = sum(f.fitted for f in outs), sum(f.rest for f in outs)
+    count = sum(f.samples for f in outs)
+    sd = np.sqrt(np.maximum(np.diag(b.V), 1e-300))
+    out_names = names if n_y == 1 else [f"{x}@y{best}" for x in names]
     return Correlation(
-        stat,
-        float(scipy.stats.chi2.sf(stat, 4)),
-        alpha,
-        tuple(float(v) for v in beta / sd),
-        _sub(beta, V, [1, 3]),
-        _sub(beta, V, [0, 2]),
-        _sub(beta, V, [0, 1]),
-        _sub(beta, V, [2, 3]),
-        level,
-        N - s,
-        rest / e.size,
-        float(np.sum(fitted**2)) / e.size,
+        statistic=stat,
+        p=bonferroni(ps[best]),
+        alpha=alpha,
+        z=tuple(float(v) for v in b.beta / sd),
+        odd_p=sub[0],
+        even_p=sub[1],
+        input_p=sub[2],
+        output_p=sub[3],
+        level_db=10.0 * math.log10(1.0 + fitted / max(rest, 1e-300)),
+        samples=count // n_y,
+        rest_var=rest / count,
+        fitted_var=fitted / count,
+        names=tuple(out_names),
     )

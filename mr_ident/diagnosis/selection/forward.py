@@ -8,8 +8,9 @@ cause. Each step:
 
 1. **Screen.** Every applicable cause is fitted on top of the causes chosen so far (their
    values fixed), on the screening part of the record (at most :data:`SCREEN_SAMPLES`
-   samples): proposals from the identified plant or a grid, each scored, the best one
-   refined by least squares; discrete causes (delays, offsets) are enumerated.
+   samples, whole periods of a periodic record, at least 8): proposals from the
+   identified plant or a grid, each scored, the best one refined by least squares;
+   discrete causes (delays, offsets) are enumerated.
 2. **Re-fit jointly.** The best :data:`JOINT_CANDIDATES` of the screen are each added to
    the chosen set and *all* continuous parameters re-fitted together (on the screening
    part), each trial then scored on the whole estimation record. At the second step the
