@@ -1,9 +1,10 @@
 # SPDX-License-Identifier: Apache-2.0
 """Identification of the high-rate plant of a multirate loop from r_h, u_h, y_h.
 
-:func:`identify` checks its input, runs one method of the table
-:data:`~mr_ident.numerics.lifted.methods.METHODS` (``freq-lifted``, ``time-lifted``, ``lpm``,
-``structured``, ``etfe``: see :mod:`mr_ident.numerics.lifted.methods`) and, given the
+:func:`identify` checks its input (:mod:`~mr_ident.numerics.identify_plan`), runs one
+method of the table :data:`~mr_ident.numerics.lifted.methods.METHODS` (``freq-lifted``,
+``time-lifted``, ``lpm``, ``structured``, ``etfe``: see
+:mod:`mr_ident.numerics.lifted.methods`) and, given the
 controller, adds the PFG.
 :func:`check_options` and :func:`min_samples` are the option and record-length rules,
 shared with the node's configuration.
@@ -17,36 +18,27 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..errors import ConfigError, DataError, DimensionError
-from .arrays import ComplexArray, FloatArray, IntArray
+from ..errors import DataError, DimensionError
+from .arrays import BoolArray, ComplexArray, FloatArray, IntArray
+from .identify_plan import AUTO, Plan, plan
 from .lifted.methods import METHODS, FitRequest, PlantFit
 from .lifted.missing import check_share, estimate_missing
 from .lifted.options import check_options, default_n, method_of, min_samples, missing_rules
 from .lifted.pfg import pfg_from_plant
 from .lifted.pfg_data import fit_data_pfg
 from .lifted.setpoint import (
-    check_setpoint_shapes,
-    held_over_blocks,
     hold_zero_bins,
     hold_zone,
-    setpoint_regressor,
 )
 from .lifted.spectra import Spectra
-from .lifting import check_ratio, check_sample_of_period
 from .local.bandwidth import (
-    SPAN,
-    candidates,
     centre_bins,
     choose_widths,
     probe_runs,
-    setpoint_span,
 )
 from .local.segments import Run, runs_of
-from .missing_r import RecoveredR, recover_r
 from .results import FRF, PFG, Identification
-from .signals import y_at_low_rate
-from .structure import INJECTIONS
-from .threads import one_blas_thread, resolve_workers, thread_map
+from .threads import one_blas_thread, thread_map
 
 __all__ = [
     "AUTO",
@@ -57,50 +49,6 @@ __all__ = [
     "method_of",
     "min_samples",
 ]
-
-#: The value of ``n`` that chooses the window per frequency from the data.
-AUTO = "auto"
-
-
-def _check_signals(
-    r: ArrayLike, u: ArrayLike, y: ArrayLike, ratio: int, setpoint: bool = False
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    arrays = []
-    for name, x in (("r", r), ("u", u), ("y", y)):
-        a = np.asarray(x, dtype=float)
-        if a.ndim == 1:
-            a = a[:, None]
-        if a.ndim != 2:
-            raise DimensionError(
-                f"{name} must have shape (n_samples,) or (n_samples, n_channels), got {a.shape}"
-            )
-        if np.isinf(a).any():
-            bad = np.argwhere(np.isinf(a))[0]
-            raise DataError(
-                f"{name} contains inf (a missing sample is NaN); first at sample {bad[0]}, "
-                f"channel {bad[1]}"
-            )
-        arrays.append(a)
-    ra, ua, ya = arrays
-    if setpoint:  # r is the controller's reference: one per output, at either rate
-        check_setpoint_shapes(ra, ua, ya, ratio)
-        return ra, ua, ya
-    if ra.shape[0] != ua.shape[0]:
-        raise DimensionError(
-            f"r and u must have equal lengths (the high rate), got {ra.shape[0]}, {ua.shape[0]}"
-        )
-    y_at_low_rate(ra.shape[0], ya.shape[0], ratio)
-    if ra.shape[1] != ua.shape[1]:
-        raise DimensionError(
-            f"r and u must have the same number of channels (r excites u), got {ra.shape[1]} "
-            f"and {ua.shape[1]}"
-        )
-    if ra.shape[0] % ratio:
-        raise DimensionError(
-            f"the record has {ra.shape[0]} samples, not a multiple of ratio F={ratio}; "
-            f"trim it to {ra.shape[0] - ra.shape[0] % ratio} samples"
-        )
-    return ra, ua, ya
 
 
 def identify(
@@ -123,6 +71,11 @@ def identify(
     injection: str = "plant_input",
 ) -> Identification:
     """Identify the high-rate plant P_h (and the PFG) from closed-loop data.
+
+    In five steps: the input checked and what fits it (:func:`~.identify_plan.plan`: r's
+    missing samples recovered, the regressor, the method, the windows); u's and y's missing
+    samples estimated; the method's fit (the automatic window chosen on a probe first) and
+    the PFG from data; P_h with its std; the PFG of P_h under ``controller_low``.
 
     Parameters
     ----------
@@ -224,71 +177,72 @@ def identify(
     >>> bool(np.median(np.abs(res.plant.response - exact) / np.abs(exact)) < 1e-6)
     True
     """
-    F = check_ratio(ratio)
-    if not (
-        isinstance(fs_high, (int, float, np.floating)) and np.isfinite(fs_high) and fs_high > 0
-    ):
-        raise ConfigError(f"fs_high must be a positive number of Hz, got {fs_high!r}")
-    if injection not in INJECTIONS:
-        raise ConfigError(f"injection must be one of {', '.join(INJECTIONS)}, got {injection!r}")
-    setpoint = injection == "setpoint"
-    m = method_of(method)
-    n_workers = resolve_workers(workers)
-    ra, ua, ya = _check_signals(r, u, y, F, setpoint)
-    r_found = RecoveredR(ra)
-    if np.isnan(ra).any():  # r's missing samples: recovered where the loop determines them
-        q = check_sample_of_period("phase", phase, F)
-        r_found = recover_r(ra, ua, ya, ratio=F, injection=injection, phase=q)
-        ra = r_found.r
-    if setpoint:  # the sampled setpoint r↑, and its estimator
-        ra = setpoint_regressor(ra, F, phase, method, ua.shape[0])
-    # a regressor held or sampled per block (a low-rate y keeps the lifted fit: its aliased sum)
-    high = setpoint or (ya.shape[0] == ra.shape[0] and held_over_blocks(ra, F, method))
-    if high:
-        method, m = "lpm", method_of("lpm")
-    F_fit = 1 if high else F  # the fit is LTI at the high rate
-    N = ra.shape[0]
-    ny, nu = ya.shape[1], ua.shape[1]
-    slow = ya.shape[0] != N  # y at the low rate
-    if slow and method != "freq-lifted":
-        raise ConfigError(
-            f"y at the low rate ({ya.shape[0]} = N/F samples) is identified by freq-lifted "
-            f"only; got method {method!r}"
-        )
-    check_sample_of_period("y_phase", y_phase, F)
-    n_min = default_n(method, degree, F_fit, ra.shape[1], max(ny, nu), local)
-    auto = isinstance(n, str)
-    if auto and n != AUTO:
-        raise ConfigError(f'n must be an integer >= 1, None or "{AUTO}", got {n!r}')
-    n0 = n_min if n is None or isinstance(n, str) else n
-    check_options(method, n0, degree, F_fit, ra.shape[1], max(ny, nu), local)
-    if m.uses_lpm and N < m.min_samples(n0, F_fit):
-        raise DataError(
-            f"too few samples for the LPM window: {method} needs {2 * (2 * n0 + 1)} independent "
-            "bins "
-            f"(2 x (2n+1), n={n0}) per period, i.e. N >= {m.min_samples(n0, F_fit)} samples; "
-            f"got N = {N}"
-        )
-    ns: tuple[int, ...] = (n0,)
-    if auto and m.uses_lpm:
-        span = setpoint_span(n0, N / float(fs_high)) if high else SPAN
-        ns = candidates(n0, (N // (2 * m.lift(F_fit)) - 1) // 2, span)
+    p = plan(  # step 1
+        r, u, y, fs_high=fs_high, ratio=ratio, method=method, n=n, degree=degree, local=local,
+        phase=phase, y_phase=y_phase, injection=injection, workers=workers,
+    )  # fmt: skip
+    u_fit, y_fit, n_missing, share = _missing_filled(p, degree, local)
+    fit, n_used, pfg_data = _fitted(p, u_fit, y_fit, share, degree, local, keep_lifted)
+    plant, std_half, undetermined = _plant_of(p, fit, n_used)
+    pfg = None
+    if controller_low is not None:
+        pfg = _pfg_of(p, fit, std_half, undetermined, controller_low, phase, delay)
+    return Identification(
+        plant=plant,
+        pfg=pfg,
+        lifted_J=fit.lifted_J,
+        lifted_S=fit.lifted_S,
+        fs_high=p.fs_high,
+        ratio=p.ratio,
+        n_used=n_used[1:],
+        local=local,
+        pfg_data=pfg_data,
+        n_missing=n_missing,
+        injection=injection,
+        undetermined=undetermined,
+        r_recovered=p.r_found.recovered,
+        r_unknown=p.r_found.unknown,
+    )
 
-    n_missing = np.concatenate([np.isnan(ya).sum(axis=0), np.isnan(ua).sum(axis=0)])
-    share = None
-    if n_missing.any():
-        ua, ya, share = _fill(ra, ua, ya, method, F_fit, n0, degree, local, n_missing, len(ns) > 1)
-    spectra = Spectra(ra, ua, ya, n_workers)
+
+def _missing_filled(
+    p: Plan, degree: int, local: str
+) -> tuple[FloatArray, FloatArray, IntArray, FloatArray | None]:
+    """Step 2: u and y with their missing samples estimated, the counts and shares."""
+    n_missing = np.concatenate([np.isnan(p.y).sum(axis=0), np.isnan(p.u).sum(axis=0)])
+    if not n_missing.any():
+        return p.u, p.y, n_missing, None
+    auto = len(p.widths) > 1
+    u, y, share = _fill(p.r, p.u, p.y, p.method, p.fit_ratio, p.n0, degree, local, n_missing, auto)
+    return u, y, n_missing, share
+
+
+def _fitted(
+    p: Plan,
+    u: FloatArray,
+    y: FloatArray,
+    share: FloatArray | None,
+    degree: int,
+    local: str,
+    keep_lifted: bool,
+) -> tuple[PlantFit, IntArray, PFG | None]:
+    """Step 3: the method's fit, n per bin, and the PFG from data where it is defined.
+
+    The automatic window's widths are chosen first, on a probe (:func:`_choose_widths`).
+    """
+    ra, m, F_fit, N = p.r, method_of(p.method), p.fit_ratio, p.r.shape[0]
+    spectra = Spectra(ra, u, y, p.workers)
+    n_out = max(y.shape[1], u.shape[1])
 
     def fit_with(
         nj: int, keep: bool, data_pfg: bool, runs: tuple[Run, ...] | None, workers: int
     ) -> PlantFit:
-        qj = check_options(method, nj, degree, F_fit, ra.shape[1], max(ny, nu), local)
+        qj = check_options(p.method, nj, degree, F_fit, ra.shape[1], n_out, local)
         return m.fit(
             FitRequest(
                 ra,
-                ua,
-                ya,
+                u,
+                y,
                 F_fit,
                 nj,
                 degree,
@@ -297,77 +251,91 @@ def identify(
                 workers,
                 local,
                 data_pfg,
-                int(y_phase),
+                int(p.y_phase),
                 runs,
                 spectra,
                 share,
-            )
+            )  # fmt: skip
         )
 
-    n_used = np.full(N // 2 + 1, ns[0] if m.uses_lpm else 0, dtype=np.int64)
+    n_used = np.full(N // 2 + 1, p.widths[0] if m.uses_lpm else 0, dtype=np.int64)
     with one_blas_thread():
         runs = None
-        if len(ns) > 1:  # the automatic window: candidates on a probe, then one fit
+        if len(p.widths) > 1:  # the automatic window: candidates on a probe, then one fit
             centre_of = centre_bins(N, m.lift(F_fit))
             widths, offsets = _choose_widths(
-                ns, centre_of, fit_with, n_workers, strided=m.strides and local == "polynomial"
-            )
+                p.widths, centre_of, fit_with, p.workers,
+                strided=m.strides and local == "polynomial",
+            )  # fmt: skip
             runs = runs_of(widths, offsets)
             n_used = widths[centre_of]
-        fit = fit_with(n0, keep_lifted, True, runs, n_workers)
+        fit = fit_with(p.n0, keep_lifted, True, runs, p.workers)
         pfg_data = (
             None
-            if slow or high
-            else _data_pfg(fit, ra, ua, ya, F, n0, degree, local, n_workers, float(fs_high), share)
+            if p.slow or p.high
+            else _data_pfg(
+                fit, ra, u, y, p.ratio, p.n0, degree, local, p.workers, p.fs_high, share
+            )
         )
+    return fit, n_used, pfg_data
+
+
+def _plant_of(
+    p: Plan, fit: PlantFit, n_used: IntArray
+) -> tuple[FRF, FloatArray, BoolArray | None]:
+    """Step 4: P_h with its std on (0, fs_high/2].
+
+    NaN at the hold's zeros where the fit is the high-rate one (the bins whose windows reach
+    them flagged ``undetermined``).
+    """
+    N, F = p.r.shape[0], p.ratio
     undetermined = None
-    if high:  # P_h is not determined at the hold's zeros: NaN there
+    if p.high:  # P_h is not determined at the hold's zeros: NaN there
         undetermined = hold_zone(N, F, n_used[1:])
         fit.P_half[hold_zero_bins(N, F)] = np.nan
         fit.var_half[hold_zero_bins(N, F)] = np.nan
     std_half = np.sqrt(np.maximum(fit.var_half, 0.0))
-    freq = np.arange(1, N // 2 + 1) * fs_high / N
+    freq = np.arange(1, N // 2 + 1) * p.fs_high / N
     for a in (freq, fit.P_half, std_half):  # handed over to the result: not copied
         a.flags.writeable = False
-    plant = FRF(freq, fit.P_half[1:], std_half[1:], method)
-    pfg: PFG | None = None
-    if controller_low is not None:
-        Kl = np.asarray(controller_low, dtype=complex)
-        if Kl.shape != (N // F, nu, ny):
-            raise DimensionError(
-                f"controller_low must have shape (M={N // F}, n_u={nu}, n_y={ny}), got {Kl.shape}"
-            )
-        g = pfg_from_plant(
-            fit.P_half,
-            Kl,
-            F,
-            N,
-            P_std_half=None if method == "etfe" else std_half,
-            phase=phase,
-            delay=delay,
-            fs_high=float(fs_high),
-            workers=n_workers,
+    return FRF(freq, fit.P_half[1:], std_half[1:], p.method), std_half, undetermined
+
+
+def _pfg_of(
+    p: Plan,
+    fit: PlantFit,
+    std_half: FloatArray,
+    undetermined: BoolArray | None,
+    controller_low: ArrayLike,
+    phase: int,
+    delay: int,
+) -> PFG:
+    """Step 5: the PFG of P_h under the controller ``controller_low``.
+
+    NaN where P_h is not determined (every alias of such a bin is near a zero too).
+    """
+    N, F = p.r.shape[0], p.ratio
+    ny, nu = p.y.shape[1], p.u.shape[1]
+    Kl = np.asarray(controller_low, dtype=complex)
+    if Kl.shape != (N // F, nu, ny):
+        raise DimensionError(
+            f"controller_low must have shape (M={N // F}, n_u={nu}, n_y={ny}), got {Kl.shape}"
         )
-        gain, std = g.gain[1:], g.std[1:]
-        if undetermined is not None:  # every alias of such a bin is near a zero too
-            gain, std = (np.where(undetermined, np.nan, x) for x in (gain, std))
-        pfg = PFG(g.frequency[1:], gain, std, f"plant:{method}")
-    return Identification(
-        plant=plant,
-        pfg=pfg,
-        lifted_J=fit.lifted_J,
-        lifted_S=fit.lifted_S,
-        fs_high=float(fs_high),
-        ratio=F,
-        n_used=n_used[1:],
-        local=local,
-        pfg_data=pfg_data,
-        n_missing=n_missing,
-        injection=injection,
-        undetermined=undetermined,
-        r_recovered=r_found.recovered,
-        r_unknown=r_found.unknown,
+    g = pfg_from_plant(
+        fit.P_half,
+        Kl,
+        F,
+        N,
+        P_std_half=None if p.method == "etfe" else std_half,
+        phase=phase,
+        delay=delay,
+        fs_high=p.fs_high,
+        workers=p.workers,
     )
+    gain, std = g.gain[1:], g.std[1:]
+    if undetermined is not None:
+        gain, std = (np.where(undetermined, np.nan, x) for x in (gain, std))
+    return PFG(g.frequency[1:], gain, std, f"plant:{p.method}")
 
 
 def _fill(
@@ -492,7 +460,7 @@ def _data_pfg(
             warnings.warn(
                 f"no PFG from data: the lifted fit r -> y needs N >= "
                 f"{lifted.min_samples(n_pfg, ratio)} samples (n = {n_pfg}), got {N}",
-                stacklevel=3,
+                stacklevel=4,
             )
             return None
         check_options("freq-lifted", n_pfg, degree, ratio, nr, n_out, local)
