@@ -162,6 +162,41 @@ PARAMETERS: dict[str, Param] = {
 }
 
 
+def _typed(name: str, type_: Any, v: Any) -> tuple[Any, bool]:
+    """A parameter's value as its field's type, and whether its range applies.
+
+    Numbers finite, integers integral, strings strings; ``*_source`` a tuple of source
+    strings (each parsed: an error points at the mistake); coefficient lists tuples of finite
+    floats. ConfigError naming the parameter and the value otherwise.
+    """
+    if type_ in ("float", float):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ConfigError(f"{name} must be a finite number, got {v!r}")
+        return float(v), True
+    if type_ in ("int", int):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+            raise ConfigError(f"{name} must be an integer, got {v!r}")
+        return int(v), True
+    if type_ in ("str", str):
+        if not isinstance(v, str):
+            raise ConfigError(f"{name} must be a string, got {v!r}")
+        return v, True
+    if name.endswith("_source"):
+        if isinstance(v, (str, bytes)) or not hasattr(v, "__iter__"):
+            raise ConfigError(f"{name} must be a list of source strings, got {v!r}")
+        texts = tuple(v)
+        for t in texts:
+            parse_source(t)  # raises, pointing at the mistake
+        return texts, False
+    if isinstance(v, (str, bytes)) or not hasattr(v, "__iter__"):  # coefficient tuples
+        raise ConfigError(f"{name} must be a list of numbers, got {v!r}")
+    vals = tuple(v)
+    for j, c in enumerate(vals):
+        if isinstance(c, bool) or not isinstance(c, (int, float)) or not math.isfinite(c):
+            raise ConfigError(f"{name}[{j}] must be a finite number, got {c!r}")
+    return tuple(float(c) for c in vals), False
+
+
 @dataclass(frozen=True)
 class IdentConfig:
     """Validated identification settings. Errors name the parameter."""
@@ -201,44 +236,21 @@ class IdentConfig:
     transient_periods: int = 1
 
     def __post_init__(self) -> None:
+        """Every field typed and in its range, then the fields that go together."""
         for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
+            value, ranged = _typed(f.name, f.type, getattr(self, f.name))
+            object.__setattr__(self, f.name, value)
             spec = PARAMETERS[f.name]
-            if f.type in ("float", float):
-                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                    raise ConfigError(f"{f.name} must be a finite number, got {v!r}")
-                object.__setattr__(self, f.name, float(v))
-            elif f.type in ("int", int):
-                if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
-                    raise ConfigError(f"{f.name} must be an integer, got {v!r}")
-                object.__setattr__(self, f.name, int(v))
-            elif f.type in ("str", str):
-                if not isinstance(v, str):
-                    raise ConfigError(f"{f.name} must be a string, got {v!r}")
-            elif f.name.endswith("_source"):
-                if isinstance(v, (str, bytes)) or not hasattr(v, "__iter__"):
-                    raise ConfigError(f"{f.name} must be a list of source strings, got {v!r}")
-                texts = tuple(v)
-                for t in texts:
-                    parse_source(t)  # raises, pointing at the mistake
-                object.__setattr__(self, f.name, texts)
-                continue
-            else:  # coefficient tuples
-                if isinstance(v, (str, bytes)) or not hasattr(v, "__iter__"):
-                    raise ConfigError(f"{f.name} must be a list of numbers, got {v!r}")
-                vals = tuple(v)
-                for j, c in enumerate(vals):
-                    if (
-                        isinstance(c, bool)
-                        or not isinstance(c, (int, float))
-                        or not math.isfinite(c)
-                    ):
-                        raise ConfigError(f"{f.name}[{j}] must be a finite number, got {c!r}")
-                object.__setattr__(self, f.name, tuple(float(c) for c in vals))
-                continue
-            v = getattr(self, f.name)
-            if spec.low is not None and not (spec.low <= v <= spec.high):
-                raise ConfigError(f"{f.name} must be in [{spec.low:g}, {spec.high:g}], got {v!r}")
+            if ranged and spec.low is not None and not (spec.low <= value <= spec.high):
+                raise ConfigError(
+                    f"{f.name} must be in [{spec.low:g}, {spec.high:g}], got {value!r}"
+                )
+        self._check_choices()
+        self._check_controller_and_sources()
+        self._check_windows()
+
+    def _check_choices(self) -> None:
+        """The method, y's rate, the injection point and the lifting phase."""
         if self.method not in METHODS:
             raise ConfigError(f"method must be one of {', '.join(METHODS)}; got {self.method!r}")
         if self.y_rate not in ("high", "low"):
@@ -262,6 +274,9 @@ class IdentConfig:
                     f'lifting_phase must be "auto" or an integer in 0..{self.ratio - 1} '
                     f"(F = {self.ratio}), got {self.lifting_phase!r}"
                 )
+
+    def _check_controller_and_sources(self) -> None:
+        """K_l's coefficients together, the sources together, and their channels agree."""
         if bool(self.controller_num) != bool(self.controller_den):
             raise ConfigError(
                 "controller_num and controller_den must be given together (or both empty), got "
@@ -287,6 +302,9 @@ class IdentConfig:
                 f"r_source and u_source need as many sources (r excites u): "
                 f"{len(self.r_source)} and {len(self.u_source)}"
             )
+
+    def _check_windows(self) -> None:
+        """The windows' lengths against each other and against what the method needs."""
         if self.min_window_s > self.window_s:
             raise ConfigError(
                 f"min_window_s ({self.min_window_s:g}) must not exceed window_s "

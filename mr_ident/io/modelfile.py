@@ -174,35 +174,7 @@ def model_from_dict(d: Any, *, source: str = "model") -> Model:
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
             raise ModelError(f"{source}: {key} must be a number >= 0, got {v!r}")
         floats[key] = float(v)
-    pd = d["plant"]
-    domain = pd.get("domain", "continuous") if isinstance(pd, dict) else "continuous"
-    if domain not in ("continuous", "discrete"):
-        raise ModelError(
-            f'{source}: plant.domain must be "continuous" or "discrete", got {domain!r}'
-        )
-    try:  # _system's messages name the key; add the file
-        dt = None if domain == "continuous" else 1.0 / float(fs)
-        plant: TransferMatrix | ModalPlant
-        if isinstance(pd, dict) and ("direct" in pd or "modes" in pd or "real_poles" in pd):
-            plant = modal_from_dict(pd, "plant", dt)  # the modal form (mr-ident fit)
-        else:
-            plant = _system(pd, "plant", dt)
-        controller = None
-        if d.get("controller") is not None:
-            cd = d["controller"]
-            if isinstance(cd, dict) and cd.get("domain", "discrete") != "discrete":
-                raise ModelError(
-                    "controller must be discrete (at the low rate), got domain "
-                    f"{cd.get('domain')!r}"
-                )
-            controller = _system(cd, "controller", F / float(fs))
-    except ModelError as err:
-        raise ModelError(f"{source}: {err}") from None
-    if controller is not None and controller.shape != (plant.shape[1], plant.shape[0]):
-        raise ModelError(
-            f"{source}: controller is {controller.shape[0]}x{controller.shape[1]}, "
-            f"expected n_u x n_y = {plant.shape[1]}x{plant.shape[0]}"
-        )
+    plant, controller = _plant_and_controller(d, source, float(fs), F)
     ext = model_extensions(d, source, float(fs), plant, F, controller is not None)
     model = Model(
         float(fs),
@@ -224,6 +196,46 @@ def model_from_dict(d: Any, *, source: str = "model") -> Model:
             f"{rho:.6g} >= 1); identification needs a stable loop"
         )
     return model
+
+
+def _plant_and_controller(
+    d: dict[str, Any], source: str, fs: float, F: int
+) -> tuple[TransferMatrix | ModalPlant, TransferMatrix | None]:
+    """The plant (polynomials, or the modal form of ``mr-ident fit``) and the controller.
+
+    ModelError naming the file and the key: a domain neither continuous nor discrete, a
+    controller not discrete, or one that does not fit the plant (n_u x n_y).
+    """
+    pd = d["plant"]
+    domain = pd.get("domain", "continuous") if isinstance(pd, dict) else "continuous"
+    if domain not in ("continuous", "discrete"):
+        raise ModelError(
+            f'{source}: plant.domain must be "continuous" or "discrete", got {domain!r}'
+        )
+    try:  # _system's messages name the key; add the file
+        dt = None if domain == "continuous" else 1.0 / fs
+        plant: TransferMatrix | ModalPlant
+        if isinstance(pd, dict) and ("direct" in pd or "modes" in pd or "real_poles" in pd):
+            plant = modal_from_dict(pd, "plant", dt)  # the modal form (mr-ident fit)
+        else:
+            plant = _system(pd, "plant", dt)
+        controller = None
+        if d.get("controller") is not None:
+            cd = d["controller"]
+            if isinstance(cd, dict) and cd.get("domain", "discrete") != "discrete":
+                raise ModelError(
+                    "controller must be discrete (at the low rate), got domain "
+                    f"{cd.get('domain')!r}"
+                )
+            controller = _system(cd, "controller", F / fs)
+    except ModelError as err:
+        raise ModelError(f"{source}: {err}") from None
+    if controller is not None and controller.shape != (plant.shape[1], plant.shape[0]):
+        raise ModelError(
+            f"{source}: controller is {controller.shape[0]}x{controller.shape[1]}, "
+            f"expected n_u x n_y = {plant.shape[1]}x{plant.shape[0]}"
+        )
+    return plant, controller
 
 
 def load_model(path: str | Path) -> Model:

@@ -108,38 +108,18 @@ def parse_source(text: str) -> SourceSpec:
     hold = False
     while pos < len(text):
         c = text[pos]
-        if c == ".":
-            if text.startswith(".@", pos):
-                mod = _NAME.match(text, pos + 2)
-                if mod is None or mod.group(0) not in MODIFIERS:
-                    raise _error(
-                        text, pos + 2, f"unknown modifier (known: {', '.join(MODIFIERS)})"
-                    )
-                if mod.end() != len(text):
-                    raise _error(text, mod.end(), "a modifier must end the source")
-                hold = True
-                pos = mod.end()
-                continue
+        if text.startswith(".@", pos):
+            pos = _modifier(text, pos)
+            hold = True
+        elif c == ".":
             name = _NAME.match(text, pos + 1)
             if name is None:
                 raise _error(text, pos + 1, "expected a field name after '.'")
             steps.append(Step("field", name=name.group(0)))
             pos = name.end()
-        elif text.startswith("[:]", pos):
-            pos += 3
-            if not text.startswith("{", pos):
-                raise _error(text, pos, 'expected a filter {field=="value"} after [:]')
-            key, value, pos = _filter(text, pos)
-            steps.append(Step("match", key=key, value=value))
         elif c == "[":
-            num = _INT.match(text, pos + 1)
-            if num is None:
-                raise _error(text, pos + 1, "expected an integer index or ':'")
-            end = num.end()
-            if not text.startswith("]", end):
-                raise _error(text, end, "expected ']'")
-            steps.append(Step("index", index=int(num.group(0))))
-            pos = end + 1
+            step, pos = _bracket(text, pos)
+            steps.append(step)
         elif c == "{":
             if not steps or steps[-1].kind != "field":
                 if steps:
@@ -149,6 +129,33 @@ def parse_source(text: str) -> SourceSpec:
         else:
             raise _error(text, pos, f"unexpected {c!r}: expected '.', '[' or '{{'")
     return SourceSpec(text, topic, tuple(steps), hold)
+
+
+def _modifier(text: str, pos: int) -> int:
+    """Parse ``.@hold`` at ``pos`` (the '.'); it must end the source: return its end."""
+    mod = _NAME.match(text, pos + 2)
+    if mod is None or mod.group(0) not in MODIFIERS:
+        raise _error(text, pos + 2, f"unknown modifier (known: {', '.join(MODIFIERS)})")
+    if mod.end() != len(text):
+        raise _error(text, mod.end(), "a modifier must end the source")
+    return mod.end()
+
+
+def _bracket(text: str, pos: int) -> tuple[Step, int]:
+    """Parse ``[:]{key==value}`` or ``[i]`` at ``pos`` (the '['): the step, the next position."""
+    if text.startswith("[:]", pos):
+        pos += 3
+        if not text.startswith("{", pos):
+            raise _error(text, pos, 'expected a filter {field=="value"} after [:]')
+        key, value, pos = _filter(text, pos)
+        return Step("match", key=key, value=value), pos
+    num = _INT.match(text, pos + 1)
+    if num is None:
+        raise _error(text, pos + 1, "expected an integer index or ':'")
+    end = num.end()
+    if not text.startswith("]", end):
+        raise _error(text, end, "expected ']'")
+    return Step("index", index=int(num.group(0))), end + 1
 
 
 def _filter(text: str, pos: int) -> tuple[str, str | float, int]:

@@ -184,13 +184,32 @@ def relate(nominal: Model, rec: LoopData) -> ControllerRelation | None:
             vals = [float(-k) for k in range(1, nominal.control_delay + 1)] + vals
         return [[]] + [[Choice(name, (v,))] for v in vals]
 
+    timings = [d + o for d in values("control_delay") for o in values("sampling_offset")]
+    found = _trials(eq, nominal, timings, notch="controller_notch" in sides)
+    exact = [(err, ch) for err, ch in found if err <= EXACT]
+    if not exact:  # no set of them closes the gap: nothing of it is used
+        return ControllerRelation(e0, e0, [], [], eq.samples)
+    err, chosen = min(exact, key=lambda t: (sum(CAUSES[c.cause].free_in(c) for c in t[1]), t[0]))
+    if any(not CAUSES[c.cause].discrete for c in chosen):  # to the precision of the numbers
+        err, chosen = _refit(eq, nominal, chosen)
+    return ControllerRelation(e0, err, chosen, _std(eq, nominal, chosen), eq.samples)
+
+
+def _trials(
+    eq: Equation, nominal: Model, timings: list[list[Choice]], *, notch: bool
+) -> list[tuple[float, list[Choice]]]:
+    """Every set of controller-side causes tried, with the equation's error after it.
+
+    Each timing alone and with a notch (:func:`notch_start`); where none is exact, least
+    squares from the best notched starts; then, while none is exact, the controller from
+    the data (its gain first, then its coefficients) after each timing.
+    """
     found: list[tuple[float, list[Choice]]] = []
     notched: list[tuple[float, list[Choice]]] = []
-    timings = [d + o for d in values("control_delay") for o in values("sampling_offset")]
     for discrete in timings:
         base = build(nominal, discrete)
         found.append((eq.error(base), discrete))
-        start = notch_start(eq, base) if "controller_notch" in sides else None
+        start = notch_start(eq, base) if notch else None
         if start is not None:
             trial = discrete + [start]
             notched.append((eq.error(build(nominal, trial)), trial))
@@ -207,13 +226,7 @@ def relate(nominal: Model, rec: LoopData) -> ControllerRelation | None:
             for own in controller_starts(eq, base, coefficients=bool(stage)):
                 trial = discrete + own
                 found.append((eq.error(build(nominal, trial)), trial))
-    exact = [(err, ch) for err, ch in found if err <= EXACT]
-    if not exact:  # no set of them closes the gap: nothing of it is used
-        return ControllerRelation(e0, e0, [], [], eq.samples)
-    err, chosen = min(exact, key=lambda t: (sum(CAUSES[c.cause].free_in(c) for c in t[1]), t[0]))
-    if any(not CAUSES[c.cause].discrete for c in chosen):  # to the precision of the numbers
-        err, chosen = _refit(eq, nominal, chosen)
-    return ControllerRelation(e0, err, chosen, _std(eq, nominal, chosen), eq.samples)
+    return found
 
 
 def notch_start(eq: Equation, base: Model) -> Choice | None:

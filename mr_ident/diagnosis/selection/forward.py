@@ -163,23 +163,53 @@ def select(
         chosen, cur_cost, cur_bic = _prune(est_full, est_screen, nominal, trial, cost, bic)
         accepted += 1
     if chosen:
-        simpler, cur_cost, cur_bic = _simplify(
+        chosen, cur_bic = _finished(
             est_full, est_screen, nominal, plant, applicable, chosen, cur_bic
         )
-        if simpler != chosen:  # what a replaced cause had left to the others may go now
-            simpler, cur_cost, cur_bic = _prune(
-                est_full, est_screen, nominal, simpler, cur_cost, cur_bic, every=True
-            )
-        chosen = simpler
-    if chosen and est_screen is not est_full:  # the values from all of the estimation data
-        chosen, cur_cost = joint_refit(est_full, nominal, chosen)
-        cur_bic = est_full.bic(cur_cost, _n_free(chosen))
     stds = parameter_std(est_full, nominal, chosen)
     fits = [
         replace(_fit(est_full, nominal, chosen[: j + 1], cur_bic), std=stds[j])
         for j in range(len(chosen))
     ]
-    inapplicable = [
+    inapplicable = _inapplicable(nominal, excluded, ruled_out)
+    return Selection(fits, ranking + inapplicable, build(nominal, chosen))
+
+
+def _finished(
+    est_full: Objective,
+    est_screen: Objective,
+    nominal: Model,
+    plant: PlantData | None,
+    applicable: list[Cause],
+    chosen: list[Choice],
+    cur_bic: float,
+) -> tuple[list[Choice], float]:
+    """The selected causes simplified, pruned again, their values from the whole record.
+
+    A cause replaced by a simpler one may leave the others' work to go
+    (:func:`_prune` over every cause); with a screening part, the values are refitted on
+    all of the estimation data. Returns the causes and their BIC.
+    """
+    simpler, cur_cost, cur_bic = _simplify(
+        est_full, est_screen, nominal, plant, applicable, chosen, cur_bic
+    )
+    if simpler != chosen:  # what a replaced cause had left to the others may go now
+        simpler, cur_cost, cur_bic = _prune(
+            est_full, est_screen, nominal, simpler, cur_cost, cur_bic, every=True
+        )
+    chosen = simpler
+    if chosen and est_screen is not est_full:  # the values from all of the estimation data
+        chosen, cur_cost = joint_refit(est_full, nominal, chosen)
+        cur_bic = est_full.bic(cur_cost, _n_free(chosen))
+    return chosen, cur_bic
+
+
+def _inapplicable(nominal: Model, excluded: set[str], ruled_out: str | None) -> list[CauseFit]:
+    """The causes not sought, for the ranking.
+
+    Those that do not apply, and the excluded ones with ``ruled_out`` as their description.
+    """
+    return [
         CauseFit(
             c.name,
             {},
@@ -192,7 +222,6 @@ def select(
         for c in CAUSES.values()
         if not c.applies(nominal) or c.name in excluded
     ]
-    return Selection(fits, ranking + inapplicable, build(nominal, chosen))
 
 
 def _ranking(obj: Objective, nominal: Model, screened: list[Choice]) -> list[CauseFit]:

@@ -211,6 +211,32 @@ def _ranges(starts: NDArray[np.intp], lengths: NDArray[np.intp]) -> NDArray[np.i
     return out
 
 
+def _pieces(
+    req: NDArray[np.intp], s: int, h: int, step: int
+) -> tuple[list[tuple[int, int, int]], list[tuple[int, int, int]]]:
+    """The requested bins' groups of ``s = 2h + 1``: long runs in pieces, the rest gathered.
+
+    Long runs: ``(first output index, first solved centre, count)`` every ``s`` bins, at
+    most ``step`` groups a piece; the other groups (of short runs, and the short groups at
+    the runs' ends): ``(first output index, centre, length)``.
+    """
+    grid: list[tuple[int, int, int]] = []
+    short: list[tuple[int, int, int]] = []
+    K = int(req.size)
+    starts = np.flatnonzero(np.r_[True, np.diff(req) != 1])
+    for a, b in zip(starts.tolist(), np.r_[starts[1:], K].tolist(), strict=True):  # runs
+        first, full = int(req[a]), (b - a) // s
+        if full >= LONG_RUN:
+            for j0 in range(0, full, step):
+                grid.append((a + j0 * s, first + j0 * s + h, min(step, full - j0)))
+        else:
+            short.extend((a + j * s, first + j * s + h, s) for j in range(full))
+        t = b - a - full * s
+        if t:
+            short.append((a + full * s, first + full * s + t // 2, t))
+    return grid, short
+
+
 def lpm_strided(
     Ua: NDArray[np.complex128],
     Ya: NDArray[np.complex128],
@@ -243,22 +269,7 @@ def lpm_strided(
     G = np.empty((n_out, n_in, K), dtype=np.complex128)
     Cv = np.empty((n_out, n_out, K), dtype=np.complex128)
     Ainv = np.empty((n_in, n_in, K), dtype=np.complex128)
-    # long runs in pieces: (first output index, first solved centre, count) every s bins;
-    # the other groups (of short runs, and the short groups at the runs' ends) gathered:
-    # (first output index, centre, length)
-    grid: list[tuple[int, int, int]] = []
-    short: list[tuple[int, int, int]] = []
-    starts = np.flatnonzero(np.r_[True, np.diff(req) != 1])
-    for a, b in zip(starts.tolist(), np.r_[starts[1:], K].tolist(), strict=True):  # runs
-        first, full = int(req[a]), (b - a) // s
-        if full >= LONG_RUN:
-            for j0 in range(0, full, step):
-                grid.append((a + j0 * s, first + j0 * s + h, min(step, full - j0)))
-        else:
-            short.extend((a + j * s, first + j * s + h, s) for j in range(full))
-        t = b - a - full * s
-        if t:
-            short.append((a + full * s, first + full * s + t // 2, t))
+    grid, short = _pieces(req, s, h, step)
 
     def put(
         sv: _Solved, offsets: NDArray[np.intp], at: slice | NDArray[np.intp], sel: slice
