@@ -127,6 +127,8 @@ def hold_of(x: FloatArray, max_ratio: int = MAX_RATIO) -> tuple[int, int] | None
         return None
     best: tuple[int, int] | None = None
     for F in range(2, min(max_ratio, x.shape[0] // MIN_CHANGES) + 1):
+        if (x.shape[0] - 2) // F + 1 < HELD_SHARE * changed.size:
+            break  # one residue of 1..N-1 holds too few indices, for this F and every larger
         counts = np.bincount(changed % F, minlength=F)
         s = int(np.argmax(counts))
         if counts[s] >= HELD_SHARE * changed.size:
