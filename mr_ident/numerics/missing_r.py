@@ -20,7 +20,7 @@ Where the loop determines r (exactly, to round-off):
   product of the two loss rates) is left.
 * **r at the setpoint**, sampled by the controller once per block: the samples between
   are never read (``unused``); a taken sample is determined by the controller's equation
-  ``c[m] = Σ a_i c[m-i] + Σ g_l (r - y)[m-l]`` (:func:`_by_equation`), fitted from the
+  ``c[m] = Σ a_i c[m-i] + Σ g_l (r - y)[m-l]`` (:func:`_fit_equation`), fitted from the
   record's complete blocks when it holds exactly (a digital controller: round-off).
 
 The rest (``unknown``) is filled with the better of r's mean and the mean of its
@@ -44,17 +44,21 @@ import numpy as np
 
 from ..errors import DataError
 from .arrays import BoolArray, FloatArray
-from .structure import EQUATION_RTOL, HELD_RTOL, SETPOINT, hold_of, u_equals_r
+from .structure import (
+    EQUATION_LAG,
+    EQUATION_ORDERS,
+    HELD_RTOL,
+    SETPOINT,
+    equation_fit,
+    hold_of,
+    u_equals_r,
+)
 
 #: The largest share of r's read samples that may be unknown (neither received nor
 #: determined by the loop): their guesses' errors act as noise about
 #: ``-10 log10(share)`` dB below the response to r (30 dB at 0.1 %; a 1 % loss of r and
 #: of u, independent, leaves 0.01 %).
 MAX_UNKNOWN_SHARE = 0.001
-#: The controller orders tried for a setpoint's equation (a PID with a filtered derivative:
-#: 2), and the blocks of input history per order (``order + EQUATION_LAG``).
-EQUATION_ORDERS = (1, 2, 3, 4)
-EQUATION_LAG = 2
 #: Passes over the equation's rows: each solves the lost samples whose row has every other
 #: term (a run of lost blocks is solved from its start, one block a pass).
 MAX_PASSES = 8
@@ -385,32 +389,16 @@ class _Equation:
 
 
 def _fit_equation(c: FloatArray, e: FloatArray) -> _Equation | None:
-    """The lowest order of :data:`EQUATION_ORDERS` whose equation holds exactly, or None.
+    """The controller's equation of the lowest order that holds exactly, or None.
 
-    Least squares on the rows with every term received; exact: the residual below
-    :data:`~mr_ident.numerics.structure.EQUATION_RTOL` of c's spread (a digital controller
-    and the y it took: round-off).
+    Orders :data:`~mr_ident.numerics.structure.EQUATION_ORDERS`, each fitted by
+    :func:`~mr_ident.numerics.structure.equation_fit` (a digital controller and the y it
+    took: round-off).
     """
-    M = c.shape[0]
     for order in EQUATION_ORDERS:
-        L = order + EQUATION_LAG
-        if M - L < 8 * (order + L + 1):
-            return None
-        past = np.column_stack([c[L - i : M - i] for i in range(1, order + 1)])
-        errs = np.column_stack([e[L - j : M - j] for j in range(L)])
-        A = np.column_stack([past, errs, np.ones(M - L)])
-        t = c[L:]
-        ok = np.isfinite(A).all(axis=1) & np.isfinite(t)
-        if ok.sum() < 4 * A.shape[1]:
-            return None
-        spread = float(np.linalg.norm(t[ok] - t[ok].mean()))
-        if not spread > 0:
-            return None
-        scale = np.linalg.norm(A[ok], axis=0)
-        scale[scale == 0] = 1.0
-        coef = np.linalg.lstsq(A[ok] / scale, t[ok], rcond=None)[0] / scale
-        if np.linalg.norm(t[ok] - A[ok] @ coef) <= EQUATION_RTOL * spread:
-            g = coef[order : order + L]
+        coef = equation_fit(c, [e], order)
+        if coef is not None:
+            g = coef[order : 2 * order + EQUATION_LAG]
             if np.max(np.abs(g)) > 0:
                 return _Equation(coef[:order], g, float(coef[-1]))
     return None

@@ -55,6 +55,8 @@ PHASE_MARGIN = 0.2
 EQUATION_RTOL = 1e-6
 #: The controller orders tried (a PID with a filtered derivative: 2).
 EQUATION_ORDERS = (1, 2, 3, 4)
+#: The inputs' lags of an equation of order k: 0 .. k + EQUATION_LAG - 1.
+EQUATION_LAG = 2
 
 T = TypeVar("T")
 
@@ -191,16 +193,17 @@ def _phase(r: FloatArray, u: FloatArray, F: int, s: int) -> int | None:
     return int(order[0])
 
 
-def _equation_holds(target: FloatArray, inputs: list[FloatArray], order: int) -> bool:
-    """Whether ``target[b]`` is an exact low-order LTI function of its past and ``inputs``.
+def equation_fit(target: FloatArray, inputs: list[FloatArray], order: int) -> FloatArray | None:
+    """The coefficients of ``target``'s exact low-order LTI equation in its past and ``inputs``.
 
     ``target[b] = sum_i a_i target[b-i] + sum_j sum_l g_jl inputs_j[b-l] + c`` (i = 1..order,
-    l = 0..order+1), by least squares over the blocks without NaN; exact: the residual below
-    :data:`EQUATION_RTOL` of the target's spread.
+    l = 0..order+1 = :data:`EQUATION_LAG` + order - 1), by least squares over the blocks
+    without NaN: ``[a_1.., g_j0.., .., c]``, or None where it is not exact (the residual
+    above :data:`EQUATION_RTOL` of the target's spread) or the data are too few.
     """
-    M, L = target.shape[0], order + 2
+    M, L = target.shape[0], order + EQUATION_LAG
     if M < 8 * L * (len(inputs) + 1):
-        return False
+        return None
     cols = [target[L - i : M - i] for i in range(1, order + 1)]
     for x in inputs:
         cols += [x[L - i : M - i] for i in range(L)]
@@ -208,15 +211,18 @@ def _equation_holds(target: FloatArray, inputs: list[FloatArray], order: int) ->
     t = target[L:]
     ok = np.isfinite(A).all(axis=1) & np.isfinite(t)
     if ok.sum() < 4 * A.shape[1]:
-        return False
+        return None
     A, t = A[ok], t[ok]
     spread = float(np.linalg.norm(t - t.mean()))
     if not spread > 0:
-        return False
+        return None
     scale = np.linalg.norm(A, axis=0)
     scale[scale == 0] = 1.0
     sol = np.linalg.lstsq(A / scale, t, rcond=None)[0]
-    return bool(np.linalg.norm(t - (A / scale) @ sol) <= EQUATION_RTOL * spread)
+    if np.linalg.norm(t - (A / scale) @ sol) > EQUATION_RTOL * spread:
+        return None
+    coef: FloatArray = sol / scale
+    return coef
 
 
 def _injection_by_equation(
@@ -239,7 +245,7 @@ def _injection_by_equation(
     for target, with_r, where in ((rb - ub, False, PLANT_INPUT), (ub, True, SETPOINT)):
         for ys in sampled:
             inputs = [ys, rb] if with_r else [ys]
-            if any(_equation_holds(target, inputs, order) for order in EQUATION_ORDERS):
+            if any(equation_fit(target, inputs, order) is not None for order in EQUATION_ORDERS):
                 return where
     return None
 
