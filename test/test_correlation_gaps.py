@@ -90,6 +90,22 @@ def test_a_cubic_at_one_input_of_a_mimo_plant_is_found_with_its_kind_and_side():
     assert c.kind == "odd" and c.side == "input", (c.kind, c.side, c.names, c.z)
 
 
+def _cubic_output_second(y):
+    return y + np.array([0.0, 0.3]) * y**3 / y.std(axis=0) ** 2
+
+
+def test_a_distortion_at_one_output_leaves_the_other_outputs_noise_bound_at_its_noise():
+    """A cubic at output 1 only: output 0's rest is its noise (0.05²; a variance of N
+    samples, relative std sqrt(2/N) = 1 %, 5 % allowed for the AR whitening's fit), output
+    1's fitted part is ten times that noise and more, and the level is output 1's."""
+    c = _test(*_record(2, after=_cubic_output_second))
+    assert c is not None and c.detected and c.side == "output"
+    assert c.rest_vars[0] == pytest.approx(0.05**2, rel=0.05)
+    assert c.fitted_vars[0] < 0.01 * c.rest_vars[0]
+    assert c.fitted_vars[1] > 10 * c.rest_vars[0]
+    assert c.level_db == pytest.approx(10 * np.log10(1 + c.fitted_vars[1] / c.rest_vars[1]))
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_closed_mimo_loops_with_their_exact_model_raise_no_alarm(mimo_model, seed):
     m = replace(mimo_model, noise_std=0.05)

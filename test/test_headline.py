@@ -7,7 +7,8 @@ of its sample spread (``sqrt(2/n)``), a sinusoid of amplitude A left in y raises
 ``A²/(2σ²)`` (to 4 std) and its share of y's rms is ``√(A²/2)/std(y)`` (to 2 % of
 itself). The headline's rules on constructed findings: nonlinear distortion named where
 no linear extension closes the gap, the BLA named as such, the unexplained part said,
-never "none" with a significant gap.
+never "none" with a significant gap; on a MIMO loop each output's noise bounded by its own
+correlation rest.
 """
 
 from __future__ import annotations
@@ -128,3 +129,38 @@ def test_a_distortion_the_noise_level_holds_counts_as_unexplained():
     assert got.ratio == pytest.approx(4.0) and got.significant and got.distorted
     assert got.share == pytest.approx(30.0 * math.sqrt(0.75))
     assert "holds the distortion" in got.text()
+
+
+def test_a_mimo_distortion_at_one_output_bounds_each_outputs_noise_by_its_own_rest():
+    """A 2x2 open loop (white u, noise 0.02 on each output) with a cubic at output 1 only:
+    the verdict names the distortion, and the noise level it states is bounded per output
+    by that output's correlation rest (output 0's is its noise, output 1's holds the part
+    of the distortion the regressors do not span), under three times the true noise where
+    the LPM's level, which holds the distortion, reads five times it."""
+    from dataclasses import replace
+
+    from mr_ident.diagnosis.diagnose import diagnose
+
+    sigma, n = 0.02, 20000
+    model = model_from_dict(
+        {
+            "fs_high": 200.0,
+            "ratio": 1,
+            "noise_std": sigma,
+            "plant": {"num": [[[400.0], [80.0]], [[40.0], [400.0]]], "den": [1.0, 16.0, 400.0]},
+        }
+    )
+
+    def record(seed: int) -> LoopData:
+        rng = np.random.default_rng(seed)
+        u = rng.standard_normal((n, 2))
+        s = simulate(model, reference=u, noise=sigma * rng.standard_normal((n, 2)))
+        y = s.y.copy()
+        y[:, 1] += 0.3 * y[:, 1] ** 3 / y[:, 1].std() ** 2
+        return replace(s, y=y)
+
+    d = diagnose(model, record(1), record(2))
+    assert d.headline is not None and d.headline.cause == "nonlinear_distortion"
+    assert d.unexplained is not None and d.unexplained.distorted
+    assert d.unexplained.noise_std < 3 * sigma, d.unexplained
+    assert d.unexplained.allowed > d.unexplained.fit + 5, d.unexplained

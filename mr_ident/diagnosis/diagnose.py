@@ -479,13 +479,13 @@ def _unexplained(
     val = recs.val
     # periodic: the residual's spread over periods (a periodic distortion left out)
     noise_var = None if recs.val_part.period is not None else criterion_noise(val_objective())
-    if noise_var is not None and hos is not None and hos.detected and model.n_y == 1:
-        # the LPM's level holds the distortion: the correlations' rest bounds the noise's
-        shaped = loop_shaped(hos.rest_var, model, val.n_samples - gain.start)
+    if noise_var is not None and hos is not None and hos.detected:
+        # the LPM's level holds the distortion: each output's correlation rest bounds its noise
+        shaped = loop_shaped(hos.rest_vars, model, val.n_samples - gain.start)
         noise_var = np.minimum(noise_var, shaped)
     left = unexplained(current, val, gain.start, gain.pred_after, noise_var)
     if hos is not None and hos.detected:
-        left = with_distortion(left, hos.fitted_var, hos.rest_var)
+        left = with_distortion(left, hos.fitted_vars, hos.rest_vars)
     return left
 
 

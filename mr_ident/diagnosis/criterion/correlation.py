@@ -40,9 +40,9 @@ the outputs together). The kind is named by the sub-tests of the odd and even co
 of the input and output columns (each at the same level, a χ² of their count within the
 joint fit, Bonferroni over the outputs alike); where both or neither pass, that part of
 the kind is not named. Its level: the fitted part's power over the rest,
-``10 log10(1 + ‖Xβ‖² / ‖e - Xβ‖²)`` dB (summed over the outputs);
-the rest's variance bounds the output noise's from above (:mod:`.unexplained` takes it
-where it is below the LPM's level, which under random r holds the distortion).
+``10 log10(1 + ‖Xβ‖² / ‖e - Xβ‖²)`` dB, on the output where it is largest;
+each output's rest variance bounds that output's noise from above (:mod:`.unexplained`
+takes it where it is below the LPM's level, which under random r holds the distortion).
 
 **Missing samples** (NaN in u or y). The output error takes u's missing samples as
 identification estimates them and is NaN where y is missing (:func:`~.matched.
@@ -105,7 +105,7 @@ class Correlation:
     odd_p, even_p, input_p, output_p : float
         The sub-tests of the odd, even, input and output columns (Bonferroni over outputs).
     level_db : float
-        The fitted part's power over the rest, dB above it.
+        The fitted part's power over the rest, dB above it, on the output where it is largest.
     samples : int
         Samples tested (per output; the ones left out for missing samples not counted).
     rest_var : float
@@ -116,6 +116,8 @@ class Correlation:
     fitted_var : float
         The fitted part's variance per sample: a lower bound of the distortion's (what
         the regressors do not span of it stays in the rest).
+    rest_vars, fitted_vars : tuple of float
+        The same per output, (n_y,): the bound of each output's noise.
     """
 
     statistic: float
@@ -130,6 +132,8 @@ class Correlation:
     samples: int
     rest_var: float = math.nan
     fitted_var: float = math.nan
+    rest_vars: tuple[float, ...] = ()
+    fitted_vars: tuple[float, ...] = ()
     names: tuple[str, ...] = tuple(f"{side}_{kind}" for side, kind in COLUMNS)
 
     @property
@@ -334,9 +338,11 @@ def correlation(
         even_p=sub[1],
         input_p=sub[2],
         output_p=sub[3],
-        level_db=10.0 * math.log10(1.0 + fitted / max(rest, 1e-300)),
+        level_db=10.0 * math.log10(1.0 + max(f.fitted / max(f.rest, 1e-300) for f in outs)),
         samples=count // n_y,
         rest_var=rest / count,
         fitted_var=fitted / count,
+        rest_vars=tuple(f.rest / max(f.samples, 1) for f in outs),
+        fitted_vars=tuple(f.fitted / max(f.samples, 1) for f in outs),
         names=tuple(out_names),
     )

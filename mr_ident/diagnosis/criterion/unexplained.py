@@ -25,6 +25,7 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ...numerics.arrays import FloatArray
 from ...numerics.signals import LoopData
@@ -162,31 +163,36 @@ def unexplained(
     return Unexplained(fit, allowed, share, ratio, std, float(np.mean(np.sqrt(d2 / n))))
 
 
-def with_distortion(left: Unexplained, fitted_var: float, rest_var: float) -> Unexplained:
+def with_distortion(left: Unexplained, fitted_var: ArrayLike, rest_var: ArrayLike) -> Unexplained:
     """``left`` with a distortion found in the residual counted as unexplained.
 
     Where the LPM's noise level holds the distortion (random r), ``left`` reads the
     distortion as noise. The residual's higher-order correlations fit a part of it,
-    ``fitted_var`` against the rest ``rest_var`` (per sample, in the output error's units;
-    only their ratio is used): what the regressors do not span stays in the rest, so the
-    ratio is at least ``1 + fitted / rest``, and the share of y left beyond the noise at
-    least that power fraction of the residual's: ``(100 - fit) sqrt(fitted / (fitted +
-    rest))`` per cent of y's rms.
+    ``fitted_var`` against the rest ``rest_var`` (per sample and output, (n_y,) or a
+    scalar, in the output error's units; only their ratio is used): what the regressors do
+    not span stays in the rest, so the ratio is at least ``1 + fitted / rest`` on the
+    output where that is largest, and the share of y left beyond the noise at least the
+    distortion's power fraction of the residual's, pooled over outputs: ``(100 - fit)
+    sqrt(Σ fitted / Σ (fitted + rest))`` per cent of y's rms.
     """
-    f, r = max(fitted_var, 0.0), max(rest_var, 1e-300)
-    ratio = max(left.ratio, 1.0 + f / r)
-    share = max(left.share, (100.0 - left.fit) * math.sqrt(f / (f + r)))
+    f = np.maximum(np.atleast_1d(np.asarray(fitted_var, float)), 0.0)
+    r = np.maximum(np.atleast_1d(np.asarray(rest_var, float)), 1e-300)
+    ratio = max(left.ratio, 1.0 + float(np.max(f / r)))
+    pooled = float(f.sum() / (f.sum() + r.sum()))
+    share = max(left.share, (100.0 - left.fit) * math.sqrt(pooled))
     return replace(left, ratio=ratio, share=share, distorted=True)
 
 
-def loop_shaped(var: float, model: Model, n_samples: int) -> float:
+def loop_shaped(var: ArrayLike, model: Model, n_samples: int) -> FloatArray:
     """The variance in y of white output noise of variance ``var``, as the loop shapes it.
 
-    ``var`` times the mean of the loop's power gain over the spectrum
+    ``var`` (n_y,) or a scalar, per output; returns (n_y,): each output's ``var`` times
+    the mean of that output's loop power gain over the spectrum
     (:func:`~.noise.loop_noise_gain`; 1 in open loop).
     """
     from .noise import loop_noise_gain
 
-    g = loop_noise_gain(model, n_samples - n_samples % model.ratio)[:, 0]
-    n = 2 * (g.size - 1)
-    return float(var * (2.0 * g.sum() - g[0] - g[-1]) / max(n, 1))
+    g = loop_noise_gain(model, n_samples - n_samples % model.ratio)  # (N//2+1, n_y)
+    n = 2 * (g.shape[0] - 1)
+    mean_gain = (2.0 * g.sum(axis=0) - g[0] - g[-1]) / max(n, 1)
+    return np.asarray(np.asarray(var, float) * mean_gain, float)
