@@ -201,7 +201,7 @@ def report_html(
         ("Measured against simulated output, validation data", fig_time(d)),
         ("Ranking of the causes", fig_ranking(d)),
     ]
-    if d.controller_frf is not None:
+    if d.controller_frf is not None and d.controller_frf.available:
         figs.append(
             ("Controller: identified from the data ± 2σ, model and fit", fig_controller(d))
         )

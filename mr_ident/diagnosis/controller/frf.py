@@ -30,6 +30,13 @@ command log V is nothing and the std is rounding; the estimate is then K itself,
 the polynomial's approximation of K over a window (a controller varies slowly at the
 low rate's bin spacing). With a noise that is fed back (a disturbance added to u_c
 inside the loop) Y_s correlates with V and the std does not hold.
+
+**Missing samples.** A period whose sampled y or held output is missing leaves a hole in
+``Y_s`` or ``U_c``; the local fit needs the periods' DFT whole. The estimate is made on the
+longest run of complete periods (the transient term takes its ends as it takes the
+record's), when it holds at least ``4 n + 2`` periods; the finding names the run and its
+share of the record. A record lost too often for that gets no estimate, and the report
+says why (:attr:`ControllerFRF.reason`).
 """
 
 from __future__ import annotations
@@ -40,7 +47,7 @@ from typing import Any
 
 import numpy as np
 
-from ...numerics.arrays import ComplexArray, FloatArray
+from ...numerics.arrays import BoolArray, ComplexArray, FloatArray
 from ...numerics.lifting import dft
 from ...numerics.local.lpm import lpm, pad_circular, smallest_n
 from ...numerics.results import FRF
@@ -71,12 +78,33 @@ class ControllerFRF:
         controller-side cause was applied.
     dof : int
         Degrees of freedom q of the std.
+    span : tuple of int
+        The periods ``start, stop`` the estimate is made on: all M of the record, or its
+        longest run without missing samples.
+    periods : int
+        The record's periods M.
+    reason : str
+        Why there is no estimate ("" when there is one: then :attr:`identified` has bins).
     """
 
     identified: FRF
     model: FRF
     fit: FRF | None
     dof: int
+    span: tuple[int, int] = (0, 0)
+    periods: int = 0
+    reason: str = ""
+
+    @classmethod
+    def unavailable(cls, reason: str, periods: int) -> ControllerFRF:
+        """No estimate, and why (the report says it)."""
+        empty = FRF(np.zeros(0), np.zeros((0, 0, 0), complex), np.zeros((0, 0, 0)), "none")
+        return cls(empty, empty, None, 0, (0, 0), periods, reason)
+
+    @property
+    def available(self) -> bool:
+        """An estimate was made."""
+        return not self.reason
 
     def relative(self, other: FRF) -> float:
         """Median over bins and entries of ``|K̂ - K_other| / |K_other|``."""
@@ -92,7 +120,16 @@ class ControllerFRF:
 
     def text(self) -> str:
         """The finding in words."""
+        if not self.available:
+            return f"the controller is not identified from the data: {self.reason}"
         f = self.identified.frequency
+        start, stop = self.span
+        part = (
+            ""
+            if stop - start == self.periods
+            else f", from periods {start}-{stop - 1}, the longest run without missing "
+            f"samples ({100 * (stop - start) / self.periods:.0f} % of the record)"
+        )
         fit = (
             f", the fitted controller's {100 * self.relative(self.fit):.2g} % "
             f"({self.sigma(self.fit):.2g} std)"
@@ -102,11 +139,13 @@ class ControllerFRF:
         return (
             f"the controller identified from the data ({f[0]:.3g}-{f[-1]:.3g} Hz at the "
             "controller's rate) departs from the model's by "
-            f"{100 * self.relative(self.model):.2g} % (median){fit}"
+            f"{100 * self.relative(self.model):.2g} % (median){fit}{part}"
         )
 
     def summary(self) -> dict[str, Any]:
         """The JSON form: figures, and up to :data:`JSON_BINS` log-spaced bins of each curve."""
+        if not self.available:
+            return {"available": False, "reason": self.reason, "periods": self.periods}
         f = self.identified.frequency
         pick = np.unique(np.geomspace(1, f.size, min(JSON_BINS, f.size)).astype(int) - 1)
 
@@ -117,6 +156,9 @@ class ControllerFRF:
             return {"re": g.real.tolist(), "im": g.imag.tolist(), "std": x.std[pick].tolist()}
 
         return {
+            "available": True,
+            "periods": self.periods,
+            "span": list(self.span),
             "frequency_hz": f[pick].tolist(),
             "identified": curve(self.identified),
             "model": curve(self.model),
@@ -146,6 +188,16 @@ def low_rate_signals(rec: LoopData, model: Model) -> tuple[FloatArray, FloatArra
     return sampled[model.sample_phase :: F][:M], logged[F - 1 :: F][:M], j
 
 
+def longest_complete(ok: BoolArray) -> tuple[int, int]:
+    """``start, stop`` of the longest run of True in ``ok`` (the first of equal runs)."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(np.int8), [0]])))
+    if edges.size == 0:
+        return 0, 0
+    starts, stops = edges[::2], edges[1::2]
+    i = int(np.argmax(stops - starts))
+    return int(starts[i]), int(stops[i])
+
+
 def controller_frf(
     rec: LoopData, nominal: Model, fitted: Model | None, *, n: int, degree: int = 2
 ) -> ControllerFRF | None:
@@ -154,7 +206,8 @@ def controller_frf(
     Parameters
     ----------
     rec : LoopData
-        A closed-loop record with y at the high rate; (N, n_r), (N, n_u), (N, n_y).
+        A closed-loop record with y at the high rate; (N, n_r), (N, n_u), (N, n_y). NaN
+        marks a missing sample.
     nominal : Model
         Gives the rates and the timing (sampling phase, control delay) of the estimate.
     fitted : Model or None
@@ -165,19 +218,30 @@ def controller_frf(
     Returns
     -------
     ControllerFRF or None
-        None in open loop, with y at the low rate, with missing samples, or when the record
-        holds fewer than ``4 n + 2`` periods.
+        None in open loop or with y at the low rate; :meth:`ControllerFRF.unavailable`
+        when the record, or its longest run of periods without missing samples, holds
+        fewer than ``4 n + 2`` periods.
     """
     if nominal.controller is None or rec.y_step != 1:
-        return None
-    if any(np.isnan(x).any() for x in (rec.r, rec.u, rec.y)):
         return None
     ys, uc, j = low_rate_signals(rec, nominal)
     M, n_y, n_u = ys.shape[0], ys.shape[1], uc.shape[1]
     n = max(n, smallest_n(degree, n_y, n_u))
-    if M < 4 * n + 2:
-        return None
-    centres = np.arange(1, M // 2 + 1)
+    complete = np.asarray(np.isfinite(ys).all(axis=1) & np.isfinite(uc).all(axis=1), bool)
+    start, stop = longest_complete(complete)
+    if stop - start < 4 * n + 2:
+        lost = (
+            ""
+            if stop - start == M
+            else (
+                f" without missing samples (its longest run of complete periods, {stop - start})"
+            )
+        )
+        return ControllerFRF.unavailable(
+            f"the record holds {M} periods{lost}; the local fit needs {4 * n + 2}", M
+        )
+    ys, uc, L = ys[start:stop], uc[start:stop], stop - start
+    centres = np.arange(1, L // 2 + 1)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # an unexcited bin: NaN there
         fit = lpm(
@@ -187,21 +251,21 @@ def controller_frf(
             degree=degree,
             workers=1,
         )
-    f = centres * (nominal.fs_low / M)
-    turn = np.exp(2j * np.pi * centres * j / M)[:, None, None]
+    f = np.asarray(centres * (nominal.fs_low / L), float)
+    turn = np.exp(2j * np.pi * centres * j / L)[:, None, None]
     std = np.sqrt(
         np.einsum("kaa,kbb->kab", fit.noise_cov, fit.inv_gram).real.clip(min=0.0)
     )  # (K, n_u, n_y): sigma_v,a^2 [(Phi^H Phi)^-1]_bb
     identified = FRF(f, fit.G * turn, std, "controller from data (LPM, low rate)")
     zero = np.zeros(std.shape)
-    model = FRF(f, nominal.controller_frf(M)[centres], zero, "model")
+    model = FRF(f, nominal.controller_frf(L)[centres], zero, "model")
     fit_frf = None
     if fitted is not None and fitted is not nominal:
         F = nominal.ratio
         j_fit = -((F - 1 - fitted.sample_phase - fitted.control_delay) // F)
-        shift: ComplexArray = np.exp(-2j * np.pi * centres * (j_fit - j) / M)[:, None, None]
-        fit_frf = FRF(f, fitted.controller_frf(M)[centres] * shift, zero, "fit")
-    return ControllerFRF(identified, model, fit_frf, fit.dof)
+        shift: ComplexArray = np.exp(-2j * np.pi * centres * (j_fit - j) / L)[:, None, None]
+        fit_frf = FRF(f, fitted.controller_frf(L)[centres] * shift, zero, "fit")
+    return ControllerFRF(identified, model, fit_frf, fit.dof, (start, stop), M)
 
 
 def where_differs(
