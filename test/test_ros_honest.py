@@ -92,7 +92,7 @@ def test_a_sensor_data_publisher_feeds_the_node_before_or_after_it_subscribes(gr
             any("incompatible QoS: RELIABILITY" in s.message for s in lis.diag)
             or any("RELIABILITY" in kv.value for s in lis.diag for kv in s.values)
         ),
-        15,
+        30,
         "the incompatible QoS named on /diagnostics",
     )
     await_subscribers(pubs)

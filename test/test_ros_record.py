@@ -261,7 +261,7 @@ def test_node_recording_on_a_full_disk_is_an_error_on_diagnostics_and_estimation
             lambda: any(
                 st.level[0] == 2 and f"writing {rec} failed after" in st.message for st in lis.diag
             ),
-            20,
+            40,
             "an ERROR on /diagnostics",
         )
         lis.estimates.clear()
