@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from mr_ident.diagnosis import diagnose
-from mr_ident.diagnosis.controller.frf import controller_frf
+from mr_ident.diagnosis.controller.frf import controller_frf, held_fill
 from mr_ident.diagnosis.report import report_dict
 from mr_ident.htmlreport import report_html
 from mr_ident.io.modelfile import load_model
@@ -90,16 +90,18 @@ def test_no_estimate_without_a_controller():
 
 
 def test_with_missing_samples_the_longest_complete_run_gives_the_machines_controller():
-    """A burst of lost y and a lost u sample: the estimate is made on the longest run of
-    complete periods and is the machine's controller there (to the polynomial's
-    approximation over a window: its bins 2.5 times a whole record's, the degree-2 error
-    about 2.5³ times larger; measured 1.1e-5 of |K|, claimed 1e-4)."""
+    """A burst of lost y, one lost y sample and two of u (their hold gives them back): the
+    estimate is made on the longest run of complete periods and is the machine's
+    controller there (to the polynomial's approximation over a window: its bins 2.5 times
+    a whole record's, the degree-2 error about 2.5³ times larger; measured 1.1e-5 of |K|,
+    claimed 1e-4)."""
     m = _model()
     true = _machine(m, "gain")
     rec = simulate(true, duration=30.0, rng=np.random.default_rng(1))
     y, u = rec.y.copy(), rec.u.copy()
     y[2000:2100] = np.nan  # periods 666-700 lost
-    u[5000] = np.nan  # the held output of period 1666 (F = 3: its last sample)
+    y[4998] = np.nan  # the sample period 1666's controller takes (phase 0)
+    u[2500:2502] = np.nan  # a held output's sample, the hold's third gives it back
     c = controller_frf(replace(rec, y=y, u=u), m, true, n=N_WINDOW)
     assert c is not None and c.available and c.fit is not None
     assert c.span == (700, 1666) and c.periods == 2400
@@ -107,6 +109,24 @@ def test_with_missing_samples_the_longest_complete_run_gives_the_machines_contro
     assert np.max(np.abs(c.identified.response - c.fit.response)) < 1e-4 * scale
     assert "periods 700-1665, the longest run without missing samples (40 %" in c.text()
     assert c.summary()["span"] == [700, 1666]
+
+
+@pytest.mark.parametrize("ratio", [2, 3, 5])
+def test_a_held_logs_missing_samples_come_from_their_hold(ratio):
+    """A log held over F samples from any residue, 10 % of it lost: every sample whose
+    hold interval kept one comes back exactly; a signal not held is left as it is."""
+    rng = np.random.default_rng(ratio)
+    for s in range(ratio):
+        n = 600 + s
+        x = rng.standard_normal((n // ratio + 3, 2))[(np.arange(n) - s) // ratio + 1]
+        lost = rng.random(x.shape) < 0.1
+        got = held_fill(np.where(lost, np.nan, x), ratio)
+        kept = ~np.isnan(got)
+        assert np.array_equal(got[kept], x[kept])
+        assert kept.sum() > 0.98 * x.size  # an interval loses all its samples rarely
+    white = rng.standard_normal((600, 1))
+    white[5] = np.nan
+    assert np.isnan(held_fill(white, 3)[5, 0])
 
 
 def test_a_record_lost_too_often_says_why_it_has_no_estimate():

@@ -32,7 +32,9 @@ low rate's bin spacing). With a noise that is fed back (a disturbance added to u
 inside the loop) Y_s correlates with V and the std does not hold.
 
 **Missing samples.** A period whose sampled y or held output is missing leaves a hole in
-``Y_s`` or ``U_c``; the local fit needs the periods' DFT whole. The estimate is made on the
+``Y_s`` or ``U_c`` (a held output's lost sample is first taken from its hold where the log
+holds it exactly: :func:`held_fill`); the local fit needs the periods' DFT whole. The
+estimate is made on the
 longest run of complete periods (the transient term takes its ends as it takes the
 record's), when it holds at least ``4 n + 2`` periods; the finding names the run and its
 share of the record. A record lost too often for that gets no estimate, and the report
@@ -52,6 +54,7 @@ from ...numerics.lifting import dft
 from ...numerics.local.lpm import lpm, pad_circular, smallest_n
 from ...numerics.results import FRF
 from ...numerics.signals import LoopData
+from ...numerics.structure import hold_of
 from ...numerics.systems.model import Model
 from ..causes.cause import CauseFit
 from ..causes.registry import CAUSES, build
@@ -177,15 +180,44 @@ def low_rate_signals(rec: LoopData, model: Model) -> tuple[FloatArray, FloatArra
     """What the controller samples and what it outputs, per period, and the periods between.
 
     Returns ``y_s`` (M, n_y), ``u_c`` (M, n_u) (the last sample of each period) and j:
-    ``u_c[m]`` of the result is the controller's output of period ``m - j``.
+    ``u_c[m]`` of the result is the controller's output of period ``m - j``. A missing
+    sample of the output is taken from its hold where the log holds it exactly
+    (:func:`held_fill`).
     """
     F = model.ratio
     M = rec.n_samples // F
-    logged = -rec.u if model.setpoint else rec.r - rec.u
+    logged = held_fill(-rec.u if model.setpoint else rec.r - rec.u, F)
     sampled = rec.y - rec.r if model.setpoint else rec.y
     hold = model.sample_phase + model.control_delay
     j = -((F - 1 - hold) // F)
     return sampled[model.sample_phase :: F][:M], logged[F - 1 :: F][:M], j
+
+
+def held_fill(x: FloatArray, ratio: int) -> FloatArray:
+    """``x`` (N, c) with its NaN samples taken from their hold, where x is held over F samples.
+
+    A command log holds the controller's output over the ``ratio`` samples from the residue
+    :func:`~mr_ident.numerics.structure.hold_of` finds; every present sample of a hold
+    interval is its value, so a missing one is any of them (exact). ``x`` unchanged where
+    it has no NaN or is not held over ``ratio`` samples (a measured u).
+    """
+    lost = np.isnan(x)
+    if ratio == 1 or not lost.any():
+        return x
+    found = hold_of(x)
+    if found is None or found[0] != ratio:
+        return x
+    # intervals start at the residue s: pad the front so that they fall on whole blocks
+    pad = np.full(((ratio - found[1]) % ratio, x.shape[1]), np.nan)
+    body = np.concatenate([pad, x])
+    n_blocks = -(-body.shape[0] // ratio)
+    tail = np.full((n_blocks * ratio - body.shape[0], x.shape[1]), np.nan)
+    blocks = np.concatenate([body, tail]).reshape(n_blocks, ratio, -1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a wholly lost interval stays NaN
+        value = np.nanmax(blocks, axis=1)  # (n_blocks, c): the held value
+    filled = np.repeat(value, ratio, axis=0)[pad.shape[0] : pad.shape[0] + x.shape[0]]
+    return np.where(lost, filled, x)
 
 
 def longest_complete(ok: BoolArray) -> tuple[int, int]:
