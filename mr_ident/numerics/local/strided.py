@@ -319,7 +319,9 @@ def lpm_strided(
     def run_short(batch: list[tuple[int, int, int]]) -> int:
         i0, c, t = (np.array(x, dtype=np.intp) for x in zip(*batch, strict=True))
         rows = (c[:, None] + np.arange(2 * n + 1)[None, :]).ravel()  # the windows, end to end
-        sv = _Solved(chunk_sums(Ua[rows], Ya[rows], 0, c.size, None, lay, 2 * n + 1), lay, q)
+        sv = _Solved(
+            chunk_sums(Ua[rows], Ya[rows], 0, c.size, None, lay, stride=2 * n + 1), lay, q
+        )
         for length in np.unique(t).tolist():  # groups of one length: the same offsets
             sel = np.flatnonzero(t == length)
             offs = np.arange(length) - length // 2
