@@ -90,6 +90,7 @@ def read_settled(
     ratio: int | None,
     model: Model | None,
     notify: Notify,
+    *,
     complete: bool = False,
     injection: str | None = None,
 ) -> tuple[LoopData, float, Settled]:

@@ -64,6 +64,7 @@ def write_plots(
     F: int,
     N: int,
     model: Model | None,
+    *,
     units: tuple[str, str] | None = None,
 ) -> None:
     """Bode plot of P_h at ``path`` (model drawn when given); with a PFG, ``<path>_pfg``.

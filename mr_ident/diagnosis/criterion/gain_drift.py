@@ -379,6 +379,7 @@ def _project_all(
     free: FloatArray,
     h: FloatArray,
     k: int,
+    *,
     step: bool = False,
 ) -> tuple[FloatArray, FloatArray, BoolArray] | None:
     """``y`` and ``ŷ`` (k size, n_y) projected per segment and channel; 0 where not kept.

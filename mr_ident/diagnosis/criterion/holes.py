@@ -148,7 +148,7 @@ def beyond_limits(rec: LoopData, n: int, degree: int = 2, ratio: int | None = No
     n_out = max(rec.u.shape[1], rec.y.shape[1])
     try:
         lim = missing_limits(
-            "freq-lifted", n, degree, F, rec.r.shape[1], n_out, "polynomial", rec.n_samples
+            "freq-lifted", n, degree, F, rec.r.shape[1], n_out, n_samples=rec.n_samples
         )
     except MrIdentError as err:
         return f"the fit carries no missing sample with these options ({err})"

@@ -379,6 +379,7 @@ def free_spectrum(
     ny: int,
     n_samples: int,
     start: int,
+    *,
     every_mode: bool = False,
 ) -> ComplexArray:
     """DFT of the free responses ``λ_i^m Cm_i`` of y from ``start`` on, (n_bins, n_y, k).
