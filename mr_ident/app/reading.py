@@ -39,7 +39,7 @@ def read_loop(
     split it (none bridged as missing samples: diagnose).
     """
     from ..live.recordings import load_recording
-    from ..live.spans import DEFAULT_SPAN
+    from ..live.spans import DEFAULT_SPAN, NOTE_FIELDS
 
     loaded = load_recording(
         path or reading.path,
@@ -53,7 +53,7 @@ def read_loop(
         complete=complete,
     )
     for note in loaded.notes:
-        notify(Notice("warning", note))
+        notify(Notice("warning", note, fields=NOTE_FIELDS))
     return loaded.data
 
 

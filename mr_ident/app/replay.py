@@ -64,7 +64,7 @@ def replay_recording(req: ReplayRequest, notify: Notify = ignore) -> Replayed:
     outcome keeps them too).
     """
     from ..live.replay import replay, replay_bag
-    from ..live.spans import DEFAULT_SPAN
+    from ..live.spans import DEFAULT_SPAN, NOTE_FIELDS
 
     reading = req.reading
     cfg = replay_config(req)
@@ -105,7 +105,7 @@ def replay_recording(req: ReplayRequest, notify: Notify = ignore) -> Replayed:
                 f"messages ({info.bytes_read} of {info.file_bytes} bytes) ({info.reason})",
             )
         )
-    notices += [Notice("note", a) for a in res.anomalies[:SHOWN_ANOMALIES]]
+    notices += [Notice("note", a, fields=NOTE_FIELDS) for a in res.anomalies[:SHOWN_ANOMALIES]]
     for n in notices:
         notify(n)
     return Replayed(res, cfg, monitoring, tuple(notices))

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
-from ..errors import FieldError
+from ..errors import FieldError, said
 
 if TYPE_CHECKING:
     from ..numerics.systems.model import Model
@@ -27,16 +27,23 @@ class Notice:
 
     ``kind`` is the word it is shown with (``warning: ...``, ``note: ...``); ``about``
     "reading": about how the recording was read (the command line's stderr), "result":
-    part of the result's own account (its stdout).
+    part of the result's own account (its stdout). ``fields``: the request's fields the
+    text names as ``{field}`` (:class:`~mr_ident.errors.FieldError`'s convention), said by
+    each caller in its own words (:meth:`told`).
     """
 
     kind: Literal["warning", "note"]
     text: str
     about: Literal["reading", "result"] = "reading"
+    fields: tuple[str, ...] = ()
 
-    def line(self) -> str:
-        """The notice as one line: ``<kind>: <text>``."""
-        return f"{self.kind}: {self.text}"
+    def told(self, name: Callable[[str], str] = str) -> str:
+        """The text with every field said as ``name(field)`` (default: as it is)."""
+        return said(self.text, self.fields, name)
+
+    def line(self, name: Callable[[str], str] = str) -> str:
+        """The notice as one line: ``<kind>: <text>``, the fields said as ``name(field)``."""
+        return f"{self.kind}: {self.told(name)}"
 
 
 Notify = Callable[[Notice], None]

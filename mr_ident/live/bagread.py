@@ -13,7 +13,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import DataError
+from ..errors import DataError, DataFieldError
 from ..io.bags import Bag
 from ..io.config import IdentConfig
 from ..io.labels import label_sources
@@ -104,9 +104,13 @@ def read_bag(
     bag = Bag.open(path, msg_path=msg_path)
     sources = resolve_sources(bag_types(bag), specs, labels)
     if sources.r[0].kind == "blocks":
-        raise DataError(
-            f"{path}: bare topics follow the block contract; give them as --topics, not "
-            "--r/--u/--y"
+        raise DataFieldError(
+            f"{path}: bare topics follow the block contract; give them as {{topics}}, not "
+            "{r}/{u}/{y}",
+            "topics",
+            "r",
+            "u",
+            "y",
         )
     samples = extract(bag, [src for _, _, src in sources.all])
     enough_messages(bag, sources, samples, what=str(path))
