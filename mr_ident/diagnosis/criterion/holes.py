@@ -43,8 +43,7 @@ def _gram_solver(G: FloatArray) -> Callable[[FloatArray], FloatArray]:
     """``b -> G⁺ b`` for a Gram matrix G: by Cholesky where it is well conditioned.
 
     Else (holes whose columns the weight makes nearly alike) by its eigenvalues, those
-    below :data:`GRAM_RCOND` of the largest dropped. Cholesky is a third of the work
-    (3000 holes: 19 s by eigenvalues on a loaded machine).
+    below :data:`GRAM_RCOND` of the largest dropped. Cholesky is a third of the work.
     """
     if not G.size:
         return lambda b: np.zeros_like(b)
