@@ -154,6 +154,7 @@ def identify_recording(
         )
     from ..numerics.identify import identify
     from ..numerics.signals import LoopData
+    from ..numerics.structure import NOTE_FIELDS
 
     model = load(req.model)
     specs = req.reading.specs()
@@ -215,7 +216,7 @@ def identify_recording(
         **loop,
     )  # the result holds P_h and the PFG
     for note in settled.notes:
-        heard(Notice("warning", note))
+        heard(Notice("warning", note, fields=NOTE_FIELDS))
     if ident.undetermined is not None:
         heard(
             Notice(

@@ -101,6 +101,8 @@ def settle_rates(
             ),
             phases=given(("the model", model.sample_phase if model else None)),
         )
+    except FieldError:
+        raise
     except ConfigError as err:  # the given named as the request's fields
         raise FieldError(str(err), "ratio", "injection") from err
     return float(fs), settled
