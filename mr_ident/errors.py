@@ -57,7 +57,7 @@ def said(text: str, fields: Sequence[str], name: Callable[[str], str]) -> str:
 
 
 class NamesFields(MrIdentError):
-    """An error whose message names a request's fields (the mixin of :class:`FieldError`).
+    """An error whose message names a request's fields: the base of the two below.
 
     The message holds ``{field}`` for each of ``fields`` (the request's attribute names);
     ``str()`` says them as they are, and each caller says them in its own words with

@@ -100,6 +100,17 @@ def read_bag(
     ``identify``'s default options' over ``capacity`` samples or the whole bag).
     ``node``: the same samples also into the node's window aligner of that configuration
     (:attr:`BagRead.node`; the bag read once).
+
+    Raises
+    ------
+    DataFieldError
+        Bare topics given as sources (naming ``{topics}``, ``{r}``, ``{u}``, ``{y}``); rates
+        the stamps cannot tell (:func:`~.feed.check_rate`).
+    DataError
+        An unreadable bag, sources that resolve in none of its topics, too few messages,
+        stamps that contradict the rates.
+    ConfigError
+        The block contract mixed with per-sample sources, r and u of unequal counts.
     """
     bag = Bag.open(path, msg_path=msg_path)
     sources = resolve_sources(bag_types(bag), specs, labels)

@@ -234,7 +234,9 @@ def check_rate(
     Raises
     ------
     DataError
-        The stamps disagree with the configuration, or a rate cannot be told.
+        The stamps disagree with the configuration.
+    DataFieldError
+        A rate the stamps cannot tell and none given: naming ``{fs_high}`` or ``{ratio}``.
     """
     fast = [
         infer_rate(s.stamps)

@@ -75,7 +75,11 @@ def choose(al: Aligner, span: str, *, what: str) -> tuple[LoopData, str]:
     Raises
     ------
     DataError
-        No aligned sample at all, or ``span == "all"`` and the recording has gaps.
+        No aligned sample at all.
+    DataFieldError
+        ``span == "all"`` and the recording has gaps (naming ``{span}``).
+
+    The note names ``{span}`` too (:data:`NOTE_FIELDS`).
     """
     check_span(span)
     spans = al.spans()
