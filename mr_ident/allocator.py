@@ -4,9 +4,9 @@
 The LPM works on blocks of bins with temporaries of 1-10 MB. glibc's malloc serves
 such sizes with fresh ``mmap`` pages (and returns them on ``free``) until its dynamic
 threshold adapts, and the thread arenas keep trimming: every block then pays page
-faults and kernel zeroing. Measured on the 2-core development machine, one
-identification at the paper's size took 1.6-2.0 s instead of 1.0 s on one thread,
-depending on the allocation history of the process. :func:`keep_freed_memory` fixes
+faults and kernel zeroing, and an identification takes longer, by how much depending on
+the allocation history of the process (measured: docs/benchmarks.md, "Choices in the
+code"). :func:`keep_freed_memory` fixes
 the thresholds so that freed blocks are reused, and keeps one arena for all threads:
 with an arena per thread, a block freed on one thread is not reused by the next (every
 identification runs its bins, its transforms and its PFG on fresh worker threads), and the

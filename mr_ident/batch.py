@@ -267,8 +267,10 @@ def _row(job: Job, opts: BatchOptions, first: int, N: int, fs: float, F: int) ->
 
 
 def _warnings(notices: Iterable[Notice]) -> str:
-    """What the reading noticed, for the table's ``notes`` column."""
-    return " | ".join(n.text for n in notices if n.kind == "warning")
+    """What the reading noticed, for the table's ``notes`` column (fields said as flags)."""
+    from .cli.common import flag
+
+    return " | ".join(n.told(flag) for n in notices if n.kind == "warning")
 
 
 def _identify(job: Job, opts: BatchOptions, reading: Reading) -> dict[str, str]:

@@ -8,7 +8,7 @@ Messages name the parameter, what was expected and what came.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 
 class MrIdentError(Exception):
@@ -43,19 +43,26 @@ class ConfigError(MrIdentError, ValueError):
     """An option or parameter is out of range or of the wrong type."""
 
 
-class FieldError(ConfigError):
-    """A request's fields that do not go together or are out of range, named as fields.
+def said(text: str, fields: Sequence[str], name: Callable[[str], str]) -> str:
+    """``text`` with every ``{field}`` of ``fields`` said as ``name(field)``.
+
+    Other braces (a source's ``{name=="j1"}``) are left alone.
+
+    >>> said("give {fs_high} or {model}", ("fs_high", "model"), lambda f: "--" + f)
+    'give --fs_high or --model'
+    """
+    for f in fields:
+        text = text.replace("{" + f + "}", name(f))
+    return text
+
+
+class NamesFields(MrIdentError):
+    """An error whose message names a request's fields: the base of the two below.
 
     The message holds ``{field}`` for each of ``fields`` (the request's attribute names);
     ``str()`` says them as they are, and each caller says them in its own words with
     :meth:`told`: the command line its flags (``--excitation-index``), the node its
     parameters. Other braces in the message (a source's ``{name=="j1"}``) are left alone.
-
-    >>> err = FieldError("{excitation_index} goes with {period}", "excitation_index", "period")
-    >>> str(err)
-    'excitation_index goes with period'
-    >>> err.told(lambda f: "--" + f.replace("_", "-"))
-    '--excitation-index goes with --period'
     """
 
     def __init__(self, template: str, *fields: str) -> None:
@@ -64,10 +71,25 @@ class FieldError(ConfigError):
 
     def told(self, name: Callable[[str], str]) -> str:
         """The message with every field said as ``name(field)``."""
-        text = self.template
-        for f in self.fields:
-            text = text.replace("{" + f + "}", name(f))
-        return text
+        return said(self.template, self.fields, name)
+
+
+class FieldError(NamesFields, ConfigError):
+    """A request's fields that do not go together or are out of range, named as fields.
+
+    >>> err = FieldError("{excitation_index} goes with {period}", "excitation_index", "period")
+    >>> str(err)
+    'excitation_index goes with period'
+    >>> err.told(lambda f: "--" + f.replace("_", "-"))
+    '--excitation-index goes with --period'
+    """
+
+
+class DataFieldError(NamesFields, DataError):
+    """Data that cannot be read as the request stands; the remedy names its fields.
+
+    E.g. stamps too few to tell the rate: ``give {fs_high}``.
+    """
 
 
 class RecordingError(MrIdentError, OSError):

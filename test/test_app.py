@@ -67,8 +67,9 @@ def test_the_sources_are_checked_where_a_bag_would_read_them(record):
         source_specs({"r": ["/a.x"], "u": [], "y": []})
     assert err.value.told(flag).endswith("missing --u, --y")  # the command line's words
     sources = {"r": ["/a.x"], "u": ["/a.y"], "y": ["/a.z"]}
-    with pytest.raises(ConfigError, match="--r/--u/--y name sources in a bag"):
+    with pytest.raises(ConfigError, match="^r/u/y name sources in a bag") as err:
         identify_recording(IdentifyRequest(Reading(record / "d.npz", sources), n=8))
+    assert err.value.told(flag).startswith("--r/--u/--y name sources in a bag")
     with pytest.raises(ConfigError, match="^excitation_index goes with period") as err:
         identify_recording(IdentifyRequest(Reading(record / "d.npz"), excitation_index="/x"))
     assert err.value.told(flag).startswith("--excitation-index goes with --period")

@@ -20,6 +20,7 @@ from bagmaker import BagWriter, joint_state_bag, stamps
 from test_bags import PAPER, R, U, Y
 
 from mr_ident.cli import main
+from mr_ident.cli.common import flag
 from mr_ident.errors import ConfigError, DataError
 from mr_ident.io.modelfile import load_model
 from mr_ident.live.recordings import load_recording
@@ -63,9 +64,11 @@ def test_span_latest_takes_the_last_and_all_is_an_error_naming_the_gaps(gappy):
     data, info = bag_signals(path, SPECS, ratio=3, span="latest")
     assert (data.first, data.end) == (12006, sim.n_samples) and "latest" in info.broken
     with pytest.raises(
-        DataError, match=r"--span all needs a recording without gaps too long.*gaps at"
-    ):
+        DataError, match=r": span all needs a recording without gaps too long.*gaps at"
+    ) as err:
         bag_signals(path, SPECS, ratio=3, span="all")
+    told = err.value.told(flag)  # the command line's words
+    assert "--span all needs" in told and "(--span longest or latest uses one span)" in told
     with pytest.raises(ConfigError, match="span must be one of longest, latest, all, got 'first'"):
         load_recording(path, specs=SPECS, ratio=3, span="first")
 

@@ -52,7 +52,7 @@ def test_every_bin_gets_its_groups_window_evaluated_at_its_offset(ni, no, n, h):
     centred = lpm_bins_last(U, Y, n, R, q)
     short = np.r_[3:40, 100:101, 200:215]  # short runs: gathered, window by window
     for centres in (None, short):
-        G, Cv, Ai, n_bad = lpm_bins_last(U, Y, n, R, q, 2, centres, h)
+        G, Cv, Ai, n_bad = lpm_bins_last(U, Y, n, R, q, 2, centres=centres, offsets=h)
         bins = np.arange(K) if centres is None else centres
         solved, owner, offset = groups(bins, h)
         assert n_bad == 0 and G.shape == (no, ni, bins.size)
@@ -100,7 +100,7 @@ def test_windows_whose_off_centre_bias_shows_are_solved_at_every_centre():
     Y = G[:, None] * U + 1e-4 * (rng.standard_normal((K + 2 * n, 1)) + 0j)
     q = dof(n, R, 1)
     centred = lpm_bins_last(U, Y, n, R, q)[0][0, 0]
-    strided = lpm_bins_last(U, Y, n, R, q, 1, None, h)[0][0, 0]
+    strided = lpm_bins_last(U, Y, n, R, q, 1, offsets=h)[0][0, 0]
     same = np.isclose(strided, centred, rtol=1e-12, atol=0)
     near = np.abs(np.arange(K) + n - K / 2) < 60
     assert same[near].all()  # at the resonance: every window solved at its centre

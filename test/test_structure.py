@@ -90,7 +90,7 @@ def test_where_the_data_do_not_tell_the_given_is_taken_and_said():
     with pytest.raises(ConfigError, match="ratio F unknown: u shows no hold"):
         settle_structure(found, ratios=[], injections=[], phases=[])
     got = settle_structure(found, ratios=[("--ratio", 3)], injections=[], phases=[])
-    assert got.injection == "plant_input" and "--injection setpoint" in got.notes[0]
+    assert got.injection == "plant_input" and "{injection} setpoint" in got.notes[0]
     got = settle_structure(
         found, ratios=[("--ratio", 3)], injections=[("--injection", "setpoint")], phases=[]
     )

@@ -88,13 +88,13 @@ def test_the_block_covariance_is_the_monte_carlo_one_of_lines_smoothed_as_a_loca
     z = (G - G.mean(axis=0)) * np.conj(G.mean(axis=0)) / np.abs(G.mean(axis=0)) / np.sqrt(V[0])
     block = np.arange(K) // 9
     S = np.stack([np.bincount(block, h[:, 0] * x.real, 5) for x in z[..., 0]])  # real parts
-    got = _block_covariance(np.arange(1, K + 1), np.zeros(K, int), block, h, 5, n, 2)
+    got = _block_covariance(np.arange(1, K + 1), np.zeros(K, int), block, h, 5, n, degree=2)
     want = np.cov(S.T) * 2  # the real part carries half the variance
     np.testing.assert_allclose(np.diag(want), np.diag(got), rtol=0.08)
     corr = lambda c: c / np.sqrt(np.outer(np.diag(c), np.diag(c)))  # noqa: E731
     np.testing.assert_allclose(corr(want), corr(got), atol=0.05)
     assert corr(got)[1, 2] > 0.1  # neighbours half a window wide do correlate
-    two = _block_covariance(np.arange(1, K + 1), np.arange(K) // 20, block, h, 5, n, 2)
+    two = _block_covariance(np.arange(1, K + 1), np.arange(K) // 20, block, h, 5, n, degree=2)
     assert two[1, 2] < got[1, 2] and two[0, 1] == got[0, 1]  # lines 19 | 20 apart
 
 

@@ -26,7 +26,19 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class Diagnosed:
-    """The diagnosis, the model it was of, and the record diagnosed (rates settled)."""
+    """The diagnosis, the model it was of, and the record diagnosed (rates settled).
+
+    Attributes
+    ----------
+    diagnosis : Diagnosis
+        :func:`~mr_ident.diagnosis.diagnose`'s result.
+    model : Model
+        The model diagnosed, with the injection point the data show.
+    data : LoopData
+        The record diagnosed: its rates settled, its holes within the fits' limits.
+    notices : tuple of Notice
+        What the reading noticed.
+    """
 
     diagnosis: Diagnosis
     model: Model
@@ -41,15 +53,70 @@ def diagnose_recording(
 ) -> Diagnosed:
     """The diagnosis a request asks for (the report files are the caller's to write).
 
-    ``notify`` hears each notice when it happens (the outcome keeps them all);
-    ``progress`` each step of the diagnosis as it begins (:func:`~mr_ident.diagnose`).
+    Read the recording (and ``req.validate``, ``req.more``) as ``req.rates`` says, keep the
+    holes the fits carry (beyond them: the longest stretch without one), state where r
+    enters as the data show it, and diagnose (:func:`~mr_ident.diagnosis.diagnose`: the
+    evidence, the causes in turn, the validation on held-out data).
+
+    Parameters
+    ----------
+    req : DiagnoseRequest
+        The recording, the model, the validation and further records, the options.
+    notify : callable, optional
+        Hears each :class:`~.requests.Notice` when it happens (the outcome keeps them all).
+    progress : callable, optional
+        Told each step of the diagnosis as it begins.
+
+    Returns
+    -------
+    Diagnosed
+        The diagnosis, the model it was of (its injection point the data's) and the record.
 
     Raises
     ------
+    FieldError
+        A :class:`~mr_ident.errors.ConfigError` naming the request's fields: ``alpha``
+        outside (0, 1), sources for a data file, rates the flags, the file and the model
+        disagree on (``rates`` "agree").
+    DataFieldError
+        A :class:`~mr_ident.errors.DataError` whose remedy names the request's fields (as
+        :func:`~.identify.identify_recording`).
     ConfigError
-        ``alpha`` outside (0, 1), rates that disagree (``rates`` "agree").
+        ``more`` without ``validate``; options out of range.
     DataError
-        What the readers and :func:`~mr_ident.diagnosis.diagnose` raise.
+        A recording that is missing or unreadable, N not a multiple of F, model and data
+        that disagree on rates or channels, too little data.
+    ModelError
+        ``req.model`` a file that is not a valid model.
+
+    References
+    ----------
+    .. [1] E. van Haren, L. Blanken, T. Oomen, "Frequency Domain Identification of
+       Multirate Systems: A Lifted Local Polynomial Modeling Approach", CDC 2022.
+    .. [2] R. Pintelon, J. Schoukens, *System Identification: A Frequency Domain
+       Approach*, 2nd ed., Wiley 2012, ch. 7.
+
+    Examples
+    --------
+    The plant's gain is 30 % higher than the model says, 20 s in an NPZ:
+
+    >>> import dataclasses, tempfile
+    >>> from pathlib import Path
+    >>> import numpy as np
+    >>> from mr_ident import simulate
+    >>> from mr_ident.app.diagnose import diagnose_recording
+    >>> from mr_ident.app.requests import DiagnoseRequest, Reading
+    >>> from mr_ident.io.modelfile import model_from_dict
+    >>> model = model_from_dict({"fs_high": 100.0, "ratio": 2,
+    ...                          "plant": {"num": [10.0], "den": [1.0, 10.0]},
+    ...                          "controller": {"num": [0.5], "den": [1.0]}})
+    >>> true = dataclasses.replace(model, plant_gain=1.3, noise_std=0.01)
+    >>> sim = simulate(true, duration=20.0, rng=np.random.default_rng(0))
+    >>> path = Path(tempfile.mkdtemp()) / "loop.npz"
+    >>> np.savez(path, r=sim.r, u=sim.u, y=sim.y)
+    >>> got = diagnose_recording(DiagnoseRequest(Reading(path), model))
+    >>> got.diagnosis.cause, round(got.diagnosis.parameters["gain"], 2), got.data.rates()
+    ('gain_error', 1.3, (100.0, 2))
     """
     from ..diagnosis import diagnose
     from ..diagnosis.criterion.records import with_injection
@@ -126,6 +193,26 @@ def window_report(model: Model, window: LoopData, alpha: float = 0.01) -> dict[s
     bridged) is diagnosed whole, its holes unknowns of every fit, within the limits
     identification derives (beyond them: its longest stretch without one, whole periods,
     and ``window_note`` says so; :func:`~mr_ident.diagnosis.criterion.holes.diagnosable`).
+
+    Parameters
+    ----------
+    model : Model
+        The nominal model.
+    window : LoopData
+        The node's window (rates set, ``first`` its absolute index).
+    alpha : float, default 0.01
+        The per-bin test's family-wise false-alarm level, as reported.
+
+    Returns
+    -------
+    dict
+        The report (:func:`~mr_ident.diagnosis.report.report_dict`) with ``window_first``,
+        ``window_samples`` and, where holes cut it, ``window_note``.
+
+    Raises
+    ------
+    DataError
+        Model and window disagree on rates or channels, or the window is too short.
     """
     from ..diagnosis.criterion.holes import diagnosable
     from ..diagnosis.monitoring.monitor import diagnose_window

@@ -27,9 +27,22 @@ if TYPE_CHECKING:
 class Identified:
     """P_h and the PFG of a recording, and what was read.
 
-    ``first``, ``n_samples``: the record identified (its first sample index, its length);
-    ``model``: the model given (loaded), for the plots' reference; ``structure``: what the
-    data showed of the loop (the hold, F, where r enters), in words.
+    Attributes
+    ----------
+    identification : Identification
+        P_h with its std, the PFG from data and (with a model's controller) from P_h.
+    fs_high : float
+    ratio : int
+        The settled rates.
+    first, n_samples : int
+        The record identified: its first sample index, its length.
+    method : str
+    model : Model or None
+        The model given (loaded), for the plots' reference.
+    notices : tuple of Notice
+        What the reading and the identification noticed.
+    structure : str
+        What the data showed of the loop (the hold, F, where r enters), in words.
     """
 
     identification: Identification
@@ -50,16 +63,81 @@ def identify_recording(
 ) -> Identified | PeriodicBLA | SlowPlant:
     """The identification a request asks for (the result file is the caller's to write).
 
-    ``notify`` hears each notice when it happens (the outcome keeps them all);
-    ``progress`` each step (reading, identifying) as it begins.
+    Read the recording (:mod:`.reading`), settle the rates and the loop's structure with what
+    the data show, take a low-rate y as such, check the model against the data, identify
+    (:func:`~mr_ident.numerics.identify.identify` [1]_ [2]_); with ``req.period`` the best
+    linear approximation of periodic data instead (:func:`.periodic.periodic_recording`).
+
+    Parameters
+    ----------
+    req : IdentifyRequest
+        The recording, how to read it, the rates, the method and its options.
+    notify : callable, optional
+        Hears each :class:`~.requests.Notice` when it happens (the outcome keeps them all).
+    progress : callable, optional
+        Told each step (reading, identifying) as it begins.
+
+    Returns
+    -------
+    Identified
+        P_h and the PFG (the model's controller given), the rates and the record used.
+    PeriodicBLA or SlowPlant
+        With ``req.period``: the BLA, or P_h of an NPZ whose y holds the low-rate samples.
 
     Raises
     ------
-    ConfigError
-        Options that do not go together, rates nothing gives or that disagree.
+    FieldError
+        A :class:`~mr_ident.errors.ConfigError` naming the request's fields: options that
+        do not go together (``excitation_index`` without ``period``, ``y_rate`` "high" for a
+        low-rate y, sources for a data file), rates nothing gives, or that the flags, the
+        file, the model and the data disagree on (F, where r enters).
+    DataFieldError
+        A :class:`~mr_ident.errors.DataError` whose remedy names the request's fields: a
+        bag's rates the stamps cannot tell, bare topics given as sources, ``span`` "all" on
+        a recording with gaps.
     DataError
-        A model of other dimensions than the data; what the readers and
-        :func:`~mr_ident.numerics.identify.identify` raise.
+        A recording that is missing or unreadable, a model of other dimensions than the
+        data, too little data, too many missing samples (as
+        :func:`~mr_ident.numerics.identify.identify`).
+    ConfigError
+        Options out of range (``method``, ``n``, ``degree``, ``local``).
+    ModelError
+        ``req.model`` a file that is not a valid model.
+    DimensionError
+        Signals whose shapes do not go together.
+
+    References
+    ----------
+    .. [1] E. van Haren, L. Blanken, T. Oomen, "Frequency Domain Identification of
+       Multirate Systems: A Lifted Local Polynomial Modeling Approach", CDC 2022.
+    .. [2] R. Pintelon, J. Schoukens, *System Identification: A Frequency Domain
+       Approach*, 2nd ed., Wiley 2012: ch. 7 (the LPM), sec. 3.6 and 4.3 (the BLA of
+       periodic data).
+
+    Examples
+    --------
+    A first-order plant under a proportional controller at half its rate, 40 s of white
+    reference in an NPZ that gives its rates; the data show the hold of u - r (F = 2, r
+    at the plant input):
+
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> import numpy as np
+    >>> from mr_ident import simulate
+    >>> from mr_ident.app.identify import identify_recording
+    >>> from mr_ident.app.requests import IdentifyRequest, Reading
+    >>> from mr_ident.io.modelfile import model_from_dict
+    >>> model = model_from_dict({"fs_high": 100.0, "ratio": 2,
+    ...                          "plant": {"num": [10.0], "den": [1.0, 10.0]},
+    ...                          "controller": {"num": [0.5], "den": [1.0]}})
+    >>> sim = simulate(model, duration=40.0, rng=np.random.default_rng(0))
+    >>> path = Path(tempfile.mkdtemp()) / "loop.npz"
+    >>> np.savez(path, r=sim.r, u=sim.u, y=sim.y, fs_high=100.0, ratio=2)
+    >>> got = identify_recording(IdentifyRequest(Reading(path), model=model))
+    >>> got.ratio, got.n_samples, got.identification.plant.response.shape
+    (2, 4000, (2000, 1, 1))
+    >>> got.structure
+    'u - r changes every 2 samples (at sample 0 of each block): F = 2, r enters at the plant input'
     """
     heard = Heard(notify)
     step = progress or (lambda _: None)
@@ -76,6 +154,7 @@ def identify_recording(
         )
     from ..numerics.identify import identify
     from ..numerics.signals import LoopData
+    from ..numerics.structure import NOTE_FIELDS
 
     model = load(req.model)
     specs = req.reading.specs()
@@ -137,7 +216,7 @@ def identify_recording(
         **loop,
     )  # the result holds P_h and the PFG
     for note in settled.notes:
-        heard(Notice("warning", note))
+        heard(Notice("warning", note, fields=NOTE_FIELDS))
     if ident.undetermined is not None:
         heard(
             Notice(

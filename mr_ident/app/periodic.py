@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
-from ..errors import DataError, FieldError
+from ..errors import DataError, DataFieldError, FieldError
 from .reading import read_loop
 from .requests import Heard, IdentifyRequest, Notice, Specs, load
 
@@ -28,7 +28,21 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class PeriodicBLA:
-    """The BLA of periodic data: the cut (``periods``), the rates, the distortion per band."""
+    """The BLA of periodic data: the cut (``periods``), the rates, the distortion per band.
+
+    Attributes
+    ----------
+    bla : BLA
+        P_h at the excited lines with its noise and total std (and the PFG from data where
+        the design measured it).
+    periods : Periods
+        The realizations x whole periods used.
+    fs_high : float
+    ratio : int
+    bands : tuple of BandLevels
+        The noise and nonlinear distortion per band (several periods only).
+    notices : tuple of Notice
+    """
 
     bla: BLA
     periods: Periods
@@ -42,7 +56,13 @@ class PeriodicBLA:
 class SlowPlant:
     """P_h (and the PFG from data) of an NPZ whose y holds the low-rate samples only.
 
-    ``realizations`` x ``periods``: the whole periods used (after the transient).
+    Attributes
+    ----------
+    identification : Identification
+        P_h at the lines the rotated lifted design determines, with its std.
+    realizations, periods : int
+        The whole periods used (after the transient), per realization.
+    notices : tuple of Notice
     """
 
     identification: Identification
@@ -52,7 +72,46 @@ class SlowPlant:
 
 
 def periodic_recording(req: IdentifyRequest, heard: Heard) -> PeriodicBLA | SlowPlant:
-    """The BLA of an NPZ of realizations or of a bag (``req.period`` given)."""
+    """The BLA of an NPZ of realizations or of a bag (``req.period`` given).
+
+    An NPZ's rows are the realizations, its periods counted from each row's start; a bag is
+    cut by the excitation's labels (``req.excitation_index``, default the topic beside r's),
+    else counted from its first sample with ``req.period`` N. Both through
+    :func:`~mr_ident.live.periodic.periodic_bla` [1]_, with the nonlinear distortion per band
+    where there are several periods.
+
+    Parameters
+    ----------
+    req : IdentifyRequest
+        The recording and its options; ``req.period`` an int N or "auto" (a bag's labels).
+    heard : Heard
+        Hears the notices (and keeps them for the outcome).
+
+    Returns
+    -------
+    PeriodicBLA
+        The BLA with its noise and nonlinear std, the cut, the rates, the bands.
+    SlowPlant
+        P_h from an NPZ whose y holds the low-rate samples only.
+
+    Raises
+    ------
+    FieldError
+        ``period`` "auto" or ``excitation_index`` for an NPZ, an NPZ without ``fs_high``.
+    DataFieldError
+        u or y miss samples in the periods kept; no labels in a bag with ``period`` "auto";
+        a ``period`` that does not cut a low-rate y's realizations into whole periods.
+    DataError
+        A recording that is missing or unreadable, fewer samples than one period, labels
+        that do not fit the period, a low-rate y without a rotated lifted design.
+    ConfigError
+        A period that does not divide an NPZ's realizations.
+
+    References
+    ----------
+    .. [1] R. Pintelon, J. Schoukens, *System Identification: A Frequency Domain
+       Approach*, 2nd ed., Wiley 2012, sec. 3.6 and 4.3.
+    """
     from ..live.periodic import cut_by_count, periodic_bla
     from ..live.recordings import is_bag
     from ..numerics.excitation.bla import distortion_by_band
@@ -99,9 +158,10 @@ def _npz_slow(
     r, u, y, q = data.r, data.u, data.y, data.y_phase
     N, T = int(str(req.period)), int(req.transient_periods)
     if N % F or r.shape[1] % N or r.shape[1] // N <= T:
-        raise DataError(
-            f"{req.reading.path}: --period {N} must be a multiple of F = {F} and divide the "
-            f"{r.shape[1]} samples per realization into more than the {T} transient period(s)"
+        raise DataFieldError(
+            f"{req.reading.path}: {{period}} {N} must be a multiple of F = {F} and divide the "
+            f"{r.shape[1]} samples per realization into more than the {T} transient period(s)",
+            "period",
         )
     sp = slow_output_plant(r[:, T * N :], u[:, T * N :], y[:, T * N // F :], N, F, phase=q)
     lines, P, sd = sp.lines, sp.response, sp.std
@@ -172,11 +232,13 @@ def _bag_periods(req: IdentifyRequest, heard: Heard) -> tuple[Periods, float, in
     period = None if req.period == "auto" else int(str(req.period))
     if topic is None:
         if period is None:
-            raise DataError(
+            raise DataFieldError(
                 f"{reading.path}: no topic {want} with the excitation's labels (the bag holds "
-                f"{', '.join(names) or 'none'}); --period auto reads the period off them: "
-                "give --excitation-index TOPIC, or --period N to count periods from the "
-                "record's first sample"
+                f"{', '.join(names) or 'none'}); {{period}} auto reads the period off them: "
+                "give {excitation_index} TOPIC, or {period} N to count periods from the "
+                "record's first sample",
+                "period",
+                "excitation_index",
             )
         data = read_loop(reading, specs, fs, F, heard)
         heard(

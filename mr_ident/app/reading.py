@@ -33,13 +33,43 @@ def read_loop(
 ) -> LoopData:
     """r, u, y of ``reading`` (``path`` instead of its own: a second recording read alike).
 
-    ``specs``: the checked sources (None: a data file, or a bag's block contract);
-    ``fs_high``/``ratio``: the rates a bag needs; ``labels``: an excitation's labels' topic.
-    What the reading noticed goes to ``notify`` as warnings. ``complete``: a bag's holes
-    split it (none bridged as missing samples: diagnose).
+    Parameters
+    ----------
+    reading : Reading
+        The recording and how to read it.
+    specs : dict or None
+        The checked sources (:meth:`Reading.specs`; None: a data file, or a bag's block
+        contract).
+    fs_high, ratio : float or None, int or None
+        The rates a bag needs (a data file keeps its own).
+    notify : callable
+        Hears what the reading noticed, as warnings (fields named as ``{span}``).
+    labels : str, optional
+        The topic of an excitation's labels in a bag ("": none).
+    path : Path, optional
+        Another recording to read as ``reading`` says.
+    complete : bool, default False
+        A bag's holes split it (none bridged as missing samples).
+
+    Returns
+    -------
+    LoopData
+        The rates as the file gives them (None where it gives none).
+
+    Raises
+    ------
+    FieldError
+        Sources or labels for a data file, a bag's rates not given.
+    DataFieldError
+        Rates the stamps cannot tell, bare topics given as sources, ``span`` "all" on a
+        recording with gaps.
+    DataError
+        A recording that is missing, unreadable, or holds no aligned samples.
+    ConfigError
+        ``span`` not one of longest, latest, all.
     """
     from ..live.recordings import load_recording
-    from ..live.spans import DEFAULT_SPAN
+    from ..live.spans import DEFAULT_SPAN, NOTE_FIELDS
 
     loaded = load_recording(
         path or reading.path,
@@ -53,7 +83,7 @@ def read_loop(
         complete=complete,
     )
     for note in loaded.notes:
-        notify(Notice("warning", note))
+        notify(Notice("warning", note, fields=NOTE_FIELDS))
     return loaded.data
 
 
@@ -66,7 +96,35 @@ def read_for_diagnosis(
     *,
     path: Path | None = None,
 ) -> LoopData:
-    """Data for diagnose from a file or a bag; rates from the file where given, else the model."""
+    """Data for diagnose from a file or a bag; rates from the file where given, else the model.
+
+    Parameters
+    ----------
+    reading : Reading
+        The recording and how to read it.
+    model : Model
+        Gives the rates a bag is read at, and a data file's where it gives none.
+    period : int or None
+        Periodic data's period (its holes split a bag: the periods need every sample).
+    specs : dict or None
+        The checked sources (None: a data file, or a bag's block contract).
+    notify : callable
+        Hears what the reading noticed.
+    path : Path, optional
+        Another recording to read as ``reading`` says.
+
+    Returns
+    -------
+    LoopData
+        With the rates and ``period`` set.
+
+    Raises
+    ------
+    DataError
+        N not a multiple of F; as :func:`read_loop`.
+    FieldError, DataFieldError, ConfigError
+        As :func:`read_loop`.
+    """
     from ..live.recordings import is_bag
 
     where = path or reading.path
@@ -90,16 +148,52 @@ def read_settled(
     ratio: int | None,
     model: Model | None,
     notify: Notify,
+    *,
     complete: bool = False,
     injection: str | None = None,
 ) -> tuple[LoopData, float, Settled]:
     """r, u, y, fs_high and the loop's structure: the data's, agreed by every given.
 
-    A bag is read at the flags' rates, else the model's; then
-    :func:`~mr_ident.live.recordings.settle_rates` checks that the flags, the file, the
+    A bag is read at the request's rates, else the model's; then
+    :func:`~mr_ident.live.recordings.settle_rates` checks that the request, the file, the
     model and the stamps agree with what the data show (F, where r enters, a setpoint's
-    phase). What the structure leaves to a default is in ``Settled.notes``, for the caller to
-    say once its result stands.
+    phase). Where r's holes leave too many of its samples undetermined, the recording is
+    read again without bridging and its longest span used (with a warning).
+
+    Parameters
+    ----------
+    reading : Reading
+        The recording and how to read it.
+    specs : dict or None
+        The checked sources (None: a data file, or a bag's block contract).
+    fs_high, ratio : float or None, int or None
+        The request's rates (None: the file's, the model's or the stamps').
+    model : Model or None
+        The model given, whose rates, injection point and phase must agree too.
+    notify : callable
+        Hears what the reading noticed.
+    complete : bool, default False
+        A bag's holes split it (none bridged).
+    injection : {"plant_input", "setpoint"} or None
+        Where the request says r entered (None: as the data show it).
+
+    Returns
+    -------
+    data : LoopData
+        As read (its rates the file's).
+    fs_high : float
+        The settled high rate.
+    settled : Settled
+        F, where r enters, the phase, what the data show; what the structure leaves to a
+        default is in ``Settled.notes``, for the caller to say once its result stands.
+
+    Raises
+    ------
+    FieldError
+        Rates nothing gives, or that the request, the file, the model and the data disagree
+        on (F, where r enters); as :func:`read_loop`.
+    DataFieldError, DataError, ConfigError
+        As :func:`read_loop`.
     """
     from ..live.recordings import settle_rates
 

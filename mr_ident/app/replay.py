@@ -35,8 +35,17 @@ SHOWN_ANOMALIES = 20
 class Replayed:
     """The replay's result and the configuration it ran with (the rates settled).
 
-    ``monitoring``: the configuration names a model or reference to watch the plant
-    against (:func:`plant_events`); the result then holds the span replayed.
+    Attributes
+    ----------
+    result : ReplayResult
+        The last window's estimate, the aligner's statistics, what was read and noticed.
+    config : IdentConfig
+        The node's configuration the replay ran with, its rates those the estimate used.
+    monitoring : bool
+        The configuration names a model or reference to watch the plant against
+        (:func:`plant_events`); the result then holds the span replayed.
+    notices : tuple of Notice
+        The truncation and the first :data:`SHOWN_ANOMALIES` anomalies.
     """
 
     result: ReplayResult
@@ -46,7 +55,24 @@ class Replayed:
 
 
 def replay_config(req: ReplayRequest) -> IdentConfig:
-    """The node's configuration the request asks for: ``params`` with the options applied."""
+    """The node's configuration the request asks for: ``params`` with the options applied.
+
+    Parameters
+    ----------
+    req : ReplayRequest
+        Its ``params`` file (None: the node's defaults), ``y_rate`` and
+        ``excitation_index`` where given.
+
+    Returns
+    -------
+    IdentConfig
+
+    Raises
+    ------
+    ConfigError
+        A parameters file that cannot be read or holds invalid values, an option out of
+        range.
+    """
     from ..io.config import IdentConfig, load_params
 
     cfg = load_params(req.params) if req.params else IdentConfig()
@@ -60,11 +86,41 @@ def replay_config(req: ReplayRequest) -> IdentConfig:
 def replay_recording(req: ReplayRequest, notify: Notify = ignore) -> Replayed:
     """The estimate the node would have made last from the request's recording.
 
-    ``notify`` hears the truncation and the first :data:`SHOWN_ANOMALIES` anomalies (the
-    outcome keeps them too).
+    The node's configuration (:func:`replay_config`), then the recording through the node's
+    own alignment and identification: block topics by
+    :func:`~mr_ident.live.replay.replay`, per-sample sources by
+    :func:`~mr_ident.live.replay.replay_bag` (their rates from the request, the parameters
+    file, else the stamps).
+
+    Parameters
+    ----------
+    req : ReplayRequest
+        The recording, its sources, the parameters file and the options.
+    notify : callable, optional
+        Hears the truncation and the first :data:`SHOWN_ANOMALIES` anomalies (the outcome
+        keeps them too).
+
+    Returns
+    -------
+    Replayed
+
+    Raises
+    ------
+    FieldError
+        A :class:`~mr_ident.errors.ConfigError` naming the request's fields: some of the
+        sources given, not all.
+    DataFieldError
+        A :class:`~mr_ident.errors.DataError` whose remedy names the request's fields:
+        rates the stamps cannot tell, bare topics given as sources, ``span`` "all" on a
+        recording with gaps.
+    DataError
+        A recording that is missing or unreadable, stamps that contradict the rates, no
+        gap-free window of ``min_window_s``.
+    ConfigError
+        A parameters file that cannot be read or holds invalid values.
     """
     from ..live.replay import replay, replay_bag
-    from ..live.spans import DEFAULT_SPAN
+    from ..live.spans import DEFAULT_SPAN, NOTE_FIELDS
 
     reading = req.reading
     cfg = replay_config(req)
@@ -105,7 +161,7 @@ def replay_recording(req: ReplayRequest, notify: Notify = ignore) -> Replayed:
                 f"messages ({info.bytes_read} of {info.file_bytes} bytes) ({info.reason})",
             )
         )
-    notices += [Notice("note", a) for a in res.anomalies[:SHOWN_ANOMALIES]]
+    notices += [Notice("note", a, fields=NOTE_FIELDS) for a in res.anomalies[:SHOWN_ANOMALIES]]
     for n in notices:
         notify(n)
     return Replayed(res, cfg, monitoring, tuple(notices))
@@ -117,8 +173,30 @@ def plant_events(
     """The plant status changes the node would have shown (monitor_* in the parameters).
 
     Over the span the replay read (not read again), window by window as the node; each as
-    one line. Nothing without monitoring. ``progress`` is told each window as it begins
-    ("window k of n, at t s").
+    one line. Nothing without monitoring.
+
+    Parameters
+    ----------
+    replayed : Replayed
+        :func:`replay_recording`'s outcome.
+    what : str
+        How messages name the recording.
+    progress : callable, optional
+        Told each window as it begins ("window k of n, at t s").
+
+    Yields
+    ------
+    str
+        ``plant at <t> s: <LEVEL> <text>`` for each change.
+
+    Raises
+    ------
+    ConfigError
+        A monitoring model at other rates than the loop's.
+    ModelError
+        A monitoring model file that is not a valid model.
+    DataError
+        A monitoring reference that cannot be read.
     """
     if not replayed.monitoring:
         return
@@ -147,10 +225,26 @@ def estimates_in_time(
 ) -> tuple[IdentConfig, Iterator[tuple[float, Estimate]]]:
     """The configuration, and the estimates the node would have published over time.
 
-    (loop time in s, estimate) while the recording was made, lazily
-    (:func:`~mr_ident.live.replay.bag_estimates`).
+    Parameters
+    ----------
+    req : ReplayRequest
+        The recording, its sources, the parameters file and the options.
+    model : Model, optional
+        Its rates, and its controller for the PFG where the parameters give none.
 
-    ``model``: its rates, and its controller for the PFG where the parameters give none.
+    Returns
+    -------
+    IdentConfig
+        The configuration the estimates are made with.
+    iterator of (float, Estimate)
+        (loop time in s, estimate) while the recording was made, lazily
+        (:func:`~mr_ident.live.replay.bag_estimates`): the errors of
+        :func:`replay_recording` come as it is consumed.
+
+    Raises
+    ------
+    FieldError, ConfigError
+        As :func:`replay_config`; some of the sources given, not all.
     """
     from ..live.replay import bag_estimates
     from ..live.spans import DEFAULT_SPAN

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
-from ..errors import FieldError
+from ..errors import FieldError, said
 
 if TYPE_CHECKING:
     from ..numerics.systems.model import Model
@@ -27,16 +27,23 @@ class Notice:
 
     ``kind`` is the word it is shown with (``warning: ...``, ``note: ...``); ``about``
     "reading": about how the recording was read (the command line's stderr), "result":
-    part of the result's own account (its stdout).
+    part of the result's own account (its stdout). ``fields``: the request's fields the
+    text names as ``{field}`` (:class:`~mr_ident.errors.FieldError`'s convention), said by
+    each caller in its own words (:meth:`told`).
     """
 
     kind: Literal["warning", "note"]
     text: str
     about: Literal["reading", "result"] = "reading"
+    fields: tuple[str, ...] = ()
 
-    def line(self) -> str:
-        """The notice as one line: ``<kind>: <text>``."""
-        return f"{self.kind}: {self.text}"
+    def told(self, name: Callable[[str], str] = str) -> str:
+        """The text with every field said as ``name(field)`` (default: as it is)."""
+        return said(self.text, self.fields, name)
+
+    def line(self, name: Callable[[str], str] = str) -> str:
+        """The notice as one line: ``<kind>: <text>``, the fields said as ``name(field)``."""
+        return f"{self.kind}: {self.told(name)}"
 
 
 Notify = Callable[[Notice], None]
@@ -62,8 +69,33 @@ class Heard:
 def source_specs(sources: Mapping[str, Sequence[str]] | None) -> Specs | None:
     """The r, u, y sources as given, or None when none was (all three needed otherwise).
 
-    ``sources``: ``{"r": [...], "u": [...], "y": [...]}`` with empty lists for those not
-    given. ConfigError naming the missing ones.
+    Parameters
+    ----------
+    sources : mapping or None
+        ``{"r": [...], "u": [...], "y": [...]}`` with empty lists for those not given.
+
+    Returns
+    -------
+    dict or None
+        Each signal's list of source specs; None when no source is given.
+
+    Raises
+    ------
+    FieldError
+        Some given, not all: naming the missing ones as fields.
+
+    Examples
+    --------
+    >>> from mr_ident.app.requests import source_specs
+    >>> source_specs({"r": [], "u": [], "y": []}) is None
+    True
+    >>> try:
+    ...     source_specs({"r": ["/a.x"], "u": [], "y": []})
+    ... except ValueError as err:
+    ...     print(err)
+    ...     print(err.told(lambda f: "--" + f))
+    give all of r, u, y with a bag; missing u, y
+    give all of --r, --u, --y with a bag; missing --u, --y
     """
     specs = {sig: list((sources or {}).get(sig, ()) or ()) for sig in ("r", "u", "y")}
     if not any(specs.values()):
@@ -113,12 +145,32 @@ class Reading:
 class IdentifyRequest:
     """P_h and the PFG from a recording, or with ``period`` the BLA of periodic data.
 
-    The options are those of ``mr-ident identify`` (and of its flags' names in the
-    messages): ``fs_high``/``ratio`` None: from the file, the model or the stamps;
-    ``y_rate`` "low"/"high"/None; ``period`` an int N, "auto" or None;
-    ``excitation_index`` the labels' topic of a bag; ``workers`` identification threads
-    (None: every CPU this process may use); ``injection`` where r entered
-    (``plant_input``/``setpoint``; None: as the data show it).
+    The options are those of ``mr-ident identify``; messages name them as fields
+    (``{fs_high}``), which the command line says as its flags.
+
+    Attributes
+    ----------
+    reading : Reading
+        The recording and how to read it.
+    model : Model, path or None
+        The model: its controller gives the PFG, its rates and injection point are checked.
+    fs_high, ratio : float or None, int or None
+        None: from the file, the model or the stamps.
+    method, n, degree, local
+        As :func:`~mr_ident.numerics.identify.identify`.
+    y_rate : {"low", "high"} or None
+        Whether y was measured at the low rate (None: as the file shows it).
+    period : int, "auto" or None
+        Periodic data's period in samples ("auto": a bag's labels say it); None: not
+        periodic.
+    transient_periods : int
+        Whole periods dropped at the start of each realization.
+    excitation_index : str or None
+        The topic of the excitation's labels in a bag.
+    workers : int or None
+        Identification threads (None: every CPU this process may use).
+    injection : {"plant_input", "setpoint"} or None
+        Where r entered (None: as the data show it).
     """
 
     reading: Reading
@@ -141,13 +193,31 @@ class IdentifyRequest:
 class DiagnoseRequest:
     """Where and why ``model`` disagrees with a recording (``mr-ident diagnose``).
 
-    ``validate``: a second recording (read as the first) to validate on; ``more``: further
-    recordings of other excitation realizations, compared with the two as realizations
-    (nonlinear distortion across records); ``names``: how the report names the first two
-    (default: their paths). ``rates``: "file" takes a data file's own
-    rates where it gives them, else the model's (``diagnose``); "agree": ``fs_high``,
-    ``ratio``, the file and the model must agree (``batch``). ``injection``: where r
-    entered (None: as the data show it).
+    Attributes
+    ----------
+    reading : Reading
+        The recording and how to read it.
+    model : Model or path
+        The nominal model.
+    validate : Path or None
+        A second recording (read as the first) to validate on.
+    period : int or None
+        Periodic data's period in samples.
+    n, degree, alpha, max_causes
+        As :func:`~mr_ident.diagnosis.diagnose`.
+    fs_high, ratio : float or None, int or None
+        The rates given (with ``rates`` "agree").
+    rates : {"file", "agree"}
+        "file" takes a data file's own rates where it gives them, else the model's
+        (``diagnose``); "agree": ``fs_high``, ``ratio``, the file and the model must agree
+        (``batch``).
+    names : (str, str) or None
+        How the report names the first two recordings (default: their paths).
+    more : tuple of Path
+        Further recordings of other excitation realizations, compared with the two as
+        realizations (nonlinear distortion across records).
+    injection : {"plant_input", "setpoint"} or None
+        Where r entered (None: as the data show it).
     """
 
     reading: Reading
@@ -170,10 +240,18 @@ class DiagnoseRequest:
 class ReplayRequest:
     """A recording through the node's own steps (``mr-ident replay``).
 
-    ``params``: the node's parameters file (None: the node's defaults); ``y_rate`` and
-    ``excitation_index`` replace its values where given; ``fs_high``/``ratio`` with
-    sources: default from ``params``, else read off the stamps. ``stop``: the window
-    ending at or before this sample index.
+    Attributes
+    ----------
+    reading : Reading
+        The recording and how to read it.
+    params : Path or None
+        The node's parameters file (None: the node's defaults).
+    fs_high, ratio : float or None, int or None
+        With sources: default from ``params``, else read off the stamps.
+    stop : int or None
+        The window ending at or before this sample index (None: the end).
+    y_rate, excitation_index : str or None
+        Replace the parameters' values where given.
     """
 
     reading: Reading
@@ -186,7 +264,21 @@ class ReplayRequest:
 
 
 def load(model: Model | Path | None) -> Model | None:
-    """The model itself: loaded from its YAML where a path is given."""
+    """The model itself: loaded from its YAML where a path is given.
+
+    Parameters
+    ----------
+    model : Model, path or None
+
+    Returns
+    -------
+    Model or None
+
+    Raises
+    ------
+    ModelError
+        The file cannot be read, is not YAML, or is not a valid model.
+    """
     if model is None or not isinstance(model, (str, Path)):
         return model
     from ..io.modelfile import load_model

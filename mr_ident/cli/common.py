@@ -9,7 +9,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..errors import FieldError
+from ..errors import NamesFields
 
 if TYPE_CHECKING:
     from ..app.requests import Notice, Reading
@@ -54,7 +54,7 @@ def recording(
 
 def show(notice: Notice) -> None:
     """A notice of the application: about the reading to stderr, about the result to stdout."""
-    print(notice.line(), file=sys.stderr if notice.about == "reading" else sys.stdout)
+    print(notice.line(flag), file=sys.stderr if notice.about == "reading" else sys.stdout)
 
 
 def write_plots(
@@ -64,6 +64,7 @@ def write_plots(
     F: int,
     N: int,
     model: Model | None,
+    *,
     units: tuple[str, str] | None = None,
 ) -> None:
     """Bode plot of P_h at ``path`` (model drawn when given); with a PFG, ``<path>_pfg``.
@@ -202,4 +203,4 @@ def flag(field: str) -> str:
 
 def told(err: Exception) -> str:
     """An error as the command line says it: a request's fields as its flags."""
-    return err.told(flag) if isinstance(err, FieldError) else str(err)
+    return err.told(flag) if isinstance(err, NamesFields) else str(err)

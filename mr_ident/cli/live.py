@@ -79,7 +79,7 @@ def _report_replayed(args: argparse.Namespace, replayed: Replayed, progress: Pro
         progress(f"writing {args.plot}")
         model = load_model(args.model) if args.model else None
         fs, F, N = cfg.fs_high, cfg.ratio, est.n_samples
-        write_plots(est.identification, args.plot, fs, F, N, model, load_units(args.model))
+        write_plots(est.identification, args.plot, fs, F, N, model, units=load_units(args.model))
     for line in plant_events(replayed, str(args.recording), progress):
         print(line, flush=True)
     return 0

@@ -124,7 +124,7 @@ def _report_identified(
         fs, F, N = outcome.fs_high, outcome.ratio, outcome.n_samples
         from ..io.units import load_units
 
-        write_plots(ident, args.plot, fs, F, N, outcome.model, load_units(args.model))
+        write_plots(ident, args.plot, fs, F, N, outcome.model, units=load_units(args.model))
     return 0
 
 

@@ -235,8 +235,8 @@ def _numeric_trouble_reported(fn: Callable[_P, Diagnosis]) -> Callable[_P, Diagn
     """Numeric trouble in the simulation or the fits becomes a DataError.
 
     A reported ``error:``, never a traceback. OpenBLAS on one thread meanwhile: its threads
-    on the fits' small products cost more than they give (measured at 300 s of 240 Hz: the
-    slowest case of ``benchmarks/bench_diagnose_speed.py`` 18.7 s with them, 14.5 s without).
+    on the fits' small products cost more than they give (``benchmarks/bench_diagnose_speed.py``
+    times a diagnosis).
     """
 
     @functools.wraps(fn)

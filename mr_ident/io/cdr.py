@@ -200,7 +200,7 @@ def walk_all(batch: Batch, reg: Registry, root: str, spec: SourceSpec) -> Values
     """
     w = Walk(batch)
     active = np.ones(batch.size, dtype=bool)
-    value, valid = walk_path(w, reg, root, w.base.copy(), active, list(spec.steps), spec)
+    value, valid = walk_path(w, reg, root, w.base.copy(), active, list(spec.steps), spec=spec)
     return Values(value, valid & ~w.bad)
 
 
@@ -211,6 +211,7 @@ def walk_path(
     pos: IntArray,
     active: BoolArray,
     steps: list[Step],
+    *,
     spec: SourceSpec,
 ) -> tuple[FloatArray, BoolArray]:
     """The rest ``steps`` of a path from ``pos`` (messages of type ``type_``) on ``w``."""
@@ -236,7 +237,7 @@ def walk_path(
             )
         both = w.fields(type_, pos, reg, active, {f.name, key.name})
         index, found = _find(w, key, both[key.name], sib.value, active, spec)
-        return _element(w, reg, f, both[f.name], index, active & found, rest[1:], spec)
+        return _element(w, reg, f, both[f.name], index, active & found, rest=rest[1:], spec=spec)
     at = w.fields(type_, pos, reg, active, {f.name})[f.name]
     if f.array is not None:
         if not rest or rest[0].kind not in ("index", "match"):
@@ -249,19 +250,19 @@ def walk_path(
             count = _count(w, f, at)
             idx = np.where(sel.index < 0, count + sel.index, sel.index)
             return _element(
-                w, reg, f, at, idx, active & (idx >= 0) & (idx < count), rest[1:], spec
+                w, reg, f, at, idx, active & (idx >= 0) & (idx < count), rest=rest[1:], spec=spec
             )
         if f.primitive:
             raise DataError(
                 f"source {spec.text!r}: [:]{{...}} filters an array of messages; "
                 f"{f.name} holds {f.type}"
             )
-        return _match(w, reg, f, at, sel, active, rest[1:], spec)
+        return _match(w, reg, f, at, sel, active, rest=rest[1:], spec=spec)
     if f.primitive:
         if rest:
             raise DataError(f"source {spec.text!r}: {f.name} is a {f.type}; nothing follows it")
         return _scalar(w, f.type, at, spec), active.copy()
-    return walk_path(w, reg, f.type, at, active, rest, spec)
+    return walk_path(w, reg, f.type, at, active, rest, spec=spec)
 
 
 def _scalar(
@@ -286,6 +287,7 @@ def _element(
     pos: IntArray,
     index: IntArray,
     active: BoolArray,
+    *,
     rest: list[Step],
     spec: SourceSpec,
 ) -> tuple[FloatArray, BoolArray]:
@@ -307,7 +309,7 @@ def _element(
         p = w.skip_one(f.type, p, reg, active & (k < index))
     if f.primitive:
         raise DataError(f"source {spec.text!r}: {f.name} holds {f.type}, not numbers")
-    return walk_path(w, reg, f.type, p, active, rest, spec)
+    return walk_path(w, reg, f.type, p, active, rest, spec=spec)
 
 
 def _find(
@@ -348,6 +350,7 @@ def _match(
     pos: IntArray,
     sel: Step,
     active: BoolArray,
+    *,
     rest: list[Step],
     spec: SourceSpec,
 ) -> tuple[FloatArray, BoolArray]:
@@ -374,12 +377,12 @@ def _match(
                 )
             hit = live & (_scalar(w, key.type, kp, spec, value=False) == sel.value)
         if hit.any():
-            v, ok = walk_path(w, reg, f.type, p, hit, rest, spec)
+            v, ok = walk_path(w, reg, f.type, p, hit, rest, spec=spec)
             out = np.where(hit, v, out)
             found |= hit & ok
         p = w.skip_one(f.type, p, reg, active & (k < count))
     if not found.any():  # the rest of the path is checked even with no match
-        walk_path(w, reg, f.type, p, np.zeros_like(active), rest, spec)
+        walk_path(w, reg, f.type, p, np.zeros_like(active), rest, spec=spec)
     return out, found
 
 
@@ -397,7 +400,7 @@ def element_at(
     pos = w.fields(root, w.base.copy(), reg, np.ones(batch.size, bool), {name})[name]
     count = _count(w, f, pos)
     ok = (index >= 0) & (index < count)
-    value, valid = _element(w, reg, f, pos, index, ok, [], spec)
+    value, valid = _element(w, reg, f, pos, index, ok, rest=[], spec=spec)
     return Values(value, valid & ~w.bad)
 
 

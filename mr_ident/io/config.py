@@ -310,7 +310,9 @@ class IdentConfig:
                 f"min_window_s ({self.min_window_s:g}) must not exceed window_s "
                 f"({self.window_s:g})"
             )
-        check_options(self.method, self.lpm_n(1, 1), self.degree, self.ratio, 1, 1, self.local)
+        check_options(
+            self.method, self.lpm_n(1, 1), self.degree, self.ratio, 1, 1, local=self.local
+        )
         if self.method != "etfe":
             need = record_minimum(self.method, self.lpm_n(1, 1), self.ratio)
             if self.min_samples < need:

@@ -81,7 +81,9 @@ def _layout(batch: Batch, i: int, reg: Registry, root: str, spec: SourceSpec) ->
     """The layout of message ``i`` (None when the path gives it no single value)."""
     one = Batch(batch.buf, batch.offset[i : i + 1], batch.length[i : i + 1])
     w = Walk(one, record=True)
-    _, ok = walk_path(w, reg, root, w.base.copy(), np.ones(1, dtype=bool), list(spec.steps), spec)
+    _, ok = walk_path(
+        w, reg, root, w.base.copy(), np.ones(1, dtype=bool), list(spec.steps), spec=spec
+    )
     assert w.log is not None
     reads = [e for e in w.log if e[2]]
     if not ok[0] or w.bad[0] or len(reads) != 1:

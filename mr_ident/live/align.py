@@ -129,6 +129,7 @@ class Aligner:
         capacity: int,
         ratio: int,
         reorder_blocks: int = 8,
+        *,
         channels: Sequence[int] | None = None,
         history: bool = False,
         labels: bool = False,

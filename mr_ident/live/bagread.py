@@ -13,7 +13,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import DataError
+from ..errors import DataError, DataFieldError
 from ..io.bags import Bag
 from ..io.config import IdentConfig
 from ..io.labels import label_sources
@@ -100,13 +100,28 @@ def read_bag(
     ``identify``'s default options' over ``capacity`` samples or the whole bag).
     ``node``: the same samples also into the node's window aligner of that configuration
     (:attr:`BagRead.node`; the bag read once).
+
+    Raises
+    ------
+    DataFieldError
+        Bare topics given as sources (naming ``{topics}``, ``{r}``, ``{u}``, ``{y}``); rates
+        the stamps cannot tell (:func:`~.feed.check_rate`).
+    DataError
+        An unreadable bag, sources that resolve in none of its topics, too few messages,
+        stamps that contradict the rates.
+    ConfigError
+        The block contract mixed with per-sample sources, r and u of unequal counts.
     """
     bag = Bag.open(path, msg_path=msg_path)
     sources = resolve_sources(bag_types(bag), specs, labels)
     if sources.r[0].kind == "blocks":
-        raise DataError(
-            f"{path}: bare topics follow the block contract; give them as --topics, not "
-            "--r/--u/--y"
+        raise DataFieldError(
+            f"{path}: bare topics follow the block contract; give them as {{topics}}, not "
+            "{r}/{u}/{y}",
+            "topics",
+            "r",
+            "u",
+            "y",
         )
     samples = extract(bag, [src for _, _, src in sources.all])
     enough_messages(bag, sources, samples, what=str(path))

@@ -258,8 +258,7 @@ def _r_determined(
 def _controller_low(controller: TransferMatrix, n_low: int) -> NDArray[np.complex128]:
     """K_l on the n_low low-rate bins of a window (read-only; the node's windows share it).
 
-    Every estimate of a node has the same window length: evaluated once, not per estimate
-    (0.03 s at 480 k bins).
+    Every estimate of a node has the same window length: evaluated once, not per estimate.
     """
     K = controller.dft_response(n_low)
     K.flags.writeable = False
@@ -270,9 +269,9 @@ def warm_up(config: IdentConfig, n_samples: int | None = None) -> float:
     """Run one identification of a synthetic window and discard it; return its wall time.
 
     The first identification in a process pays one-time costs: FFT plans for the
-    window length, the LPM's kernel tables, the first touch of its working memory
-    (measured on the 2-core development VM: 1.2-1.6 s instead of 0.7-0.9 s for a
-    1.44 M-sample window). The node calls this once at start-up, off the executor
+    window length, the LPM's kernel tables, the first touch of its working memory (the
+    first identification of a process is the slower: docs/benchmarks.md, "Choices in the
+    code"). The node calls this once at start-up, off the executor
     thread, so that its first real estimate does not. The window is
     ``n_samples`` (default ``config.window_samples``) of white noise with the configured
     channels (the sources' or K_l's n_u and n_y; SISO for block topics without a

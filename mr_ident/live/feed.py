@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError, DataError
+from ..errors import ConfigError, DataError, DataFieldError
 from ..io.bags import Bag
 from ..io.blocks import LABELS_STREAM, STREAMS
 from ..io.sources import Resolved, Samples
@@ -234,7 +234,9 @@ def check_rate(
     Raises
     ------
     DataError
-        The stamps disagree with the configuration, or a rate cannot be told.
+        The stamps disagree with the configuration.
+    DataFieldError
+        A rate the stamps cannot tell and none given: naming ``{fs_high}`` or ``{ratio}``.
     """
     fast = [
         infer_rate(s.stamps)
@@ -249,8 +251,9 @@ def check_rate(
     fs_est = next((f for f in fast if f), None)
     if fs_high is None:
         if fs_est is None:
-            raise DataError(
-                f"{what}: fs_high cannot be told from the stamps (fewer than 3); give --fs-high"
+            raise DataFieldError(
+                f"{what}: fs_high cannot be told from the stamps (fewer than 3); give {{fs_high}}",
+                "fs_high",
             )
         fs_high = fs_est
     elif fs_est is not None and abs(fs_est / fs_high - 1.0) > 0.01:
@@ -270,8 +273,9 @@ def check_rate(
                 f"(low rate {f_low:.6g} Hz), the configuration F = {ratio}"
             )
     if ratio is None:
-        raise DataError(
+        raise DataFieldError(
             f"{what}: the ratio F cannot be told without a held (.@hold) low-rate source; give "
-            "--ratio"
+            "{ratio}",
+            "ratio",
         )
     return float(fs_high), int(ratio)

@@ -120,7 +120,15 @@ def bridging(
         try:
             nj = n or default_n(method, degree, ratio, n_in, n_out, local)
             lim = missing_limits(
-                method, nj, degree, ratio, n_in, n_out, local, n_samples, auto=n == 0
+                method,
+                nj,
+                degree,
+                ratio,
+                n_in,
+                n_out,
+                local=local,
+                n_samples=n_samples,
+                auto=n == 0,
             )
         except MrIdentError:  # options these channels cannot have: identify will say so
             return None

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError, DataError
+from ..errors import ConfigError, DataError, DataFieldError
 from ..numerics.arrays import FloatArray
 from ..numerics.excitation.bla import BLA, LINE_PFG_SOURCE, best_linear_approximation
 from ..numerics.excitation.schedule import labelled_period, realizations_of
@@ -173,11 +173,12 @@ def periodic_bla(cut: Periods, ratio: int = 1) -> BLA:
     lost = np.isnan(cut.u) | np.isnan(cut.y)
     if lost.any():
         m, k = np.argwhere(lost)[0]
-        raise DataError(
+        raise DataFieldError(
             f"u or y miss {int(lost.sum())} samples (NaN) in the periods kept, the first at "
-            f"sample {int(k)} of realization {int(m)}; the periodic average (--period, the "
-            "excitation's labels) needs every sample: identify without --period estimates "
-            "missing samples"
+            f"sample {int(k)} of realization {int(m)}; the periodic average ({{period}}, the "
+            "excitation's labels) needs every sample: identify without {period} estimates "
+            "missing samples",
+            "period",
         )
     return best_linear_approximation(cut.r, cut.u, cut.y, cut.period, ratio=ratio)
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..errors import ConfigError, DataError
+from ..errors import ConfigError, DataError, FieldError
 from ..numerics.signals import LoopData
 from .spans import DEFAULT_SPAN, check_span
 
@@ -53,49 +53,58 @@ def settle_rates(
 ) -> tuple[float, Settled]:
     """fs_high, and F and where r enters as the data show them, which the givens must agree with.
 
-    fs_high from the command line, the data file and the model; F and the injection point
+    fs_high from the request, the data file and the model; F and the injection point
     read from the data (:func:`~mr_ident.numerics.structure.read_structure`) and checked
-    against the command line's, the data file's and the model's
-    (:func:`~mr_ident.numerics.structure.settle_structure`). ConfigError naming the sources
-    when none gives a rate or two disagree.
+    against the request's, the data file's and the model's
+    (:func:`~mr_ident.numerics.structure.settle_structure`). FieldError naming the sources
+    (the request's fields as ``{fs_high}``, ``{ratio}``, ``{injection}``) when none gives a
+    rate or two disagree.
     """
     from ..numerics.structure import read_structure, settle_structure
 
     fs_sources = [
         (n, v)
         for n, v in (
-            ("--fs-high", fs_high),
+            ("{fs_high}", fs_high),
             ("the data file", data.fs_high),
             ("the model", model.fs_high if model else None),
         )
         if v is not None
     ]
     if not fs_sources:
-        raise ConfigError(
-            "fs_high unknown: pass --fs-high or --model, or use an NPZ/CSV that gives it"
+        raise FieldError(
+            "fs_high unknown: pass {fs_high} or {model}, or use an NPZ/CSV that gives it",
+            "fs_high",
+            "model",
         )
     fs = fs_sources[0][1]
     for name, v in fs_sources[1:]:
         if abs(v - fs) > 1e-6 * fs:
-            raise ConfigError(
-                f"fs_high disagrees: {fs_sources[0][0]} says {fs:g} Hz, {name} says {v:g} Hz"
+            raise FieldError(
+                f"fs_high disagrees: {fs_sources[0][0]} says {fs:g} Hz, {name} says {v:g} Hz",
+                "fs_high",
             )
 
     def given(*pairs: tuple[str, Any]) -> list[tuple[str, Any]]:
         return [(n, v) for n, v in pairs if v is not None]
 
-    settled = settle_structure(
-        read_structure(data.r, data.u, data.y),
-        ratios=given(
-            ("--ratio", ratio),
-            ("the data file", data.ratio),
-            ("the model", model.ratio if model else None),
-        ),
-        injections=given(
-            ("--injection", injection), ("the model", model.injection if model else None)
-        ),
-        phases=given(("the model", model.sample_phase if model else None)),
-    )
+    try:
+        settled = settle_structure(
+            read_structure(data.r, data.u, data.y),
+            ratios=given(
+                ("{ratio}", ratio),
+                ("the data file", data.ratio),
+                ("the model", model.ratio if model else None),
+            ),
+            injections=given(
+                ("{injection}", injection), ("the model", model.injection if model else None)
+            ),
+            phases=given(("the model", model.sample_phase if model else None)),
+        )
+    except FieldError:
+        raise
+    except ConfigError as err:  # the given named as the request's fields
+        raise FieldError(str(err), "ratio", "injection") from err
     return float(fs), settled
 
 
@@ -127,6 +136,10 @@ def load_recording(
         aligned with them (the data's ``labels``; "": none)
     complete : a bag's holes of u and y are not bridged (every hole splits it into spans,
         ``span`` chooses): for a reader that needs every sample (the periodic average)
+
+    Errors and notes name the request's fields as ``{field}`` (``{ratio}``, ``{r}``,
+    ``{span}``: :class:`~mr_ident.errors.NamesFields`, :data:`~.spans.NOTE_FIELDS`), for the
+    caller to say in its own words.
     """
     check_span(span)
     p = Path(path)
@@ -137,14 +150,18 @@ def load_recording(
         )
     if not is_bag(p):
         if labels:
-            raise ConfigError(
+            raise FieldError(
                 f"excitation labels are read from a bag; {str(p)!r} is a data file (an NPZ "
-                "of r, u, y of shape (M realizations, n) is cut by --period N)"
+                "of r, u, y of shape (M realizations, n) is cut by {period} N)",
+                "period",
             )
         if specs is not None:
-            raise ConfigError(
-                f"--r/--u/--y name sources in a bag; {str(p)!r} is a data file (give it "
-                "without them)"
+            raise FieldError(
+                f"{{r}}/{{u}}/{{y}} name sources in a bag; {str(p)!r} is a data file (give it "
+                "without them)",
+                "r",
+                "u",
+                "y",
             )
         from ..io.datafile import read_data
 
@@ -156,9 +173,9 @@ def load_recording(
         from .replay import recorded_signals
 
         if ratio is None:
-            raise ConfigError("ratio F unknown: pass --ratio or --model")
+            raise FieldError("ratio F unknown: pass {ratio} or {model}", "ratio", "model")
         if fs_high is None:
-            raise ConfigError("fs_high unknown: pass --fs-high or --model")
+            raise FieldError("fs_high unknown: pass {fs_high} or {model}", "fs_high", "model")
         data, info = recorded_signals(
             p, ratio, topics=topics, span=span, labels=labels, bridge=no if complete else None
         )

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from ..errors import DataError
+from ..errors import DataError, DataFieldError
 from ..io.blocks import Block, BlockError
 from ..io.config import IdentConfig
 from ..io.recording import RecordingInfo, read_blocks
@@ -334,6 +334,8 @@ def _chosen(
     """The ``span`` of an aligner with history, and ``info`` with its span and why (a copy)."""
     try:
         w, note = choose(al, span, what=what)
+    except DataFieldError as err:  # the request's fields kept for the caller to say
+        raise DataFieldError(err.template + _what_broke(al, notes, info), *err.fields) from None
     except DataError as err:
         raise DataError(f"{err}{_what_broke(al, notes, info)}") from None
     broken = note + _what_broke(al, notes) if note else info.broken

@@ -1,5 +1,5 @@
 # SPDX-License-Identifier: Apache-2.0
-"""Which span of a recording is used: ``--span latest|longest|all``.
+"""Which span of a recording is used: the request's ``span``, latest|longest|all.
 
 A hole of u or y (a dropped message, a NaN block) within the bridging limits
 (:mod:`mr_ident.live.gaps`) is kept as missing samples: the span goes on over it. A
@@ -22,7 +22,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-from ..errors import ConfigError, DataError
+from ..errors import ConfigError, DataError, DataFieldError
 
 if TYPE_CHECKING:  # numpy-free at import: the parser takes SPANS from here
     from ..numerics.signals import LoopData
@@ -30,6 +30,9 @@ if TYPE_CHECKING:  # numpy-free at import: the parser takes SPANS from here
 
 SPANS = ("longest", "latest", "all")
 DEFAULT_SPAN = "longest"
+#: The request's fields a reading's notes name as ``{field}`` (which span: ``{span}``), for
+#: the caller to say in its own words (:class:`~mr_ident.app.requests.Notice`'s ``fields``).
+NOTE_FIELDS = ("span",)
 
 
 def check_span(span: str) -> str:
@@ -72,7 +75,11 @@ def choose(al: Aligner, span: str, *, what: str) -> tuple[LoopData, str]:
     Raises
     ------
     DataError
-        No aligned sample at all, or ``span == "all"`` and the recording has gaps.
+        No aligned sample at all.
+    DataFieldError
+        ``span == "all"`` and the recording has gaps (naming ``{span}``).
+
+    The note names ``{span}`` too (:data:`NOTE_FIELDS`).
     """
     check_span(span)
     spans = al.spans()
@@ -82,9 +89,10 @@ def choose(al: Aligner, span: str, *, what: str) -> tuple[LoopData, str]:
     if len(spans) == 1:
         return al.extract(*spans[0]), ""
     if span == "all":
-        raise DataError(
-            f"{what}: --span all needs a recording without gaps too long to bridge; it "
-            f"holds {describe(spans)}{why(al)} (--span longest or latest uses one span)"
+        raise DataFieldError(
+            f"{what}: {{span}} all needs a recording without gaps too long to bridge; it "
+            f"holds {describe(spans)}{why(al)} ({{span}} longest or latest uses one span)",
+            "span",
         )
     if span == "latest":
         lo, hi = spans[-1]
@@ -92,7 +100,7 @@ def choose(al: Aligner, span: str, *, what: str) -> tuple[LoopData, str]:
         lo, hi = max(spans, key=lambda s: (s[1] - s[0], s[0]))
     note = (
         f"using the {span} span [{lo}, {hi}) of {hi - lo} samples; "
-        f"{describe(spans)}{why(al)} (--span latest|longest|all chooses)"
+        f"{describe(spans)}{why(al)} ({{span}} latest|longest|all chooses)"
     )
     return al.extract(lo, hi), note
 

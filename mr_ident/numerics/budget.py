@@ -10,8 +10,8 @@ the same whatever the loop. Sizes are powers of two (the blocks tile the bins ev
 from __future__ import annotations
 
 #: LPM bins per chunk for up to twice a SISO loop's unknowns at F = 3 (the factor
-#: alone is 12 x 12 x 4096 complex = 9.4 MB for 3 inputs, R = 2). Of 1024..8192, 4096 was
-#: the fastest on the 2-core development machine.
+#: alone is 12 x 12 x 4096 complex = 9.4 MB for 3 inputs, R = 2): of 1024..8192, the one
+#: timed fastest at the paper's size.
 CHUNK_BINS = 4096
 
 #: Low-rate bins per block of the frequency-lifted path for a SISO loop at F = 3; the

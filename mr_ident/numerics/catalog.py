@@ -2,7 +2,7 @@
 """Names offered on the command line, importable without numpy or scipy.
 
 The parser needs the method names to build ``--method``; importing the methods themselves
-would load scipy first and cost a second of start-up. :data:`METHOD_NAMES` is checked
+would load numpy and the numerics before ``--help`` could answer. :data:`METHOD_NAMES` is checked
 against :data:`~mr_ident.numerics.lifted.methods.METHODS` by the tests.
 """
 

@@ -182,11 +182,13 @@ def identify(
         phase=phase, y_phase=y_phase, injection=injection, workers=workers,
     )  # fmt: skip
     u_fit, y_fit, n_missing, share = _missing_filled(p, degree, local)
-    fit, n_used, pfg_data = _fitted(p, u_fit, y_fit, share, degree, local, keep_lifted)
+    fit, n_used, pfg_data = _fitted(
+        p, u_fit, y_fit, share, degree=degree, local=local, keep_lifted=keep_lifted
+    )
     plant, std_half, undetermined = _plant_of(p, fit, n_used)
     pfg = None
     if controller_low is not None:
-        pfg = _pfg_of(p, fit, std_half, undetermined, controller_low, phase, delay)
+        pfg = _pfg_of(p, fit, std_half, undetermined, controller_low, phase=phase, delay=delay)
     return Identification(
         plant=plant,
         pfg=pfg,
@@ -212,8 +214,7 @@ def _missing_filled(
     n_missing = np.concatenate([np.isnan(p.y).sum(axis=0), np.isnan(p.u).sum(axis=0)])
     if not n_missing.any():
         return p.u, p.y, n_missing, None
-    auto = len(p.widths) > 1
-    u, y, share = _fill(p.r, p.u, p.y, p.method, p.fit_ratio, p.n0, degree, local, n_missing, auto)
+    u, y, share = _fill(p, degree=degree, local=local, counts=n_missing)
     return u, y, n_missing, share
 
 
@@ -222,6 +223,7 @@ def _fitted(
     u: FloatArray,
     y: FloatArray,
     share: FloatArray | None,
+    *,
     degree: int,
     local: str,
     keep_lifted: bool,
@@ -237,7 +239,7 @@ def _fitted(
     def fit_with(
         nj: int, keep: bool, data_pfg: bool, runs: tuple[Run, ...] | None, workers: int
     ) -> PlantFit:
-        qj = check_options(p.method, nj, degree, F_fit, ra.shape[1], n_out, local)
+        qj = check_options(p.method, nj, degree, F_fit, ra.shape[1], n_out, local=local)
         return m.fit(
             FitRequest(
                 ra,
@@ -273,9 +275,7 @@ def _fitted(
         pfg_data = (
             None
             if p.slow or p.high
-            else _data_pfg(
-                fit, ra, u, y, p.ratio, p.n0, degree, local, p.workers, p.fs_high, share
-            )
+            else _data_pfg(p, fit, u, y, degree=degree, local=local, share=share)
         )
     return fit, n_used, pfg_data
 
@@ -307,6 +307,7 @@ def _pfg_of(
     std_half: FloatArray,
     undetermined: BoolArray | None,
     controller_low: ArrayLike,
+    *,
     phase: int,
     delay: int,
 ) -> PFG:
@@ -339,29 +340,21 @@ def _pfg_of(
 
 
 def _fill(
-    r: FloatArray,
-    u: FloatArray,
-    y: FloatArray,
-    method: str,
-    ratio: int,
-    n: int,
-    degree: int,
-    local: str,
-    counts: IntArray,
-    auto: bool = False,
+    p: Plan, *, degree: int, local: str, counts: IntArray
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """The u and y with their missing (NaN) samples estimated; each channel's missing share.
 
+    ``counts``: the missing samples of each channel of y, then of u.
     :func:`~mr_ident.numerics.lifted.missing.estimate_missing` on the lifted polynomial
-    fit r -> [y; u] with the window ``n`` of a lifted method, else freq-lifted's default
-    window (at least ``n``); with the automatic window (``auto``) twice that, as the record
-    allows (at the base window the narrowest candidate absorbs the estimates' errors and
-    the rule picks narrow windows: 1.46x the error with 1 % missing, against 1.00x at
-    twice the base, paper's loop); DataError beyond the
-    share of missing samples the windows carry
-    (:func:`~mr_ident.numerics.lifted.missing.check_share`), for a low-rate y, or for a
-    record too short for the lifted fit.
+    fit r -> [y; u] (at the fit's F) with the base window ``p.n0`` of a lifted method, else
+    freq-lifted's default window (at least ``p.n0``); with the automatic window twice that,
+    as the record allows (at the base window the narrowest candidate absorbs the
+    estimates' errors and the rule picks narrow windows: 1.46x the error with 1 % missing,
+    against 1.00x at twice the base, paper's loop); DataError beyond the share of missing
+    samples the windows carry (:func:`~mr_ident.numerics.lifted.missing.check_share`), for
+    a low-rate y, or for a record too short for the lifted fit.
     """
+    r, u, y, ratio = p.r, p.u, p.y, p.fit_ratio
     N, nr, ny, nu = r.shape[0], r.shape[1], y.shape[1], u.shape[1]
     n_out = max(ny, nu)
     if y.shape[0] != N:
@@ -369,7 +362,10 @@ def _fill(
             "y at the low rate has NaN samples; missing samples are estimated for a "
             "high-rate y (N samples) only"
         )
-    rules = missing_rules(method, n, degree, ratio, nr, n_out, local, N, auto)
+    auto = len(p.widths) > 1
+    rules = missing_rules(
+        p.method, p.n0, degree, ratio, nr, n_out, local=local, n_samples=N, auto=auto
+    )
     n_theta = rules[0][1]
     lifted = METHODS["freq-lifted"]
     if N < lifted.min_samples(n_theta, ratio):
@@ -431,26 +427,25 @@ DATA_PFG_SOURCE = "data:lifted r->y"
 
 
 def _data_pfg(
+    p: Plan,
     fit: PlantFit,
-    r: FloatArray,
     u: FloatArray,
     y: FloatArray,
-    ratio: int,
-    n: int,
+    *,
     degree: int,
     local: str,
-    workers: int,
-    fs_high: float,
-    share: FloatArray | None = None,
+    share: FloatArray | None,
 ) -> PFG | None:
     """The PFG from freq-lifted's fit r -> [y; u]: the method's own, else that fit once more.
 
     freq-lifted's own fit has the method's windows (the chosen widths with ``n="auto"``).
     The extra fit has the method's local model and takes the larger of the method's window
-    ``n`` (the base window with ``n="auto"``) and freq-lifted's default for that model
+    (the base window ``p.n0`` with ``n="auto"``) and freq-lifted's default for that model
     (:func:`default_n`), so every method gives freq-lifted's PFG from data; None (with a
-    warning) when the record is too short for it.
+    warning) when the record is too short for it. ``u``, ``y``: with their missing samples
+    estimated (``share``: each channel's missing share).
     """
+    r, ratio, n, fs_high = p.r, p.ratio, p.n0, p.fs_high
     N, nr, n_out = r.shape[0], r.shape[1], max(y.shape[1], u.shape[1])
     gain, var = fit.pfg_half, fit.pfg_var_half
     if gain is None or var is None:
@@ -463,7 +458,9 @@ def _data_pfg(
                 stacklevel=4,
             )
             return None
-        check_options("freq-lifted", n_pfg, degree, ratio, nr, n_out, local)
-        gain, var = fit_data_pfg(r, u, y, ratio, n_pfg, degree, local, workers, share)
+        check_options("freq-lifted", n_pfg, degree, ratio, nr, n_out, local=local)
+        gain, var = fit_data_pfg(
+            r, u, y, ratio, n_pfg, degree, local=local, workers=p.workers, missing=share
+        )
     freq = np.arange(1, N // 2 + 1) * fs_high / N
     return PFG(freq, gain[1:], np.sqrt(np.maximum(var[1:], 0.0)), DATA_PFG_SOURCE)

@@ -139,7 +139,7 @@ def plan(
     if auto and n != AUTO:
         raise ConfigError(f'n must be an integer >= 1, None or "{AUTO}", got {n!r}')
     n0 = n_min if n is None or isinstance(n, str) else n
-    check_options(method, n0, degree, F_fit, ra.shape[1], max(ny, nu), local)
+    check_options(method, n0, degree, F_fit, ra.shape[1], max(ny, nu), local=local)
     if m.uses_lpm and N < m.min_samples(n0, F_fit):
         raise DataError(
             f"too few samples for the LPM window: {method} needs {2 * (2 * n0 + 1)} independent "

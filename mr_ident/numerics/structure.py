@@ -34,7 +34,7 @@ from typing import TypeVar
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..errors import ConfigError
+from ..errors import ConfigError, FieldError
 from .arrays import FloatArray
 
 #: Changes of a held signal are below this share of its largest magnitude: round-off of
@@ -325,13 +325,19 @@ def _agreed(
     return value
 
 
+#: The request's fields :attr:`Settled.notes` name as ``{field}``
+#: (:class:`~mr_ident.errors.FieldError`'s convention).
+NOTE_FIELDS = ("injection",)
+
+
 @dataclass(frozen=True)
 class Settled:
     """The loop's structure the data and the user agree on.
 
     ``ratio``: F; ``injection``: where r enters; ``phase``: the controller's sampling phase
     for a setpoint (None: the caller's, e.g. the model's); ``found``: what the data show;
-    ``notes``: what the user should know (a value taken because the data do not tell it).
+    ``notes``: what the user should know (a value taken because the data do not tell it),
+    naming the request's fields as ``{field}`` (:data:`NOTE_FIELDS`) for the caller to say.
     """
 
     ratio: int
@@ -350,10 +356,11 @@ def settle_structure(
 ) -> Settled:
     """F, the injection point and a setpoint's phase: the data's, and the given must agree.
 
-    Each list holds ``(who says it, value)`` as the user gave it (a flag, the data file,
-    the model), first the one that counts. Where the data show a value, a given one that
-    differs is refused (ConfigError naming both); where they do not, the first given is
-    taken (F: ConfigError when none is; the injection point: the plant input, with a note).
+    Each list holds ``(who says it, value)`` as the user gave it (a request's field, the
+    data file, the model), first the one that counts. Where the data show a value, a given
+    one that differs is refused (ConfigError naming both); where they do not, the first
+    given is taken (F: FieldError naming ``{ratio}`` and ``{model}`` when none is; the
+    injection point: the plant input, with a note).
     """
     notes: list[str] = []
     ratio = _agreed(
@@ -365,8 +372,10 @@ def settle_structure(
         ),
     )
     if ratio is None:
-        raise ConfigError(
-            "ratio F unknown: u shows no hold to read it from; pass --ratio or --model"
+        raise FieldError(
+            "ratio F unknown: u shows no hold to read it from; pass {ratio} or {model}",
+            "ratio",
+            "model",
         )
     injection = _agreed(
         "injection",
@@ -379,7 +388,7 @@ def settle_structure(
         if found.ratio is not None or found.held == "none":
             notes.append(
                 f"{found.describe()}; r taken as added at the plant input (state the "
-                "injection point, e.g. --injection setpoint, where it is the setpoint)"
+                "injection point, e.g. {injection} setpoint, where it is the setpoint)"
             )
     phase = None
     if injection == SETPOINT:

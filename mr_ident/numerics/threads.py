@@ -3,8 +3,8 @@
 
 NumPy and SciPy release the GIL inside their loops, so blocks of bins run in
 parallel on threads. OpenBLAS's own threads are limited to one while the block
-threads run: the two kinds of threads would otherwise compete for the cores
-(measured: no gain at all without the limit, 1.9x on 2 cores with it).
+threads run: the two kinds of threads would otherwise compete for the cores, and the
+block threads would gain nothing.
 """
 
 from __future__ import annotations
@@ -59,8 +59,7 @@ def resolve_workers(workers: int | None) -> int:
 def one_blas_thread() -> Any:
     """Context: OpenBLAS on one thread (the libraries found at import, never searched again).
 
-    Its threads on the small batched products of the LPM made one fit up to 30x slower on
-    the shared 2-core machine.
+    Its threads cost more than they give on the small batched products of the LPM.
     """
     if _BLAS is None:
         return contextlib.nullcontext()

@@ -112,7 +112,14 @@ def run_demo(
                 try:
                     try:
                         _listen(
-                            rclpy, listener, live, cfg, procs["node"], procs["sim"], timeout, stop
+                            rclpy,
+                            listener,
+                            live,
+                            cfg,
+                            node_proc=procs["node"],
+                            sim_proc=procs["sim"],
+                            timeout=timeout,
+                            stop=stop,
                         )
                     finally:
                         _stop(procs["sim"])
@@ -184,6 +191,7 @@ def _listen(
     n,
     live: _Live,
     cfg,
+    *,
     node_proc,
     sim_proc,
     timeout: float,

@@ -132,9 +132,9 @@ MIN_SEGMENT = 200
 MAX_MISSING = 0.2
 #: ... and most columns of u's holes per segment (module docstring, "Missing samples") ...
 MAX_HOLE_COLUMNS = 400
-#: ... and most ``samples x columns²`` per segment (the projection's cost: 4e8 is 0.1-0.5 s
-#: per segment and channel on a shared core; a 10 kHz record of 60 s, 50 000 samples a
-#: segment, takes 89 columns in all, the free responses among them).
+#: ... and most ``samples x columns²`` per segment (the projection's cost, which this bounds
+#: per segment and channel; a 10 kHz record of 60 s, 50 000 samples a segment, takes 89
+#: columns in all, the free responses among them).
 MAX_HOLE_WORK = 4e8
 
 
@@ -379,6 +379,7 @@ def _project_all(
     free: FloatArray,
     h: FloatArray,
     k: int,
+    *,
     step: bool = False,
 ) -> tuple[FloatArray, FloatArray, BoolArray] | None:
     """``y`` and ``ŷ`` (k size, n_y) projected per segment and channel; 0 where not kept.

@@ -43,8 +43,7 @@ def _gram_solver(G: FloatArray) -> Callable[[FloatArray], FloatArray]:
     """``b -> G⁺ b`` for a Gram matrix G: by Cholesky where it is well conditioned.
 
     Else (holes whose columns the weight makes nearly alike) by its eigenvalues, those
-    below :data:`GRAM_RCOND` of the largest dropped. Cholesky is a third of the work
-    (3000 holes: 19 s by eigenvalues on a loaded machine).
+    below :data:`GRAM_RCOND` of the largest dropped. Cholesky is a third of the work.
     """
     if not G.size:
         return lambda b: np.zeros_like(b)
@@ -148,7 +147,7 @@ def beyond_limits(rec: LoopData, n: int, degree: int = 2, ratio: int | None = No
     n_out = max(rec.u.shape[1], rec.y.shape[1])
     try:
         lim = missing_limits(
-            "freq-lifted", n, degree, F, rec.r.shape[1], n_out, "polynomial", rec.n_samples
+            "freq-lifted", n, degree, F, rec.r.shape[1], n_out, n_samples=rec.n_samples
         )
     except MrIdentError as err:
         return f"the fit carries no missing sample with these options ({err})"

@@ -72,8 +72,8 @@ def project_out(A: FloatArray, b: FloatArray) -> FloatArray:
     """``b`` less its least-squares fit by the columns of ``A`` (m, k), m >> k.
 
     By the normal equations of the unit-scaled columns, refined once, where their Gram
-    matrix's condition is below :data:`GRAM_COND` (four times faster than an SVD at
-    m = 42 000, k = 10); otherwise by the SVD with ``rcond`` 1e-10 (nearly equal columns).
+    matrix's condition is below :data:`GRAM_COND` (cheaper than an SVD: docs/benchmarks.md,
+    "Choices in the code"); otherwise by the SVD with ``rcond`` 1e-10 (nearly equal columns).
     Columns below 1e-12 of the largest one's norm are left out (rounding: a mode y does not see);
     the others count alike, however weakly y sees their mode (an SVD of the unscaled
     columns would drop a free response 1e-10 the size of another's).

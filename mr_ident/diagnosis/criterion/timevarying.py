@@ -171,7 +171,7 @@ def pooled(
             S[m] += np.bincount(block, x.real, J) + 1j * np.bincount(block, x.imag, J)
     k = grid_bins(f, df)
     piece = 2 * k // low_bins if low_bins > 0 else np.zeros_like(k)  # one fit's neighbours
-    C = _block_covariance(k, piece, block, h, J, (window - 1) // 2, degree)
+    C = _block_covariance(k, piece, block, h, J, (window - 1) // 2, degree=degree)
     used = W > 0
     J = int(np.count_nonzero(used))
     if J < 2:
@@ -203,6 +203,7 @@ def _block_covariance(
     h: FloatArray,
     J: int,
     n: int,
+    *,
     degree: int,
 ) -> FloatArray:
     """``Σ h_k h_k' ρ(|k - k'|)`` over the lines of blocks j, j' (module docstring).

@@ -71,7 +71,7 @@ def with_equivalents(
             k = CAUSES.get(name)
             if k is None or name == fit.cause or name in others or not score < near:
                 continue
-            got = swap(obj, screen, nominal, plant, choices, j, k)
+            got = swap(obj, screen, nominal, plant, choices, j, cause=k)
             if got is None or not got[0] < bic + ACCEPT_MARGIN:
                 continue
             trial, cost = got[1], got[2]

@@ -164,7 +164,7 @@ def select(
         accepted += 1
     if chosen:
         chosen, cur_bic = _finished(
-            est_full, est_screen, nominal, plant, applicable, chosen, cur_bic
+            est_full, est_screen, nominal, plant, applicable, chosen, cur_bic=cur_bic
         )
     stds = parameter_std(est_full, nominal, chosen)
     fits = [
@@ -182,6 +182,7 @@ def _finished(
     plant: PlantData | None,
     applicable: list[Cause],
     chosen: list[Choice],
+    *,
     cur_bic: float,
 ) -> tuple[list[Choice], float]:
     """The selected causes simplified, pruned again, their values from the whole record.
@@ -191,7 +192,7 @@ def _finished(
     all of the estimation data. Returns the causes and their BIC.
     """
     simpler, cur_cost, cur_bic = _simplify(
-        est_full, est_screen, nominal, plant, applicable, chosen, cur_bic
+        est_full, est_screen, nominal, plant, applicable, chosen, bic=cur_bic
     )
     if simpler != chosen:  # what a replaced cause had left to the others may go now
         simpler, cur_cost, cur_bic = _prune(
@@ -251,6 +252,7 @@ def swap(
     plant: PlantData | None,
     chosen: list[Choice],
     j: int,
+    *,
     cause: Cause,
 ) -> tuple[float, list[Choice], float] | None:
     """``chosen`` with ``cause`` in place of its ``j``-th: (BIC, choices, cost), or None.
@@ -277,6 +279,7 @@ def _simplify(
     plant: PlantData | None,
     applicable: list[Cause],
     chosen: list[Choice],
+    *,
     bic: float,
 ) -> tuple[list[Choice], float, float]:
     """Each chosen cause replaced by a simpler one where that explains as much.
@@ -301,7 +304,7 @@ def _simplify(
         ]
         best: tuple[float, list[Choice], float] | None = None
         for k in simpler:
-            got = swap(obj, screen, nominal, plant, chosen, j, k)
+            got = swap(obj, screen, nominal, plant, chosen, j, cause=k)
             if (
                 got is not None
                 and got[0] < bic + ACCEPT_MARGIN

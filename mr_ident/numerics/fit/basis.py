@@ -139,7 +139,7 @@ def _split_delay(delay: float, h: float) -> tuple[int, float]:
 
 
 def _fractions(
-    p: ComplexArray, z: ComplexArray, domain: str, h: float, m: int, eps: float, kind: str
+    p: ComplexArray, z: ComplexArray, domain: str, h: float, m: int, *, eps: float, kind: str
 ) -> ComplexArray:
     """Each pole's basis function at the bins (K, n), or its derivative.
 
@@ -173,6 +173,7 @@ def _assemble(
     domain: str,
     h: float,
     delay: float,
+    *,
     kind: str,
     direct: bool,
 ) -> ComplexArray:
@@ -184,8 +185,8 @@ def _assemble(
     n = int(width.sum())
     out = np.zeros((z.size, n + (1 if direct else 0)), dtype=complex)
     if poles.size:
-        B = _fractions(poles, z, domain, h, m, eps, kind)
-        Bc = _fractions(poles[pair].conj(), z, domain, h, m, eps, kind)
+        B = _fractions(poles, z, domain, h, m, eps=eps, kind=kind)
+        Bc = _fractions(poles[pair].conj(), z, domain, h, m, eps=eps, kind=kind)
         out[:, first[~pair]] = B[:, ~pair]
         out[:, first[pair]] = B[:, pair] + Bc
         out[:, first[pair] + 1] = 1j * (B[:, pair] - Bc)
@@ -207,7 +208,7 @@ def columns(
 
     Column order: per pole its one (real) or two (pair) columns, then the direct term.
     """
-    return _assemble(poles, z, domain, h, delay, "value", direct)
+    return _assemble(poles, z, domain, h, delay, kind="value", direct=direct)
 
 
 def pole_derivatives(
@@ -219,7 +220,7 @@ def pole_derivatives(
     ``ψ1 = b'(p) + b'(p̄)``, ``ψ2 = j(b'(p) - b'(p̄))`` (returned), and ``∂/∂Im p``:
     ``∂φ1 = ψ2``, ``∂φ2 = -ψ1``.
     """
-    return _assemble(poles, z, domain, h, delay, "pole", False)
+    return _assemble(poles, z, domain, h, delay, kind="pole", direct=False)
 
 
 def delay_derivatives(
@@ -229,7 +230,7 @@ def delay_derivatives(
 
     The direct term's column is piecewise constant in τ: its derivative is 0.
     """
-    return _assemble(poles, z, "continuous", h, delay, "delay", direct)
+    return _assemble(poles, z, "continuous", h, delay, kind="delay", direct=direct)
 
 
 def residues_of(

@@ -372,7 +372,9 @@ def _fit(frf: FRF, options: FitOptions) -> FitResult:
         def bound(n_terms: int) -> tuple[float, float]:
             return expected_band(n_terms, p, noise_dof, corr)
 
-        sol, start_cond = fit_order(prob, f, n, fs, at, free, max_delay, bound)
+        sol, start_cond = fit_order(
+            prob, f, n, fs, delays=at, free_delay=free, max_delay=max_delay, bound=bound
+        )
         poles, v = sol.poles, sol.cost
         e, sd = expected_band(N, p, noise_dof, corr)
         stable = bool(
@@ -399,12 +401,16 @@ def _fit(frf: FRF, options: FitOptions) -> FitResult:
     kept = chosen if chosen is not None else fallback
     assert kept is not None
     shape = frf.response.shape[1:]
-    out = _result(prob, kept, free_delay, f, shape, tuple(reports), options)
+    out = _result(
+        prob, kept, f, shape, free_delay=free_delay, reports=tuple(reports), options=options
+    )
     if free_delay and out.delay_std > h:
         # the data do not pin the delay: the fit with it fixed at 0, unless that costs more
         fixed = fit_at(kept.report.order, [0.0], False)
         if fixed.solution.cost <= kept.solution.cost + 2.0 * kept.report.sd:
-            zero = _result(prob, fixed, False, f, shape, tuple(reports), options)
+            zero = _result(
+                prob, fixed, f, shape, free_delay=False, reports=tuple(reports), options=options
+            )
             out = replace(zero, delay_std=out.delay_std, delay_determined=False)
     return out
 
@@ -412,9 +418,10 @@ def _fit(frf: FRF, options: FitOptions) -> FitResult:
 def _result(
     prob: Problem,
     kept: _Candidate,
-    free_delay: bool,
     f: FloatArray,
     shape: tuple[int, ...],
+    *,
+    free_delay: bool,
     reports: tuple[OrderReport, ...],
     options: FitOptions,
 ) -> FitResult:

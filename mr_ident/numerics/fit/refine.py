@@ -9,12 +9,12 @@ the stable parametrisation. Nothing of the size bins x parameters is factorised:
 product the method needs is a Gram matrix summed over blocks of bins (:mod:`.normal`).
 Every entry's Jacobian is the same pole derivatives Ψ mixed by its own coefficients
 (``Dₑ = Ψ Mₑ``), so one step is one weighted Gram of the common ``[Φ, Ψ]`` per entry
-(1e5 bins, 3 x 3, order 40: about 1.1 s of one core, the residues' solve at a trial
-point 0.5 s). The Jacobian is Kaufman's (1975), ``J = -√2 P⊥ D`` with ``D = ∂(Φ c)/∂x``
-from the exact pole derivatives of the columns (:func:`~.basis.pole_derivatives`); its
-normal matrix ``JᵀJ = 2 (DᵀD - DᵀA (AᵀA)⁻¹ AᵀD)`` and the gradient ``Jᵀr = -2 Re(Dᴴ r)``
-(exact: the dropped term is orthogonal to r). The covariance of every parameter is that of
-the full problem at the minimum, ``(JᵀJ)⁻¹`` of the residual in units of its std (real and
+(``make bench-fit`` times the whole fit at 1e5 bins, 3 x 3, order 40). The Jacobian is
+Kaufman's (1975), ``J = -√2 P⊥ D`` with ``D = ∂(Φ c)/∂x`` from the exact pole derivatives of
+the columns (:func:`~.basis.pole_derivatives`); its normal matrix
+``JᵀJ = 2 (DᵀD - DᵀA (AᵀA)⁻¹ AᵀD)`` and the gradient ``Jᵀr = -2 Re(Dᴴ r)`` (exact: the
+dropped term is orthogonal to r). The covariance of every parameter is that of the full
+problem at the minimum, ``(JᵀJ)⁻¹`` of the residual in units of its std (real and
 imaginary parts each of variance σ²/2 for the LPM's circular errors).
 """
 

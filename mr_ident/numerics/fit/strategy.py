@@ -102,6 +102,7 @@ def _start(
     W: FloatArray,
     order: int,
     fs: float,
+    *,
     delays: list[float],
     sd: float,
 ) -> tuple[float, ComplexArray, float, float]:
@@ -159,6 +160,7 @@ def fit_order(
     f: FloatArray,
     order: int,
     fs: float,
+    *,
     delays: list[float],
     free_delay: bool,
     max_delay: float,
@@ -183,7 +185,7 @@ def fit_order(
     sol: Solution | None = None
     first, cond = np.inf, 1.0
     for W in (coarse.W, rel):
-        v, poles, tau, kappa = _start(coarse, fc, W, order, fs, delays, sd)
+        v, poles, tau, kappa = _start(coarse, fc, W, order, fs, delays=delays, sd=sd)
         cond = max(cond, kappa)
         first = min(first, v)
         if sol is not None and v > SECOND_START * first:

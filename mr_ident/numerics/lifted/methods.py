@@ -204,6 +204,7 @@ def _store_half(
     bins: IntArray,
     P: ComplexArray,
     var: FloatArray,
+    *,
     ratio: int,
     n_samples: int,
 ) -> None:
@@ -296,12 +297,19 @@ def _freq_lifted(req: FitRequest, *, lti: bool = False) -> PlantFit:
             Pk, var = unlift_frf(P.transpose(2, 0, 1), F), unlift_variance(rdiag.T, cdiag.T, F)
             if extra is not None:  # the diagonal blocks, as for P
                 var = var + unlift_frf(extra.transpose(2, 0, 1), F).real
-        _store_half(P_half, var_half, kb, Pk, var, F, N)
+        _store_half(P_half, var_half, kb, Pk, var, ratio=F, n_samples=N)
         if pfg is not None:
             G, Cv, d = fit.G, fit.noise_cov, fit.den
             den = None if d is None else DenominatorTerm(d.gain[: F * ny], d.cov)
             store_lifted_pfg(
-                *pfg, kb, G[: F * ny], Cv[: F * ny, : F * ny], fit.inv_gram, F, N, den
+                *pfg,
+                kb,
+                G[: F * ny],
+                Cv[: F * ny, : F * ny],
+                fit.inv_gram,
+                ratio=F,
+                n_samples=N,
+                den=den,
             )
         lifted = (fit.G, fit.noise_cov, fit.inv_gram)
         kept = _LiftedParts(*(a.transpose(2, 0, 1) for a in lifted)) if keep else None
@@ -318,7 +326,7 @@ def _freq_lifted(req: FitRequest, *, lti: bool = False) -> PlantFit:
     Cv = in_bin_order(segs, [p.noise_cov for p in parts], Kc + 1)
     Ainv = in_bin_order(segs, [p.inv_gram for p in parts], Kc + 1)
     q = min(d.dof for d in done)
-    J, S = _lifted_maps(G, Cv, Ainv, F * ny, "frequency", req, q)
+    J, S = _lifted_maps(G, Cv, Ainv, F * ny, domain="frequency", req=req, dof=q)
     return PlantFit(
         P_half, var_half, lifted_J=J, lifted_S=S, pfg_half=pfg_half, pfg_var_half=pfg_var
     )
@@ -340,10 +348,10 @@ def _time_lifted(req: FitRequest) -> PlantFit:
             np.concatenate([Yt[idx], Ut[idx]], axis=1),
             seg.n,
             req.degree,
-            req.workers,
-            req.share(F),
-            _centres(seg),
-            seg.offsets,
+            workers=req.workers,
+            missing=req.share(F),
+            centres=_centres(seg),
+            offsets=seg.offsets,
         )
         fits.append(fit)
     warn_rank_deficient(sum(f.n_bad for f in fits), n_centres(plan), stacklevel=4)
@@ -366,7 +374,7 @@ def _time_lifted(req: FitRequest) -> PlantFit:
     if not req.keep_lifted or not covers(plan, Kc + 1):
         return PlantFit(P_half, var_half)
     q = min(f.dof for f in fits)
-    J, S = _lifted_maps(G, Cv, Ainv, F * ny, "time", req, q)
+    J, S = _lifted_maps(G, Cv, Ainv, F * ny, domain="time", req=req, dof=q)
     return PlantFit(P_half, var_half, lifted_J=J, lifted_S=S)
 
 
@@ -375,6 +383,7 @@ def _lifted_maps(
     Cv: ComplexArray,
     Ainv: ComplexArray,
     n_y: int,
+    *,
     domain: str,
     req: FitRequest,
     dof: int,
@@ -406,7 +415,15 @@ def _structured(req: FitRequest) -> PlantFit:
         """Both stages and the indirect step on one segment of low-rate bins (own bins only)."""
         Rl, Yl, Ul = (freq_lift_half(X, seg.window, F, N) for X in (Rh, Yh, Uh))
         fit = structured_block(
-            Rl, Yl, Ul, F, seg.n, req.degree, req.local, req.missing, _centres(seg)
+            Rl,
+            Yl,
+            Ul,
+            F,
+            seg.n,
+            req.degree,
+            local=req.local,
+            missing=req.missing,
+            centres=_centres(seg),
         )
         P, rdiag, cdiag, extra = indirect_diag(fit, ny)  # bins ordered l * B + j
         B = seg.bins.size
@@ -417,7 +434,7 @@ def _structured(req: FitRequest) -> PlantFit:
         )
         if extra is not None:
             var = var + extra.reshape(ny, nu, F, B).transpose(3, 2, 0, 1)
-        _store_half(P_half, var_half, seg.bins, P, var, F, N)
+        _store_half(P_half, var_half, seg.bins, P, var, ratio=F, n_samples=N)
         return fit.n_bad
 
     n_bad = sum(thread_map(block, segments(plan, 2, step), req.workers))

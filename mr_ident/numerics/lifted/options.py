@@ -38,6 +38,7 @@ def check_options(
     ratio: int,
     n_in: int,
     n_out: int,
+    *,
     local: str = "polynomial",
 ) -> int:
     """Validate the LPM options of ``method``; return the residual degrees of freedom q.
@@ -106,6 +107,7 @@ def missing_rules(
     ratio: int,
     n_in: int,
     n_out: int,
+    *,
     local: str = "polynomial",
     n_samples: int | None = None,
     auto: bool = False,
@@ -124,7 +126,7 @@ def missing_rules(
     q_theta = check_options("freq-lifted", n_theta, degree, ratio, n_in, n_out)
     rules = [("lifted r -> [y; u]", n_theta, q_theta, ratio * n_out)]
     if m.uses_lpm:
-        q = check_options(method, n, degree, ratio, n_in, n_out, local)
+        q = check_options(method, n, degree, ratio, n_in, n_out, local=local)
         rules.append((method, n, q, m.lift(ratio) * n_out))
     return rules
 
@@ -152,11 +154,14 @@ def missing_limits(
     ratio: int,
     n_in: int,
     n_out: int,
+    *,
     local: str = "polynomial",
     n_samples: int = 0,
     auto: bool = False,
 ) -> MissingLimits:
     """The :class:`MissingLimits` of a record of ``n_samples`` (as :func:`missing_rules`)."""
-    rules = missing_rules(method, n, degree, ratio, n_in, n_out, local, n_samples, auto)
+    rules = missing_rules(
+        method, n, degree, ratio, n_in, n_out, local=local, n_samples=n_samples, auto=auto
+    )
     share = max(SHARE_MARGIN * min(max_share(nj, q, n_map) for _, nj, q, n_map in rules), 0.0)
     return MissingLimits(share, int(share * n_samples))

@@ -132,7 +132,7 @@ def pfg_from_plant(
     def block(k0: int) -> None:  # blocks bound the memory and run on threads
         kappa = np.arange(k0, min(k0 + PFG_BLOCK, N // 2 + 1))
         gain[kappa[0] : kappa[-1] + 1], std[kappa[0] : kappa[-1] + 1] = _pfg_block(
-            kappa, Ph, sd_half, Kl, F, N, phase, delay
+            kappa, Ph, sd_half, Kl, F, N, phase=phase, delay=delay
         )
 
     thread_map(block, range(0, N // 2 + 1, PFG_BLOCK), resolve_workers(workers))
@@ -168,6 +168,7 @@ def _pfg_block(
     Kl: AnyArray,
     F: int,
     N: int,
+    *,
     phase: int,
     delay: int,
 ) -> tuple[FloatArray, FloatArray]:

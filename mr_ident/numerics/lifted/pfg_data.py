@@ -43,6 +43,7 @@ def store_lifted_pfg(
     J: ComplexArray,
     row_cov: ComplexArray,
     col_cov: ComplexArray,
+    *,
     ratio: int,
     n_samples: int,
     den: DenominatorTerm | None = None,
@@ -84,6 +85,7 @@ def fit_data_pfg(
     ratio: int,
     n: int,
     degree: int,
+    *,
     local: str = "polynomial",
     workers: int = 1,
     missing: FloatArray | None = None,
@@ -136,7 +138,9 @@ def fit_data_pfg(
         d, rows = fit.den, slice(0, F * ny)
         den = None if d is None else DenominatorTerm(d.gain[rows], d.cov)
         G, Cv = fit.G[rows], fit.noise_cov[rows, rows]
-        store_lifted_pfg(gain_half, var_half, kb, G, Cv, fit.inv_gram, F, N, den)
+        store_lifted_pfg(
+            gain_half, var_half, kb, G, Cv, fit.inv_gram, ratio=F, n_samples=N, den=den
+        )
         return fit.n_bad
 
     n_bad = sum(thread_map(block, range(0, M // 2 + 1, step), workers))

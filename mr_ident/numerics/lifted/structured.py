@@ -77,6 +77,7 @@ def structured_block(
     ratio: int,
     n: int,
     degree: int,
+    *,
     local: str = "polynomial",
     missing: FloatArray | None = None,
     centres: IntArray | None = None,

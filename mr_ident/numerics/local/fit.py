@@ -93,6 +93,7 @@ def local_fit(
     Y: ComplexArray,
     n: int,
     degree: int,
+    *,
     workers: int = 1,
     missing: FloatArray | None = None,
     centres: IntArray | None = None,
@@ -121,7 +122,9 @@ def local_fit(
         fit = LocalFit(G, Cv, Ainv, n_bad, q, den)
         return fit if centres is None else fit.take(centres)
     q = lpm.dof(n, degree, n_in)
-    G, Cv, Ainv, n_bad = lpm.lpm_bins_last(U, Y, n, degree, q, workers, centres, offsets)
+    G, Cv, Ainv, n_bad = lpm.lpm_bins_last(
+        U, Y, n, degree, q, workers, centres=centres, offsets=offsets
+    )
     if missing is not None:
         f = missing_factor(missing, n, q)
         Cv = Cv * np.sqrt(f[:, None, None] * f[None, :, None])

@@ -185,6 +185,7 @@ def lpm_bins_last(
     degree: int,
     q: int,
     workers: int = 1,
+    *,
     centres: NDArray[np.intp] | None = None,
     offsets: int = 0,
 ) -> tuple[NDArray[np.complex128], NDArray[np.complex128], NDArray[np.complex128], int]:
@@ -216,7 +217,9 @@ def lpm_bins_last(
     """
     n_in, n_out = Ua.shape[1], Ya.shape[1]
     if offsets:
-        return lpm_strided(Ua, Ya, n, degree, q, workers, centres, offsets, lpm_bins_last)
+        return lpm_strided(
+            Ua, Ya, n, degree, q, workers, centres=centres, h=offsets, centred=lpm_bins_last
+        )
     step = chunk_bins(n_in, n_out, degree)
     K_all = Ua.shape[0] - 2 * n
     K = K_all if centres is None else int(centres.size)

@@ -93,16 +93,17 @@ class Layout:
 def chunk_sums(
     Ua: NDArray[np.complex128],
     Ya: NDArray[np.complex128],
-    a: int,
+    first: int,
     span: int,
     pick: NDArray[np.intp] | None,
     lay: Layout,
+    *,
     stride: int = 1,
 ) -> Sums:
-    """The windowed sums of the windows centred at ``a, a + stride, ...`` (span of them).
+    """The windowed sums of the windows centred at ``first, first + stride, ...`` (span of them).
 
     Of padded spectra Ua (.., n_in), Ya (.., n_out) (the window of centre c is the bins
-    ``c .. c + 2n``); with ``pick`` (stride 1), those positions counted from a only.
+    ``c .. c + 2n``); with ``pick`` (stride 1), those positions counted from ``first`` only.
     Returns mUU, mUY, L_GT, W_T, mYY, bins last.
     """
     n, R, T, P = lay.n, lay.degree, lay.T, lay.P
@@ -111,8 +112,8 @@ def chunk_sums(
     k_uu, k_u, k_uy, k_y = (
         (lay.k_uu, lay.k_u, lay.k_uy, lay.k_y) if stride == 1 else kernels(n, R, stride)[1:]
     )
-    Uc = Ua[a : a + width].T  # (n_in, width)
-    Yc = Ya[a : a + width].T  # (n_out, width)
+    Uc = Ua[first : first + width].T  # (n_in, width)
+    Yc = Ya[first : first + width].T  # (n_out, width)
     Ucj = np.conj(Uc)
     UU = np.multiply(Ucj[lay.iu], Uc[lay.ju])  # conj(U_i) U_j, i <= j
     UY = np.multiply(Ucj[:, None, :], Yc[None, :, :]).reshape(n_in * n_out, width)

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -189,11 +190,22 @@ class _Solved:
         return G, Ai
 
 
-#: The centred engine's signature (:func:`~mr_ident.numerics.local.lpm.lpm_bins_last`).
-Engine = Callable[
-    [NDArray[np.complex128], NDArray[np.complex128], int, int, int, int, NDArray[np.intp], int],
-    tuple[NDArray[np.complex128], NDArray[np.complex128], NDArray[np.complex128], int],
-]
+class Engine(Protocol):
+    """The centred engine's signature (:func:`~mr_ident.numerics.local.lpm.lpm_bins_last`)."""
+
+    def __call__(
+        self,
+        Ua: NDArray[np.complex128],
+        Ya: NDArray[np.complex128],
+        n: int,
+        degree: int,
+        q: int,
+        workers: int = 1,
+        *,
+        centres: NDArray[np.intp] | None = None,
+        offsets: int = 0,
+    ) -> tuple[NDArray[np.complex128], NDArray[np.complex128], NDArray[np.complex128], int]:
+        """G, its noise covariance and the inverse Gram (bins last); the rank-deficient count."""
 
 
 def _call(job: Callable[[], int]) -> int:
@@ -244,6 +256,7 @@ def lpm_strided(
     degree: int,
     q: int,
     workers: int,
+    *,
     centres: NDArray[np.intp] | None,
     h: int,
     centred: Engine,
@@ -304,7 +317,7 @@ def lpm_strided(
         if redo.size:
             out = _ranges(first[redo], length[redo])
             own = _ranges(centre[redo] - length[redo] // 2, length[redo])
-            g, cv, ai, _ = centred(Ua, Ya, n, degree, q, 1, own, 0)
+            g, cv, ai, _ = centred(Ua, Ya, n, degree, q, 1, centres=own, offsets=0)
             G[:, :, out], Cv[:, :, out], Ainv[:, :, out] = g, cv, ai
         lost = np.flatnonzero(sv.bad)
         return nan(_ranges(first[lost], length[lost])) if lost.size else 0
@@ -319,7 +332,9 @@ def lpm_strided(
     def run_short(batch: list[tuple[int, int, int]]) -> int:
         i0, c, t = (np.array(x, dtype=np.intp) for x in zip(*batch, strict=True))
         rows = (c[:, None] + np.arange(2 * n + 1)[None, :]).ravel()  # the windows, end to end
-        sv = _Solved(chunk_sums(Ua[rows], Ya[rows], 0, c.size, None, lay, 2 * n + 1), lay, q)
+        sv = _Solved(
+            chunk_sums(Ua[rows], Ya[rows], 0, c.size, None, lay, stride=2 * n + 1), lay, q
+        )
         for length in np.unique(t).tolist():  # groups of one length: the same offsets
             sel = np.flatnonzero(t == length)
             offs = np.arange(length) - length // 2

@@ -196,9 +196,8 @@ def route(kernel: Kernel, K: int) -> str:
     The weights were measured with one BLAS thread on blocks of 4096 bins (n = 8..710,
     strides 1, 2h+1 and 2n+1, the kernels of R = 2, one and two signals): the route chosen
     was the fastest or within 7 % of it in all 140 cases; Toeplitz up to n = 41-93,
-    doubling from there at stride 1 (flat in n: 0.45-0.8 ms per 4096 bins, against
-    Toeplitz's 1.2 ms at n = 210 and 5 ms at 710), direct for the gathered windows (5-10x
-    Toeplitz's speed).
+    doubling from there at stride 1 (flat in n, where Toeplitz's cost grows with it:
+    docs/benchmarks.md, "Setpoint excitation"), direct for the gathered windows.
     """
     s, nq, L = kernel.stride, kernel.n_out, kernel.w.shape[1]
     cost = {"toeplitz": float((s * (kernel.B - 1) + L) * nq)}

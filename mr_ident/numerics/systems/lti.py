@@ -313,10 +313,9 @@ def balance(M: FloatArray) -> FloatArray:
     2-norms of each row and column off the diagonal, a step taken only when it shrinks
     their sum below 0.95 of it): companion forms of polynomials whose coefficients span
     many decades are otherwise too badly scaled for an accurate expm. In plain Python
-    floats: the matrices are a model's sections and loops (n up to about 12, tens of
-    microseconds each), and this keeps ``scipy.linalg`` (a sixth of a second to import) off
-    the path of every command that loads a model. Powers of two scale exactly, so any
-    balancing this close to gebal's serves expm alike.
+    floats: the matrices are a model's sections and loops (n up to about 12), and this keeps
+    ``scipy.linalg``'s import off the path of every command that loads a model. Powers of two
+    scale exactly, so any balancing this close to gebal's serves expm alike.
     """
     n = M.shape[0]
     if n == 0:

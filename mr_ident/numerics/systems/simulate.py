@@ -185,7 +185,7 @@ class StateRecursion:
 
     def run(self, w: ArrayLike) -> FloatArray:
         """Outputs (M, n_out) for inputs ``w`` (M, n_in), continuing from the last call."""
-        import scipy.signal  # here, not at the top: it costs half a second of start-up
+        import scipy.signal  # here, not at the top: off the start-up of every command
 
         wa = np.asarray(w, dtype=float)
         ss = self.ss
@@ -194,7 +194,8 @@ class StateRecursion:
             self._x = ss.A @ xout[-1] + ss.B @ wa[-1]
             return np.asarray(yout).reshape(wa.shape[0], -1)
         out = wa @ ss.D.T
-        # real products only: a real-by-complex matmul leaves BLAS (measured 60x slower)
+        # two real products (what a real-by-complex matmul costs depends on numpy's
+        # version: docs/benchmarks.md, "Choices in the code")
         Bm, Cm = self._Bm, self._Cm
         drive = wa @ Bm.real.T + 1j * (wa @ Bm.imag.T)  # (M, n)
         Z = np.empty_like(drive)
@@ -379,6 +380,7 @@ def free_spectrum(
     ny: int,
     n_samples: int,
     start: int,
+    *,
     every_mode: bool = False,
 ) -> ComplexArray:
     """DFT of the free responses ``λ_i^m Cm_i`` of y from ``start`` on, (n_bins, n_y, k).

@@ -97,4 +97,6 @@ class LoopSpectrum:
         if self._modal is None:
             raise ValueError("the lifted loop is defective: no modal form")
         lam, _, Cm, _ = self._modal
-        return free_spectrum(lam, Cm, self.model.ratio, self.model.n_y, n_samples, 0, True)
+        return free_spectrum(
+            lam, Cm, self.model.ratio, self.model.n_y, n_samples, 0, every_mode=True
+        )
