@@ -23,7 +23,7 @@ import numpy as np
 import scipy.stats
 from numpy.typing import NDArray
 
-from ...errors import DataError
+from ...errors import DataFieldError
 from ...numerics.arrays import FloatArray
 from ...numerics.identify import identify
 from ...numerics.lifted.loop import closed_loop_maps
@@ -126,7 +126,7 @@ def periodic_plant(rec: LoopData) -> tuple[NDArray, NDArray, NDArray, NDArray, i
     lines = np.nonzero(np.abs(Rm[:, 0]) > 1e-3 * np.abs(Rm[:, 0]).max())[0]
     lines = lines[lines > 0]
     if u.shape[2] != 1:
-        raise DataError("periodic (--period) validation supports one input channel")
+        raise DataFieldError("periodic ({period}) validation supports one input channel", "period")
     Um, Ym = U.mean(axis=0)[lines], Y.mean(axis=0)[lines]  # (K, 1), (K, n_y)
     P = Ym / Um  # (K, n_y)
     dU = U[:, lines] - Um[None]

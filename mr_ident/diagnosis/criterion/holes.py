@@ -170,16 +170,19 @@ def check_missing(rec: LoopData, n: int, what: str) -> None:
     Raises
     ------
     DataError
+        Holes beyond the limits; a :class:`~mr_ident.errors.DataFieldError` naming
+        ``{period}`` for periodic data with holes.
     """
-    from ...errors import DataError
+    from ...errors import DataError, DataFieldError
 
     lost = np.isnan(rec.u).any(axis=1) | np.isnan(rec.y).any(axis=1)
     if not lost.any():
         return
     if rec.period is not None:
-        raise DataError(
-            f"{what}: u or y miss {int(lost.sum())} samples; periodic data (--period) are "
-            "averaged over periods, which needs every sample (cut the record at the holes)"
+        raise DataFieldError(
+            f"{what}: u or y miss {int(lost.sum())} samples; periodic data ({{period}}) are "
+            "averaged over periods, which needs every sample (cut the record at the holes)",
+            "period",
         )
     why = beyond_limits(rec, n)
     if why:

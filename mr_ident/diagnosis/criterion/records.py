@@ -9,7 +9,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ...errors import DataError
+from ...errors import ConfigError, DataError, FieldError
 from ...numerics.identify import min_samples
 from ...numerics.missing_r import recover_r
 from ...numerics.signals import LoopData
@@ -38,16 +38,21 @@ def with_injection(model: Model, data: LoopData, injection: str | None) -> Model
     looks for. Every diagnosis of data goes through it (a recording's, a live window's).
     A model that states nothing keeps stating nothing for r at the plant input.
     """
-    settled = settle_structure(
-        read_structure(data.r, data.u, data.y),
-        ratios=[("the model", model.ratio)],
-        injections=[
-            (who, v)
-            for who, v in (("--injection", injection), ("the model", model.injection))
-            if v is not None
-        ],
-        phases=[],
-    )
+    try:
+        settled = settle_structure(
+            read_structure(data.r, data.u, data.y),
+            ratios=[("the model", model.ratio)],
+            injections=[
+                (who, v)
+                for who, v in (("{injection}", injection), ("the model", model.injection))
+                if v is not None
+            ],
+            phases=[],
+        )
+    except FieldError:
+        raise
+    except ConfigError as err:  # the given named as the request's field
+        raise FieldError(str(err), "injection") from err
     if settled.injection == "plant_input" and model.injection is None:
         return model
     return replace(model, injection=settled.injection)
