@@ -28,7 +28,7 @@ from typing import BinaryIO, Protocol
 
 import yaml
 
-from ..errors import DataError, yaml_problem
+from ..errors import DataError, DataFieldError, yaml_problem
 from ..numerics.arrays import IntArray
 from .cdr import Batch
 from .mcap_scan import MAGIC, McapInfo, McapScan, read_summary
@@ -195,7 +195,7 @@ class Bag:
         p = Path(path)
         for d in msg_path:
             if not Path(d).is_dir():
-                raise DataError(f"--msg-path {str(d)!r}: not a directory")
+                raise DataFieldError(f"{{msg_path}} {str(d)!r}: not a directory", "msg_path")
         dirs = [Path(d) for d in msg_path]
         notes: list[str] = []
         if p.is_dir():

@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..errors import DataError
+from ..errors import DataError, DataFieldError
 from ..numerics.arrays import BoolArray, FloatArray, IntArray
 from .bags import Bag
 from .blocks import BLOCK_TYPE
@@ -111,10 +111,11 @@ def resolve(spec: SourceSpec, types: Mapping[str, tuple[str, str]]) -> Resolved:
 
 def _registry(spec: SourceSpec, type_name: str, schema: str) -> Registry:
     if not schema:
-        raise DataError(
+        raise DataFieldError(
             f"source {spec.text!r}: no message definition of {type_name}: the bag embeds none "
-            "and it is not installed; give --msg-path DIR with its .msg files (and those it "
-            f"uses) as DIR/{type_name.split('/')[0]}/msg/<Type>.msg"
+            "and it is not installed; give {msg_path} DIR with its .msg files (and those it "
+            f"uses) as DIR/{type_name.split('/')[0]}/msg/<Type>.msg",
+            "msg_path",
         )
     return parse_schema(type_name, schema)
 
