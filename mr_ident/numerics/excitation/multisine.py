@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...errors import ConfigError
+from ...errors import ConfigError, FieldError
 from ..arrays import FloatArray, IntArray
 
 #: The designs of :func:`design`.
@@ -265,9 +265,13 @@ def design(
         cand = unaliased(cand, period, ratio)
     lines, detection = choose_lines(cand, kind, rng, group=group)
     if lines.size == 0:
-        raise ConfigError(
+        raise FieldError(
             f"no {kind} line in {band[0]:g}-{band[1]:g} Hz at a resolution of "
-            f"{fs_high / period:g} Hz: widen the band, lengthen the period or use --kind full"
+            f"{fs_high / period:g} Hz: widen the {{band}}, lengthen the {{period}} or use "
+            "{kind} full",
+            "band",
+            "period",
+            "kind",
         )
     if lines.size < inputs:
         raise ConfigError(
