@@ -211,7 +211,7 @@ def test_options_and_data_errors_name_what_came():
         fit_frf(FRF(data.frequency, data.response, 0 * data.std, "m"), fs=FS)
     fit = fit_frf(data, fs=FS, order=5, delay=0.0, band=(10.0, 200.0))
     assert fit.frequency.min() >= 10 and fit.frequency.max() <= 200
-    with pytest.raises(ModelError, match="--controller model has fs_high"):
+    with pytest.raises(ModelError, match="the controller model has fs_high"):
         fitted_model(fit, ratio=3, controller=load_model(PAPER))
 
 

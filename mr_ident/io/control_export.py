@@ -35,7 +35,7 @@ INSTALL = "pip install control (or the control extra: pip install 'mr_ident[cont
 def require_control() -> None:
     """Raise ConfigError naming the ``pip install`` when python-control is absent."""
     if importlib.util.find_spec("control") is None:
-        raise ConfigError(f"--export python-control needs python-control: {INSTALL}")
+        raise ConfigError(f"the python-control export needs python-control: {INSTALL}")
 
 
 def control_path(path: str | Path) -> Path:

@@ -62,7 +62,7 @@ def write_excitation(path: str | Path, ms: Multisine, *, ratio: int = 1) -> None
 
         atomic_write(p, w_csv, binary=False)
     else:
-        raise ConfigError(f"--out must end in .npz or .csv, got {str(p)!r}")
+        raise ConfigError(f"an excitation file must end in .npz or .csv, got {str(p)!r}")
 
 
 def read_excitation(path: str | Path) -> tuple[FloatArray, float, int]:

@@ -38,12 +38,12 @@ def fitted_model(fit: FitResult, *, ratio: int, controller: Model | None = None)
     if controller is not None:
         if not math.isclose(controller.fs_high, fit.fs, rel_tol=1e-9) or controller.ratio != ratio:
             raise ModelError(
-                f"--controller model has fs_high {controller.fs_high:g} Hz and ratio "
+                f"the controller model has fs_high {controller.fs_high:g} Hz and ratio "
                 f"{controller.ratio}, expected those of the result: {fit.fs:g} Hz, {ratio}"
             )
         if controller.plant.shape != fit.plant.shape:
             raise ModelError(
-                f"--controller model's plant is {controller.plant.shape}, expected the fit's "
+                f"the controller model's plant is {controller.plant.shape}, expected the fit's "
                 f"{fit.plant.shape}"
             )
         base = Model(
