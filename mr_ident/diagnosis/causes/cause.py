@@ -217,6 +217,15 @@ def percent(x: float) -> str:
     return f"{100.0 * (x - 1.0):+.0f} %"
 
 
+def damping_percent(zeta: float) -> str:
+    """A damping ratio in per cent, two significant figures, never in exponent form.
+
+    >>> damping_percent(0.0213), damping_percent(1.0), damping_percent(0.39)
+    ('2.1 %', '100 %', '39 %')
+    """
+    return f"{float(f'{100.0 * zeta:.2g}'):g} %"
+
+
 def hz(f: float) -> str:
     """A frequency for the report, three significant figures."""
     return f"{f:.3g} Hz"

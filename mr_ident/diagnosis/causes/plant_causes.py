@@ -18,7 +18,7 @@ import scipy.optimize
 
 from ...numerics.arrays import FloatArray
 from ...numerics.systems.model import Model, plant_poles
-from .cause import Cause, Choice, Context, Params, PlantData, clip, hz, percent
+from .cause import Cause, Choice, Context, Params, PlantData, clip, damping_percent, hz, percent
 
 
 def plant_modes(model: Model) -> list[tuple[float, float]]:
@@ -241,7 +241,8 @@ class AdditiveMode(PlantCause):
         sign = "adding to" if params["gain"] > 0 else "subtracting from"
         return (
             f"an unmodelled mode at {hz(params['frequency_hz'])}, damping "
-            f"{100 * params['damping']:.2g} %, {sign} the plant (modal gain {params['gain']:.3g})"
+            f"{damping_percent(params['damping'])}, {sign} the plant (modal gain "
+            f"{params['gain']:.3g})"
         )
 
 
@@ -314,7 +315,8 @@ class ModeShift(PlantCause):
             what = f"stiffness {percent(k)} and modal mass {percent(m)}"
         return (
             f"the mode at {hz(params['from_hz'])} moved to {hz(params['frequency_hz'])}, "
-            f"damping {100 * params['from_damping']:.2g} -> {100 * params['damping']:.2g} %: "
+            f"damping {damping_percent(params['from_damping'])[:-2]} -> "
+            f"{damping_percent(params['damping'])}: "
             f"{what}"
         )
 
@@ -398,7 +400,7 @@ class SeriesResonance(PlantCause):
         """In words."""
         return (
             f"series second-order dynamics at {hz(params['frequency_hz'])}, damping "
-            f"{100 * params['damping']:.2g} % (an actuator or sensor resonance, or a filter)"
+            f"{damping_percent(params['damping'])} (an actuator or sensor resonance, or a filter)"
         )
 
 

@@ -9,7 +9,8 @@ compared, an exact model leaves ``‖e‖² ≈ n σ²``, so the fit the noise a
 excess ``‖e‖² - n σ²``, as a share of y's rms: ``100 sqrt(max(‖e‖² - n σ², 0)) / ‖y - ȳ‖``
 per cent. The ratio ``ρ = ‖e‖² / (n σ²)`` is 1 for an exact model up to the noise
 level's own error; above :data:`UNEXPLAINED_RATIO` the model leaves part of y
-unexplained beyond the noise.
+unexplained beyond the noise. So does a model in whose residual the higher-order
+correlations find distortion (:func:`with_distortion`): its fitted part passed that test.
 
 The noise level comes from the data, as the criterion's does: for periodic data the
 spread of the residual over periods, which a periodic nonlinear distortion does
@@ -73,8 +74,13 @@ class Unexplained:
 
     @property
     def significant(self) -> bool:
-        """The residual exceeds the noise by more than :data:`UNEXPLAINED_RATIO`."""
-        return math.isfinite(self.ratio) and self.ratio > UNEXPLAINED_RATIO
+        """Part of y is left beyond the noise.
+
+        The residual exceeds the noise by more than :data:`UNEXPLAINED_RATIO`, or the
+        residual's higher-order correlations found distortion in it (:attr:`distorted`):
+        their fitted part passed its own test, whatever its size against the threshold.
+        """
+        return math.isfinite(self.ratio) and (self.ratio > UNEXPLAINED_RATIO or self.distorted)
 
     def text(self) -> str:
         """The finding in words."""
