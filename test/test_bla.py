@@ -68,8 +68,8 @@ def test_the_multirate_closed_loop_bla_is_the_plant():
     distortion when the excited lines' lifted aliases are left out of the unexcited ones
     (ratio=3: the even lines within 3 dB of the noise; an odd design leaves no odd one);
     taken as detection lines they carry the loop's folded linear response (ratio=1: odd
-    lines > 40 dB above the noise, which an earlier version reported as nonlinear
-    distortion of a linear loop)."""
+    lines > 40 dB above the noise, which must not be read as nonlinear distortion of a
+    linear loop)."""
     from mr_ident.io.modelfile import load_model
     from mr_ident.numerics.excitation.sources import SimSource
 

@@ -50,7 +50,7 @@ class Nonlinearity:
     def text(self) -> str:
         """The finding in one clause."""
         level = (
-            f" up to {self.level_db:.0f} dB above the noise"
+            f" {level_words(self.level_db)} above the noise"
             if math.isfinite(self.level_db)
             else ""
         )
@@ -60,6 +60,17 @@ class Nonlinearity:
             f"{kind}nonlinear distortion{level}" + (f" at {where}" if where else "")
             + f" (seen {' and '.join(self.by)})"
         )  # fmt: skip
+
+
+def level_words(db: float) -> str:
+    """A level in dB as the verdict says it: whole dB from 10 on, tenths below.
+
+    >>> level_words(29.6), level_words(1.37), level_words(3e-11)
+    ('up to 30 dB', 'up to 1.4 dB', 'under 0.1 dB')
+    """
+    if db < 0.1:
+        return "under 0.1 dB"
+    return f"up to {db:.0f} dB" if db >= 10 else f"up to {db:.1f} dB"
 
 
 def _above(level: float, threshold: float) -> bool:
