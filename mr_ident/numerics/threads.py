@@ -56,15 +56,29 @@ def resolve_workers(workers: int | None) -> int:
     return workers
 
 
-def one_blas_thread() -> Any:
-    """Context: OpenBLAS on one thread (the libraries found at import, never searched again).
+def one_blas_thread(*, with_scipy: bool = False) -> Any:
+    """Context: OpenBLAS on one thread.
 
+    NumPy's BLAS, found at import and never searched again. ``with_scipy``: SciPy's own
+    BLAS as well, which ``scipy.linalg`` loads (imported here, and the libraries searched
+    once, on the first such call): least squares' SVDs and SciPy's solvers run on it.
     Its threads on the small batched products of the LPM made one fit up to 30x slower on
-    the shared 2-core machine.
+    the shared 2-core machine, and on the thin matrices of a least-squares fit they only
+    compete with each other.
     """
     if _BLAS is None:
         return contextlib.nullcontext()
+    if with_scipy:
+        if not _WITH_SCIPY:
+            import scipy.linalg  # noqa: F401, PLC0415 (loads SciPy's BLAS before the scan)
+
+            _WITH_SCIPY.append(ThreadpoolController())
+        return _WITH_SCIPY[0].limit(limits=1, user_api="blas")
     return _BLAS.limit(limits=1, user_api="blas")
+
+
+#: NumPy's and SciPy's BLAS, found on the first :func:`one_blas_thread` that asks for both.
+_WITH_SCIPY: list[Any] = []
 
 
 def thread_map(fn: Callable[[T], R], items: Iterable[T], workers: int) -> list[R]:
