@@ -335,7 +335,8 @@ class Objective:
         """
         own = weight is None  # the criterion's weight: its projections are kept
         holes = self.holes if own else None
-        weight = self.weight if own else weight
+        if weight is None:
+            weight = self.weight
         if spectra is None:
             return np.full(2 * weight.size, 1e3)
         if holes is None and self.missing_y.any():
