@@ -8,7 +8,6 @@ import warnings
 from collections import OrderedDict
 from collections.abc import Callable, Iterable
 from dataclasses import replace
-from typing import NamedTuple
 
 import numpy as np
 import scipy.ndimage
@@ -113,17 +112,31 @@ class Projector:
         return np.asarray(b - An @ np.linalg.lstsq(An, b, rcond=1e-10)[0], float)
 
 
-#: Loops (a model less its output disturbance) whose modal form and free responses an
-#: :class:`Objective` keeps: a search moves one value at a time, and a disturbance's values
-#: leave the loop as it was.
+#: Loops (a model less its output disturbance) whose modal form, free responses and their
+#: projection an :class:`Objective` keeps: a search moves one value at a time, and a
+#: disturbance's values leave the loop as it was. At most this many, and at most
+#: :data:`LOOPS_BYTES` of their spectra (always the last one).
 LOOPS_KEPT = 4
+#: Bytes of kept loops' spectra (free responses and projection) at most.
+LOOPS_BYTES = 16 << 20
 
 
-class _Loop(NamedTuple):
-    """What a loop gives every model of it: its response and its free responses' spectrum."""
+class _Loop:
+    """What a loop gives every model of it: its response and its free responses' spectrum.
 
-    spectrum: LoopSpectrum
-    free: ComplexArray | None
+    ``projector``: the projection off those (criterion's weight), once it is formed.
+    """
+
+    def __init__(self, spectrum: LoopSpectrum, free: ComplexArray | None):
+        self.spectrum = spectrum
+        self.free = free
+        self.projector: Projector | None = None
+        self.formed = False  # projector formed (it stays None where it is not finite)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of its spectra, the projection's columns counted as the free responses'."""
+        return 0 if self.free is None else 2 * self.free.nbytes
 
 
 class Objective:
@@ -202,7 +215,8 @@ class Objective:
             self._R = lifted_dft(r[self.skip :], base.ratio)
             self._L = (rec.n_samples - self.skip) // base.ratio
         self._loops: OrderedDict[Model, _Loop | None] = OrderedDict()
-        self._projectors: OrderedDict[int, tuple[ComplexArray, Projector | None]] = OrderedDict()
+        self._by_free: dict[int, _Loop] = {}  # the kept loops by their free responses' id
+        self._residuals: OrderedDict[Model, FloatArray] = OrderedDict()
         base_spectra = self._spectra(base)
         if base_spectra is None:
             raise DataError("the model cannot be simulated on this data (the loop is not stable)")
@@ -292,7 +306,7 @@ class Objective:
         return E, loop.free
 
     def _loop(self, model: Model) -> _Loop | None:
-        """The loop of ``model`` (kept for :data:`LOOPS_KEPT` loops); None: not simulable."""
+        """The loop of ``model`` (the last ones kept: :data:`LOOPS_KEPT`); None: not simulable."""
         key = replace(model, disturbances=()) if model.disturbances else model
         if key in self._loops:
             self._loops.move_to_end(key)
@@ -309,13 +323,30 @@ class Objective:
             except (ArithmeticError, ValueError, Warning, np.linalg.LinAlgError):
                 pass
         self._loops[key] = got
-        if len(self._loops) > LOOPS_KEPT:
-            self._loops.popitem(last=False)
+        if got is not None and got.free is not None:
+            self._by_free[id(got.free)] = got
+        total = sum(v.nbytes for v in self._loops.values() if v is not None)
+        while len(self._loops) > LOOPS_KEPT or (len(self._loops) > 1 and total > LOOPS_BYTES):
+            _, old = self._loops.popitem(last=False)
+            if old is not None and old.free is not None:
+                del self._by_free[id(old.free)]
+                total -= old.nbytes
         return got
 
     def residuals(self, model: Model) -> FloatArray:
-        """The whitened residual spectrum (real and imaginary parts) of ``model``."""
-        return self._whiten(self._spectra(model))
+        """The whitened residual spectrum (real and imaginary parts) of ``model``.
+
+        The last :data:`LOOPS_KEPT` models' are kept (a copy is returned): a model is
+        often scored again, after its fit or in another ranking.
+        """
+        if model in self._residuals:
+            self._residuals.move_to_end(model)
+            return self._residuals[model].copy()
+        res = self._whiten(self._spectra(model))
+        self._residuals[model] = res.copy()
+        if len(self._residuals) > LOOPS_KEPT:
+            self._residuals.popitem(last=False)
+        return res
 
     def cost(self, model: Model) -> float:
         """Sum of squares of :meth:`residuals`."""
@@ -358,11 +389,11 @@ class Objective:
     ) -> Projector | None:
         """Projection off the weighted free responses (and the holes); None: not finite.
 
-        ``keep``: kept with a kept loop's free responses (:meth:`_loop`) and found again.
+        ``keep``: kept with its loop (:meth:`_loop`) while that is kept, and found again.
         """
-        kept = keep and self._spectral
-        if kept and id(free) in self._projectors and self._projectors[id(free)][0] is free:
-            return self._projectors[id(free)][1]
+        loop = self._by_free.get(id(free)) if keep else None
+        if loop is not None and loop.free is free and loop.formed:
+            return loop.projector
         T = free * weight[:, :, None]  # the free responses' spectrum
         T = T.reshape(-1, T.shape[-1])
         A = np.concatenate([T.real, T.imag])
@@ -371,10 +402,8 @@ class Objective:
             if holes is not None:
                 A = holes.project(A)
             proj = Projector(A)
-        if kept:
-            self._projectors[id(free)] = (free, proj)
-            if len(self._projectors) > LOOPS_KEPT:
-                self._projectors.popitem(last=False)
+        if loop is not None and loop.free is free:
+            loop.projector, loop.formed = proj, True
         return proj
 
     def gauss_newton(
