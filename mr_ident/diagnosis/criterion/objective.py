@@ -373,8 +373,8 @@ class Objective:
         if holes is None and self.missing_y.any():
             holes = Holes(self.missing_y[self.skip :], weight)
         with np.errstate(all="ignore"):
-            E = spectra[0] * weight
-            res = np.concatenate([E.real.ravel(), E.imag.ravel()])
+            E = spectra[0]
+            res = np.concatenate([(E.real * weight).ravel(), (E.imag * weight).ravel()])
             if holes is not None and np.all(np.isfinite(res)):
                 res = holes.project(res)  # the holes' unknown residuals, eliminated
             if spectra[1] is not None:  # the unknown state at the start, eliminated by lstsq
@@ -394,9 +394,10 @@ class Objective:
         loop = self._by_free.get(id(free)) if keep else None
         if loop is not None and loop.free is free and loop.formed:
             return loop.projector
-        T = free * weight[:, :, None]  # the free responses' spectrum
-        T = T.reshape(-1, T.shape[-1])
-        A = np.concatenate([T.real, T.imag])
+        nb = free.shape[0] * free.shape[1]
+        A = np.empty((2 * nb, free.shape[-1]))  # the weighted free responses' real, imaginary
+        np.multiply(free.real, weight[:, :, None], out=A[:nb].reshape(free.shape))
+        np.multiply(free.imag, weight[:, :, None], out=A[nb:].reshape(free.shape))
         proj = None
         if np.all(np.isfinite(A)):
             if holes is not None:

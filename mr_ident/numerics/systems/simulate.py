@@ -364,7 +364,8 @@ def _geometric_dft(
             dtype=complex,
         )
     geo[~np.isfinite(geo)] = M  # z = 1 exactly: a mode on the unit circle at this bin
-    geo *= esp[:rows, :1] * lam_q  # e^{jωp} λ^q
+    if start:
+        geo *= esp[:rows, :1] * lam_q  # e^{jωp} λ^q
     g: ComplexArray = (es @ Cm.reshape(F, -1)).reshape(-1, ny, k)
     for a in range(0, g.shape[0], rows):  # blocks of M bins (a few at most)
         g[a : a + rows] *= geo[: g.shape[0] - a, None, :]
@@ -409,15 +410,22 @@ def free_spectrum(
     lam_all = np.concatenate([lam, lam[cplx].conj()])
     C_all = np.concatenate([Cm, Cm[:, cplx].conj()], axis=1).reshape(F, ny, -1)
     G: ComplexArray = _geometric_dft(lam_all, C_all, n_samples, start, F)
-    G /= np.sqrt(n_eff)
+    # real and imaginary parts scaled alike (real arithmetic on the real view throughout)
+    G.view(float)[...] *= 1.0 / np.sqrt(n_eff)
     if not n_c:
         return G  # real modes: Re(λ^m Cv) is the sequence itself
     n = lam.size
-    g, gc = G[..., :n][..., cplx], G[..., n:]
+    ci = np.flatnonzero(cplx)
+    g, gc = G[..., ci], G[..., n:]
     out: ComplexArray = np.empty((*G.shape[:-1], n + n_c), dtype=complex)
     out[..., :n] = G[..., :n]
-    out[..., :n][..., cplx] = 0.5 * (g + gc)  # DFT of Re(λ^m Cv): (G(λ) + G(λ̄)) / 2
-    out[..., n:] = (-0.5j) * (g - gc)  # and of Im(λ^m Cv)
+    re = g + gc  # DFT of Re(λ^m Cv): (G(λ) + G(λ̄)) / 2
+    re.view(float)[...] *= 0.5
+    out[..., ci] = re
+    d = g - gc  # and of Im(λ^m Cv): (G(λ) - G(λ̄)) / 2j
+    im = out[..., n:]
+    np.multiply(d.imag, 0.5, out=im.real)
+    np.multiply(d.real, -0.5, out=im.imag)
     return out
 
 

@@ -102,7 +102,8 @@ class LoopSpectrum:
         k = np.arange(n // 2 + 1)
         es = window_phases(n, F)  # e^{-j2πks/n}, (n_bins, F)
         Y = np.einsum("ks,ksc->kc", es, Yl[k % L].reshape(-1, F, ny))
-        return np.asarray(Y / np.sqrt(n), dtype=complex)
+        Y.view(float)[...] *= 1.0 / np.sqrt(n)  # real and imaginary parts alike
+        return np.asarray(Y, dtype=complex)
 
     def free(self, n_samples: int) -> ComplexArray:
         """DFT of every mode's free response of y over a window of ``n_samples``.
