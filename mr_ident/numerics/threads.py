@@ -60,8 +60,8 @@ def one_blas_thread(*, with_scipy: bool = False) -> Any:
     """Context: OpenBLAS on one thread.
 
     NumPy's BLAS, found at import and never searched again. ``with_scipy``: SciPy's own
-    BLAS as well, which ``scipy.linalg`` loads (imported here, and the libraries searched
-    once, on the first such call): least squares' SVDs and SciPy's solvers run on it.
+    BLAS as well, which ``scipy.linalg`` loads (:func:`find_scipy_blas`, on the first such
+    call unless done before): least squares' SVDs and SciPy's solvers run on it.
     Its threads on the small batched products of the LPM made one fit up to 30x slower on
     the shared 2-core machine, and on the thin matrices of a least-squares fit they only
     compete with each other.
@@ -69,16 +69,25 @@ def one_blas_thread(*, with_scipy: bool = False) -> Any:
     if _BLAS is None:
         return contextlib.nullcontext()
     if with_scipy:
-        if not _WITH_SCIPY:
-            import scipy.linalg  # noqa: F401, PLC0415 (loads SciPy's BLAS before the scan)
-
-            _WITH_SCIPY.append(ThreadpoolController())
+        find_scipy_blas()
         return _WITH_SCIPY[0].limit(limits=1, user_api="blas")
     return _BLAS.limit(limits=1, user_api="blas")
 
 
-#: NumPy's and SciPy's BLAS, found on the first :func:`one_blas_thread` that asks for both.
+#: NumPy's and SciPy's BLAS (:func:`find_scipy_blas`).
 _WITH_SCIPY: list[Any] = []
+
+
+def find_scipy_blas() -> None:
+    """Load SciPy's BLAS and find the libraries again, once (for ``one_blas_thread``).
+
+    The search walks the loaded libraries under the loader's lock (see :data:`_BLAS`): a
+    program with threads calls this before they start (the node at configure).
+    """
+    if ThreadpoolController is not None and not _WITH_SCIPY:
+        import scipy.linalg  # noqa: F401, PLC0415 (loads SciPy's BLAS before the scan)
+
+        _WITH_SCIPY.append(ThreadpoolController())
 
 
 def thread_map(fn: Callable[[T], R], items: Iterable[T], workers: int) -> list[R]:
