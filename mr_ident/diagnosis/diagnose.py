@@ -234,15 +234,15 @@ _P = ParamSpec("_P")
 def _numeric_trouble_reported(fn: Callable[_P, Diagnosis]) -> Callable[_P, Diagnosis]:
     """Numeric trouble in the simulation or the fits becomes a DataError.
 
-    A reported ``error:``, never a traceback. OpenBLAS on one thread meanwhile: its threads
-    on the fits' small products cost more than they give (``benchmarks/bench_diagnose_speed.py``
-    times a diagnosis).
+    A reported ``error:``, never a traceback. NumPy's and SciPy's BLAS on one thread
+    meanwhile: on the fits' thin products and SVDs their threads cost more than they give
+    (docs/benchmarks.md, "Diagnosis speed").
     """
 
     @functools.wraps(fn)
     def wrapper(*args: _P.args, **kwargs: _P.kwargs) -> Diagnosis:
         try:
-            with one_blas_thread():
+            with one_blas_thread(with_scipy=True):
                 return fn(*args, **kwargs)
         except (ArithmeticError, np.linalg.LinAlgError, Warning) as err:
             raise DataError(

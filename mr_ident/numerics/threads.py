@@ -56,14 +56,38 @@ def resolve_workers(workers: int | None) -> int:
     return workers
 
 
-def one_blas_thread() -> Any:
-    """Context: OpenBLAS on one thread (the libraries found at import, never searched again).
+def one_blas_thread(*, with_scipy: bool = False) -> Any:
+    """Context: OpenBLAS on one thread.
 
-    Its threads cost more than they give on the small batched products of the LPM.
+    NumPy's BLAS, found at import and never searched again. ``with_scipy``: SciPy's own
+    BLAS as well, which ``scipy.linalg`` loads (:func:`find_scipy_blas`, on the first such
+    call unless done before): least squares' SVDs and SciPy's solvers run on it.
+    Its threads cost more than they give on the small batched products of the LPM, and on
+    the thin matrices of a least-squares fit they only compete with each other
+    (docs/benchmarks.md, "Diagnosis speed").
     """
     if _BLAS is None:
         return contextlib.nullcontext()
+    if with_scipy:
+        find_scipy_blas()
+        return _WITH_SCIPY[0].limit(limits=1, user_api="blas")
     return _BLAS.limit(limits=1, user_api="blas")
+
+
+#: NumPy's and SciPy's BLAS (:func:`find_scipy_blas`).
+_WITH_SCIPY: list[Any] = []
+
+
+def find_scipy_blas() -> None:
+    """Load SciPy's BLAS and find the libraries again, once (for ``one_blas_thread``).
+
+    The search walks the loaded libraries under the loader's lock (see :data:`_BLAS`): a
+    program with threads calls this before they start (the node at configure).
+    """
+    if ThreadpoolController is not None and not _WITH_SCIPY:
+        import scipy.linalg  # noqa: F401, PLC0415 (loads SciPy's BLAS before the scan)
+
+        _WITH_SCIPY.append(ThreadpoolController())
 
 
 def thread_map(fn: Callable[[T], R], items: Iterable[T], workers: int) -> list[R]:

@@ -42,7 +42,7 @@ from ..errors import ConfigError, MrIdentError
 from ..io.config import IdentConfig
 from ..live.estimate import Estimate, estimate, warm_up
 from ..numerics.signals import LoopData
-from ..numerics.threads import BLAS_UNLIMITED
+from ..numerics.threads import BLAS_UNLIMITED, find_scipy_blas
 from . import params
 from .health import NO_CLOCK, Health, identification_status, unconfigured_status
 from .inputs import Inputs
@@ -142,6 +142,7 @@ class IdentNode(LifecycleNode):
         self.configure_error = ""
         if BLAS_UNLIMITED:  # optional (no rosdep key): the node runs without it, slower
             self.get_logger().warning(BLAS_UNLIMITED, once=True)
+        find_scipy_blas()  # before the workers: a diagnosis holds SciPy's BLAS to one thread
         self.config, self._monitoring = cfg, monitoring
         self._stopping = self._joined = False
         self.inputs = Inputs(self, cfg, self._recording, self._note, self._steady)

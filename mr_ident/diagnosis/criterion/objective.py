@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections import OrderedDict
 from collections.abc import Callable, Iterable
+from dataclasses import replace
 
 import numpy as np
 import scipy.ndimage
@@ -78,17 +80,63 @@ def project_out(A: FloatArray, b: FloatArray) -> FloatArray:
     the others count alike, however weakly y sees their mode (an SVD of the unscaled
     columns would drop a free response 1e-10 the size of another's).
     """
-    norm = np.sqrt(np.einsum("ij,ij->j", A, A))
-    keep = norm > 1e-12 * np.max(norm, initial=0.0)
-    if np.any(keep):
-        An = A[:, keep] / norm[keep]
-        G = An.T @ An
-        w = np.linalg.eigvalsh(G)
-        if w[0] * GRAM_COND > w[-1]:
+    return Projector(A)(b)
+
+
+class Projector:
+    """:func:`project_out` by the columns of ``A`` (m, k), for many ``b`` of m rows.
+
+    The columns are scaled and their Gram matrix formed and checked once.
+    """
+
+    def __init__(self, A: FloatArray):
+        norm = np.sqrt(np.einsum("ij,ij->j", A, A))
+        keep = norm > 1e-12 * np.max(norm, initial=0.0)
+        self._An: FloatArray | None = None
+        self._G: FloatArray | None = None  # None: by the SVD
+        if np.any(keep):
+            An = A[:, keep] / norm[keep]
+            G = An.T @ An
+            w = np.linalg.eigvalsh(G)
+            self._An = An
+            self._G = G if w[0] * GRAM_COND > w[-1] else None
+
+    def __call__(self, b: FloatArray) -> FloatArray:
+        """``b`` (m,) or (m, n) less its least-squares fit by the columns."""
+        An, G = self._An, self._G
+        if An is None:
+            return b
+        if G is not None:
             r = b - An @ np.linalg.solve(G, An.T @ b)
             return np.asarray(r - An @ np.linalg.solve(G, An.T @ r), float)
         return np.asarray(b - An @ np.linalg.lstsq(An, b, rcond=1e-10)[0], float)
-    return b
+
+
+#: Loops (a model less its output disturbance) whose modal form, free responses and their
+#: projection an :class:`Objective` keeps: a search moves one value at a time, and a
+#: disturbance's values leave the loop as it was. At most this many, and at most
+#: :data:`LOOPS_BYTES` of their spectra (always the last one).
+LOOPS_KEPT = 4
+#: Bytes of kept loops' spectra (free responses and projection) at most.
+LOOPS_BYTES = 16 << 20
+
+
+class _Loop:
+    """What a loop gives every model of it: its response and its free responses' spectrum.
+
+    ``projector``: the projection off those (criterion's weight), once it is formed.
+    """
+
+    def __init__(self, spectrum: LoopSpectrum, free: ComplexArray | None):
+        self.spectrum = spectrum
+        self.free = free
+        self.projector: Projector | None = None
+        self.formed = False  # projector formed (it stays None where it is not finite)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of its spectra, the projection's columns counted as the free responses'."""
+        return 0 if self.free is None else 2 * self.free.nbytes
 
 
 class Objective:
@@ -166,6 +214,9 @@ class Objective:
             self._Y = np.fft.rfft(self.y[self.skip :], axis=0, norm="ortho")
             self._R = lifted_dft(r[self.skip :], base.ratio)
             self._L = (rec.n_samples - self.skip) // base.ratio
+        self._loops: OrderedDict[Model, _Loop | None] = OrderedDict()
+        self._by_free: dict[int, _Loop] = {}  # the kept loops by their free responses' id
+        self._residuals: OrderedDict[Model, FloatArray] = OrderedDict()
         base_spectra = self._spectra(base)
         if base_spectra is None:
             raise DataError("the model cannot be simulated on this data (the loop is not stable)")
@@ -241,23 +292,61 @@ class Objective:
         if not self._spectral:
             raw = self._raw(model)
             return None if raw is None else (np.fft.rfft(raw[0], axis=0, norm="ortho"), raw[2])
+        loop = self._loop(model)
+        if loop is None:
+            return None
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # as in _raw
+            try:
+                E = self._Y - loop.spectrum.y(self._R, self._L, self.skip, model)
+            except (ArithmeticError, ValueError, Warning, np.linalg.LinAlgError):
+                return None
+        if not np.all(np.isfinite(E)):
+            return None
+        return E, loop.free
+
+    def _loop(self, model: Model) -> _Loop | None:
+        """The loop of ``model`` (the last ones kept: :data:`LOOPS_KEPT`); None: not simulable."""
+        key = replace(model, disturbances=()) if model.disturbances else model
+        if key in self._loops:
+            self._loops.move_to_end(key)
+            return self._loops[key]
+        got: _Loop | None = None
         with warnings.catch_warnings():
             warnings.simplefilter("error")  # as in _raw: a defective loop warns
             try:
-                loop = LoopSpectrum(model)
-                if not (loop.modal and loop.stable):
-                    return None
-                E = self._Y - loop.y(self._R, self._L, self.skip)
-                free = loop.free(self.rec.n_samples - self.skip)
+                spectrum = LoopSpectrum(key)
+                if spectrum.modal and spectrum.stable:
+                    free = spectrum.free(self.rec.n_samples - self.skip)
+                    if np.all(np.isfinite(free)):
+                        got = _Loop(spectrum, free if free.shape[-1] else None)
             except (ArithmeticError, ValueError, Warning, np.linalg.LinAlgError):
-                return None
-        if not (np.all(np.isfinite(E)) and np.all(np.isfinite(free))):
-            return None
-        return E, (free if free.shape[-1] else None)
+                pass
+        self._loops[key] = got
+        if got is not None and got.free is not None:
+            self._by_free[id(got.free)] = got
+        total = sum(v.nbytes for v in self._loops.values() if v is not None)
+        while len(self._loops) > LOOPS_KEPT or (len(self._loops) > 1 and total > LOOPS_BYTES):
+            _, old = self._loops.popitem(last=False)
+            if old is not None and old.free is not None:
+                del self._by_free[id(old.free)]
+                total -= old.nbytes
+        return got
 
     def residuals(self, model: Model) -> FloatArray:
-        """The whitened residual spectrum (real and imaginary parts) of ``model``."""
-        return self._whiten(self._spectra(model))
+        """The whitened residual spectrum (real and imaginary parts) of ``model``.
+
+        The last :data:`LOOPS_KEPT` models' are kept (a copy is returned): a model is
+        often scored again, after its fit or in another ranking.
+        """
+        if model in self._residuals:
+            self._residuals.move_to_end(model)
+            return self._residuals[model].copy()
+        res = self._whiten(self._spectra(model))
+        self._residuals[model] = res.copy()
+        if len(self._residuals) > LOOPS_KEPT:
+            self._residuals.popitem(last=False)
+        return res
 
     def cost(self, model: Model) -> float:
         """Sum of squares of :meth:`residuals`."""
@@ -275,27 +364,48 @@ class Objective:
         samples of y (:mod:`~mr_ident.diagnosis.criterion.holes`); 1e3 everywhere where
         ``spectra`` is None or the result overflows.
         """
-        holes = self.holes if weight is None else None
-        weight = self.weight if weight is None else weight
+        own = weight is None  # the criterion's weight: its projections are kept
+        holes = self.holes if own else None
+        if weight is None:
+            weight = self.weight
         if spectra is None:
             return np.full(2 * weight.size, 1e3)
         if holes is None and self.missing_y.any():
             holes = Holes(self.missing_y[self.skip :], weight)
         with np.errstate(all="ignore"):
-            E = spectra[0] * weight
-            res = np.concatenate([E.real.ravel(), E.imag.ravel()])
+            E = spectra[0]
+            res = np.concatenate([(E.real * weight).ravel(), (E.imag * weight).ravel()])
             if holes is not None and np.all(np.isfinite(res)):
                 res = holes.project(res)  # the holes' unknown residuals, eliminated
             if spectra[1] is not None:  # the unknown state at the start, eliminated by lstsq
-                T = spectra[1] * weight[:, :, None]  # the free responses' spectrum
-                T = T.reshape(-1, T.shape[-1])
-                A = np.concatenate([T.real, T.imag])
-                if np.all(np.isfinite(A)):
-                    if holes is not None:
-                        A = holes.project(A)
-                    res = project_out(A, res)
+                proj = self._projector(spectra[1], weight, holes, keep=own)
+                if proj is not None:
+                    res = proj(res)
         ok = np.all(np.isfinite(res)) and float(np.max(np.abs(res), initial=0.0)) < 1e100
         return res if ok else np.full(2 * weight.size, 1e3)
+
+    def _projector(
+        self, free: ComplexArray, weight: FloatArray, holes: Holes | None, *, keep: bool
+    ) -> Projector | None:
+        """Projection off the weighted free responses (and the holes); None: not finite.
+
+        ``keep``: kept with its loop (:meth:`_loop`) while that is kept, and found again.
+        """
+        loop = self._by_free.get(id(free)) if keep else None
+        if loop is not None and loop.free is free and loop.formed:
+            return loop.projector
+        nb = free.shape[0] * free.shape[1]
+        A = np.empty((2 * nb, free.shape[-1]))  # the weighted free responses' real, imaginary
+        np.multiply(free.real, weight[:, :, None], out=A[:nb].reshape(free.shape))
+        np.multiply(free.imag, weight[:, :, None], out=A[nb:].reshape(free.shape))
+        proj = None
+        if np.all(np.isfinite(A)):
+            if holes is not None:
+                A = holes.project(A)
+            proj = Projector(A)
+        if loop is not None and loop.free is free:
+            loop.projector, loop.formed = proj, True
+        return proj
 
     def gauss_newton(
         self, at: Model, moved: Iterable[tuple[Model, float]]

@@ -15,10 +15,9 @@ V lies within ``E{V} + 2 sd{V}``.
 
 from __future__ import annotations
 
-import contextlib
 import math
 from dataclasses import dataclass, replace
-from typing import Any, Literal, NamedTuple
+from typing import Literal, NamedTuple
 
 import numpy as np
 
@@ -26,6 +25,7 @@ from ...errors import ConfigError, DataError
 from ..arrays import ComplexArray, FloatArray
 from ..results import FRF
 from ..systems.modal import ModalPlant
+from ..threads import one_blas_thread
 from .basis import DOMAINS, columns, from_params, n_states, residues_of
 from .refine import Problem, Solution, covariance
 from .strategy import fit_order
@@ -285,7 +285,7 @@ def fit_frf(
     DataError
         Fewer than 4 bins with a positive finite std (in ``band``).
     """
-    with _one_blas_thread():  # small least-squares problems: BLAS threads only compete
+    with one_blas_thread(with_scipy=True):  # small least-squares problems: threads compete
         options = FitOptions(
             fs=fs,
             order=order,
@@ -299,28 +299,6 @@ def fit_frf(
             noise_kernel=noise_kernel,
         )
         return _fit(frf, options)
-
-
-_BLAS: list[Any] = []
-
-
-def _one_blas_thread() -> Any:
-    """Every loaded BLAS (SciPy's own included) on one thread.
-
-    :func:`~mr_ident.numerics.threads.one_blas_thread` knows the libraries loaded when it
-    was imported; SciPy's, loaded with ``scipy.optimize``, ran least-squares' SVDs on
-    competing threads, many times slower than one (measured: docs/benchmarks.md, "Threads
-    and block sizes").
-    """
-    if not _BLAS:
-        import scipy.optimize  # noqa: F401, PLC0415 (loads SciPy's BLAS before the scan)
-
-        try:  # optional (no rosdep key): without it SciPy's BLAS is not limited
-            from threadpoolctl import ThreadpoolController  # noqa: PLC0415
-        except ImportError:  # pragma: no cover - the tests run with it
-            return contextlib.nullcontext()
-        _BLAS.append(ThreadpoolController())
-    return _BLAS[0].limit(limits=1, user_api="blas")
 
 
 def _delays(options: FitOptions) -> tuple[list[float], bool, float]:

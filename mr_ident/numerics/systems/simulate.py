@@ -355,14 +355,21 @@ def _geometric_dft(
     M = n_samples // F - q
     _, ny, k = Cm.shape
     lam_q = lam**q
+    # from a period's start over whole periods the phases repeat every M bins (ωFM = 2πk):
+    # the geometric factor is computed on the first M and read on the rest
+    rows = min(M, eF.size) if p == 0 and n_samples % F == 0 else eF.size
     with np.errstate(divide="ignore", invalid="ignore"):
         geo = np.asarray(
-            (1.0 - np.multiply.outer(eFM, lam**M)) / (1.0 - np.multiply.outer(eF, lam)),
+            (1.0 - np.multiply.outer(eFM[:rows], lam**M))
+            / (1.0 - np.multiply.outer(eF[:rows], lam)),
             dtype=complex,
         )
     geo[~np.isfinite(geo)] = M  # z = 1 exactly: a mode on the unit circle at this bin
-    geo = geo * (esp[:, :1] * lam_q)  # e^{jωp} λ^q
-    g: ComplexArray = (es @ Cm.reshape(F, -1)).reshape(-1, ny, k) * geo[:, None, :]
+    if start:
+        geo *= esp[:rows, :1] * lam_q  # e^{jωp} λ^q
+    g: ComplexArray = (es @ Cm.reshape(F, -1)).reshape(-1, ny, k)
+    for a in range(0, g.shape[0], rows):  # blocks of M bins (a few at most)
+        g[a : a + rows] *= geo[: g.shape[0] - a, None, :]
     if p:
         g -= (esp[:, :p] @ Cm[:p].reshape(p, -1)).reshape(-1, ny, k) * lam_q
     return g
@@ -404,14 +411,23 @@ def free_spectrum(
     n_c = int(np.count_nonzero(cplx))
     lam_all = np.concatenate([lam, lam[cplx].conj()])
     C_all = np.concatenate([Cm, Cm[:, cplx].conj()], axis=1).reshape(F, ny, -1)
-    G: ComplexArray = _geometric_dft(lam_all, C_all, n_samples, start, F) / np.sqrt(n_eff)
+    G: ComplexArray = _geometric_dft(lam_all, C_all, n_samples, start, F)
+    # real and imaginary parts scaled alike (real arithmetic on the real view throughout)
+    G.view(float)[...] *= 1.0 / np.sqrt(n_eff)
     if not n_c:
         return G  # real modes: Re(λ^m Cv) is the sequence itself
-    g, gc = G[..., : lam.size], G[..., lam.size :]
-    re = g.copy()
-    re[..., cplx] = 0.5 * (g[..., cplx] + gc)  # DFT of Re(λ^m Cv): (G(λ) + G(λ̄)) / 2
-    im = (-0.5j) * (g[..., cplx] - gc)  # and of Im(λ^m Cv)
-    out: ComplexArray = np.concatenate([re, im], axis=-1)
+    n = lam.size
+    ci = np.flatnonzero(cplx)
+    g, gc = G[..., ci], G[..., n:]
+    out: ComplexArray = np.empty((*G.shape[:-1], n + n_c), dtype=complex)
+    out[..., :n] = G[..., :n]
+    re = g + gc  # DFT of Re(λ^m Cv): (G(λ) + G(λ̄)) / 2
+    re.view(float)[...] *= 0.5
+    out[..., ci] = re
+    d = g - gc  # and of Im(λ^m Cv): (G(λ) - G(λ̄)) / 2j
+    im = out[..., n:]
+    np.multiply(d.imag, 0.5, out=im.real)
+    np.multiply(d.real, -0.5, out=im.imag)
     return out
 
 

@@ -36,6 +36,18 @@ def lifted_dft(x: FloatArray, ratio: int) -> ComplexArray:
     return np.asarray(np.fft.rfft(x.reshape(n // ratio, ratio * ch), axis=0), dtype=complex)
 
 
+@functools.lru_cache(maxsize=8)
+def _disturbance_dft(model: Model, start: int, n_samples: int) -> ComplexArray:
+    """:func:`lifted_dft` of ``model``'s output disturbance on samples start..start+n-1.
+
+    Cached (read-only): a search moves one cause at a time, so the same disturbance comes
+    back with many loops. ``model``: one with nothing but the disturbance's fields set.
+    """
+    d = lifted_dft(model.disturbance(start, n_samples), model.ratio)
+    d.setflags(write=False)
+    return d
+
+
 @functools.lru_cache(maxsize=4)
 def _unit_circle(n_periods: int) -> ComplexArray:
     """``e^{j2πq/L}`` on q = 0..L/2 (cached, read-only)."""
@@ -58,13 +70,16 @@ class LoopSpectrum:
         lam = self._modal[0] if self._modal is not None else np.zeros(0)
         self.stable = bool(np.all(np.abs(lam) < 1.0))
 
-    def y(self, r_lifted: ComplexArray, n_periods: int, start: int) -> ComplexArray:
+    def y(
+        self, r_lifted: ComplexArray, n_periods: int, start: int, disturbed: Model | None = None
+    ) -> ComplexArray:
         """DFT of y over the window, circular response, shape (n // 2 + 1, n_y).
 
         ``r_lifted``: :func:`lifted_dft` of r over the window (samples ``start`` to
-        ``start + n``, n = L F, L given as ``n_periods``); the model's output disturbance
-        over the same samples enters as well. Orthonormal like ``rfft(.., norm="ortho")``
-        over the n samples.
+        ``start + n``, n = L F, L given as ``n_periods``); the output disturbance of
+        ``disturbed`` (a model of this loop with other disturbances; default the loop's own
+        model) over the same samples enters as well. Orthonormal like
+        ``rfft(.., norm="ortho")`` over the n samples.
         """
         if self._modal is None:
             raise ValueError("the lifted loop is defective: no modal form")
@@ -75,8 +90,10 @@ class LoopSpectrum:
         n = L * F
         W = r_lifted
         Bw, Dw = Bm[:, : F * nr], D[: F * ny, : F * nr]
-        if m.disturbances:  # the disturbance enters where the noise does: v
-            W = np.concatenate([W, lifted_dft(m.disturbance(start, n), F)], axis=1)
+        v = m if disturbed is None else disturbed
+        if v.disturbances:  # the disturbance enters where the noise does: v
+            only = Model(v.fs_high, F, m.plant, disturbances=v.disturbances)
+            W = np.concatenate([W, _disturbance_dft(only, start, n)], axis=1)
             Bw, Dw = Bm, D[: F * ny]
         z = _unit_circle(L)
         Z = (W @ Bw.T) / (z[:, None] - lam[None, :])  # modal states, (L/2 + 1, modes)
@@ -85,7 +102,8 @@ class LoopSpectrum:
         k = np.arange(n // 2 + 1)
         es = window_phases(n, F)  # e^{-j2πks/n}, (n_bins, F)
         Y = np.einsum("ks,ksc->kc", es, Yl[k % L].reshape(-1, F, ny))
-        return np.asarray(Y / np.sqrt(n), dtype=complex)
+        Y.view(float)[...] *= 1.0 / np.sqrt(n)  # real and imaginary parts alike
+        return np.asarray(Y, dtype=complex)
 
     def free(self, n_samples: int) -> ComplexArray:
         """DFT of every mode's free response of y over a window of ``n_samples``.
