@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import contextlib
 import os
-from collections.abc import Callable, Iterable
+import threading
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, TypeVar
 
@@ -65,17 +66,52 @@ def one_blas_thread(*, with_scipy: bool = False) -> Any:
     Its threads cost more than they give on the small batched products of the LPM, and on
     the thin matrices of a least-squares fit they only compete with each other
     (docs/benchmarks.md, "Diagnosis speed").
+
+    The limit is the process's: contexts on several threads (the node identifying on one
+    and diagnosing on another) share one, counted. The first to enter sets it, the last
+    to leave restores the libraries' own limits, whatever order they leave in; once
+    SciPy's BLAS is found, the limit holds it too.
     """
     if _BLAS is None:
         return contextlib.nullcontext()
-    if with_scipy:
-        find_scipy_blas()
-        return _WITH_SCIPY[0].limit(limits=1, user_api="blas")
-    return _BLAS.limit(limits=1, user_api="blas")
+    return _shared_limit(with_scipy)
 
 
 #: NumPy's and SciPy's BLAS (:func:`find_scipy_blas`).
 _WITH_SCIPY: list[Any] = []
+#: Guards the shared limit's count and the search for SciPy's BLAS.
+_LOCK = threading.Lock()
+
+
+class _Held:
+    """The shared limit: how many contexts hold it, and the limiter that set it."""
+
+    count = 0
+    limiter: Any = None
+    scipy = False
+
+
+@contextlib.contextmanager
+def _shared_limit(with_scipy: bool) -> Iterator[None]:
+    with _LOCK:
+        if with_scipy:
+            _find_scipy_blas()
+        scipy = bool(_WITH_SCIPY)
+        if _Held.count == 0 or (scipy and not _Held.scipy):
+            if _Held.limiter is not None:  # widened to SciPy's BLAS: set again from the start
+                _Held.limiter.restore_original_limits()
+            controller: Any = _WITH_SCIPY[0] if scipy else _BLAS
+            _Held.limiter = controller.limit(limits=1, user_api="blas")
+            _Held.scipy = scipy
+        _Held.count += 1
+    try:
+        yield
+    finally:
+        with _LOCK:
+            _Held.count -= 1
+            if _Held.count == 0:
+                _Held.limiter.restore_original_limits()
+                _Held.limiter, _Held.scipy = None, False
 
 
 def find_scipy_blas() -> None:
@@ -84,6 +120,11 @@ def find_scipy_blas() -> None:
     The search walks the loaded libraries under the loader's lock (see :data:`_BLAS`): a
     program with threads calls this before they start (the node at configure).
     """
+    with _LOCK:
+        _find_scipy_blas()
+
+
+def _find_scipy_blas() -> None:
     if ThreadpoolController is not None and not _WITH_SCIPY:
         import scipy.linalg  # noqa: F401, PLC0415 (loads SciPy's BLAS before the scan)
 
