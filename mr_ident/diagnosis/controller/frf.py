@@ -54,7 +54,7 @@ from ...numerics.lifting import dft
 from ...numerics.local.lpm import lpm, pad_circular, smallest_n
 from ...numerics.results import FRF
 from ...numerics.signals import LoopData
-from ...numerics.structure import hold_of
+from ...numerics.structure import HELD_RTOL, hold_of
 from ...numerics.systems.model import Model
 from ..causes.cause import CauseFit
 from ..causes.registry import CAUSES, build
@@ -198,8 +198,9 @@ def held_fill(x: FloatArray, ratio: int) -> FloatArray:
 
     A command log holds the controller's output over the ``ratio`` samples from the residue
     :func:`~mr_ident.numerics.structure.hold_of` finds; every present sample of a hold
-    interval is its value, so a missing one is any of them (exact). ``x`` unchanged where
-    it has no NaN or is not held over ``ratio`` samples (a measured u).
+    interval is its value, so a missing one is any of them (exact). Only where they agree
+    (to the hold's tolerance): an interval with a change off the grid keeps its hole. ``x``
+    unchanged where it has no NaN or is not held over ``ratio`` samples (a measured u).
     """
     lost = np.isnan(x)
     if ratio == 1 or not lost.any():
@@ -216,6 +217,10 @@ def held_fill(x: FloatArray, ratio: int) -> FloatArray:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # a wholly lost interval stays NaN
         value = np.nanmax(blocks, axis=1)  # (n_blocks, c): the held value
+        spread = value - np.nanmin(blocks, axis=1)
+    # an interval whose present samples differ (a change off the hold's grid) gives none
+    scale = float(np.nanmax(np.abs(x)))
+    value = np.where(spread <= HELD_RTOL * scale, value, np.nan)
     filled = np.repeat(value, ratio, axis=0)[pad.shape[0] : pad.shape[0] + x.shape[0]]
     return np.where(lost, filled, x)
 
@@ -262,13 +267,8 @@ def controller_frf(
     complete = np.asarray(np.isfinite(ys).all(axis=1) & np.isfinite(uc).all(axis=1), bool)
     start, stop = longest_complete(complete)
     if stop - start < 4 * n + 2:
-        lost = (
-            ""
-            if stop - start == M
-            else (
-                f" without missing samples (its longest run of complete periods, {stop - start})"
-            )
-        )
+        run = stop - start
+        lost = "" if run == M else f", its longest run without missing samples {run}"
         return ControllerFRF.unavailable(
             f"the record holds {M} periods{lost}; the local fit needs {4 * n + 2}", M
         )
