@@ -25,22 +25,27 @@ PLATEAU_CAP = 3.0
 GAIN_FLOOR = 1e-4
 
 
-def loop_noise_gain(model: Model, n_samples: int) -> FloatArray:
+def loop_noise_gain(
+    model: Model, n_samples: int, variances: FloatArray | None = None
+) -> FloatArray:
     """Power gain from white output noise to the measured y, bins 0..N//2, (N//2+1, n_y).
 
     In closed loop the noise reaches y through the loop: lifted, ``ỹ = T̃ ṽ`` with
     ``T̃ = I - J̃ C̃`` (J̃ the lifted r -> y map, C̃ the lifted controller), so white noise of
     unit variance per sample gives at alias i of lifted bin k the power
-    ``sum_j |T̃(k)[i, j]|²`` (F = 1: ``|1/(1 + P K)|²``). Its narrow peaks are the loop's
-    lightly damped poles, which no window of bins resolves (a pole 1 % damped is a bin
-    wide in a 30 s record). Ones in open loop; at least :data:`GAIN_FLOOR` of its median.
+    ``sum_j |T̃(k)[i, j]|²`` (F = 1: ``|1/(1 + P K)|²``); with ``variances`` (n_y,), each
+    output's own, ``sum_j |T̃(k)[i, j]|² σ_j²`` (a coupled loop carries one output's noise
+    into the others). Its narrow peaks are the loop's lightly damped poles, which no
+    window of bins resolves (a pole 1 % damped is a bin wide in a 30 s record). Ones (the
+    variances) in open loop; at least :data:`GAIN_FLOOR` of its median.
     """
     from ...numerics.lifted.loop import closed_loop_maps, lifted_controller
     from ...numerics.lifting import unlift_bins
 
     N = int(n_samples)
+    var = np.ones(model.n_y) if variances is None else np.asarray(variances, float)
     if model.controller is None or N % model.ratio:
-        return np.ones((N // 2 + 1, model.n_y))
+        return np.ones((N // 2 + 1, model.n_y)) * var
     F, M, ny = model.ratio, N // model.ratio, model.n_y
     P = model.plant_discrete().freqresp(np.arange(N) * model.fs_high / N)
     K = model.controller_frf(M)
@@ -50,7 +55,10 @@ def loop_noise_gain(model: Model, n_samples: int) -> FloatArray:
         J, _ = closed_loop_maps(P, K, bins, F, **kw)
         C = lifted_controller(K, bins, F, N, **kw)
         T = np.eye(F * ny)[None] - J @ C
-        g = np.sum(np.abs(T) ** 2, axis=2).reshape(M, F, ny)  # (k, alias, output)
+        power = np.abs(T) ** 2
+        if variances is not None:  # input j = (alias, output): that output's variance
+            power = power * np.tile(var, F)[None, None, :]
+        g = np.sum(power, axis=2).reshape(M, F, ny)  # (k, alias, output)
     full = np.empty((N, ny))
     full[unlift_bins(bins, F, N)] = g
     out = full[: N // 2 + 1]

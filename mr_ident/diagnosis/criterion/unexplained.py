@@ -62,6 +62,8 @@ class Unexplained:
     distorted : bool
         The noise level holds a distortion the residual's correlations found
         (:func:`with_distortion`): :attr:`allowed` is then no bound.
+    fits, shares : tuple of float
+        :attr:`fit` and :attr:`share` per output, (n_y,) (their means are those).
     """
 
     fit: float
@@ -71,6 +73,8 @@ class Unexplained:
     noise_std: float
     y_rms: float = math.nan
     distorted: bool = False
+    fits: tuple[float, ...] = ()
+    shares: tuple[float, ...] = ()
 
     @property
     def significant(self) -> bool:
@@ -80,7 +84,7 @@ class Unexplained:
         residual's higher-order correlations found distortion in it (:attr:`distorted`):
         their fitted part passed its own test, whatever its size against the threshold.
         """
-        return math.isfinite(self.ratio) and (self.ratio > UNEXPLAINED_RATIO or self.distorted)
+        return self.distorted or (math.isfinite(self.ratio) and self.ratio > UNEXPLAINED_RATIO)
 
     def text(self) -> str:
         """The finding in words."""
@@ -161,12 +165,21 @@ def unexplained(
     d2 = np.sum(np.where(miss, 0.0, x - np.nanmean(ym, axis=0)) ** 2, axis=0)
     v2 = n * np.asarray(noise_var, float)
     with np.errstate(divide="ignore", invalid="ignore"):
-        fit = float(np.mean(100.0 * (1.0 - np.sqrt(e2 / d2))))
+        fits = 100.0 * (1.0 - np.sqrt(e2 / d2))
         allowed = float(np.mean(100.0 * (1.0 - np.sqrt(v2 / d2))))
-        share = float(np.mean(100.0 * np.sqrt(np.maximum(e2 - v2, 0.0) / d2)))
+        shares = 100.0 * np.sqrt(np.maximum(e2 - v2, 0.0) / d2)
         ratio = float(np.max(e2 / v2))
     std = float(np.mean(np.sqrt(np.asarray(noise_var, float))))
-    return Unexplained(fit, allowed, share, ratio, std, float(np.mean(np.sqrt(d2 / n))))
+    return Unexplained(
+        float(np.mean(fits)),
+        allowed,
+        float(np.mean(shares)),
+        ratio,
+        std,
+        float(np.mean(np.sqrt(d2 / n))),
+        fits=tuple(float(x) for x in fits),
+        shares=tuple(float(x) for x in shares),
+    )
 
 
 def with_distortion(left: Unexplained, fitted_var: ArrayLike, rest_var: ArrayLike) -> Unexplained:
@@ -175,30 +188,39 @@ def with_distortion(left: Unexplained, fitted_var: ArrayLike, rest_var: ArrayLik
     Where the LPM's noise level holds the distortion (random r), ``left`` reads the
     distortion as noise. The residual's higher-order correlations fit a part of it,
     ``fitted_var`` against the rest ``rest_var`` (per sample and output, (n_y,) or a
-    scalar, in the output error's units; only their ratio is used): what the regressors do
-    not span stays in the rest, so the ratio is at least ``1 + fitted / rest`` on the
-    output where that is largest, and the share of y left beyond the noise at least the
-    distortion's power fraction of the residual's, pooled over outputs: ``(100 - fit)
-    sqrt(Σ fitted / Σ (fitted + rest))`` per cent of y's rms.
+    scalar, in the output error's units; only their ratio per output is used): what the
+    regressors do not span stays in the rest, so the ratio is at least ``1 + fitted /
+    rest`` on the output where that is largest, and each output's share of y left beyond
+    the noise at least the distortion's power fraction of its residual, ``(100 - fit)
+    sqrt(fitted / (fitted + rest))`` per cent of its rms; the share is their mean, as
+    :func:`unexplained`'s.
     """
     f = np.maximum(np.atleast_1d(np.asarray(fitted_var, float)), 0.0)
     r = np.maximum(np.atleast_1d(np.asarray(rest_var, float)), 1e-300)
-    ratio = max(left.ratio, 1.0 + float(np.max(f / r)))
-    pooled = float(f.sum() / (f.sum() + r.sum()))
-    share = max(left.share, (100.0 - left.fit) * math.sqrt(pooled))
-    return replace(left, ratio=ratio, share=share, distorted=True)
+    ratio = max(1.0 + float(np.max(f / r)), left.ratio)  # a NaN level: the bound alone
+    fits = np.asarray(left.fits if len(left.fits) == f.size else [left.fit] * f.size)
+    shares = np.asarray(left.shares if len(left.shares) == f.size else [left.share] * f.size)
+    least = (100.0 - fits) * np.sqrt(f / (f + r))
+    per_output = np.maximum(shares, least)
+    return replace(
+        left,
+        ratio=ratio,
+        share=float(np.mean(per_output)),
+        distorted=True,
+        shares=tuple(float(x) for x in per_output),
+    )
 
 
 def loop_shaped(var: ArrayLike, model: Model, n_samples: int) -> FloatArray:
     """The variance in y of white output noise of variance ``var``, as the loop shapes it.
 
-    ``var`` (n_y,) or a scalar, per output; returns (n_y,): each output's ``var`` times
-    the mean of that output's loop power gain over the spectrum
-    (:func:`~.noise.loop_noise_gain`; 1 in open loop).
+    ``var`` (n_y,) or a scalar, per output; returns (n_y,): each output's mean over the
+    spectrum of ``sum_j |T̃_ij|² var_j`` (:func:`~.noise.loop_noise_gain`; ``var`` in open
+    loop). A coupled loop carries each output's noise into the others.
     """
     from .noise import loop_noise_gain
 
-    g = loop_noise_gain(model, n_samples - n_samples % model.ratio)  # (N//2+1, n_y)
+    v = np.broadcast_to(np.asarray(var, float), (model.n_y,))
+    g = loop_noise_gain(model, n_samples - n_samples % model.ratio, v)  # (N//2+1, n_y)
     n = 2 * (g.shape[0] - 1)
-    mean_gain = (2.0 * g.sum(axis=0) - g[0] - g[-1]) / max(n, 1)
-    return np.asarray(np.asarray(var, float) * mean_gain, float)
+    return np.asarray((2.0 * g.sum(axis=0) - g[0] - g[-1]) / max(n, 1), float)
