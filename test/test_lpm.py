@@ -66,7 +66,9 @@ def test_scaling_the_input_scales_the_estimate_inversely():
 
 
 def test_too_few_degrees_of_freedom_is_a_clear_error():
-    with pytest.raises(ConfigError, match=r"must exceed n_out = 6 .* use n >= 9"):
+    with pytest.raises(
+        ConfigError, match=r"must exceed n_out = 6 .* use n >= 9 or a lower degree"
+    ):
         lpm(np.ones((40, 3)), np.ones((40, 6)), n=8, degree=2)
 
 

@@ -146,7 +146,7 @@ def test_the_live_estimate_reads_a_setpoint_window_and_refuses_a_contradicting_p
     P = paper_model.plant_frf(sim.n_samples)[1:]
     err = np.abs(ident.plant.response - P) / np.abs(P)
     assert np.median(err[~ident.undetermined]) < 1e-4  # the LPM's bias at 30 s: about 4e-6
-    with pytest.raises(ConfigError, match="injection says injection plant_input"):
+    with pytest.raises(ConfigError, match="; injection says plant_input"):
         estimate(window, IdentConfig(fs_high=240.0, ratio=3, n=8, injection="plant_input"))
     with pytest.raises(ConfigError, match="F = 3, not 4"):
         estimate(window, IdentConfig(fs_high=240.0, ratio=4, n=12))

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError, DataError, DataFieldError
+from ..errors import DataError, DataFieldError, FieldError
 from ..numerics.arrays import FloatArray
 from ..numerics.excitation.bla import BLA, LINE_PFG_SOURCE, best_linear_approximation
 from ..numerics.excitation.schedule import labelled_period, realizations_of
@@ -138,11 +138,15 @@ def cut_by_count(
     M, n = r.shape
     skip = transient * period
     if n % period:
-        raise ConfigError(f"period = {period} does not divide the {n} samples of each realization")
+        raise FieldError(
+            f"{{period}} = {period} does not divide the {n} samples of each realization",
+            "period",
+        )
     if n - skip < period:
-        raise ConfigError(
+        raise FieldError(
             f"{n // period} period(s) per realization, {transient} dropped as transient "
-            "(transient periods): nothing left"
+            "({transient_periods}): nothing left",
+            "transient_periods",
         )
     _enough(M, (n - skip) // period, period, transient, "sample counts")
     return Periods(r[:, skip:], u[:, skip:], y[:, skip:], period, "count", M * skip)

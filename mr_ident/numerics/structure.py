@@ -381,7 +381,9 @@ def settle_structure(
         "injection",
         found.injection,
         injections,
-        lambda who, v: f"{found.describe()}; {who} says injection {v}",
+        lambda who, v: (  # "the model says injection ...", "{injection} says ..."
+            f"{found.describe()}; {who} says {'' if 'injection' in who else 'injection '}{v}"
+        ),
     )
     if injection is None:
         injection = PLANT_INPUT

@@ -9,7 +9,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ...errors import ConfigError, DataError, FieldError
+from ...errors import ConfigError, DataError, DataFieldError, FieldError
 from ...numerics.identify import min_samples
 from ...numerics.missing_r import recover_r
 from ...numerics.signals import LoopData
@@ -112,9 +112,10 @@ def check_record(model: Model, rec: LoopData, *, n: int = 8, what: str = "data")
         )
     if rec.period is not None:
         if rec.period < 2 or rec.n_samples % rec.period or rec.n_samples // rec.period < 4:
-            raise DataError(
-                f"{what}: period {rec.period} must divide N = {rec.n_samples} into at least "
-                f"4 periods (the first is dropped as transient)"
+            raise DataFieldError(
+                f"{what}: {{period}} {rec.period} must divide N = {rec.n_samples} into at "
+                "least 4 periods (the first is dropped as transient)",
+                "period",
             )
         return
     need = min_record(n, model.ratio)

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ...errors import ConfigError, DataError, DimensionError
+from ...errors import ConfigError, DataError, DimensionError, FieldError
 from ..arrays import ComplexArray, readonly
 from ..budget import chunk_bins
 from ..threads import resolve_workers, thread_map
@@ -170,10 +170,12 @@ def check_lpm_options(n: int, degree: int, n_in: int, n_out: int) -> int:
     q = dof(n, degree, n_in)
     if q <= n_out:
         need = smallest_n(degree, n_in, n_out)
-        raise ConfigError(
+        raise FieldError(
             f"LPM degrees of freedom: 2n+1 - (R+1)(n_in+1) = {2 * n + 1} - "
             f"{degree + 1}*{n_in + 1} = {q} must exceed n_out = {n_out} "
-            f"(n={n}, R={degree}, n_in={n_in}); use n >= {need} or a lower degree"
+            f"(n={n}, R={degree}, n_in={n_in}); use {{n}} >= {need} or a lower {{degree}}",
+            "n",
+            "degree",
         )
     return q
 
