@@ -151,8 +151,8 @@ class Objective:
     (:class:`~mr_ident.numerics.systems.window_response.LoopSpectrum`): it differs from a
     simulation by a free response alone, so after the projection the two residuals agree
     (to rounding; test/test_window_response.py against the loop simulated sample by
-    sample), at a fifth less time per evaluation and with the settling samples (up to a
-    quarter of a record) put to use. Every mode takes part, fast and deadbeat ones too:
+    sample), cheaper than a simulation per evaluation and with the settling samples (up
+    to a quarter of a record) put to use. Every mode takes part, fast and deadbeat ones too:
     the DFT of a finite record of
     the noise as the loop shapes it is ``S_o(k) V(k)`` plus a leakage term from the
     loop's state at the record's ends, a smooth sum over the loop's modes that the LPM
