@@ -89,6 +89,22 @@ def test_no_estimate_without_a_controller():
     assert controller_frf(rec, replace(m, controller=None), None, n=N_WINDOW) is None
 
 
+def test_a_run_past_the_records_start_keeps_the_delays_phase():
+    """The machine's control delay one period longer: on the run 700..2399 (a burst of
+    y lost before it) the estimate, its phase turned by the model's timing, is the fitted
+    controller's, whose delay turns it by a period more (measured 6.6e-6 of |K|; claimed
+    1e-4, the bound of the shorter run below)."""
+    m = _model()
+    true = _machine(m, "delay")
+    rec = simulate(true, duration=30.0, rng=np.random.default_rng(1))
+    y = rec.y.copy()
+    y[2000:2100] = np.nan
+    c = controller_frf(replace(rec, y=y), m, true, n=N_WINDOW)
+    assert c is not None and c.available and c.fit is not None and c.span == (700, 2400)
+    scale = np.max(np.abs(c.fit.response))
+    assert np.max(np.abs(c.identified.response - c.fit.response)) < 1e-4 * scale
+
+
 def test_with_missing_samples_the_longest_complete_run_gives_the_machines_controller():
     """A burst of lost y, one lost y sample and two of u (their hold gives them back): the
     estimate is made on the longest run of complete periods and is the machine's
