@@ -108,16 +108,15 @@ class Correlation:
         The fitted part's power over the rest, dB above it, on the output where it is largest.
     samples : int
         Samples tested (per output; the ones left out for missing samples not counted).
-    rest_var : float
-        The output error's variance per sample with the fitted part taken out: an upper
-        bound of the output noise's where the distortion is found (the LPM's noise level
-        holds a random excitation's distortion, so :mod:`.unexplained` takes the smaller,
-        shaped by the loop as the noise in y is: :func:`~.unexplained.loop_shaped`).
-    fitted_var : float
-        The fitted part's variance per sample: a lower bound of the distortion's (what
-        the regressors do not span of it stays in the rest).
-    rest_vars, fitted_vars : tuple of float
-        The same per output, (n_y,): the bound of each output's noise.
+    rest_vars : tuple of float
+        Per output, (n_y,): the output error's variance per sample with the fitted part
+        taken out, an upper bound of that output's noise where the distortion is found
+        (the LPM's noise level holds a random excitation's distortion, so
+        :mod:`.unexplained` takes the smaller, shaped by the loop as the noise in y is:
+        :func:`~.unexplained.loop_shaped`).
+    fitted_vars : tuple of float
+        Per output, (n_y,): the fitted part's variance per sample, a lower bound of the
+        distortion's (what the regressors do not span of it stays in the rest).
     """
 
     statistic: float
@@ -130,8 +129,6 @@ class Correlation:
     output_p: float
     level_db: float
     samples: int
-    rest_var: float = math.nan
-    fitted_var: float = math.nan
     rest_vars: tuple[float, ...] = ()
     fitted_vars: tuple[float, ...] = ()
     names: tuple[str, ...] = tuple(f"{side}_{kind}" for side, kind in COLUMNS)
@@ -325,7 +322,6 @@ def correlation(
     b = outs[best]
     stat = float(b.beta @ np.linalg.solve(b.V, b.beta)) if ps[best] < 1.0 else 0.0
     sub = [bonferroni(min(_p(f.beta, f.V, g) for f in outs)) for g in groups]
-    fitted, rest = sum(f.fitted for f in outs), sum(f.rest for f in outs)
     count = sum(f.samples for f in outs)
     sd = np.sqrt(np.maximum(np.diag(b.V), 1e-300))
     out_names = names if n_y == 1 else [f"{x}@y{best}" for x in names]
@@ -340,8 +336,6 @@ def correlation(
         output_p=sub[3],
         level_db=10.0 * math.log10(1.0 + max(f.fitted / max(f.rest, 1e-300) for f in outs)),
         samples=count // n_y,
-        rest_var=rest / count,
-        fitted_var=fitted / count,
         rest_vars=tuple(f.rest / max(f.samples, 1) for f in outs),
         fitted_vars=tuple(f.fitted / max(f.samples, 1) for f in outs),
         names=tuple(out_names),
